@@ -1,0 +1,313 @@
+"""Discretizations: the link between a parametric surface and finite element DOF vectors.
+
+The solver talks to a discretization only through :class:`Discretization`; the bicubic Hermite
+implementation is :class:`HermiteDiscretization`. (A quadratic B-spline discretization is planned
+and will implement the same interface.)
+
+Two DOF layouts appear:
+
+* *open*: the dolfinx function space on the open parameter grid, blocked with block size 3
+  (``array[3 * block + component]``), local = owned + ghost blocks. Forms are assembled here.
+* *closed*: the unknowns the solver iterates on. On a surface without periodic directions it is
+  the open layout itself; on a closed surface each seam node is kept once (paper §4.2) and the
+  open vector is ``P @ closed`` with the 0/1 prolongation ``P`` whose nonzeros are
+  ``(open block, closed block)`` = (:attr:`open_blocks`, :attr:`closed_of_open`).
+
+This module is the *only* place that converts between parametric derivatives and the element's
+reference-cell DOFs (see :meth:`HermiteDiscretization.reference_scale`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import dolfinx
+import dolfinx.fem
+import dolfinx.mesh
+import numpy as np
+from mpi4py import MPI
+
+from bhem_hpc.element import DOFS_PER_VERTEX, create_hermite_element, hermite_ufl_element
+from bhem_hpc.surface import KIND_NAMES, HermiteSurface, ParameterGrid
+
+GDIM = 3
+
+
+class DiscretizationError(ValueError):
+    """The mesh or DOF layout cannot represent the surface (non-uniform grid, bad node, ...)."""
+
+
+@dataclass(frozen=True)
+class ConstrainedDofs:
+    """Owned closed-layout DOFs selected by node, kind and component.
+
+    ``rows`` are global closed indices (``3 * closed_block + component``) owned by this rank,
+    ``local`` the matching local offsets into an owned closed array, and ``values`` their
+    reference-DOF values for a given surface; all of shape ``(k,)``.
+    """
+
+    rows: np.ndarray
+    local: np.ndarray
+    node: np.ndarray  # (k, 2) distinct-node indices
+    kind: np.ndarray  # (k,) parametric kind
+    component: np.ndarray  # (k,)
+
+
+class Discretization(Protocol):
+    """What the solver needs from a discretization."""
+
+    comm: MPI.Comm
+    grid: ParameterGrid
+    mesh: dolfinx.mesh.Mesh
+    function_space: dolfinx.fem.FunctionSpace
+
+    @property
+    def is_periodic(self) -> bool: ...
+
+    def surface_to_open(self, surface: HermiteSurface) -> np.ndarray: ...
+
+    def surface_to_closed(self, surface: HermiteSurface) -> np.ndarray: ...
+
+    def closed_to_surface(self, closed: np.ndarray) -> HermiteSurface: ...
+
+    def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs: ...
+
+    def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class HermiteDiscretization:
+    """Bicubic Hermite elements on the open parameter grid of a surface.
+
+    Args:
+        grid: the parameter grid (from the surface).
+        comm: MPI communicator.
+
+    Raises:
+        DiscretizationError: if the cells do not share one axis-aligned Jacobian, which C1
+            continuity with reference-cell derivative DOFs requires.
+    """
+
+    def __init__(self, grid: ParameterGrid, comm: MPI.Comm = MPI.COMM_WORLD):
+        self.comm = comm
+        self.grid = grid
+        self.mesh = dolfinx.mesh.create_rectangle(
+            comm,
+            [np.array([grid.xi1_range[0], grid.xi2_range[0]]), np.array([grid.xi1_range[1], grid.xi2_range[1]])],
+            [grid.n1, grid.n2],
+            dolfinx.mesh.CellType.quadrilateral,
+        )
+        self.element = create_hermite_element()
+        self.function_space = dolfinx.fem.FunctionSpace(self.mesh, hermite_ufl_element(GDIM))
+        self.jacobian = self._shared_jacobian()
+        self._scale = self.reference_scale(self.jacobian)
+        self._build_block_maps()
+
+    # -- geometry checks ----------------------------------------------------------------------
+    def _cell_vertex_coordinates(self) -> np.ndarray:
+        """Coordinates of the reference vertices of every local cell, shape ``(cells, 4, 2)``."""
+        geometry = self.mesh.geometry
+        num_cells = self.mesh.topology.index_map(2).size_local + self.mesh.topology.index_map(2).num_ghosts
+        nodes = np.array([geometry.dofmap.links(c) for c in range(num_cells)], dtype=np.int64)
+        return geometry.x[nodes][:, :, :2]
+
+    def _shared_jacobian(self) -> np.ndarray:
+        """The one Jacobian ``J[b, a] = dxi_b / dX_a`` of all cells; raise if cells differ."""
+        v = self._cell_vertex_coordinates()
+        self._cell_vertices = v
+        jac = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=2)  # (cells, b, a)
+        parallelogram = v[:, 3] - v[:, 1] - v[:, 2] + v[:, 0]
+        h = np.array([self.grid.h1, self.grid.h2])
+        tol = 1e-10 * h.max()
+        if np.any(np.abs(parallelogram) > tol):
+            c = int(np.argmax(np.abs(parallelogram).max(axis=1)))
+            raise DiscretizationError(f"cell {c} is not a parallelogram (vertices {v[c].tolist()}): grid is not uniform")
+        reference = self.comm.bcast(jac[0] if len(jac) and self.comm.rank == 0 else None, root=0)
+        if reference is None:
+            raise DiscretizationError("rank 0 holds no cells: use fewer ranks or more patches")
+        mismatch = np.abs(jac - reference).max(axis=(1, 2)) if len(jac) else np.zeros(0)
+        bad = np.flatnonzero(mismatch > tol)
+        first_bad = self.comm.allreduce(int(bad[0]) if len(bad) else -1, op=MPI.MAX)
+        if first_bad >= 0:
+            detail = f"cell {bad[0]} has J = {jac[bad[0]].tolist()}" if len(bad) else "on another rank"
+            raise DiscretizationError(
+                f"cells do not share one Jacobian ({detail}, cell 0 of rank 0 has {reference.tolist()}): "
+                "the Hermite DOFs are reference-cell derivatives and need a uniform, consistently "
+                "ordered grid"
+            )
+        axis_aligned = abs(reference[0, 0] * reference[0, 1]) <= tol**2 and abs(reference[1, 0] * reference[1, 1]) <= tol**2
+        if not axis_aligned or abs(np.linalg.det(reference)) < tol**2:
+            raise DiscretizationError(f"cell Jacobian {reference.tolist()} is not axis aligned")
+        return reference
+
+    @staticmethod
+    def reference_scale(jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """How reference DOFs relate to parametric derivatives for an axis-aligned Jacobian.
+
+        Reference DOF ``k`` (value, d/dX, d/dY, d2/dXdY) equals ``scale[k]`` times the
+        parametric nodal datum of kind ``kind[k]`` (x, d1, d2, d12).
+
+        Returns:
+            ``(kind, scale)``, each of shape ``(4,)``.
+        """
+        j = jacobian
+        if abs(j[0, 0]) > abs(j[1, 0]):  # reference X runs along xi1
+            kind = np.array([0, 1, 2, 3])
+            scale = np.array([1.0, j[0, 0], j[1, 1], j[0, 0] * j[1, 1]])
+        else:  # reference X runs along xi2
+            kind = np.array([0, 2, 1, 3])
+            scale = np.array([1.0, j[1, 0], j[0, 1], j[1, 0] * j[0, 1]])
+        return kind, scale
+
+    # -- block maps ------------------------------------------------------------------------------
+    def _build_block_maps(self) -> None:
+        grid = self.grid
+        index_map = self.function_space.dofmap.index_map
+        self.num_owned_blocks = index_map.size_local
+        num_blocks = index_map.size_local + index_map.num_ghosts
+        kind_of_ref, _ = self._scale
+        node_of_block = np.full((num_blocks, 2), -1, dtype=np.int64)
+        ref_of_block = np.full(num_blocks, -1, dtype=np.int64)
+        h = np.array([grid.h1, grid.h2])
+        origin = np.array([grid.xi1_range[0], grid.xi2_range[0]])
+        vertex_nodes = np.rint((self._cell_vertices - origin) / h).astype(np.int64)  # (cells, 4, 2)
+        dofmap = self.function_space.dofmap
+        cells = np.arange(len(vertex_nodes))
+        cell_dofs = np.array([dofmap.cell_dofs(c) for c in cells], dtype=np.int64).reshape(len(cells), 4, DOFS_PER_VERTEX)
+        node_of_block[cell_dofs.ravel()] = np.repeat(vertex_nodes.reshape(-1, 2), DOFS_PER_VERTEX, axis=0)
+        ref_of_block[cell_dofs.ravel()] = np.tile(np.arange(DOFS_PER_VERTEX), len(cells) * 4)
+        if np.any(ref_of_block < 0):
+            raise DiscretizationError("some DOF blocks belong to no local cell")
+        self.open_node = node_of_block  # (blocks, 2) open-grid node of each local block
+        self.block_reference_kind = ref_of_block
+        self.block_kind = kind_of_ref[ref_of_block]  # parametric kind of each local block
+        self.block_scale = self._scale[1][ref_of_block]
+        self.distinct_node = np.stack(grid.wrap_node(node_of_block[:, 0], node_of_block[:, 1]), axis=1)
+        self._cell_dofs = cell_dofs.reshape(len(cells), 16)
+        self._cell_of_patch = {
+            (int(n[0]), int(n[1])): c for c, n in enumerate(vertex_nodes.min(axis=1)[: self.mesh.topology.index_map(2).size_local])
+        }
+
+        # Closed numbering: one block per (distinct node, kind); owned where the open block with
+        # the unwrapped node (the seam's first copy) is owned.
+        m1, m2 = grid.node_shape
+        key = (self.distinct_node[:, 0] * m2 + self.distinct_node[:, 1]) * 4 + self.block_kind
+        if not self.is_periodic:
+            self.closed_of_open = np.asarray(index_map.local_to_global(np.arange(num_blocks, dtype=np.int32)), dtype=np.int64)
+            self.closed_offset = index_map.local_range[0]
+            self.num_owned_closed = self.num_owned_blocks
+            owned_master = np.arange(self.num_owned_blocks)
+        else:
+            is_master = np.all(self.open_node == self.distinct_node, axis=1)
+            owned_master = np.flatnonzero(is_master[: self.num_owned_blocks])
+            self.num_owned_closed = len(owned_master)
+            self.closed_offset = self.comm.exscan(self.num_owned_closed) or 0
+            lookup = np.full(m1 * m2 * 4, -1, dtype=np.int64)
+            for keys, first in self.comm.allgather((key[owned_master], self.closed_offset)):
+                lookup[keys] = first + np.arange(len(keys))
+            self.closed_of_open = lookup[key]
+            if np.any(self.closed_of_open < 0):
+                raise DiscretizationError("seam identification failed: a closed DOF has no owner")
+        self.num_closed = self.comm.allreduce(self.num_owned_closed)
+        # Owned closed blocks in closed order: (local open block that represents it).
+        order = np.argsort(self.closed_of_open[owned_master])
+        self.owned_closed_open_block = owned_master[order]
+
+    # -- interface -----------------------------------------------------------------------------
+    @property
+    def is_periodic(self) -> bool:
+        return self.grid.periodic1 or self.grid.periodic2
+
+    @property
+    def open_blocks(self) -> np.ndarray:
+        """Owned open blocks (rows of P)."""
+        return np.arange(self.num_owned_blocks)
+
+    def _values(self, surface: HermiteSurface, blocks: np.ndarray) -> np.ndarray:
+        if surface.grid != self.grid:
+            raise DiscretizationError(f"surface grid {surface.grid} differs from the discretization's {self.grid}")
+        node = self.distinct_node[blocks]
+        values = surface.nodal[node[:, 0], node[:, 1], self.block_kind[blocks], :]
+        return values * self.block_scale[blocks, None]
+
+    def surface_to_open(self, surface: HermiteSurface) -> np.ndarray:
+        """Open-layout DOF array (owned + ghost blocks), shape ``(3 * blocks,)``."""
+        return self._values(surface, np.arange(len(self.block_kind))).ravel()
+
+    def surface_to_closed(self, surface: HermiteSurface) -> np.ndarray:
+        """Owned part of the closed-layout DOF vector, shape ``(3 * num_owned_closed,)``."""
+        return self._values(surface, self.owned_closed_open_block).ravel()
+
+    def closed_to_surface(self, closed: np.ndarray) -> HermiteSurface:
+        """Collective: assemble the full surface from every rank's owned closed DOFs."""
+        blocks = self.owned_closed_open_block
+        values = np.asarray(closed, dtype=float).reshape(-1, 3) / self.block_scale[blocks, None]
+        node = self.distinct_node[blocks]
+        nodal = np.full((*self.grid.node_shape, 4, 3), np.nan)
+        for n, k, v in self.comm.allgather((node, self.block_kind[blocks], values)):
+            nodal[n[:, 0], n[:, 1], k] = v
+        return HermiteSurface(self.grid, nodal)
+
+    def open_to_surface(self, open_array: np.ndarray) -> HermiteSurface:
+        """Collective: the surface of an open-layout array (owned blocks are read)."""
+        owned = np.asarray(open_array).reshape(-1, 3)[self.owned_closed_open_block].ravel()
+        return self.closed_to_surface(owned)
+
+    def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs:
+        """Owned closed DOFs of the given distinct nodes ``(k, 2)``, parametric kinds and components."""
+        nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 2)
+        m1, m2 = self.grid.node_shape
+        outside = (nodes[:, 0] < 0) | (nodes[:, 0] >= m1) | (nodes[:, 1] < 0) | (nodes[:, 1] >= m2)
+        if np.any(outside):
+            raise DiscretizationError(f"node {tuple(nodes[outside][0])} does not exist: the grid has {m1} x {m2} nodes")
+        for k in kinds:
+            if k not in range(4):
+                raise DiscretizationError(f"DOF kind {k!r} does not exist (0..3 = {KIND_NAMES})")
+        for c in components:
+            if c not in range(3):
+                raise DiscretizationError(f"component {c!r} does not exist (0, 1, 2 = x, y, z)")
+        wanted = np.zeros((m1, m2, 4), dtype=bool)
+        for k in kinds:
+            wanted[nodes[:, 0], nodes[:, 1], k] = True
+        blocks = self.owned_closed_open_block
+        node = self.distinct_node[blocks]
+        hit = np.flatnonzero(wanted[node[:, 0], node[:, 1], self.block_kind[blocks]])
+        comps = np.asarray(components, dtype=np.int64)
+        local = (3 * hit[:, None] + comps[None, :]).ravel()
+        return ConstrainedDofs(
+            rows=self.closed_offset * 3 + local,
+            local=local,
+            node=np.repeat(node[hit], len(comps), axis=0),
+            kind=np.repeat(self.block_kind[blocks][hit], len(comps)),
+            component=np.tile(comps, len(hit)),
+        )
+
+    def dof_values(self, surface: HermiteSurface, dofs: ConstrainedDofs) -> np.ndarray:
+        """Reference-DOF values of ``surface`` at the selected DOFs, shape ``(k,)``."""
+        return self.surface_to_closed(surface)[dofs.local]
+
+    def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """The 16 basis values at a parameter point, in the cell that owns it on this rank.
+
+        Returns:
+            ``(blocks, values)`` of shape ``(16,)`` each (local open blocks); empty arrays on
+            ranks that do not own the containing cell.
+        """
+        p1, p2, _, _ = self.grid.locate(np.array(xi1), np.array(xi2))
+        cell = self._cell_of_patch.get((int(p1), int(p2)))
+        if cell is None:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        origin = self._cell_vertices[cell, 0]
+        xi = np.array([float(xi1), float(xi2)])
+        if self.grid.periodic1 or self.grid.periodic2:  # bring a wrapped parameter into this cell
+            period = np.array(
+                [
+                    self.grid.xi1_range[1] - self.grid.xi1_range[0] if self.grid.periodic1 else np.inf,
+                    self.grid.xi2_range[1] - self.grid.xi2_range[0] if self.grid.periodic2 else np.inf,
+                ]
+            )
+            finite = np.isfinite(period)
+            xi[finite] = origin[finite] + np.mod(xi[finite] - origin[finite], period[finite])
+        reference = np.linalg.solve(self.jacobian, xi - origin)
+        values = self.element.tabulate(0, np.clip(reference, 0.0, 1.0).reshape(1, 2))[0, 0, :, 0]
+        return self._cell_dofs[cell], values

@@ -1,0 +1,516 @@
+"""Parametric bicubic Hermite surfaces (numpy only; no dolfinx, PETSc or MPI).
+
+A :class:`HermiteSurface` stores nodal data on a uniform ``n1 x n2`` grid of patches over a
+rectangle of parameter space (paper §4.1, Fig. 6). Each node carries four vectors in R^3,
+the *parametric* derivatives
+
+    kind 0: x,   kind 1: dx/dxi1,   kind 2: dx/dxi2,   kind 3: d2x/dxi1 dxi2.
+
+The nodal array has shape ``(m1, m2, 4, 3)`` indexed ``[i1, i2, kind, component]`` where
+``m_a = n_a`` if the surface is periodic (closed) in xi_a and ``n_a + 1`` otherwise: a closed
+direction stores each seam node once (paper §4.2).
+
+This module is the single source of geometry for the solver's initial/rest state, for output,
+for collision and for rendering. Conversion to the finite element's reference-cell DOFs happens
+in :mod:`bhem_hpc.discretization` and nowhere else.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bhem_hpc import hermite
+
+KIND_NAMES = ("x", "d1", "d2", "d12")
+FILE_FORMAT = "bhem-hermite-surface"
+FILE_VERSION = 1
+
+
+class SurfaceError(ValueError):
+    """Invalid surface data (bad grid, non-finite or degenerate geometry, bad file)."""
+
+
+@dataclass(frozen=True)
+class ParameterGrid:
+    """A uniform grid of ``n1 x n2`` patches over ``[xi1_min, xi1_max] x [xi2_min, xi2_max]``."""
+
+    n1: int
+    n2: int
+    xi1_range: tuple[float, float]
+    xi2_range: tuple[float, float]
+    periodic1: bool = False
+    periodic2: bool = False
+
+    def __post_init__(self) -> None:
+        for name, n in (("n1", self.n1), ("n2", self.n2)):
+            if not isinstance(n, int | np.integer) or n < 1:
+                raise SurfaceError(f"ParameterGrid.{name} must be a positive integer, got {n!r}")
+        for name, (lo, hi) in (("xi1_range", self.xi1_range), ("xi2_range", self.xi2_range)):
+            if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
+                raise SurfaceError(f"ParameterGrid.{name} must be finite with max > min, got {(lo, hi)!r}")
+        for name, periodic, n in (("periodic1", self.periodic1, self.n1), ("periodic2", self.periodic2, self.n2)):
+            if periodic and n < 3:
+                raise SurfaceError(f"ParameterGrid.{name}=True needs at least 3 patches in that direction, got {n}")
+
+    @property
+    def h1(self) -> float:
+        return (self.xi1_range[1] - self.xi1_range[0]) / self.n1
+
+    @property
+    def h2(self) -> float:
+        return (self.xi2_range[1] - self.xi2_range[0]) / self.n2
+
+    @property
+    def node_shape(self) -> tuple[int, int]:
+        """Number of distinct nodes ``(m1, m2)``; a closed direction stores seam nodes once."""
+        return (self.n1 + (0 if self.periodic1 else 1), self.n2 + (0 if self.periodic2 else 1))
+
+    @property
+    def num_nodes(self) -> int:
+        m1, m2 = self.node_shape
+        return m1 * m2
+
+    def node_parameters(self) -> tuple[np.ndarray, np.ndarray]:
+        """Parameters of the distinct nodes, two arrays of shape ``(m1, m2)``."""
+        m1, m2 = self.node_shape
+        xi1 = self.xi1_range[0] + self.h1 * np.arange(m1)
+        xi2 = self.xi2_range[0] + self.h2 * np.arange(m2)
+        return np.meshgrid(xi1, xi2, indexing="ij")
+
+    def wrap_node(self, i1: np.ndarray, i2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Map open-grid node indices (``0..n_a``) to distinct node indices (seam nodes wrap)."""
+        i1 = np.asarray(i1)
+        i2 = np.asarray(i2)
+        if self.periodic1:
+            i1 = np.mod(i1, self.n1)
+        if self.periodic2:
+            i2 = np.mod(i2, self.n2)
+        return i1, i2
+
+    def locate(self, xi1: np.ndarray, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Patch indices and local coordinates of parameters.
+
+        Points on a shared edge go to the patch with the larger index except on the domain's
+        upper boundary. Periodic directions wrap; others must lie inside the domain (within
+        1e-12 of the patch width).
+
+        Returns:
+            ``(p1, p2, theta1, theta2)``, each of the broadcast shape of ``xi1`` and ``xi2``.
+        """
+        xi1, xi2 = np.broadcast_arrays(np.asarray(xi1, dtype=float), np.asarray(xi2, dtype=float))
+        out = []
+        for xi, (lo, hi), n, h, periodic, name in (
+            (xi1, self.xi1_range, self.n1, self.h1, self.periodic1, "xi1"),
+            (xi2, self.xi2_range, self.n2, self.h2, self.periodic2, "xi2"),
+        ):
+            if not np.all(np.isfinite(xi)):
+                raise SurfaceError(f"parameter {name} contains NaN/Inf")
+            s = (xi - lo) / h
+            if periodic:
+                s = np.mod(s, n)
+            elif np.any(s < -1e-12) or np.any(s > n + 1e-12):
+                bad = xi[(s < -1e-12) | (s > n + 1e-12)].ravel()[0]
+                raise SurfaceError(f"parameter {name}={bad!r} lies outside [{lo}, {hi}]")
+            p = np.clip(np.floor(s).astype(np.int64), 0, n - 1)
+            out.append((p, np.clip(s - p, 0.0, 1.0)))
+        return out[0][0], out[1][0], out[0][1], out[1][1]
+
+
+@dataclass(frozen=True)
+class SurfacePoint:
+    """Geometry at a set of parameters; each array has shape ``S + (3,)``."""
+
+    x: np.ndarray
+    a1: np.ndarray
+    a2: np.ndarray
+    a11: np.ndarray
+    a12: np.ndarray
+    a22: np.ndarray
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.cross(self.a1, self.a2)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+class HermiteSurface:
+    """A C1 surface made of bicubic Hermite patches.
+
+    Args:
+        grid: the parameter grid.
+        nodal: array of shape ``(m1, m2, 4, 3)`` indexed ``[i1, i2, kind, component]``
+            (see module docstring); copied.
+    """
+
+    def __init__(self, grid: ParameterGrid, nodal: np.ndarray):
+        nodal = np.array(nodal, dtype=float)
+        expected = (*grid.node_shape, 4, 3)
+        if nodal.shape != expected:
+            raise SurfaceError(f"nodal data has shape {nodal.shape}, expected {expected} for {grid}")
+        if not np.all(np.isfinite(nodal)):
+            where = np.argwhere(~np.isfinite(nodal))[0]
+            raise SurfaceError(
+                f"nodal data contains NaN/Inf: value {nodal[tuple(where)]!r} at node ({where[0]}, {where[1]}), "
+                f"kind {KIND_NAMES[where[2]]}, component {where[3]}"
+            )
+        self.grid = grid
+        self.nodal = nodal
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def patch_coefficients(self, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+        """Hermite coefficients of patches in local (theta) units.
+
+        Returns:
+            Array of shape ``S + (4, 4, 3)`` indexed ``[..., a, b, component]`` where ``a`` and
+            ``b`` run over the one-parameter local DOFs (v0, t0, v1, t1) in xi1 and xi2.
+        """
+        g = self.grid
+        p1 = np.asarray(p1)
+        p2 = np.asarray(p2)
+        coeffs = np.empty(p1.shape + (4, 4, 3))
+        for c1 in (0, 1):
+            for c2 in (0, 1):
+                i1, i2 = g.wrap_node(p1 + c1, p2 + c2)
+                node = self.nodal[i1, i2]  # S + (4, 3)
+                coeffs[..., 2 * c1, 2 * c2, :] = node[..., 0, :]
+                coeffs[..., 2 * c1 + 1, 2 * c2, :] = g.h1 * node[..., 1, :]
+                coeffs[..., 2 * c1, 2 * c2 + 1, :] = g.h2 * node[..., 2, :]
+                coeffs[..., 2 * c1 + 1, 2 * c2 + 1, :] = g.h1 * g.h2 * node[..., 3, :]
+        return coeffs
+
+    def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint:
+        """Position and first and second parametric derivatives at parameters ``(xi1, xi2)``."""
+        g = self.grid
+        p1, p2, t1, t2 = g.locate(xi1, xi2)
+        coeffs = self.patch_coefficients(p1, p2)
+        b1 = [hermite.basis(t1, d) / g.h1**d for d in range(3)]
+        b2 = [hermite.basis(t2, d) / g.h2**d for d in range(3)]
+
+        def contract(d1: int, d2: int) -> np.ndarray:
+            return np.einsum("...a,...b,...abc->...c", b1[d1], b2[d2], coeffs)
+
+        return SurfacePoint(
+            x=contract(0, 0),
+            a1=contract(1, 0),
+            a2=contract(0, 1),
+            a11=contract(2, 0),
+            a12=contract(1, 1),
+            a22=contract(0, 2),
+        )
+
+    def bezier_control_points(self) -> np.ndarray:
+        """Exact Bezier control nets of all patches.
+
+        Returns:
+            Array of shape ``(n1, n2, 4, 4, 3)`` indexed ``[p1, p2, k1, k2, component]``; the
+            patch is ``sum_k1,k2 B3_k1(theta1) B3_k2(theta2) P[k1, k2]``.
+        """
+        g = self.grid
+        p1, p2 = np.meshgrid(np.arange(g.n1), np.arange(g.n2), indexing="ij")
+        coeffs = self.patch_coefficients(p1, p2)
+        c = hermite.HERMITE_TO_BEZIER
+        return np.einsum("ka,lb,...abc->...klc", c, c, coeffs)
+
+    def tessellate(self, density: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Quad mesh sampling every patch on a ``(density+1)^2`` grid (shared edges merged).
+
+        Returns:
+            ``(points, quads, params)``: points ``(P, 3)``, quads ``(Q, 4)`` (counter-clockwise
+            in parameter space), params ``(P, 2)``.
+        """
+        if int(density) < 1:
+            raise SurfaceError(f"tessellation density must be >= 1, got {density!r}")
+        g = self.grid
+        s1 = g.n1 * density + (0 if g.periodic1 else 1)
+        s2 = g.n2 * density + (0 if g.periodic2 else 1)
+        xi1 = g.xi1_range[0] + g.h1 / density * np.arange(s1)
+        xi2 = g.xi2_range[0] + g.h2 / density * np.arange(s2)
+        x1, x2 = np.meshgrid(xi1, xi2, indexing="ij")
+        points = self.evaluate(x1, x2).x.reshape(-1, 3)
+        i, j = np.meshgrid(np.arange(g.n1 * density), np.arange(g.n2 * density), indexing="ij")
+        i, j = i.ravel(), j.ravel()
+
+        def vid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            return np.mod(a, s1) * s2 + np.mod(b, s2)
+
+        quads = np.stack([vid(i, j), vid(i + 1, j), vid(i + 1, j + 1), vid(i, j + 1)], axis=1)
+        return points, quads, np.stack([x1.ravel(), x2.ravel()], axis=1)
+
+    # -- checks --------------------------------------------------------------------------------
+    def check_regular(self, quadrature_points: int = 4, name: str = "surface") -> None:
+        """Raise :class:`SurfaceError` if ``|a1 x a2|`` vanishes at a Gauss point of any patch."""
+        g = self.grid
+        q, _ = hermite.gauss_legendre(quadrature_points)
+        p1, p2, t1, t2 = np.meshgrid(np.arange(g.n1), np.arange(g.n2), q, q, indexing="ij")
+        xi1 = g.xi1_range[0] + (p1 + t1) * g.h1
+        xi2 = g.xi2_range[0] + (p2 + t2) * g.h2
+        pt = self.evaluate(xi1, xi2)
+        area = np.linalg.norm(np.cross(pt.a1, pt.a2), axis=-1)
+        scale = np.linalg.norm(pt.a1, axis=-1) * np.linalg.norm(pt.a2, axis=-1)
+        bad = ~(area > 1e-10 * np.maximum(scale, np.finfo(float).tiny))
+        if np.any(bad):
+            k = tuple(np.argwhere(bad)[0])
+            raise SurfaceError(
+                f"{name} is degenerate: |a1 x a2| = {area[k]:.3e} at quadrature point "
+                f"(xi1, xi2) = ({xi1[k]:.6g}, {xi2[k]:.6g}) of patch ({k[0]}, {k[1]})"
+            )
+
+    # -- transformations -----------------------------------------------------------------------
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> HermiteSurface:
+        """The rigidly (or linearly) moved surface ``x -> R x + t``."""
+        nodal = np.einsum("ij,...j->...i", np.asarray(rotation, float), self.nodal)
+        nodal[:, :, 0, :] += np.asarray(translation, float)
+        return HermiteSurface(self.grid, nodal)
+
+    # -- files ---------------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the surface as a ``.npz`` nodal data file (format in README.md)."""
+        g = self.grid
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(
+            tmp,
+            format=np.array(FILE_FORMAT),
+            version=np.array(FILE_VERSION),
+            patches=np.array([g.n1, g.n2]),
+            xi1_range=np.array(g.xi1_range, float),
+            xi2_range=np.array(g.xi2_range, float),
+            periodic=np.array([g.periodic1, g.periodic2]),
+            nodal=self.nodal,
+        )
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> HermiteSurface:
+        """Read a nodal data file written by :meth:`save`; errors name the file and key."""
+        path = Path(path)
+        try:
+            data = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise SurfaceError(f"{path}: cannot read nodal data file ({exc})") from exc
+        with data:
+            required = ("format", "version", "patches", "xi1_range", "xi2_range", "periodic", "nodal")
+            for key in required:
+                if key not in data.files:
+                    raise SurfaceError(f"{path}: missing key {key!r} (has {sorted(data.files)})")
+            if str(data["format"]) != FILE_FORMAT:
+                raise SurfaceError(f"{path}: key 'format' is {str(data['format'])!r}, expected {FILE_FORMAT!r}")
+            if int(data["version"]) != FILE_VERSION:
+                raise SurfaceError(f"{path}: key 'version' is {int(data['version'])}, expected {FILE_VERSION}")
+            try:
+                n1, n2 = (int(v) for v in data["patches"])
+                grid = ParameterGrid(
+                    n1,
+                    n2,
+                    tuple(float(v) for v in data["xi1_range"]),
+                    tuple(float(v) for v in data["xi2_range"]),
+                    *(bool(v) for v in data["periodic"]),
+                )
+                return cls(grid, data["nodal"])
+            except (SurfaceError, ValueError, TypeError) as exc:
+                raise SurfaceError(f"{path}: {exc}") from exc
+
+
+# ---------------------------------------------------------------------------------------------
+# Constructors
+# ---------------------------------------------------------------------------------------------
+Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def from_callable(
+    position: Field,
+    grid: ParameterGrid,
+    derivatives: tuple[Field, Field, Field] | None = None,
+) -> HermiteSurface:
+    """Interpolate ``x(xi1, xi2)`` at the nodes of ``grid``.
+
+    Args:
+        position: vectorized callable mapping two arrays of shape ``S`` to ``S + (3,)``.
+        derivatives: optional callables for dx/dxi1, dx/dxi2 and d2x/dxi1dxi2 (same signature).
+            When absent they are computed numerically: by complex step if ``position`` accepts
+            complex input, otherwise by Richardson-extrapolated central differences.
+    """
+    xi1, xi2 = grid.node_parameters()
+    nodal = np.empty((*xi1.shape, 4, 3))
+    nodal[:, :, 0] = position(xi1, xi2)
+    if derivatives is not None:
+        for k, f in enumerate(derivatives, start=1):
+            nodal[:, :, k] = f(xi1, xi2)
+    else:
+        scale = (grid.h1, grid.h2)
+        nodal[:, :, 1], nodal[:, :, 2], nodal[:, :, 3] = numerical_derivatives(position, xi1, xi2, scale)
+    return HermiteSurface(grid, nodal)
+
+
+def _richardson(estimate: Callable[[float], np.ndarray], h0: float, levels: int = 7) -> np.ndarray:
+    """Extrapolate an even-in-h difference quotient to h -> 0; pick per entry the best level."""
+    rows = [[estimate(h0)]]
+    best = rows[0][0]
+    best_err = np.full(best.shape, np.inf)
+    for i in range(1, levels):
+        row = [estimate(h0 / 2**i)]
+        factor = 4.0
+        for j in range(1, i + 1):
+            row.append(row[j - 1] + (row[j - 1] - rows[i - 1][j - 1]) / (factor - 1.0))
+            factor *= 4.0
+            err = np.maximum(np.abs(row[j] - row[j - 1]), np.abs(row[j] - rows[i - 1][j - 1]))
+            better = err < best_err
+            best = np.where(better, row[j], best)
+            best_err = np.where(better, err, best_err)
+        rows.append(row)
+    return best
+
+
+def numerical_derivatives(
+    position: Field, xi1: np.ndarray, xi2: np.ndarray, scale: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """dx/dxi1, dx/dxi2 and d2x/dxi1dxi2 of ``position`` at ``(xi1, xi2)``, shapes ``S + (3,)``."""
+    h1, h2 = 0.1 * scale[0], 0.1 * scale[1]
+    try:
+        probe = np.asarray(position(xi1 + 1e-30j, xi2), dtype=complex)
+        complex_ok = np.all(np.isfinite(probe)) and np.any(probe.imag != 0.0)
+    except (TypeError, ValueError):
+        complex_ok = False
+    if complex_ok:
+        tiny = 1e-30
+
+        def d1(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            return np.imag(position(a + tiny * 1j, b)) / tiny
+
+        def d2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+            return np.imag(position(a, b + tiny * 1j)) / tiny
+
+        x1 = d1(xi1, xi2)
+        x2 = d2(xi1, xi2)
+        x12 = _richardson(lambda h: (d1(xi1, xi2 + h) - d1(xi1, xi2 - h)) / (2 * h), h2)
+        return x1, x2, x12
+    x1 = _richardson(lambda h: (position(xi1 + h, xi2) - position(xi1 - h, xi2)) / (2 * h), h1)
+    x2 = _richardson(lambda h: (position(xi1, xi2 + h) - position(xi1, xi2 - h)) / (2 * h), h2)
+
+    def mixed(h: float) -> np.ndarray:
+        k = h * h2 / h1
+        return (
+            position(xi1 + h, xi2 + k)
+            - position(xi1 + h, xi2 - k)
+            - position(xi1 - h, xi2 + k)
+            + position(xi1 - h, xi2 - k)
+        ) / (4 * h * k)
+
+    return x1, x2, _richardson(mixed, h1)
+
+
+def _stack(*components: np.ndarray) -> np.ndarray:
+    shape = np.broadcast(*components).shape
+    return np.stack([np.broadcast_to(c, shape) for c in components], axis=-1)
+
+
+def flat_rectangle(
+    length1: float, length2: float, n1: int, n2: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+) -> HermiteSurface:
+    """A flat ``length1 x length2`` sheet in the plane z = origin[2]; xi = in-plane coordinates."""
+    grid = ParameterGrid(n1, n2, (0.0, float(length1)), (0.0, float(length2)))
+    o = np.asarray(origin, float)
+    zero = np.zeros(())
+    one = np.ones(())
+    return from_callable(
+        lambda a, b: _stack(a + o[0], b + o[1], zero * a + o[2]),
+        grid,
+        (
+            lambda a, b: _stack(one + 0 * a, zero * a, zero * a),
+            lambda a, b: _stack(zero * a, one + 0 * a, zero * a),
+            lambda a, b: _stack(zero * a, zero * a, zero * a),
+        ),
+    )
+
+
+def cylinder(
+    radius: float,
+    length: float,
+    n_along: int,
+    n_around: int,
+    closed: bool = True,
+    angle: float = 2 * math.pi,
+    seam_angle: float = 0.0,
+) -> HermiteSurface:
+    """Cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle from ``seam_angle``.
+
+    ``closed=True`` (requires ``angle == 2*pi``) makes xi2 periodic with identified seam DOFs.
+    """
+    if closed and not math.isclose(angle, 2 * math.pi):
+        raise SurfaceError(f"a closed cylinder needs angle = 2*pi, got {angle!r}")
+    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (seam_angle, seam_angle + angle), False, closed)
+    r = float(radius)
+    zero = np.zeros(())
+    return from_callable(
+        lambda z, p: _stack(r * np.cos(p), r * np.sin(p), z),
+        grid,
+        (
+            lambda z, p: _stack(zero * z, zero * z, 1.0 + 0 * z),
+            lambda z, p: _stack(-r * np.sin(p), r * np.cos(p), zero * z),
+            lambda z, p: _stack(zero * z, zero * z, zero * z),
+        ),
+    )
+
+
+def sphere_zone(
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int
+) -> HermiteSurface:
+    """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth.
+
+    xi1 = polar angle, xi2 = azimuth in [0, 2*pi). A zone touching a pole is degenerate
+    (a1 x a2 = 0 there) and is rejected; use e.g. ``polar_min = 0.1`` for a hemisphere with a hole.
+    """
+    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
+    r = float(radius)
+    surface = from_callable(
+        lambda t, p: _stack(r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t)),
+        grid,
+        (
+            lambda t, p: _stack(r * np.cos(t) * np.cos(p), r * np.cos(t) * np.sin(p), -r * np.sin(t)),
+            lambda t, p: _stack(-r * np.sin(t) * np.sin(p), r * np.sin(t) * np.cos(p), 0 * t),
+            lambda t, p: _stack(-r * np.cos(t) * np.sin(p), r * np.cos(t) * np.cos(p), 0 * t),
+        ),
+    )
+    surface.check_regular(name="sphere zone")
+    return surface
+
+
+def annulus_sector(
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int
+) -> HermiteSurface:
+    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle.
+
+    A full turn (``angle_max - angle_min == 2*pi``) gives a closed annulus (periodic in xi2).
+    """
+    closed = math.isclose(angle_max - angle_min, 2 * math.pi)
+    if not (0 < r_inner < r_outer):
+        raise SurfaceError(f"annulus sector needs 0 < r_inner < r_outer, got {r_inner!r}, {r_outer!r}")
+    grid = ParameterGrid(n_radial, n_angular, (float(r_inner), float(r_outer)), (angle_min, angle_max), False, closed)
+    return from_callable(
+        lambda r, p: _stack(r * np.cos(p), r * np.sin(p), 0 * r),
+        grid,
+        (
+            lambda r, p: _stack(np.cos(p) + 0 * r, np.sin(p) + 0 * r, 0 * r),
+            lambda r, p: _stack(-r * np.sin(p), r * np.cos(p), 0 * r),
+            lambda r, p: _stack(-np.sin(p) + 0 * r, np.cos(p) + 0 * r, 0 * r),
+        ),
+    )
+
+
+def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int) -> HermiteSurface:
+    """Torus about z, closed in both parameters; xi1 = angle around z, xi2 = angle around the tube."""
+    big, small = float(major_radius), float(minor_radius)
+    if not (0 < small < big):
+        raise SurfaceError(f"torus needs 0 < minor_radius < major_radius, got {small!r}, {big!r}")
+    grid = ParameterGrid(n_major, n_minor, (0.0, 2 * math.pi), (0.0, 2 * math.pi), True, True)
+
+    def position(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        ring = big + small * np.cos(v)
+        return _stack(ring * np.cos(u), ring * np.sin(u), small * np.sin(v))
+
+    return from_callable(position, grid)

@@ -1,0 +1,22 @@
+"""UFL forms of the shell energies and loads, one term per module.
+
+Every function is pure: it takes UFL objects (state ``x``, rest state ``x_rest``, material
+constants, a measure with an explicit quadrature degree) and returns a UFL form. Nothing here
+compiles, assembles or touches PETSc. Conventions: the mesh *is* the parameter domain, so
+``x.dx(a)`` is dx/dxi_a; ``x`` is a 3-vector field.
+"""
+
+from bhem_hpc.forms.bending import bending_energy, bending_pseudo_hessian
+from bhem_hpc.forms.gravity import gravity_potential
+from bhem_hpc.forms.line_load import line_load_work
+from bhem_hpc.forms.membrane import membrane_energy
+from bhem_hpc.forms.pressure import pressure_work
+
+__all__ = [
+    "bending_energy",
+    "bending_pseudo_hessian",
+    "gravity_potential",
+    "line_load_work",
+    "membrane_energy",
+    "pressure_work",
+]

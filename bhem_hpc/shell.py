@@ -1,0 +1,272 @@
+"""The discrete shell problem: state, rest state, energies and loads as compiled dolfinx forms.
+
+Builds only what is asked for: a load that is absent adds no UFL term and compiles nothing.
+No PETSc here; :mod:`bhem_hpc.solver` owns every PETSc object.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import dolfinx
+import dolfinx.fem as fem
+import dolfinx.mesh
+import numpy as np
+import ufl
+from mpi4py import MPI
+
+from bhem_hpc import forms
+from bhem_hpc.bcs import EDGES, NodalConstraint, target_surface
+from bhem_hpc.discretization import ConstrainedDofs, HermiteDiscretization
+from bhem_hpc.material import Material
+from bhem_hpc.surface import HermiteSurface
+
+HessianKind = Literal["exact", "pseudo"]
+GAUSS_POINTS = (2, 3, 4, 5)
+ScalarType = np.float64  # the dolfinx build is real, double precision
+
+
+class ModelError(ValueError):
+    """Inconsistent problem definition (bad load, quadrature, Hessian choice, ...)."""
+
+
+@dataclass(frozen=True)
+class LineLoad:
+    """Dead load per unit rest length on a boundary edge (``EDGES``)."""
+
+    edge: str
+    traction: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PointLoad:
+    """Dead point force at parameters ``(xi1, xi2)`` (paper eq. 21)."""
+
+    xi1: float
+    xi2: float
+    force: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Loads:
+    """External loads; each is built only when given. All scale with the load factor."""
+
+    gravity: tuple[float, float, float] | None = None
+    pressure: float | None = None
+    line_loads: tuple[LineLoad, ...] = field(default_factory=tuple)
+    point_loads: tuple[PointLoad, ...] = field(default_factory=tuple)
+
+    def validate(self) -> None:
+        def vector(name: str, v: Sequence[float]) -> None:
+            arr = np.asarray(v, dtype=float)
+            if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+                raise ModelError(f"loads.{name} must be 3 finite numbers, got {v!r}")
+
+        if self.gravity is not None:
+            vector("gravity", self.gravity)
+        if self.pressure is not None and not np.isfinite(self.pressure):
+            raise ModelError(f"loads.pressure must be finite, got {self.pressure!r}")
+        for i, load in enumerate(self.line_loads):
+            if load.edge not in EDGES:
+                raise ModelError(f"loads.line_loads[{i}].edge = {load.edge!r}; expected one of {EDGES}")
+            vector(f"line_loads[{i}].traction", load.traction)
+        for i, load in enumerate(self.point_loads):
+            vector(f"point_loads[{i}].force", load.force)
+
+
+def gauss_measure(mesh: dolfinx.mesh.Mesh, points_per_direction: int) -> ufl.Measure:
+    """Cell measure with an explicit tensor Gauss rule (``n x n`` points per patch).
+
+    UFL's own degree estimate for the shell energy is in the hundreds and makes Newton diverge;
+    never rely on it.
+    """
+    if points_per_direction not in GAUSS_POINTS:
+        raise ModelError(f"quadrature points per direction = {points_per_direction!r}; expected one of {GAUSS_POINTS}")
+    return ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 2 * points_per_direction - 1})
+
+
+def default_jit_params() -> dict:
+    """JIT settings: a generous timeout, since under MPI all ranks wait for one compile."""
+    return {"timeout": 600, "cache_dir": os.environ.get("BHEM_JIT_CACHE", os.path.expanduser("~/.cache/fenics"))}
+
+
+class ShellModel:
+    """A Kirchhoff-Love shell discretized by bicubic Hermite patches.
+
+    Args:
+        rest: rest (reference) surface; also the initial state unless ``initial`` is given.
+        material: material constants.
+        loads: external loads (only those given are built).
+        constraints: nodal boundary conditions.
+        hessian: ``"exact"`` (UFL derivative of the residual) or ``"pseudo"`` (paper's pseudo
+            Hessian: the second derivative of the curvature strain is dropped).
+        quadrature_points: Gauss points per direction and patch (4 = the paper's 4x4 rule).
+        comm: MPI communicator.
+    """
+
+    def __init__(
+        self,
+        rest: HermiteSurface,
+        material: Material,
+        loads: Loads | None = None,
+        constraints: Sequence[NodalConstraint] = (),
+        hessian: HessianKind = "exact",
+        quadrature_points: int = 4,
+        comm: MPI.Comm = MPI.COMM_WORLD,
+        initial: HermiteSurface | None = None,
+    ):
+        loads = loads or Loads()
+        # Validate everything before building anything.
+        loads.validate()
+        if hessian not in ("exact", "pseudo"):
+            raise ModelError(f"hessian = {hessian!r}; expected 'exact' or 'pseudo'")
+        if quadrature_points not in GAUSS_POINTS:
+            raise ModelError(f"quadrature points per direction = {quadrature_points!r}; expected one of {GAUSS_POINTS}")
+        rest.check_regular(quadrature_points, name="rest surface")
+        initial = initial or rest
+        if initial.grid != rest.grid:
+            raise ModelError("initial and rest surfaces have different grids")
+        for c in constraints:
+            c.validate(rest.grid)
+
+        self.comm = comm
+        self.material = material
+        self.loads = loads
+        self.hessian = hessian
+        self.quadrature_points = quadrature_points
+        self.rest_surface = rest
+        self.initial_surface = initial
+        self.constraints = tuple(constraints)
+        self.discretization = HermiteDiscretization(rest.grid, comm)
+        disc = self.discretization
+        mesh = disc.mesh
+        space = disc.function_space
+
+        self.x = fem.Function(space, name="position")
+        self.x_rest = fem.Function(space, name="rest_position")
+        self.x.x.array[:] = disc.surface_to_open(initial)
+        self.x_rest.x.array[:] = disc.surface_to_open(rest)
+
+        def constant(value) -> fem.Constant:
+            return fem.Constant(mesh, ScalarType(value))
+
+        self.young = constant(material.young)
+        self.poisson = constant(material.poisson)
+        self.thickness = constant(material.thickness)
+        self.density = constant(material.density)
+        self.load_factor = constant(1.0)
+        dx = gauss_measure(mesh, quadrature_points)
+        self.dx = dx
+        x, x_rest, lf = self.x, self.x_rest, self.load_factor
+        test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
+        section = (self.thickness, self.young, self.poisson)
+
+        energies: dict[str, ufl.Form] = {
+            "membrane": forms.membrane_energy(x, x_rest, *section, dx),
+            "bending": forms.bending_energy(x, x_rest, *section, dx),
+        }
+        potential = energies["membrane"] + energies["bending"]
+        work_forms: list[ufl.Form] = []
+        if loads.gravity is not None:
+            self.gravity = constant(np.asarray(loads.gravity, dtype=float))
+            energies["gravity"] = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
+            potential = potential + lf * energies["gravity"]
+        if loads.pressure is not None:
+            self.pressure = constant(loads.pressure)
+            work_forms.append(forms.pressure_work(x, self.pressure, test, dx))
+        if loads.line_loads:
+            ds = self._edge_measure([load.edge for load in loads.line_loads])
+            self.tractions = []
+            for i, load in enumerate(loads.line_loads):
+                traction = constant(np.asarray(load.traction, dtype=float))
+                self.tractions.append(traction)
+                work_forms.append(forms.line_load_work(x_rest, traction, test, ds(i + 1)))
+
+        residual = ufl.derivative(potential, x, test)
+        for work in work_forms:
+            residual = residual - lf * work
+        if hessian == "exact":
+            jacobian = ufl.derivative(residual, x, trial)
+        else:
+            jacobian = ufl.derivative(ufl.derivative(energies["membrane"], x, test), x, trial)
+            jacobian = jacobian + forms.bending_pseudo_hessian(x, x_rest, *section, dx, test, trial)
+            for work in work_forms:
+                jacobian = jacobian - lf * ufl.derivative(work, x, trial)
+        self.symmetric = loads.pressure is None
+        self.ufl_residual = residual
+        self.ufl_jacobian = jacobian
+        self.ufl_energies = energies
+
+        jit = default_jit_params()
+        self.residual_form = fem.form(residual, jit_params=jit)
+        self.jacobian_form = fem.form(jacobian, jit_params=jit)
+        self.energy_forms = {name: fem.form(e, jit_params=jit) for name, e in energies.items()}
+
+        # Point loads: basis values at the point times the force, on local open DOFs.
+        self.point_load_open = np.zeros_like(self.x.x.array)
+        for load in loads.point_loads:
+            blocks, values = disc.point_basis(load.xi1, load.xi2)
+            for comp in range(3):
+                np.add.at(self.point_load_open, 3 * blocks + comp, values * load.force[comp])
+
+        # Boundary conditions as owned closed DOFs with initial and target values.
+        target = target_surface(initial, self.constraints)
+        selections = [disc.select_dofs(c.nodes, c.kinds, c.components) for c in self.constraints]
+        self.constrained = _merge(selections)
+        self.constrained_initial = disc.dof_values(initial, self.constrained)
+        self.constrained_target = disc.dof_values(target, self.constrained)
+
+    def _edge_measure(self, edges: Sequence[str]) -> ufl.Measure:
+        """Facet measure tagging each listed edge ``i`` with ``i + 1``."""
+        grid = self.rest_surface.grid
+        mesh = self.discretization.mesh
+        mesh.topology.create_connectivity(1, 2)
+        tol = 1e-9 * max(grid.h1, grid.h2)
+        locators = {
+            "xi1_min": lambda p: np.abs(p[0] - grid.xi1_range[0]) < tol,
+            "xi1_max": lambda p: np.abs(p[0] - grid.xi1_range[1]) < tol,
+            "xi2_min": lambda p: np.abs(p[1] - grid.xi2_range[0]) < tol,
+            "xi2_max": lambda p: np.abs(p[1] - grid.xi2_range[1]) < tol,
+        }
+        facets, tags = [], []
+        for i, edge in enumerate(edges):
+            found = dolfinx.mesh.locate_entities_boundary(mesh, 1, locators[edge])
+            facets.append(found)
+            tags.append(np.full(len(found), i + 1, dtype=np.int32))
+        facets_all = np.concatenate(facets).astype(np.int32)
+        order = np.argsort(facets_all)
+        meshtags = dolfinx.mesh.meshtags(mesh, 1, facets_all[order], np.concatenate(tags)[order])
+        return ufl.Measure("ds", domain=mesh, subdomain_data=meshtags)
+
+    # -- state access --------------------------------------------------------------------------
+    def set_state(self, surface: HermiteSurface) -> None:
+        """Set the position field from a surface."""
+        self.x.x.array[:] = self.discretization.surface_to_open(surface)
+
+    def state_surface(self) -> HermiteSurface:
+        """Collective: the current position as a surface (on every rank)."""
+        return self.discretization.open_to_surface(self.x.x.array)
+
+    def energies(self) -> dict[str, float]:
+        """Collective: every built energy term at the current state (load factor not applied)."""
+        return {
+            name: self.comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM)
+            for name, form in self.energy_forms.items()
+        }
+
+
+def _merge(selections: Sequence[ConstrainedDofs]) -> ConstrainedDofs:
+    """Union of DOF selections (a DOF named twice appears once)."""
+    if not selections:
+        empty = np.zeros(0, dtype=np.int64)
+        return ConstrainedDofs(empty, empty, np.zeros((0, 2), dtype=np.int64), empty, empty)
+    rows = np.concatenate([s.rows for s in selections])
+    _, first = np.unique(rows, return_index=True)
+
+    def pick(name: str) -> np.ndarray:
+        return np.concatenate([getattr(s, name) for s in selections])[first]
+
+    return ConstrainedDofs(pick("rows"), pick("local"), pick("node"), pick("kind"), pick("component"))

@@ -76,6 +76,43 @@ class Discretization(Protocol):
     def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+def shared_jacobian(cell_vertices: np.ndarray, patch_size: tuple[float, float], comm: MPI.Comm) -> np.ndarray:
+    """The one Jacobian ``J[b, a] = dxi_b / dX_a`` shared by all cells (collective).
+
+    Args:
+        cell_vertices: ``(cells, 4, 2)`` parameter coordinates of each cell's reference vertices
+            (0,0), (1,0), (0,1), (1,1).
+        patch_size: ``(h1, h2)``, for tolerances.
+
+    Raises:
+        DiscretizationError: a cell is not a parallelogram, cells (on any rank) have different
+            Jacobians, or the Jacobian is not axis aligned.
+    """
+    v = np.asarray(cell_vertices, dtype=float)
+    jac = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=2)  # (cells, b, a)
+    tol = 1e-10 * max(patch_size)
+    skew = np.abs(v[:, 3] - v[:, 1] - v[:, 2] + v[:, 0]).max(axis=1) if len(v) else np.zeros(0)
+    first_skew = comm.allreduce(int(np.argmax(skew)) if np.any(skew > tol) else -1, op=MPI.MAX)
+    if first_skew >= 0:
+        detail = f"cell {int(np.argmax(skew))} has vertices {v[int(np.argmax(skew))].tolist()}" if np.any(skew > tol) else "on another rank"
+        raise DiscretizationError(f"a cell is not a parallelogram ({detail}): the grid is not uniform")
+    reference = comm.bcast(jac[0] if len(jac) and comm.rank == 0 else None, root=0)
+    if reference is None:
+        raise DiscretizationError("rank 0 holds no cells: use fewer ranks or more patches")
+    mismatch = np.abs(jac - reference).max(axis=(1, 2)) if len(jac) else np.zeros(0)
+    bad = np.flatnonzero(mismatch > tol)
+    if comm.allreduce(len(bad), op=MPI.SUM):
+        detail = f"cell {bad[0]} has J = {jac[bad[0]].tolist()}" if len(bad) else "a cell on another rank differs"
+        raise DiscretizationError(
+            f"cells do not share one Jacobian ({detail}; cell 0 of rank 0 has {reference.tolist()}): the Hermite "
+            "DOFs are reference-cell derivatives and need a uniform, consistently ordered grid"
+        )
+    axis_aligned = abs(reference[0, 0] * reference[0, 1]) <= tol**2 and abs(reference[1, 0] * reference[1, 1]) <= tol**2
+    if not axis_aligned or abs(np.linalg.det(reference)) < tol**2:
+        raise DiscretizationError(f"cell Jacobian {reference.tolist()} is not axis aligned")
+    return reference
+
+
 class HermiteDiscretization:
     """Bicubic Hermite elements on the open parameter grid of a surface.
 
@@ -112,33 +149,8 @@ class HermiteDiscretization:
         return geometry.x[nodes][:, :, :2]
 
     def _shared_jacobian(self) -> np.ndarray:
-        """The one Jacobian ``J[b, a] = dxi_b / dX_a`` of all cells; raise if cells differ."""
-        v = self._cell_vertex_coordinates()
-        self._cell_vertices = v
-        jac = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=2)  # (cells, b, a)
-        parallelogram = v[:, 3] - v[:, 1] - v[:, 2] + v[:, 0]
-        h = np.array([self.grid.h1, self.grid.h2])
-        tol = 1e-10 * h.max()
-        if np.any(np.abs(parallelogram) > tol):
-            c = int(np.argmax(np.abs(parallelogram).max(axis=1)))
-            raise DiscretizationError(f"cell {c} is not a parallelogram (vertices {v[c].tolist()}): grid is not uniform")
-        reference = self.comm.bcast(jac[0] if len(jac) and self.comm.rank == 0 else None, root=0)
-        if reference is None:
-            raise DiscretizationError("rank 0 holds no cells: use fewer ranks or more patches")
-        mismatch = np.abs(jac - reference).max(axis=(1, 2)) if len(jac) else np.zeros(0)
-        bad = np.flatnonzero(mismatch > tol)
-        first_bad = self.comm.allreduce(int(bad[0]) if len(bad) else -1, op=MPI.MAX)
-        if first_bad >= 0:
-            detail = f"cell {bad[0]} has J = {jac[bad[0]].tolist()}" if len(bad) else "on another rank"
-            raise DiscretizationError(
-                f"cells do not share one Jacobian ({detail}, cell 0 of rank 0 has {reference.tolist()}): "
-                "the Hermite DOFs are reference-cell derivatives and need a uniform, consistently "
-                "ordered grid"
-            )
-        axis_aligned = abs(reference[0, 0] * reference[0, 1]) <= tol**2 and abs(reference[1, 0] * reference[1, 1]) <= tol**2
-        if not axis_aligned or abs(np.linalg.det(reference)) < tol**2:
-            raise DiscretizationError(f"cell Jacobian {reference.tolist()} is not axis aligned")
-        return reference
+        self._cell_vertices = self._cell_vertex_coordinates()
+        return shared_jacobian(self._cell_vertices, (self.grid.h1, self.grid.h2), self.comm)
 
     @staticmethod
     def reference_scale(jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

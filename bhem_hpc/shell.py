@@ -188,6 +188,14 @@ class ShellModel:
         residual = ufl.derivative(potential, x, test)
         for work in work_forms:
             residual = residual - lf * work
+        # Conservative problems (no follower pressure) minimize a total potential; the line search
+        # uses it as merit function. Dead line loads contribute -work[x].
+        self.potential_form = None
+        if loads.pressure is None:
+            total = potential
+            for work in work_forms:
+                total = total - lf * ufl.replace(work, {test: x})
+            self.potential_form = fem.form(total, jit_params=default_jit_params())
         if hessian == "exact":
             jacobian = ufl.derivative(residual, x, trial)
         else:

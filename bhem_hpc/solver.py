@@ -17,6 +17,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
 import numpy as np
 from petsc4py import PETSc
@@ -41,11 +42,13 @@ def default_options(model: ShellModel) -> dict[str, str]:
     force_scale = m.young * m.thickness * max(grid.h1, grid.h2)
     return {
         "snes_type": "newtonls",
-        "snes_linesearch_type": "bt",
+        # Conservative problems: full step damped by the energy precheck (ShellSolver.damp_step);
+        # follower loads have no potential: backtracking on the residual norm.
+        "snes_linesearch_type": "basic" if model.potential_form is not None else "bt",
         "snes_rtol": "1e-9",
         "snes_atol": f"{1e-13 * force_scale:.3e}",
         "snes_stol": "1e-14",
-        "snes_max_it": "50",
+        "snes_max_it": "30",
         "ksp_type": "preonly",
         "pc_type": "cholesky" if model.symmetric else "lu",
         "pc_factor_mat_solver_type": "mumps",
@@ -76,6 +79,10 @@ def _residual_callback(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: She
     solver.assemble_residual(x, f)
 
 
+def _energy_precheck(x: PETSc.Vec, y: PETSc.Vec, solver: ShellSolver) -> None:
+    solver.damp_step(x, y)
+
+
 def _jacobian_callback(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
     solver.assemble_jacobian(pmat)
 
@@ -88,6 +95,8 @@ class SolveReport:
     newton_iterations: list[int] = field(default_factory=list)
     residual_norms: list[float] = field(default_factory=list)
     negative_pivots: list[int] = field(default_factory=list)
+    backtracks: int = 0
+    cuts: int = 0
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
@@ -137,11 +146,17 @@ class ShellSolver:
         self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
         self.bc_values = model.constrained_initial.copy()
         self.report = SolveReport()
+        m = model.material
+        # Energy scale below which differences are round-off: a unit strain of one patch.
+        self._energy_floor = m.young * m.thickness * model.rest_surface.grid.h1 * model.rest_surface.grid.h2
 
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(prefix)
         self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
         self.snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
+        if model.potential_form is not None:
+            self._trial = self.x.duplicate()
+            self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
         pushed = _push_options(prefix, default_options(model), options or {})
         self.snes.setFromOptions()
         opts = PETSc.Options()
@@ -180,6 +195,44 @@ class ShellSolver:
             values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
         self.report.assemble_residual_s += time.perf_counter() - t0
 
+    def potential_energy(self) -> float:
+        """Total potential at the model's current state (internal - external work), collective."""
+        local = fem.assemble_scalar(self.model.potential_form)
+        local -= float(self.model.load_factor.value) * float(np.dot(self.point_loads.array_r, self.model.x.vector.array_r))
+        return self.model.comm.allreduce(local)
+
+    def damp_step(self, x: PETSc.Vec, y: PETSc.Vec, max_backtracks: int = 30) -> None:
+        """Scale the Newton step ``x -> x - y`` so that the total potential decreases.
+
+        Backtracking with safeguarded quadratic interpolation on the potential (Armijo constant
+        1e-4). Once the predicted decrease ``F.y`` is below the round-off of the potential
+        itself, the energy cannot judge a step and the full Newton step is taken (the local,
+        quadratically convergent regime).
+        """
+        self.update_state(x)
+        energy0 = self.potential_energy()
+        slope = -self.f.dot(y)  # d/dlambda of the potential along x - lambda y, at lambda = 0
+        resolution = 1e-12 * abs(energy0)
+        if abs(slope) <= 1e3 * resolution:
+            return
+        if slope > 0:
+            log.debug("%s: Newton direction ascends the potential (indefinite Jacobian)", self.prefix)
+        step = 1.0
+        for _ in range(max_backtracks):
+            self._trial.waxpy(-step, y, x)
+            self.update_state(self._trial)
+            energy = self.potential_energy()
+            if np.isfinite(energy) and energy <= energy0 + 1e-4 * step * slope + resolution:
+                break
+            curvature = energy - energy0 - slope * step
+            guess = -slope * step**2 / (2 * curvature) if np.isfinite(energy) and curvature > 0 else 0.1 * step
+            step = min(0.5 * step, max(0.1 * step, guess))
+        else:
+            log.warning("%s: energy backtracking hit its bound of %d steps (step %.3e)", self.prefix, max_backtracks, step)
+        self.report.backtracks += int(step < 1.0)
+        if step < 1.0:
+            y.scale(step)
+
     def _assemble_open_jacobian(self) -> None:
         self.jacobian_open.zeroEntries()
         fem_petsc.assemble_matrix(self.jacobian_open, self.model.jacobian_form)
@@ -195,52 +248,87 @@ class ShellSolver:
         self.report.assemble_jacobian_s += time.perf_counter() - t0
 
     # -- solves ---------------------------------------------------------------------------------
-    def solve(self, load_steps: int = 1) -> SolveReport:
-        """Solve for equilibrium, ramping loads and prescribed values over ``load_steps`` steps.
+    def solve(self, load_steps: int = 1, max_cuts: int = 10) -> SolveReport:
+        """Solve for equilibrium, ramping loads and prescribed values from 0 to 1.
+
+        The load factor advances in increments of at most ``1 / load_steps``; a load step whose
+        Newton solve fails is retried from the last equilibrium with half the increment (at most
+        ``max_cuts`` halvings in a row), and the increment grows back after successes. Each step
+        starts from a secant prediction along the last two equilibria.
 
         Raises:
-            SolverError: naming the solver, the load step and the SNES/KSP reasons.
+            SolverError: naming the solver, the load factor and the SNES/KSP reasons.
         """
-        if int(load_steps) < 1:
-            raise SolverError(f"solver '{self.prefix}': load_steps must be >= 1, got {load_steps!r}")
+        if isinstance(load_steps, bool) or not isinstance(load_steps, int) or load_steps < 1:
+            raise SolverError(f"solver '{self.prefix}': load_steps must be an integer >= 1, got {load_steps!r}")
         model = self.model
         start = time.perf_counter()
+        max_increment = 1.0 / load_steps
+        increment = max_increment
         self.state_to_vector(self.x)
-        for step in range(1, load_steps + 1):
-            factor = step / load_steps
-            model.load_factor.value = factor
-            self.bc_values = model.constrained_initial + factor * (model.constrained_target - model.constrained_initial)
+        accepted = self.x.copy()
+        history: list[tuple[float, PETSc.Vec]] = []
+        factor, cuts = 0.0, 0
+        while factor < 1.0 - 1e-12:
+            trial = min(1.0, factor + increment)
+            accepted.copy(self.x)
+            if history:
+                # Secant predictor: continue the path of the last two equilibria (captures the
+                # in-plane pull-in that a Newton step linearized at the last state misses).
+                last_factor, last = history[-1]
+                self.x.axpy((trial - factor) / (factor - last_factor), accepted - last)
+            model.load_factor.value = trial
+            self.bc_values = model.constrained_initial + trial * (model.constrained_target - model.constrained_initial)
             if len(self.bc_local):
                 self.x.array[self.bc_local] = self.bc_values
             self.snes.solve(None, self.x)
-            self._check(step, load_steps, factor)
-            self.report.newton_iterations.append(self.snes.getIterationNumber())
+            if not self._converged():
+                cuts += 1
+                self.report.cuts += 1
+                if cuts > max_cuts:
+                    self._raise(trial, f"{max_cuts} halvings of the load increment")
+                log.warning(
+                    "%s: Newton failed at load factor %.4g (%s); halving the increment to %.3g",
+                    self.prefix, trial, SNES_REASONS.get(self.snes.getConvergedReason()), increment / 2,
+                )
+                increment /= 2
+                continue
+            cuts = 0
+            its = self.snes.getIterationNumber()
+            self.report.newton_iterations.append(its)
             self.report.residual_norms.append(self.snes.getFunctionNorm())
             self.report.negative_pivots.append(self.negative_pivots())
-            log.info(
-                "%s load step %d/%d: %d Newton iterations, |F| = %.3e",
-                self.prefix, step, load_steps, self.snes.getIterationNumber(), self.snes.getFunctionNorm(),
-            )
+            self.report.load_steps += 1
+            log.info("%s: load factor %.4g: %d Newton iterations, |F| = %.3e", self.prefix, trial, its,
+                     self.snes.getFunctionNorm())
+            if history:
+                history[0][1].destroy()
+            history = [(factor, accepted)]
+            accepted = self.x.copy()
+            factor = trial
+            increment = min(max_increment, 2 * increment)
+        for _, vec in history:
+            vec.destroy()
+        accepted.destroy()
         self.update_state(self.x)
-        self.report.load_steps += load_steps
         self.report.wall_s += time.perf_counter() - start
         return self.report
 
-    def _check(self, step: int, steps: int, factor: float) -> None:
+    def _converged(self) -> bool:
+        return self.snes.getConvergedReason() > 0 and bool(np.isfinite(self.snes.getFunctionNorm()))
+
+    def _raise(self, factor: float, after: str) -> None:
         reason = self.snes.getConvergedReason()
-        norm = self.snes.getFunctionNorm()
-        if reason > 0 and np.isfinite(norm):
-            return
-        ksp = self.snes.getKSP()
-        ksp_reason = ksp.getConvergedReason()
+        ksp_reason = self.snes.getKSP().getConvergedReason()
         mumps = ""
         factor_matrix = self._factor_matrix()
         if factor_matrix is not None:
             mumps = f", MUMPS INFOG(1) = {factor_matrix.getMumpsInfog(1)}"
         raise SolverError(
-            f"SNES solver '{self.prefix}' failed at load step {step}/{steps} (load factor {factor:.4g}): "
+            f"SNES solver '{self.prefix}' failed at load factor {factor:.4g} after {after}: "
             f"{SNES_REASONS.get(reason, reason)} after {self.snes.getIterationNumber()} Newton iterations, "
-            f"|F| = {norm:.3e}; last linear solve: KSP {KSP_REASONS.get(ksp_reason, ksp_reason)}{mumps}"
+            f"|F| = {self.snes.getFunctionNorm():.3e}; last linear solve: KSP "
+            f"{KSP_REASONS.get(ksp_reason, ksp_reason)}{mumps}"
         )
 
     def _factor_matrix(self) -> PETSc.Mat | None:

@@ -1,0 +1,46 @@
+# bhem-hpc: every target installs what it needs first (Debian 12, root or sudo).
+SYSTEM_PYTHON := /usr/bin/python3
+VENV := .venv
+PY := $(VENV)/bin/python
+MPIRUN := mpirun --allow-run-as-root --oversubscribe
+RUFF_VERSION := 0.8.4
+# The cantilever master-curve demo: Gamma* and output directory.
+GAMMA ?= 20
+OUT ?= out/demo
+
+.PHONY: setup demo test test-serial test-mpi lint bench study clean
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml scripts/install-system-packages
+	scripts/install-system-packages
+	[ -x $(PY) ] || $(SYSTEM_PYTHON) -m venv --system-site-packages $(VENV)
+	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
+	$(PY) -m pip install -q ruff==$(RUFF_VERSION)
+	touch $@
+
+demo: setup
+	$(VENV)/bin/bhem-hpc cantilever --gamma $(GAMMA) --out $(OUT)
+
+test: setup lint test-serial test-mpi
+
+lint: setup
+	$(VENV)/bin/ruff check bhem_hpc forms tests benchmarks
+
+test-serial: setup
+	$(PY) -m pytest
+
+# Every rank runs the whole suite; rank 0 reports, the others write JUnit XML to out/.
+test-mpi: setup
+	mkdir -p out
+	$(MPIRUN) -n 2 scripts/pytest-rank --color=no
+
+bench: setup
+	$(VENV)/bin/bhem-hpc bench --patches 10 20 30
+	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc bench --patches 10 20 30
+
+study: setup
+	$(PY) -m pytest -m study
+
+clean:
+	rm -rf $(VENV) out build *.egg-info

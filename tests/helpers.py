@@ -1,0 +1,66 @@
+"""Assembly helpers for tests (tests may use PETSc directly; the library keeps it in solver.py)."""
+
+from __future__ import annotations
+
+import dolfinx.fem as fem
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from bhem_hpc.shell import ShellModel
+
+
+def total_internal_energy(model: ShellModel) -> float:
+    e = model.energies()
+    return e["membrane"] + e["bending"]
+
+
+def potential(model: ShellModel) -> float:
+    return model.comm.allreduce(fem.assemble_scalar(model.potential_form), op=MPI.SUM)
+
+
+def residual_open(model: ShellModel) -> np.ndarray:
+    """Global open-layout residual gathered on every rank, indexed by global DOF."""
+    vec = fem_petsc.assemble_vector(model.residual_form)
+    vec.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    out = gather(vec)
+    vec.destroy()
+    return out
+
+
+def gather(vec: PETSc.Vec) -> np.ndarray:
+    """Owned entries of every rank, concatenated in global order."""
+    comm = vec.getComm().tompi4py()
+    return np.concatenate(comm.allgather(vec.array_r.copy()))
+
+
+def jacobian_dense(model: ShellModel, form=None) -> np.ndarray:
+    """The global open-layout Jacobian (or another bilinear form) as a dense array."""
+    mat = fem_petsc.assemble_matrix(form or model.jacobian_form)
+    mat.assemble()
+    dense = gather_matrix(mat)
+    mat.destroy()
+    return dense
+
+
+def gather_matrix(mat: PETSc.Mat) -> np.ndarray:
+    comm = mat.getComm().tompi4py()
+    indptr, indices, values = mat.getValuesCSR()
+    first, last = mat.getOwnershipRange()
+    rows = np.zeros((last - first, mat.getSize()[1]))
+    for r in range(last - first):
+        rows[r, indices[indptr[r]:indptr[r + 1]]] = values[indptr[r]:indptr[r + 1]]
+    return np.vstack(comm.allgather(rows))
+
+
+def open_state_global(model: ShellModel) -> np.ndarray:
+    return gather(model.x.vector)
+
+
+def set_open_state_global(model: ShellModel, values: np.ndarray) -> None:
+    """Set the state from a global open-layout array (owned part, then ghosts)."""
+    vec = model.x.vector
+    first, last = vec.getOwnershipRange()
+    vec.array[:] = values[first:last]
+    vec.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)

@@ -465,6 +465,11 @@ def sphere_zone(
     xi1 = polar angle, xi2 = azimuth in [0, 2*pi). A zone touching a pole is degenerate
     (a1 x a2 = 0 there) and is rejected; use e.g. ``polar_min = 0.1`` for a hemisphere with a hole.
     """
+    if not 0.0 < polar_min < polar_max < math.pi:
+        raise SurfaceError(
+            f"sphere zone needs 0 < polar_min < polar_max < pi (a pole is a degenerate parameter point), "
+            f"got polar_min={polar_min!r}, polar_max={polar_max!r}"
+        )
     grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
     r = float(radius)
     surface = from_callable(

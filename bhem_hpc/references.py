@@ -28,7 +28,9 @@ def simply_supported_square_plate(terms: int = 401) -> float:
     return float(16 / np.pi**6 * np.sum(signs / (m * n * (m**2 + n**2) ** 2)))
 
 
-def _integrate_from_tip(gamma: float, tip_tilt: float, steps: int) -> tuple[float, float, float]:
+def _integrate_from_tip(
+    gamma: float, tip_tilt: float, steps: int, path: list[tuple[float, float]] | None = None
+) -> tuple[float, float, float]:
     """RK4 from the free end towards the clamp, in ``t = 1 - s``.
 
     Unknown: ``psi = pi/2 - theta``, the angle from the vertical. ``d2 psi/dt2 = gamma t sin(psi)``,
@@ -37,7 +39,8 @@ def _integrate_from_tip(gamma: float, tip_tilt: float, steps: int) -> tuple[floa
     function, so the tip tilt of a heavy rod is tiny: working in ``psi`` keeps it representable.
 
     Returns:
-        ``(psi at the clamp, W / L, H / L)``.
+        ``(psi at the clamp, W / L, H / L)``; ``path`` (if given) receives the points
+        ``(x, y)`` of the rod relative to the tip, from the tip to the clamp.
     """
     cos, sin = math.cos, math.sin
 
@@ -46,6 +49,8 @@ def _integrate_from_tip(gamma: float, tip_tilt: float, steps: int) -> tuple[floa
 
     h = 1.0 / steps
     y = [tip_tilt, 0.0, 0.0, 0.0]
+    if path is not None:
+        path.append((0.0, 0.0))
     for i in range(steps):
         t = i * h
         k1 = rhs(t, y)
@@ -53,10 +58,17 @@ def _integrate_from_tip(gamma: float, tip_tilt: float, steps: int) -> tuple[floa
         k3 = rhs(t + h / 2, [a + h / 2 * b for a, b in zip(y, k2)])
         k4 = rhs(t + h, [a + h * b for a, b in zip(y, k3)])
         y = [a + h / 6 * (b + 2 * c + 2 * d + e) for a, b, c, d, e in zip(y, k1, k2, k3, k4)]
+        if path is not None:
+            path.append((-y[2], y[3]))
     return y[0], y[2], y[3]
 
 
 def heavy_cantilever_tip(gamma: float, steps: int = 1000) -> tuple[float, float]:
+    """Tip ``(W / L, H / L)`` of the heavy elastica; see :func:`heavy_cantilever`."""
+    return heavy_cantilever(gamma, steps)[:2]
+
+
+def heavy_cantilever(gamma: float, steps: int = 1000) -> tuple[float, float, np.ndarray]:
     """Tip of a horizontally clamped cantilever under self-weight (the heavy elastica).
 
     ``theta'' = -gamma (1 - s) cos(theta)`` with ``theta(0) = 0`` (clamp) and ``theta'(1) = 0``
@@ -71,7 +83,9 @@ def heavy_cantilever_tip(gamma: float, steps: int = 1000) -> tuple[float, float]
         steps: RK4 steps along the rod (error ~ steps^-4).
 
     Returns:
-        ``(W / L, H / L)``: horizontal extent and drop of the tip (master curve: ``H / W``).
+        ``(W / L, H / L, shape)``: horizontal extent and drop of the tip (master curve:
+        ``H / W``) and the rod's shape ``(steps + 1, 2)`` as ``(x / L, z / L)`` from the clamp
+        (z up, so the tip is at ``(W, -H)``).
     """
     if not (isinstance(gamma, int | float) and math.isfinite(gamma) and 0 < gamma <= 1e6):
         raise ValueError(f"gamma must be a number in (0, 1e6], got {gamma!r}")
@@ -97,5 +111,8 @@ def heavy_cantilever_tip(gamma: float, steps: int = 1000) -> tuple[float, float]
             lo = mid
         if hi - lo < 1e-15 * max(1.0, abs(lo)):
             break
-    _, width, height = _integrate_from_tip(gamma, math.exp(0.5 * (lo + hi)), steps)
-    return width, height
+    path: list[tuple[float, float]] = []
+    _, width, height = _integrate_from_tip(gamma, math.exp(0.5 * (lo + hi)), steps, path)
+    # The path runs tip -> clamp relative to the tip; put the clamp at the origin, tip last.
+    shape = np.array(path[::-1]) - np.array([-width, height])
+    return width, height, shape

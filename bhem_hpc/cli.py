@@ -1,0 +1,94 @@
+"""Command line: ``bhem-hpc {cantilever,bench} ...``; trailing ``-prefix_option value`` pairs go to PETSc.
+
+PETSc options must reach ``petsc4py.init`` before dolfinx is imported, so every command imports
+the solver lazily, after parsing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="bhem-hpc",
+        description="Thin shells with C1 bicubic Hermite elements on FEniCSx/PETSc. "
+        "Unrecognized -options are passed to PETSc (e.g. -bhem_static_snes_monitor).",
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="log solver progress")
+    sub = parser.add_subparsers(dest="command", required=True)
+    cant = sub.add_parser("cantilever", help="static cantilever under self-weight vs the heavy elastica")
+    cant.add_argument("--gamma", type=float, default=20.0, help="Gamma* = 12 (1-nu^2) rho g L^3 / (Y h^2)")
+    cant.add_argument("--patches", type=int, default=32, help="patches along the strip")
+    cant.add_argument("--load-steps", type=int, default=None, help="maximum load increment = 1/steps")
+    cant.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
+    cant.add_argument("--out", type=Path, default=Path("out/cantilever"), help="output directory")
+    bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
+    bench.add_argument("--patches", type=int, nargs="+", default=[10, 20, 30])
+    bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
+    bench.add_argument("--repeats", type=int, default=3)
+    bench.add_argument("--json", action="store_true", help="print one JSON object per size")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args, petsc_args = _parser().parse_known_args(argv)
+    bad = [a for a in petsc_args if a.startswith("--")]
+    if bad:
+        _parser().error(f"unrecognized arguments: {' '.join(bad)}")
+    import petsc4py
+
+    petsc4py.init([sys.argv[0], *petsc_args])
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    level = logging.INFO if args.verbose and comm.rank == 0 else logging.WARNING
+    logging.basicConfig(level=level, format=f"[rank {comm.rank}] %(levelname)s %(name)s: %(message)s", force=True)
+    for noisy in ("ffcx", "UFL", "root"):
+        logging.getLogger(noisy).setLevel(max(level, logging.WARNING))
+
+    from bhem_hpc import jobs
+    from bhem_hpc.solver import SolverError
+
+    try:
+        if args.command == "cantilever":
+            summary = jobs.cantilever(args.gamma, args.out, args.patches, args.load_steps, args.hessian, comm)
+            if comm.rank == 0:
+                print(
+                    f"cantilever Gamma* = {args.gamma:g}, {summary['patches'][0]} patches, {summary['dofs']} DoFs, "
+                    f"{comm.size} rank(s): {summary['load_steps']} load steps, "
+                    f"{sum(summary['newton_iterations'])} Newton iterations, {summary['solve_s']:.2f} s\n"
+                    f"  tip drop H/L  = {summary['tip_H_over_L']:.6f}  heavy elastica {summary['reference_H_over_L']:.6f}"
+                    f"  ({100 * summary['relative_error_H']:+.4f} %)\n"
+                    f"  tip reach W/L = {summary['tip_W_over_L']:.6f}  heavy elastica {summary['reference_W_over_L']:.6f}"
+                    f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
+                    f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, summary.json"
+                )
+        elif args.command == "bench":
+            rows = [jobs.benchmark(n, args.hessian, args.repeats, comm) for n in args.patches]
+            if comm.rank == 0:
+                if args.json:
+                    for row in rows:
+                        print(json.dumps(row))
+                else:
+                    print(f"Newton iteration, {args.hessian} Hessian, {comm.size} rank(s), median of {args.repeats}")
+                    print(f"{'patches':>8} {'DoFs':>7} {'nnz':>9} {'residual':>9} {'jacobian':>9} {'factor':>8} "
+                          f"{'solve':>8} {'total':>8} {'GFlop/s':>8}")
+                    for r in rows:
+                        print(f"{r['patches']:>8} {r['dofs']:>7} {r['nnz']:>9} {r['assemble_residual_s']:>9.4f} "
+                              f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
+                              f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}")
+    except (ValueError, SolverError) as exc:
+        if comm.rank == 0:
+            print(f"bhem-hpc: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""Bad input gets a clear error naming the value, before any assembly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from bhem_hpc import bcs
+from bhem_hpc import surface as S
+from bhem_hpc.discretization import DiscretizationError, HermiteDiscretization, shared_jacobian
+from bhem_hpc.material import Material, MaterialError
+from bhem_hpc.shell import LineLoad, Loads, ModelError, PointLoad, ShellModel
+from bhem_hpc.solver import ShellSolver, SolverError
+
+GOOD = {"young": 1e6, "poisson": 0.3, "thickness": 0.01, "density": 1.0}
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("young", 0.0, r"material.young = 0.0 is invalid: must be > 0"),
+        ("young", -5.0, r"material.young = -5.0 is invalid"),
+        ("thickness", 0.0, r"material.thickness = 0.0 is invalid: must be > 0"),
+        ("density", -1.0, r"material.density = -1.0 is invalid: must be >= 0"),
+        ("poisson", 0.51, r"material.poisson = 0.51 is invalid: must be in \(-1, 0.5\]"),
+        ("poisson", -1.0, r"material.poisson = -1.0 is invalid"),
+        ("young", float("nan"), r"material.young = nan is invalid"),
+        ("thickness", "1mm", r"material.thickness must be a number, got '1mm'"),
+    ],
+)
+def test_material_errors(field, value, message):
+    with pytest.raises(MaterialError, match=message):
+        Material(**{**GOOD, field: value})
+    assert Material(**{**GOOD, "poisson": 0.5}).poisson == 0.5  # the upper bound is allowed
+
+
+def test_non_uniform_or_inconsistent_grids_are_rejected(comm):
+    cells = np.array([[[0, 0], [1, 0], [0, 1], [1, 1]], [[1, 0], [2, 0], [1, 1], [2, 1]]], dtype=float)
+    assert np.allclose(shared_jacobian(cells, (1.0, 1.0), MPI.COMM_SELF), np.eye(2))
+    graded = cells.copy()
+    graded[1, [1, 3], 0] = 2.5
+    with pytest.raises(DiscretizationError, match="do not share one Jacobian"):
+        shared_jacobian(graded, (1.0, 1.0), MPI.COMM_SELF)
+    flipped = cells.copy()
+    flipped[1] = flipped[1][[1, 0, 3, 2]]  # second cell ordered right-to-left
+    with pytest.raises(DiscretizationError, match="uniform, consistently ordered grid"):
+        shared_jacobian(flipped, (1.0, 1.0), MPI.COMM_SELF)
+    skewed = cells.copy()
+    skewed[1, 3] += [0.2, 0.0]
+    with pytest.raises(DiscretizationError, match="not a parallelogram"):
+        shared_jacobian(skewed, (1.0, 1.0), MPI.COMM_SELF)
+    sheared = np.array([[[0, 0], [1, 0.5], [0, 1], [1, 1.5]]], dtype=float)
+    with pytest.raises(DiscretizationError, match="not axis aligned"):
+        shared_jacobian(sheared, (1.0, 1.0), MPI.COMM_SELF)
+
+
+def test_degenerate_rest_surface_is_rejected_before_assembly(comm):
+    grid = S.ParameterGrid(2, 2, (0.0, 1.0), (0.0, 1.0))
+    flat = S.flat_rectangle(1.0, 1.0, 2, 2)
+    nodal = flat.nodal.copy()
+    nodal[:, :, 2] = 0.0  # a2 = 0 everywhere: a line, not a surface
+    nodal[:, :, 3] = 0.0
+    nodal[:, :, 0, 1] = 0.0
+    with pytest.raises(S.SurfaceError, match=r"rest surface is degenerate: \|a1 x a2\| = 0.000e\+00 at quadrature point"):
+        ShellModel(S.HermiteSurface(grid, nodal), Material(**GOOD), comm=comm)
+
+
+def test_boundary_conditions_naming_missing_nodes(comm):
+    rest = S.flat_rectangle(1.0, 1.0, 2, 2)
+    with pytest.raises(bcs.BoundaryConditionError, match=r"names node \(3, 0\), which does not exist: the grid has nodes \(0..2, 0..2\)"):
+        ShellModel(rest, Material(**GOOD), constraints=[bcs.pin(np.array([[3, 0]]))], comm=comm)
+    with pytest.raises(bcs.BoundaryConditionError, match="kinds"):
+        bcs.prescribe(np.array([[0, 0]]), ["d3"], [0], [1.0])
+    with pytest.raises(bcs.BoundaryConditionError, match=r"components \(5,\)"):
+        ShellModel(rest, Material(**GOOD), constraints=[bcs.NodalConstraint(np.array([[0, 0]]), (0,), (5,))], comm=comm)
+    with pytest.raises(bcs.BoundaryConditionError, match="closed in that direction"):
+        bcs.edge_nodes(S.cylinder(1.0, 1.0, 2, 4).grid, "xi2_min")
+    with pytest.raises(bcs.BoundaryConditionError, match="values of shape"):
+        bcs.prescribe(np.array([[0, 0], [1, 0]]), ["x"], [0, 1], np.ones((3, 1, 2))).validate(rest.grid)
+
+
+def test_bad_loads_and_options(comm):
+    rest = S.flat_rectangle(1.0, 1.0, 2, 2)
+    material = Material(**GOOD)
+    with pytest.raises(ModelError, match=r"loads.gravity must be 3 finite numbers, got \(0, 0\)"):
+        ShellModel(rest, material, Loads(gravity=(0, 0)), comm=comm)
+    with pytest.raises(ModelError, match=r"loads.line_loads\[0\].edge = 'top'"):
+        ShellModel(rest, material, Loads(line_loads=(LineLoad("top", (0, 0, 1)),)), comm=comm)
+    with pytest.raises(ModelError, match=r"point_loads\[0\].force"):
+        ShellModel(rest, material, Loads(point_loads=(PointLoad(0.5, 0.5, (np.nan, 0, 0)),)), comm=comm)
+    with pytest.raises(S.SurfaceError, match="xi1=2.0 lies outside"):
+        ShellModel(rest, material, Loads(point_loads=(PointLoad(2.0, 0.5, (0, 0, 1)),)), comm=comm)
+    with pytest.raises(ModelError, match="hessian = 'approx'"):
+        ShellModel(rest, material, hessian="approx", comm=comm)
+    with pytest.raises(ModelError, match="quadrature points per direction = 7"):
+        ShellModel(rest, material, quadrature_points=7, comm=comm)
+    model = ShellModel(rest, material, comm=comm)
+    with ShellSolver(model) as solver, pytest.raises(SolverError, match="load_steps must be an integer >= 1, got 0"):
+        solver.solve(0)
+
+
+def test_surface_from_another_grid_is_rejected(comm):
+    disc = HermiteDiscretization(S.ParameterGrid(2, 2, (0.0, 1.0), (0.0, 1.0)), comm)
+    with pytest.raises(DiscretizationError, match="differs"):
+        disc.surface_to_open(S.flat_rectangle(1.0, 1.0, 3, 2))

@@ -25,7 +25,7 @@ demo: setup
 test: setup lint test-serial test-mpi
 
 lint: setup
-	$(VENV)/bin/ruff check bhem_hpc forms tests benchmarks
+	$(VENV)/bin/ruff check bhem_hpc forms tests
 
 test-serial: setup
 	$(PY) -m pytest

@@ -51,9 +51,13 @@ class NodalConstraint:
                 f"the grid has nodes (0..{m1 - 1}, 0..{m2 - 1})"
             )
         if not self.kinds or any(k not in range(4) for k in self.kinds):
-            raise BoundaryConditionError(f"constraint kinds {self.kinds!r} must be a non-empty subset of 0..3 {KIND_NAMES}")
+            raise BoundaryConditionError(
+                f"constraint kinds {self.kinds!r} must be a non-empty subset of 0..3 {KIND_NAMES}"
+            )
         if not self.components or any(c not in range(3) for c in self.components):
-            raise BoundaryConditionError(f"constraint components {self.components!r} must be a non-empty subset of 0, 1, 2")
+            raise BoundaryConditionError(
+                f"constraint components {self.components!r} must be a non-empty subset of 0, 1, 2"
+            )
         if self.values is not None:
             values = np.asarray(self.values, dtype=float)
             try:

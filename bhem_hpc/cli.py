@@ -63,9 +63,11 @@ def main(argv: list[str] | None = None) -> int:
                     f"cantilever Gamma* = {args.gamma:g}, {summary['patches'][0]} patches, {summary['dofs']} DoFs, "
                     f"{comm.size} rank(s): {summary['load_steps']} load steps, "
                     f"{sum(summary['newton_iterations'])} Newton iterations, {summary['solve_s']:.2f} s\n"
-                    f"  tip drop H/L  = {summary['tip_H_over_L']:.6f}  heavy elastica {summary['reference_H_over_L']:.6f}"
+                    f"  tip drop H/L  = {summary['tip_H_over_L']:.6f}  "
+                    f"heavy elastica {summary['reference_H_over_L']:.6f}"
                     f"  ({100 * summary['relative_error_H']:+.4f} %)\n"
-                    f"  tip reach W/L = {summary['tip_W_over_L']:.6f}  heavy elastica {summary['reference_W_over_L']:.6f}"
+                    f"  tip reach W/L = {summary['tip_W_over_L']:.6f}  "
+                    f"heavy elastica {summary['reference_W_over_L']:.6f}"
                     f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
                     f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, summary.json"
                 )
@@ -77,12 +79,16 @@ def main(argv: list[str] | None = None) -> int:
                         print(json.dumps(row))
                 else:
                     print(f"Newton iteration, {args.hessian} Hessian, {comm.size} rank(s), median of {args.repeats}")
-                    print(f"{'patches':>8} {'DoFs':>7} {'nnz':>9} {'residual':>9} {'jacobian':>9} {'factor':>8} "
-                          f"{'solve':>8} {'total':>8} {'GFlop/s':>8}")
+                    print(
+                        f"{'patches':>8} {'DoFs':>7} {'nnz':>9} {'residual':>9} {'jacobian':>9} {'factor':>8} "
+                        f"{'solve':>8} {'total':>8} {'GFlop/s':>8}"
+                    )
                     for r in rows:
-                        print(f"{r['patches']:>8} {r['dofs']:>7} {r['nnz']:>9} {r['assemble_residual_s']:>9.4f} "
-                              f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
-                              f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}")
+                        print(
+                            f"{r['patches']:>8} {r['dofs']:>7} {r['nnz']:>9} {r['assemble_residual_s']:>9.4f} "
+                            f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
+                            f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}"
+                        )
     except (ValueError, SolverError) as exc:
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)

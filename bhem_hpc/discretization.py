@@ -71,7 +71,9 @@ class Discretization(Protocol):
 
     def closed_to_surface(self, closed: np.ndarray) -> HermiteSurface: ...
 
-    def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs: ...
+    def select_dofs(
+        self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]
+    ) -> ConstrainedDofs: ...
 
     def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]: ...
 
@@ -94,7 +96,11 @@ def shared_jacobian(cell_vertices: np.ndarray, patch_size: tuple[float, float], 
     skew = np.abs(v[:, 3] - v[:, 1] - v[:, 2] + v[:, 0]).max(axis=1) if len(v) else np.zeros(0)
     first_skew = comm.allreduce(int(np.argmax(skew)) if np.any(skew > tol) else -1, op=MPI.MAX)
     if first_skew >= 0:
-        detail = f"cell {int(np.argmax(skew))} has vertices {v[int(np.argmax(skew))].tolist()}" if np.any(skew > tol) else "on another rank"
+        detail = (
+            f"cell {int(np.argmax(skew))} has vertices {v[int(np.argmax(skew))].tolist()}"
+            if np.any(skew > tol)
+            else "on another rank"
+        )
         raise DiscretizationError(f"a cell is not a parallelogram ({detail}): the grid is not uniform")
     reference = comm.bcast(jac[0] if len(jac) and comm.rank == 0 else None, root=0)
     if reference is None:
@@ -130,7 +136,10 @@ class HermiteDiscretization:
         self.grid = grid
         self.mesh = dolfinx.mesh.create_rectangle(
             comm,
-            [np.array([grid.xi1_range[0], grid.xi2_range[0]]), np.array([grid.xi1_range[1], grid.xi2_range[1]])],
+            [
+                np.array([grid.xi1_range[0], grid.xi2_range[0]]),
+                np.array([grid.xi1_range[1], grid.xi2_range[1]]),
+            ],
             [grid.n1, grid.n2],
             dolfinx.mesh.CellType.quadrilateral,
         )
@@ -185,7 +194,9 @@ class HermiteDiscretization:
         vertex_nodes = np.rint((self._cell_vertices - origin) / h).astype(np.int64)  # (cells, 4, 2)
         dofmap = self.function_space.dofmap
         cells = np.arange(len(vertex_nodes))
-        cell_dofs = np.array([dofmap.cell_dofs(c) for c in cells], dtype=np.int64).reshape(len(cells), 4, DOFS_PER_VERTEX)
+        cell_dofs = np.array([dofmap.cell_dofs(c) for c in cells], dtype=np.int64).reshape(
+            len(cells), 4, DOFS_PER_VERTEX
+        )
         node_of_block[cell_dofs.ravel()] = np.repeat(vertex_nodes.reshape(-1, 2), DOFS_PER_VERTEX, axis=0)
         ref_of_block[cell_dofs.ravel()] = np.tile(np.arange(DOFS_PER_VERTEX), len(cells) * 4)
         if np.any(ref_of_block < 0):
@@ -197,7 +208,8 @@ class HermiteDiscretization:
         self.distinct_node = np.stack(grid.wrap_node(node_of_block[:, 0], node_of_block[:, 1]), axis=1)
         self._cell_dofs = cell_dofs.reshape(len(cells), 16)
         self._cell_of_patch = {
-            (int(n[0]), int(n[1])): c for c, n in enumerate(vertex_nodes.min(axis=1)[: self.mesh.topology.index_map(2).size_local])
+            (int(n[0]), int(n[1])): c
+            for c, n in enumerate(vertex_nodes.min(axis=1)[: self.mesh.topology.index_map(2).size_local])
         }
 
         # Closed numbering: one block per (distinct node, kind); owned where the open block with
@@ -205,7 +217,9 @@ class HermiteDiscretization:
         m1, m2 = grid.node_shape
         key = (self.distinct_node[:, 0] * m2 + self.distinct_node[:, 1]) * 4 + self.block_kind
         if not self.is_periodic:
-            self.closed_of_open = np.asarray(index_map.local_to_global(np.arange(num_blocks, dtype=np.int32)), dtype=np.int64)
+            self.closed_of_open = np.asarray(
+                index_map.local_to_global(np.arange(num_blocks, dtype=np.int32)), dtype=np.int64
+            )
             self.closed_offset = index_map.local_range[0]
             self.num_owned_closed = self.num_owned_blocks
             owned_master = np.arange(self.num_owned_blocks)

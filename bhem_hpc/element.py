@@ -28,16 +28,19 @@ def create_hermite_element() -> basix.finite_element.FiniteElement:
         [np.zeros((0, 2))],
         [],
     ]
-    matrices: list[list[np.ndarray]] = [[], [np.zeros((0, 1, 0, nderivs)) for _ in range(4)], [np.zeros((0, 1, 0, nderivs))], []]
+    matrices: list[list[np.ndarray]] = [
+        [],
+        [np.zeros((0, 1, 0, nderivs)) for _ in range(4)],
+        [np.zeros((0, 1, 0, nderivs))],
+        [],
+    ]
     for _ in vertices:
         m = np.zeros((DOFS_PER_VERTEX, 1, 1, nderivs))
         for k, (dx, dy) in enumerate(VERTEX_DOF_DERIVATIVES):
             m[k, 0, 0, basix.index(dx, dy)] = 1.0
         matrices[0].append(m)
     # The polyset of degree 3 on a quadrilateral is Q3 (16 functions): take all of it.
-    return basix.create_custom_element(
-        cell, [], np.eye(16), points, matrices, 2, basix.MapType.identity, False, 3, 3
-    )
+    return basix.create_custom_element(cell, [], np.eye(16), points, matrices, 2, basix.MapType.identity, False, 3, 3)
 
 
 def hermite_ufl_element(value_size: int = 3) -> basix.ufl_wrapper._BasixElementBase:

@@ -53,9 +53,7 @@ def write_surface_xdmf(path: str | Path, surface: HermiteSurface, density: int =
         f["parameters"] = params
     os.replace(tmp_h5, h5_path)
     tmp_xdmf = path.with_name(path.name + ".tmp")
-    tmp_xdmf.write_text(
-        _XDMF.format(name=name, ncells=len(quads), npoints=len(points), h5=h5_path.name)
-    )
+    tmp_xdmf.write_text(_XDMF.format(name=name, ncells=len(quads), npoints=len(points), h5=h5_path.name))
     os.replace(tmp_xdmf, path)
     return path
 
@@ -78,7 +76,7 @@ def render_surface_png(path: str | Path, surface: HermiteSurface, title: str = "
     ax.add_collection3d(faces)
     lo, hi = points.min(axis=0), points.max(axis=0)
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2
-    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, strict=False):
         setter(c - half, c + half)
     ax.set_box_aspect((1, 1, 1))
     ax.set_xlabel("x")

@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from bhem_hpc import bcs
 from bhem_hpc import surface as S
-from bhem_hpc.io import render_surface_png, write_surface_xdmf
+from bhem_hpc.io import write_surface_xdmf
 from bhem_hpc.material import Material
 from bhem_hpc.references import heavy_cantilever
 from bhem_hpc.shell import Loads, ShellModel
@@ -48,8 +48,12 @@ def cantilever(
     steps = load_steps or max(1, int(np.ceil(2 * np.sqrt(gamma))))
     rest = S.flat_rectangle(length, width, patches, 1)
     model = ShellModel(
-        rest, material, Loads(gravity=(0.0, 0.0, -gravity)), [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
-        hessian=hessian, comm=comm,
+        rest,
+        material,
+        Loads(gravity=(0.0, 0.0, -gravity)),
+        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
+        hessian=hessian,
+        comm=comm,
     )
     with ShellSolver(model, options=options) as solver:
         report = solver.solve(steps)
@@ -107,8 +111,13 @@ def _plot_cantilever(path: Path, surface: S.HermiteSurface, shape: np.ndarray, s
     plt.close(fig)
 
 
-def benchmark(patches: int, hessian: str = "exact", repeats: int = 3, comm: MPI.Comm = MPI.COMM_WORLD,
-              options: dict | None = None) -> dict:
+def benchmark(
+    patches: int,
+    hessian: str = "exact",
+    repeats: int = 3,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    options: dict | None = None,
+) -> dict:
     """Time one Newton iteration on an ``N x N`` sheet in a deformed, stressed state.
 
     The sheet (1 m, Y 1e4 Pa, nu 0.3, h 1 mm, rho 200: the paper's cloth) is stretched 2 % and
@@ -125,15 +134,27 @@ def benchmark(patches: int, hessian: str = "exact", repeats: int = 3, comm: MPI.
         return np.stack([1.02 * a + 0.01 * np.sin(np.pi * b), b, bump], axis=-1)
 
     state = S.from_callable(position, rest.grid)
-    model = ShellModel(rest, material, Loads(gravity=(0.0, 0.0, -9.81)),
-                       [bcs.clamp(bcs.edge_nodes(rest.grid, "xi2_min"))], hessian=hessian, comm=comm, initial=state)
+    model = ShellModel(
+        rest,
+        material,
+        Loads(gravity=(0.0, 0.0, -9.81)),
+        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi2_min"))],
+        hessian=hessian,
+        comm=comm,
+        initial=state,
+    )
     with ShellSolver(model, prefix="bhem_bench_", options=options) as solver:
         solver.time_newton_iteration()
         runs = [solver.time_newton_iteration() for _ in range(repeats)]
         nnz = solver.matrix_nonzeros()
     keys = ("assemble_residual_s", "assemble_jacobian_s", "factor_s", "solve_s", "newton_iteration_s")
-    result = {"patches": patches, "dofs": 3 * model.discretization.num_closed, "nnz": nnz, "ranks": comm.size,
-              "hessian": hessian}
+    result = {
+        "patches": patches,
+        "dofs": 3 * model.discretization.num_closed,
+        "nnz": nnz,
+        "ranks": comm.size,
+        "hessian": hessian,
+    }
     for key in keys:
         result[key] = float(np.median([r[key] for r in runs]))
     result["factor_gflop"] = runs[-1]["factor_gflop"]

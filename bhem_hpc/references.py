@@ -54,10 +54,10 @@ def _integrate_from_tip(
     for i in range(steps):
         t = i * h
         k1 = rhs(t, y)
-        k2 = rhs(t + h / 2, [a + h / 2 * b for a, b in zip(y, k1)])
-        k3 = rhs(t + h / 2, [a + h / 2 * b for a, b in zip(y, k2)])
-        k4 = rhs(t + h, [a + h * b for a, b in zip(y, k3)])
-        y = [a + h / 6 * (b + 2 * c + 2 * d + e) for a, b, c, d, e in zip(y, k1, k2, k3, k4)]
+        k2 = rhs(t + h / 2, [a + h / 2 * b for a, b in zip(y, k1, strict=False)])
+        k3 = rhs(t + h / 2, [a + h / 2 * b for a, b in zip(y, k2, strict=False)])
+        k4 = rhs(t + h, [a + h * b for a, b in zip(y, k3, strict=False)])
+        y = [a + h / 6 * (b + 2 * c + 2 * d + e) for a, b, c, d, e in zip(y, k1, k2, k3, k4, strict=False)]
         if path is not None:
             path.append((-y[2], y[3]))
     return y[0], y[2], y[3]

@@ -93,7 +93,9 @@ def gauss_measure(mesh: dolfinx.mesh.Mesh, points_per_direction: int) -> ufl.Mea
 # The shell kernels are long chains of products, sums and square roots. Letting the compiler
 # reassociate sums and inline sqrt (no errno) halves the Jacobian kernel's time; unlike
 # -ffast-math this keeps IEEE NaN/Inf semantics, so a NaN still reaches the residual norm.
-JIT_CFLAGS = "-O3 -march=native -fno-math-errno -fno-trapping-math -fassociative-math -fno-signed-zeros -freciprocal-math -g0"
+JIT_CFLAGS = (
+    "-O3 -march=native -fno-math-errno -fno-trapping-math -fassociative-math -fno-signed-zeros -freciprocal-math -g0"
+)
 
 
 def _cpu_specific_cache() -> str:
@@ -288,8 +290,7 @@ class ShellModel:
     def energies(self) -> dict[str, float]:
         """Collective: every built energy term at the current state (load factor not applied)."""
         return {
-            name: self.comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM)
-            for name, form in self.energy_forms.items()
+            name: self.comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM) for name, form in self.energy_forms.items()
         }
 
 

@@ -201,7 +201,9 @@ class ShellSolver:
     def potential_energy(self) -> float:
         """Total potential at the model's current state (internal - external work), collective."""
         local = fem.assemble_scalar(self.model.potential_form)
-        local -= float(self.model.load_factor.value) * float(np.dot(self.point_loads.array_r, self.model.x.vector.array_r))
+        local -= float(self.model.load_factor.value) * float(
+            np.dot(self.point_loads.array_r, self.model.x.vector.array_r)
+        )
         return self.model.comm.allreduce(local)
 
     def damp_step(self, x: PETSc.Vec, y: PETSc.Vec, max_backtracks: int = 30) -> None:
@@ -231,7 +233,12 @@ class ShellSolver:
             guess = -slope * step**2 / (2 * curvature) if np.isfinite(energy) and curvature > 0 else 0.1 * step
             step = min(0.5 * step, max(0.1 * step, guess))
         else:
-            log.warning("%s: energy backtracking hit its bound of %d steps (step %.3e)", self.prefix, max_backtracks, step)
+            log.warning(
+                "%s: energy backtracking hit its bound of %d steps (step %.3e)",
+                self.prefix,
+                max_backtracks,
+                step,
+            )
         self.report.backtracks += int(step < 1.0)
         if step < 1.0:
             y.scale(step)
@@ -293,7 +300,10 @@ class ShellSolver:
                     self._raise(trial, f"{max_cuts} halvings of the load increment")
                 log.warning(
                     "%s: Newton failed at load factor %.4g (%s); halving the increment to %.3g",
-                    self.prefix, trial, SNES_REASONS.get(self.snes.getConvergedReason()), increment / 2,
+                    self.prefix,
+                    trial,
+                    SNES_REASONS.get(self.snes.getConvergedReason()),
+                    increment / 2,
                 )
                 increment /= 2
                 continue
@@ -303,8 +313,13 @@ class ShellSolver:
             self.report.residual_norms.append(self.snes.getFunctionNorm())
             self.report.negative_pivots.append(self.negative_pivots())
             self.report.load_steps += 1
-            log.info("%s: load factor %.4g: %d Newton iterations, |F| = %.3e", self.prefix, trial, its,
-                     self.snes.getFunctionNorm())
+            log.info(
+                "%s: load factor %.4g: %d Newton iterations, |F| = %.3e",
+                self.prefix,
+                trial,
+                its,
+                self.snes.getFunctionNorm(),
+            )
             if history:
                 history[0][1].destroy()
             history = [(factor, accepted)]
@@ -402,7 +417,15 @@ class ShellSolver:
         if self._closed:
             return
         self._closed = True
-        objects = [self.snes, self.x, self.f, self.f_open, self.point_loads, self.jacobian_blocked, self.jacobian_open]
+        objects = [
+            self.snes,
+            self.x,
+            self.f,
+            self.f_open,
+            self.point_loads,
+            self.jacobian_blocked,
+            self.jacobian_open,
+        ]
         if self.prolongation is not None:
             objects += [self.prolongation, self.jacobian]
         for obj in objects:

@@ -53,7 +53,10 @@ class ParameterGrid:
         for name, (lo, hi) in (("xi1_range", self.xi1_range), ("xi2_range", self.xi2_range)):
             if not (math.isfinite(lo) and math.isfinite(hi) and hi > lo):
                 raise SurfaceError(f"ParameterGrid.{name} must be finite with max > min, got {(lo, hi)!r}")
-        for name, periodic, n in (("periodic1", self.periodic1, self.n1), ("periodic2", self.periodic2, self.n2)):
+        for name, periodic, n in (
+            ("periodic1", self.periodic1, self.n1),
+            ("periodic2", self.periodic2, self.n2),
+        ):
             if periodic and n < 3:
                 raise SurfaceError(f"ParameterGrid.{name}=True needs at least 3 patches in that direction, got {n}")
 
@@ -457,9 +460,7 @@ def cylinder(
     )
 
 
-def sphere_zone(
-    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int
-) -> HermiteSurface:
+def sphere_zone(radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int) -> HermiteSurface:
     """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth.
 
     xi1 = polar angle, xi2 = azimuth in [0, 2*pi). A zone touching a pole is degenerate

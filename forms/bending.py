@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import ufl
 
-from bhem_hpc.forms.kinematics import area_density, curvature, metric, plane_stress_lame, svk_bilinear, svk_density
+from bhem_hpc.forms.kinematics import (
+    area_density,
+    curvature,
+    metric,
+    plane_stress_lame,
+    svk_bilinear,
+    svk_density,
+)
 
 
 def _bending_strain(x, x_rest):

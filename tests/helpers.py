@@ -50,7 +50,7 @@ def gather_matrix(mat: PETSc.Mat) -> np.ndarray:
     first, last = mat.getOwnershipRange()
     rows = np.zeros((last - first, mat.getSize()[1]))
     for r in range(last - first):
-        rows[r, indices[indptr[r]:indptr[r + 1]]] = values[indptr[r]:indptr[r + 1]]
+        rows[r, indices[indptr[r] : indptr[r + 1]]] = values[indptr[r] : indptr[r + 1]]
     return np.vstack(comm.allgather(rows))
 
 

@@ -62,18 +62,28 @@ def test_degenerate_rest_surface_is_rejected_before_assembly(comm):
     nodal[:, :, 2] = 0.0  # a2 = 0 everywhere: a line, not a surface
     nodal[:, :, 3] = 0.0
     nodal[:, :, 0, 1] = 0.0
-    with pytest.raises(S.SurfaceError, match=r"rest surface is degenerate: \|a1 x a2\| = 0.000e\+00 at quadrature point"):
+    with pytest.raises(
+        S.SurfaceError, match=r"rest surface is degenerate: \|a1 x a2\| = 0.000e\+00 at quadrature point"
+    ):
         ShellModel(S.HermiteSurface(grid, nodal), Material(**GOOD), comm=comm)
 
 
 def test_boundary_conditions_naming_missing_nodes(comm):
     rest = S.flat_rectangle(1.0, 1.0, 2, 2)
-    with pytest.raises(bcs.BoundaryConditionError, match=r"names node \(3, 0\), which does not exist: the grid has nodes \(0..2, 0..2\)"):
+    with pytest.raises(
+        bcs.BoundaryConditionError,
+        match=r"names node \(3, 0\), which does not exist: the grid has nodes \(0..2, 0..2\)",
+    ):
         ShellModel(rest, Material(**GOOD), constraints=[bcs.pin(np.array([[3, 0]]))], comm=comm)
     with pytest.raises(bcs.BoundaryConditionError, match="kinds"):
         bcs.prescribe(np.array([[0, 0]]), ["d3"], [0], [1.0])
     with pytest.raises(bcs.BoundaryConditionError, match=r"components \(5,\)"):
-        ShellModel(rest, Material(**GOOD), constraints=[bcs.NodalConstraint(np.array([[0, 0]]), (0,), (5,))], comm=comm)
+        ShellModel(
+            rest,
+            Material(**GOOD),
+            constraints=[bcs.NodalConstraint(np.array([[0, 0]]), (0,), (5,))],
+            comm=comm,
+        )
     with pytest.raises(bcs.BoundaryConditionError, match="closed in that direction"):
         bcs.edge_nodes(S.cylinder(1.0, 1.0, 2, 4).grid, "xi2_min")
     with pytest.raises(bcs.BoundaryConditionError, match="values of shape"):
@@ -96,7 +106,10 @@ def test_bad_loads_and_options(comm):
     with pytest.raises(ModelError, match="quadrature points per direction = 7"):
         ShellModel(rest, material, quadrature_points=7, comm=comm)
     model = ShellModel(rest, material, comm=comm)
-    with ShellSolver(model) as solver, pytest.raises(SolverError, match="load_steps must be an integer >= 1, got 0"):
+    with (
+        ShellSolver(model) as solver,
+        pytest.raises(SolverError, match="load_steps must be an integer >= 1, got 0"),
+    ):
         solver.solve(0)
 
 

@@ -31,8 +31,9 @@ def test_round_trip_through_dolfinx_at_quadrature_points(comm, make):
     points, _ = basix.make_quadrature(basix.CellType.quadrilateral, 7)
     g = ufl.grad(u)
     gg = ufl.grad(g)
-    values = ufl.as_vector([u[i] for i in range(3)] + [g[i, a] for i in range(3) for a in range(2)]
-                           + [gg[i, 0, 1] for i in range(3)])
+    values = ufl.as_vector(
+        [u[i] for i in range(3)] + [g[i, a] for i in range(3) for a in range(2)] + [gg[i, 0, 1] for i in range(3)]
+    )
     num_cells = disc.mesh.topology.index_map(2).size_local
     got = fem.Expression(values, points).eval(np.arange(num_cells, dtype=np.int32)).reshape(num_cells, len(points), 12)
     origin = disc._cell_vertices[:num_cells, 0]
@@ -53,7 +54,7 @@ def test_point_basis_evaluates_the_surface(comm, rng):
     surface = S.cylinder(1.0, 2.0, 3, 6)
     disc = HermiteDiscretization(surface.grid, comm)
     dofs = disc.surface_to_open(surface).reshape(-1, 3)
-    for xi1, xi2 in zip(rng.random(6) * 2.0, rng.random(6) * 4 * np.pi - np.pi):
+    for xi1, xi2 in zip(rng.random(6) * 2.0, rng.random(6) * 4 * np.pi - np.pi, strict=False):
         blocks, values = disc.point_basis(xi1, xi2)
         local = values @ dofs[blocks] if len(blocks) else np.zeros(3)
         owners = comm.allreduce(int(len(blocks) > 0))

@@ -32,6 +32,7 @@ def test_reproduces_every_bicubic_monomial(rng):
     basis = element.tabulate(0, points)[0, :, :, 0]  # (points, 16)
     for a in range(4):
         for b in range(4):
+
             def d(f_x, f_y, x, y, a=a, b=b):
                 # derivative of x^a y^b of orders (f_x, f_y)
                 ca = np.prod(range(a - f_x + 1, a + 1)) if f_x <= a else 0.0
@@ -54,11 +55,17 @@ def test_c1_continuity_across_interior_edges(comm, rng):
     u.x.array[:] = disc.surface_to_open(surface)
     t = np.linspace(0.05, 0.95, 7)
     ref_points = np.concatenate(
-        [np.stack([np.zeros_like(t), t], 1), np.stack([np.ones_like(t), t], 1),
-         np.stack([t, np.zeros_like(t)], 1), np.stack([t, np.ones_like(t)], 1)]
+        [
+            np.stack([np.zeros_like(t), t], 1),
+            np.stack([np.ones_like(t), t], 1),
+            np.stack([t, np.zeros_like(t)], 1),
+            np.stack([t, np.ones_like(t)], 1),
+        ]
     )
     grad = ufl.grad(u)
-    expr = fem.Expression(ufl.as_vector([u[i] for i in range(3)] + [grad[i, j] for i in range(3) for j in range(2)]), ref_points)
+    expr = fem.Expression(
+        ufl.as_vector([u[i] for i in range(3)] + [grad[i, j] for i in range(3) for j in range(2)]), ref_points
+    )
     num_cells = disc.mesh.topology.index_map(2).size_local
     values = expr.eval(np.arange(num_cells, dtype=np.int32)).reshape(num_cells, len(ref_points), 9)
     origin = disc._cell_vertices[:num_cells, 0]
@@ -88,7 +95,8 @@ def test_float64_projection_solve_is_exact_for_bicubics(comm):
     u, v = ufl.TrialFunction(space), ufl.TestFunction(space)
     dx = ufl.Measure("dx", metadata={"quadrature_degree": 9})
     problem = fem_petsc.LinearProblem(
-        ufl.inner(u, v) * dx, ufl.inner(target, v) * dx,
+        ufl.inner(u, v) * dx,
+        ufl.inner(target, v) * dx,
         petsc_options={"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"},
     )
     uh = problem.solve()

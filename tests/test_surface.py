@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,3 +157,12 @@ def test_bad_surfaces_are_rejected():
         S.ParameterGrid(0, 2, (0.0, 1.0), (0.0, 1.0))
     with pytest.raises(S.SurfaceError, match="xi1=1.5 lies outside"):
         S.flat_rectangle(1.0, 1.0, 2, 2).evaluate(np.array(1.5), np.array(0.5))
+
+
+def test_shipped_nodal_files_load():
+    root = Path(__file__).resolve().parents[1] / "meshes"
+    zone = S.HermiteSurface.load(root / "hemisphere_zone_8x24.npz")
+    assert zone.grid.periodic2 and not zone.grid.periodic1
+    np.testing.assert_allclose(np.linalg.norm(zone.nodal[:, :, 0], axis=-1), 0.5, rtol=1e-14)
+    cyl = S.HermiteSurface.load(root / "cylinder_12x24.npz")
+    assert cyl.grid.node_shape == (13, 24)

@@ -20,9 +20,7 @@ def plate_centre_deflection(comm, patches: int, support: str, pressure: bool = F
     """Centre deflection in units of q a^4 / D of a unit square plate, q small (w ~ 1e-6 h)."""
     rest = S.flat_rectangle(1.0, 1.0, patches, patches)
     make = bcs.clamp if support == "clamped" else None
-    constraints = [
-        make(bcs.edge_nodes(rest.grid, e)) if make else bcs.simply_supported(rest.grid, e) for e in EDGES
-    ]
+    constraints = [make(bcs.edge_nodes(rest.grid, e)) if make else bcs.simply_supported(rest.grid, e) for e in EDGES]
     q = 1e-6 * PLATE.bending_stiffness
     loads = Loads(pressure=-q) if pressure else Loads(gravity=(0.0, 0.0, -q / (PLATE.density * PLATE.thickness)))
     model = ShellModel(rest, PLATE, loads, constraints, comm=comm)
@@ -62,8 +60,13 @@ def test_cantilever_master_curve(comm, gamma, load_steps):
     material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
     gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
     rest = S.flat_rectangle(length, width, 32, 1)
-    model = ShellModel(rest, material, Loads(gravity=(0.0, 0.0, -gravity)),
-                       [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))], comm=comm)
+    model = ShellModel(
+        rest,
+        material,
+        Loads(gravity=(0.0, 0.0, -gravity)),
+        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
+        comm=comm,
+    )
     with ShellSolver(model) as solver:
         solver.solve(load_steps)
     tip = model.state_surface().evaluate(np.array(length), np.array(width / 2)).x

@@ -1,0 +1,74 @@
+"""The command line, run in-process so that it also runs under mpirun."""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+
+from bhem_hpc import cli
+from bhem_hpc.surface import HermiteSurface
+
+
+@pytest.fixture
+def shared_tmp(comm):
+    path = comm.bcast(tempfile.mkdtemp(prefix="bhem-cli-") if comm.rank == 0 else None)
+    return Path(path)
+
+
+def test_cantilever_job_writes_paraview_png_and_summary(comm, shared_tmp, capsys):
+    out = shared_tmp / "cantilever"
+    assert cli.main(["cantilever", "--gamma", "2", "--patches", "12", "--out", str(out)]) == 0
+    comm.Barrier()
+    summary = json.loads((out / "summary.json").read_text())
+    assert abs(summary["relative_error_H"]) < 1e-3 and summary["ranks"] == comm.size
+    assert (out / "cantilever.png").stat().st_size > 10_000
+    surface = HermiteSurface.load(out / "cantilever.npz")
+    assert surface.grid.n1 == 12
+    # ParaView's XDMF: parse the XML and read the heavy data independently, then with meshio
+    root = ET.parse(out / "cantilever.xdmf").getroot()
+    topology = root.find(".//Topology")
+    assert topology.get("TopologyType") == "Quadrilateral"
+    with h5py.File(out / "cantilever.h5") as f:
+        points, quads = f["geometry"][:], f["topology"][:]
+    assert int(topology.get("NumberOfElements")) == len(quads) == 12 * 4 * 4
+    mesh = meshio.read(out / "cantilever.xdmf")
+    np.testing.assert_allclose(mesh.points, points)
+    tip = points[np.argmax(-points[:, 2])]
+    assert abs(-tip[2] - summary["tip_H_over_L"]) < 0.01
+    if comm.rank == 0:
+        assert "tip drop H/L" in capsys.readouterr().out
+
+
+def test_bench_json(comm, capsys):
+    assert cli.main(["bench", "--patches", "4", "--repeats", "1", "--json"]) == 0
+    if comm.rank == 0:
+        row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+        for key in (
+            "patches",
+            "dofs",
+            "nnz",
+            "newton_iteration_s",
+            "assemble_residual_s",
+            "assemble_jacobian_s",
+            "factor_s",
+            "solve_s",
+            "factor_gflops",
+        ):
+            assert key in row
+        assert row["dofs"] == 3 * 4 * 25 and row["nnz"] > 0 and row["factor_gflops"] > 0
+
+
+def test_bad_arguments_give_clear_errors(comm, shared_tmp, capsys):
+    assert cli.main(["cantilever", "--gamma", "-1", "--out", str(shared_tmp / "x")]) == 2
+    if comm.rank == 0:
+        assert "--gamma must be in (0, 1e4], got -1.0" in capsys.readouterr().err
+    assert not (shared_tmp / "x").exists()
+    with pytest.raises(SystemExit):
+        cli.main(["cantilever", "--no-such-flag"])

@@ -149,9 +149,6 @@ class ShellSolver:
         self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
         self.bc_values = model.constrained_initial.copy()
         self.report = SolveReport()
-        m = model.material
-        # Energy scale below which differences are round-off: a unit strain of one patch.
-        self._energy_floor = m.young * m.thickness * model.rest_surface.grid.h1 * model.rest_surface.grid.h2
 
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(prefix)

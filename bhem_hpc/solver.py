@@ -125,11 +125,24 @@ class ShellSolver:
         with self.point_loads.localForm() as local:
             local.array[:] = model.point_load_open
         self.point_loads.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        # Element matrices go into a 3x3-block BAIJ matrix (insertion ~5x cheaper than AIJ) that is
-        # converted to AIJ, the format MUMPS' LDL^T and PtAP take; the conversion reuses its output.
-        self.jacobian_blocked = fem_petsc.create_matrix(model.jacobian_form, "baij")
+        pushed = _push_options(prefix, default_options(model), options or {})
+        opts = PETSc.Options()
+        ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
+        mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
+        # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
+        # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
+        # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
+        serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and not disc.is_periodic
+        self.matrix_format = "sbaij" if serial_sbaij else "aij"
+        self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
+        fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
+        self.jacobian_blocked.assemble()
         self.jacobian_open = PETSc.Mat()
-        self._assemble_open_jacobian()
+        self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
+        if serial_sbaij:
+            self.jacobian_open.setOption(PETSc.Mat.Option.IGNORE_LOWER_TRIANGULAR, True)
+            self.jacobian_blocked.destroy()
+            self.jacobian_blocked = None
         self.prolongation: PETSc.Mat | None = None
         if disc.is_periodic:
             blocks = disc.open_blocks
@@ -157,9 +170,7 @@ class ShellSolver:
         if model.potential_form is not None:
             self._trial = self.x.duplicate()
             self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
-        pushed = _push_options(prefix, default_options(model), options or {})
         self.snes.setFromOptions()
-        opts = PETSc.Options()
         for name in pushed:
             opts.delValue(name)
 
@@ -241,10 +252,12 @@ class ShellSolver:
             y.scale(step)
 
     def _assemble_open_jacobian(self) -> None:
-        self.jacobian_blocked.zeroEntries()
-        fem_petsc.assemble_matrix(self.jacobian_blocked, self.model.jacobian_form)
-        self.jacobian_blocked.assemble()
-        self.jacobian_blocked.convert("aij", self.jacobian_open)
+        target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
+        target.zeroEntries()
+        fem_petsc.assemble_matrix(target, self.model.jacobian_form)
+        target.assemble()
+        if self.jacobian_blocked is not None:
+            self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
 
     def assemble_jacobian(self, jac: PETSc.Mat) -> None:
         """``J = P^T J_open P`` with constrained rows and columns replaced by the identity."""
@@ -405,8 +418,13 @@ class ShellSolver:
         return times
 
     def matrix_nonzeros(self) -> int:
-        """Stored nonzeros of the (closed) Jacobian."""
-        return int(self.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        """Nonzeros of the (closed) Jacobian as a full matrix (SBAIJ stores the upper triangle)."""
+        stored = int(self.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        if self.jacobian.getType().endswith("sbaij"):
+            bs = self.jacobian.getBlockSize()
+            diagonal_blocks = self.jacobian.getSize()[0] // bs
+            return 2 * stored - bs * bs * diagonal_blocks
+        return stored
 
     # -- lifetime -------------------------------------------------------------------------------
     def close(self) -> None:
@@ -420,9 +438,10 @@ class ShellSolver:
             self.f,
             self.f_open,
             self.point_loads,
-            self.jacobian_blocked,
             self.jacobian_open,
         ]
+        if self.jacobian_blocked is not None:
+            objects.append(self.jacobian_blocked)
         if self.prolongation is not None:
             objects += [self.prolongation, self.jacobian]
         for obj in objects:

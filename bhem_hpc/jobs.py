@@ -20,6 +20,24 @@ from bhem_hpc.references import heavy_cantilever
 from bhem_hpc.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 
+CANTILEVER_SIZE = (1.0, 0.1)  # length, width [m]
+
+
+def cantilever_model(gamma: float, patches: int, hessian: str = "exact", comm: MPI.Comm = MPI.COMM_WORLD) -> ShellModel:
+    """The strip of :func:`cantilever`: nu = 0, clamped at xi1 = 0, gravity set by ``Gamma*``."""
+    length, width = CANTILEVER_SIZE
+    material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
+    gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
+    rest = S.flat_rectangle(length, width, patches, 1)
+    return ShellModel(
+        rest,
+        material,
+        Loads(gravity=(0.0, 0.0, -gravity)),
+        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
+        hessian=hessian,
+        comm=comm,
+    )
+
 
 def cantilever(
     gamma: float,
@@ -42,19 +60,9 @@ def cantilever(
         raise ValueError(f"--gamma must be in (0, 1e4], got {gamma!r}")
     if patches < 1:
         raise ValueError(f"--patches must be >= 1, got {patches!r}")
-    length, width = 1.0, 0.1
-    material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
-    gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
     steps = load_steps or max(1, int(np.ceil(2 * np.sqrt(gamma))))
-    rest = S.flat_rectangle(length, width, patches, 1)
-    model = ShellModel(
-        rest,
-        material,
-        Loads(gravity=(0.0, 0.0, -gravity)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
-        hessian=hessian,
-        comm=comm,
-    )
+    model = cantilever_model(gamma, patches, hessian, comm)
+    length, width = CANTILEVER_SIZE
     with ShellSolver(model, options=options) as solver:
         report = solver.solve(steps)
     deformed = model.state_surface()

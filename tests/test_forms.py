@@ -44,20 +44,24 @@ def model_pair(comm, rng):
     return exact, pseudo
 
 
+def central_difference(model, q0, direction, eps, evaluate):
+    """``(evaluate(q0 + eps d) - evaluate(q0 - eps d)) / (2 eps)``, restoring the state."""
+    set_open_state_global(model, q0 + eps * direction)
+    plus = evaluate(model)
+    set_open_state_global(model, q0 - eps * direction)
+    minus = evaluate(model)
+    set_open_state_global(model, q0)
+    return (plus - minus) / (2 * eps)
+
+
 def test_gradient_matches_central_differences(model_pair, rng):
     model, _ = model_pair
     q0 = open_state_global(model)
     gradient = residual_open(model)
-    eps = 1e-5
     for _ in range(3):
         d = rng.normal(size=q0.shape)
-        set_open_state_global(model, q0 + eps * d)
-        e_plus = potential(model)
-        set_open_state_global(model, q0 - eps * d)
-        e_minus = potential(model)
-        fd = (e_plus - e_minus) / (2 * eps)
+        fd = central_difference(model, q0, d, 1e-5, potential)
         assert abs(fd - gradient @ d) < 1e-6 * abs(gradient @ d)
-    set_open_state_global(model, q0)
 
 
 def test_exact_hessian_matches_central_differences(model_pair, rng):
@@ -65,16 +69,10 @@ def test_exact_hessian_matches_central_differences(model_pair, rng):
     q0 = open_state_global(model)
     hessian = jacobian_dense(model)
     np.testing.assert_allclose(hessian, hessian.T, atol=1e-10 * np.abs(hessian).max())
-    eps = 1e-6
     for _ in range(3):
         d = rng.normal(size=q0.shape)
-        set_open_state_global(model, q0 + eps * d)
-        f_plus = residual_open(model)
-        set_open_state_global(model, q0 - eps * d)
-        f_minus = residual_open(model)
-        fd = (f_plus - f_minus) / (2 * eps)
+        fd = central_difference(model, q0, d, 1e-6, residual_open)
         assert np.linalg.norm(fd - hessian @ d) < 1e-6 * np.linalg.norm(hessian @ d)
-    set_open_state_global(model, q0)
 
 
 def test_pseudo_hessian_drops_exactly_the_second_curvature_derivative(model_pair):

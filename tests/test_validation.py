@@ -7,6 +7,7 @@ import pytest
 
 from bhem_hpc import bcs
 from bhem_hpc import surface as S
+from bhem_hpc.jobs import CANTILEVER_SIZE, cantilever_model
 from bhem_hpc.material import Material
 from bhem_hpc.references import CLAMPED_SQUARE_PLATE, heavy_cantilever_tip, simply_supported_square_plate
 from bhem_hpc.shell import Loads, ShellModel
@@ -56,17 +57,8 @@ def test_follower_pressure_equals_dead_load_in_small_deflection(comm):
 @pytest.mark.parametrize(("gamma", "load_steps"), [(0.5, 1), (5.0, 3), (50.0, 8), (300.0, 15)])
 def test_cantilever_master_curve(comm, gamma, load_steps):
     """Strip under self-weight vs the heavy elastica (Romero et al. 2021; paper Fig. 19), nu = 0."""
-    length, width = 1.0, 0.1
-    material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
-    gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
-    rest = S.flat_rectangle(length, width, 32, 1)
-    model = ShellModel(
-        rest,
-        material,
-        Loads(gravity=(0.0, 0.0, -gravity)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
-        comm=comm,
-    )
+    length, width = CANTILEVER_SIZE
+    model = cantilever_model(gamma, 32, comm=comm)
     with ShellSolver(model) as solver:
         solver.solve(load_steps)
     tip = model.state_surface().evaluate(np.array(length), np.array(width / 2)).x

@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"  tip reach W/L = {summary['tip_W_over_L']:.6f}  "
                     f"heavy elastica {summary['reference_W_over_L']:.6f}"
                     f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
-                    f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, summary.json"
+                    f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, cantilever-3d.png, summary.json"
                 )
         elif args.command == "bench":
             rows = [jobs.benchmark(n, args.hessian, args.repeats, comm) for n in args.patches]

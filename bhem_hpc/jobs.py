@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from bhem_hpc import bcs
 from bhem_hpc import surface as S
-from bhem_hpc.io import write_surface_xdmf
+from bhem_hpc.io import render_surface_png, write_surface_xdmf
 from bhem_hpc.material import Material
 from bhem_hpc.references import heavy_cantilever
 from bhem_hpc.shell import Loads, ShellModel
@@ -51,7 +51,8 @@ def cantilever(
     """A 1 m x 0.1 m strip (nu = 0) clamped at one end, bending under its own weight.
 
     ``Gamma* = 12 (1 - nu^2) rho g L^3 / (Y h^2)`` sets gravity. Writes ``cantilever.xdmf/.h5``,
-    ``cantilever.png``, ``cantilever.npz`` (nodal data) and ``summary.json`` to ``out``.
+    ``cantilever.png`` (centreline vs elastica), ``cantilever-3d.png``, ``cantilever.npz`` (nodal
+    data) and ``summary.json`` to ``out``.
 
     Returns:
         The summary: tip position against the heavy elastica, Newton iterations, timings.
@@ -90,6 +91,7 @@ def cantilever(
         deformed.save(out / "cantilever.npz")
         write_surface_xdmf(out / "cantilever.xdmf", deformed, density=4, name="cantilever")
         _plot_cantilever(out / "cantilever.png", deformed, shape, summary)
+        render_surface_png(out / "cantilever-3d.png", deformed, f"Γ* = {gamma:g}, {patches} patches")
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 

@@ -79,6 +79,30 @@ class Loads:
             vector(f"point_loads[{i}].force", load.force)
 
 
+@dataclass(frozen=True)
+class Dynamics:
+    """Implicit Euler time stepping (paper eq. 30) with Rayleigh damping.
+
+    Attributes:
+        time_step: dt [s], > 0.
+        mass_damping: alpha [1/s] of the damping matrix alpha M + beta K, >= 0.
+        stiffness_damping: beta [s], >= 0 (K lagged at the start of the step).
+    """
+
+    time_step: float
+    mass_damping: float = 0.0
+    stiffness_damping: float = 0.0
+
+    def validate(self) -> None:
+        for name, value, ok, expected in (
+            ("time_step", self.time_step, lambda v: v > 0, "> 0"),
+            ("mass_damping", self.mass_damping, lambda v: v >= 0, ">= 0"),
+            ("stiffness_damping", self.stiffness_damping, lambda v: v >= 0, ">= 0"),
+        ):
+            if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or not ok(value):
+                raise ModelError(f"dynamics.{name} = {value!r} is invalid: must be a number {expected}")
+
+
 def gauss_measure(mesh: dolfinx.mesh.Mesh, points_per_direction: int) -> ufl.Measure:
     """Cell measure with an explicit tensor Gauss rule (``n x n`` points per patch).
 
@@ -134,6 +158,9 @@ class ShellModel:
             Hessian: the second derivative of the curvature strain is dropped).
         quadrature_points: Gauss points per direction and patch (4 = the paper's 4x4 rule).
         comm: MPI communicator.
+        initial: initial state (default: the rest surface).
+        dynamics: time stepping; adds inertia (and damping) potentials, the ``x_predicted``,
+            ``x_previous`` and ``velocity`` Functions and a ``kinetic`` energy. ``None``: statics.
     """
 
     def __init__(
@@ -146,10 +173,13 @@ class ShellModel:
         quadrature_points: int = 4,
         comm: MPI.Comm = MPI.COMM_WORLD,
         initial: HermiteSurface | None = None,
+        dynamics: Dynamics | None = None,
     ):
         loads = loads or Loads()
         # Validate everything before building anything.
         loads.validate()
+        if dynamics is not None:
+            dynamics.validate()
         if hessian not in ("exact", "pseudo"):
             raise ModelError(f"hessian = {hessian!r}; expected 'exact' or 'pseudo'")
         if quadrature_points not in GAUSS_POINTS:
@@ -197,12 +227,13 @@ class ShellModel:
             "membrane": forms.membrane_energy(x, x_rest, *section, dx),
             "bending": forms.bending_energy(x, x_rest, *section, dx),
         }
-        potential = energies["membrane"] + energies["bending"]
+        # Terms whose exact Hessian is used even with hessian="pseudo" (all but bending).
+        exact_part = energies["membrane"]
         work_forms: list[ufl.Form] = []
         if loads.gravity is not None:
             self.gravity = constant(np.asarray(loads.gravity, dtype=float))
             energies["gravity"] = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
-            potential = potential + lf * energies["gravity"]
+            exact_part = exact_part + lf * energies["gravity"]
         if loads.pressure is not None:
             self.pressure = constant(loads.pressure)
             work_forms.append(forms.pressure_work(x, self.pressure, test, dx))
@@ -213,6 +244,36 @@ class ShellModel:
                 traction = constant(np.asarray(load.traction, dtype=float))
                 self.tractions.append(traction)
                 work_forms.append(forms.line_load_work(x_rest, traction, test, ds(i + 1)))
+        self.dynamics = dynamics
+        self.reporting_forms: dict[str, ufl.Form] = {}
+        if dynamics is not None:
+            self.time_step = constant(dynamics.time_step)
+            self.x_predicted = fem.Function(space, name="predicted_position")
+            self.x_previous = fem.Function(space, name="previous_position")
+            self.velocity = fem.Function(space, name="velocity")
+            self.x_predicted.x.array[:] = self.x.x.array
+            self.x_previous.x.array[:] = self.x.x.array
+            inertia = forms.inertia_potential(
+                x, self.x_predicted, x_rest, self.density, self.thickness, self.time_step, dx
+            )
+            exact_part = exact_part + inertia
+            if dynamics.mass_damping > 0:
+                self.mass_damping = constant(dynamics.mass_damping)
+                exact_part = exact_part + forms.mass_damping_potential(
+                    x, self.x_previous, x_rest, self.density, self.thickness, self.mass_damping, self.time_step, dx
+                )
+            if dynamics.stiffness_damping > 0:
+                self.stiffness_damping = constant(dynamics.stiffness_damping)
+                internal_previous = forms.membrane_energy(self.x_previous, x_rest, *section, dx) + forms.bending_energy(
+                    self.x_previous, x_rest, *section, dx
+                )
+                exact_part = exact_part + forms.stiffness_damping_potential(
+                    internal_previous, x, self.x_previous, self.stiffness_damping, self.time_step
+                )
+            self.reporting_forms["kinetic"] = forms.kinetic_energy(
+                self.velocity, x_rest, self.density, self.thickness, dx
+            )
+        potential = exact_part + energies["bending"]
 
         residual = ufl.derivative(potential, x, test)
         for work in work_forms:
@@ -228,7 +289,7 @@ class ShellModel:
         if hessian == "exact":
             jacobian = ufl.derivative(residual, x, trial)
         else:
-            jacobian = ufl.derivative(ufl.derivative(energies["membrane"], x, test), x, trial)
+            jacobian = ufl.derivative(ufl.derivative(exact_part, x, test), x, trial)
             jacobian = jacobian + forms.bending_pseudo_hessian(x, x_rest, *section, dx, test, trial)
             for work in work_forms:
                 jacobian = jacobian - lf * ufl.derivative(work, x, trial)
@@ -240,7 +301,9 @@ class ShellModel:
         jit = default_jit_params()
         self.residual_form = fem.form(residual, jit_params=jit)
         self.jacobian_form = fem.form(jacobian, jit_params=jit)
-        self.energy_forms = {name: fem.form(e, jit_params=jit) for name, e in energies.items()}
+        self.energy_forms = {
+            name: fem.form(e, jit_params=jit) for name, e in {**energies, **self.reporting_forms}.items()
+        }
 
         # Point loads: basis values at the point times the force, on local open DOFs.
         self.point_load_open = np.zeros_like(self.x.x.array)

@@ -97,6 +97,7 @@ class SolveReport:
     negative_pivots: list[int] = field(default_factory=list)
     backtracks: int = 0
     cuts: int = 0
+    regularized_retries: int = 0
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
@@ -162,6 +163,7 @@ class ShellSolver:
         self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
         self.bc_values = model.constrained_initial.copy()
         self.report = SolveReport()
+        self.regularization = 0.0
 
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(prefix)
@@ -266,6 +268,13 @@ class ShellSolver:
         if self.prolongation is not None:
             self.jacobian_open.PtAP(self.prolongation, result=jac)
         jac.zeroRowsColumns(self.bc_rows, diag=1.0)
+        if self.regularization > 0:
+            # The paper's diagonal regularizer, scaled per row: J + r |diag J|.
+            diagonal = jac.getDiagonal()
+            diagonal.abs()
+            diagonal.scale(self.regularization)
+            jac.setDiagonal(diagonal, addv=PETSc.InsertMode.ADD)
+            diagonal.destroy()
         self.report.assemble_jacobian_s += time.perf_counter() - t0
 
     # -- solves ---------------------------------------------------------------------------------
@@ -342,6 +351,57 @@ class ShellSolver:
         self.update_state(self.x)
         self.report.wall_s += time.perf_counter() - start
         return self.report
+
+    def solve_step(
+        self, bc_values: np.ndarray | None = None, regularizations: tuple[float, ...] = (1e-6, 1e-4, 1e-2)
+    ) -> int:
+        """One nonlinear solve at load factor 1 from the model's current state (a time step).
+
+        Args:
+            bc_values: reference-DOF values of the constrained DOFs (``model.constrained``);
+                default: the model's targets.
+            regularizations: relative diagonal regularizers tried in turn when Newton fails or
+                the LDL^T factorization shows negative pivots (an indefinite Hessian).
+
+        Returns:
+            Newton iterations of the successful attempt.
+
+        Raises:
+            SolverError: when every attempt failed; the state is left at the last attempt.
+        """
+        model = self.model
+        model.load_factor.value = 1.0
+        self.bc_values = model.constrained_target.copy() if bc_values is None else np.asarray(bc_values, float)
+        self.state_to_vector(self.x)
+        start = self.x.copy()
+        try:
+            for attempt, regularization in enumerate((0.0, *regularizations)):
+                self.regularization = regularization
+                start.copy(self.x)
+                if len(self.bc_local):
+                    self.x.array[self.bc_local] = self.bc_values
+                self.snes.solve(None, self.x)
+                pivots = self.negative_pivots()
+                if self._converged() and (pivots <= 0 or regularization > 0):
+                    self.update_state(self.x)
+                    its = self.snes.getIterationNumber()
+                    self.report.newton_iterations.append(its)
+                    self.report.negative_pivots.append(pivots)
+                    return its
+                self.report.regularized_retries += 1
+                log.warning(
+                    "%s: attempt %d failed (%s, %d negative pivots); retrying with diagonal regularizer %.0e",
+                    self.prefix,
+                    attempt,
+                    SNES_REASONS.get(self.snes.getConvergedReason()),
+                    pivots,
+                    regularizations[min(attempt, len(regularizations) - 1)],
+                )
+            self._raise(1.0, f"{len(regularizations)} regularized retries")
+        finally:
+            self.regularization = 0.0
+            start.destroy()
+        return -1  # unreachable: _raise always raises
 
     def _converged(self) -> bool:
         return self.snes.getConvergedReason() > 0 and bool(np.isfinite(self.snes.getFunctionNorm()))

@@ -7,7 +7,10 @@ compiles, assembles or touches PETSc. Conventions: the mesh *is* the parameter d
 """
 
 from bhem_hpc.forms.bending import bending_energy, bending_pseudo_hessian
+from bhem_hpc.forms.damping import mass_damping_potential, stiffness_damping_potential
 from bhem_hpc.forms.gravity import gravity_potential
+from bhem_hpc.forms.inertia import inertia_potential
+from bhem_hpc.forms.kinetic import kinetic_energy
 from bhem_hpc.forms.line_load import line_load_work
 from bhem_hpc.forms.membrane import membrane_energy
 from bhem_hpc.forms.pressure import pressure_work
@@ -16,6 +19,10 @@ __all__ = [
     "bending_energy",
     "bending_pseudo_hessian",
     "gravity_potential",
+    "inertia_potential",
+    "kinetic_energy",
+    "mass_damping_potential",
+    "stiffness_damping_potential",
     "line_load_work",
     "membrane_energy",
     "pressure_work",

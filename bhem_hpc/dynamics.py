@@ -1,0 +1,139 @@
+"""Implicit Euler time stepping (paper eq. 30) with recovery; no PETSc here.
+
+Each step minimizes the incremental potential built by :class:`bhem_hpc.shell.ShellModel` with
+``dynamics`` set: ``x_predicted = x_n + dt v_n``, ``x_previous = x_n``, solve, then
+``v_{n+1} = (x_{n+1} - x_n) / dt``. A step whose solve fails (after the solver's regularized
+retries) is retried as two half steps, recursively, at most ``max_halvings`` deep; a step that
+still fails stops the run with an error naming the step, the time and the solver's reasons.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bhem_hpc.bcs import NodalConstraint, target_surface
+from bhem_hpc.shell import ShellModel
+from bhem_hpc.solver import ShellSolver, SolverError
+
+log = logging.getLogger(__name__)
+
+
+class StepFailure(RuntimeError):
+    """A time step could not be completed; the run must stop."""
+
+
+@dataclass
+class StepReport:
+    """What one time step did."""
+
+    step: int
+    time: float
+    newton_iterations: int = 0
+    substeps: int = 1
+    dt_halvings: int = 0
+    regularized_retries: int = 0
+    wall_s: float = 0.0
+
+
+@dataclass
+class TimeStepper:
+    """Advance a dynamic :class:`ShellModel` with a :class:`ShellSolver`.
+
+    Args:
+        model: a model built with ``dynamics``.
+        solver: its solver.
+        motions: time-dependent nodal constraints: each maps time ``t`` to the parametric values
+            of its ``(nodes, kinds, components)`` (see :class:`PrescribedMotion`).
+        max_halvings: bound on recursive dt halvings of one step.
+    """
+
+    model: ShellModel
+    solver: ShellSolver
+    motions: Sequence[PrescribedMotion] = ()
+    max_halvings: int = 4
+    time: float = 0.0
+    step: int = 0
+    history: list[StepReport] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.model.dynamics is None:
+            raise ValueError("TimeStepper needs a ShellModel built with dynamics=Dynamics(...)")
+        self.dt = self.model.dynamics.time_step
+        constrained = {tuple(c.nodes.ravel()) + c.kinds + c.components for c in self.model.constraints}
+        for motion in self.motions:
+            key = tuple(motion.constraint.nodes.ravel()) + motion.constraint.kinds + motion.constraint.components
+            if key not in constrained:
+                raise ValueError("a prescribed motion must be one of the model's constraints (same nodes/kinds)")
+
+    def bc_values_at(self, t: float) -> np.ndarray:
+        """Reference-DOF values of all constrained DOFs at time ``t``."""
+        model = self.model
+        if not self.motions:
+            return model.constrained_target
+        moved = [m.at(t) for m in self.motions]
+        target = target_surface(model.initial_surface, [*model.constraints, *moved])
+        return model.discretization.dof_values(target, model.constrained)
+
+    def advance(self) -> StepReport:
+        """One time step of the model's dt (possibly as recovered substeps)."""
+        start = time.perf_counter()
+        report = StepReport(step=self.step + 1, time=self.time + self.dt)
+        retries_before = self.solver.report.regularized_retries
+        try:
+            self._advance(self.time, self.dt, 0, report)
+        finally:
+            self.model.time_step.value = self.dt
+        self.step += 1
+        self.time += self.dt
+        report.regularized_retries = self.solver.report.regularized_retries - retries_before
+        report.wall_s = time.perf_counter() - start
+        self.history.append(report)
+        return report
+
+    def _advance(self, t_start: float, dt: float, depth: int, report: StepReport) -> None:
+        model = self.model
+        x_n = model.x.x.array.copy()
+        v_n = model.velocity.x.array.copy()
+        model.time_step.value = dt
+        model.x_previous.x.array[:] = x_n
+        model.x_predicted.x.array[:] = x_n + dt * v_n
+        model.x.x.array[:] = model.x_predicted.x.array  # the inertial prediction is the first guess
+        try:
+            report.newton_iterations += self.solver.solve_step(self.bc_values_at(t_start + dt))
+        except SolverError as exc:
+            model.x.x.array[:] = x_n
+            if depth >= self.max_halvings:
+                raise StepFailure(
+                    f"time step {report.step} (t = {report.time:.6g} s) failed after {depth} halvings of dt "
+                    f"(dt = {dt:.3e} s): {exc}"
+                ) from exc
+            log.warning("step %d: %s; halving dt to %.3e", report.step, exc, dt / 2)
+            report.dt_halvings += 1
+            report.substeps += 1
+            self._advance(t_start, dt / 2, depth + 1, report)
+            self._advance(t_start + dt / 2, dt / 2, depth + 1, report)
+            return
+        model.velocity.x.array[:] = (model.x.x.array - x_n) / dt
+
+
+@dataclass(frozen=True)
+class PrescribedMotion:
+    """Time-dependent values of a nodal constraint.
+
+    Attributes:
+        constraint: the constrained nodes, kinds and components (also passed to the model).
+        values: callable ``t -> array`` broadcastable to ``(nodes, kinds, components)``, in
+            parametric units.
+    """
+
+    constraint: NodalConstraint
+    values: Callable[[float], np.ndarray]
+
+    def at(self, t: float) -> NodalConstraint:
+        c = self.constraint
+        return NodalConstraint(c.nodes, c.kinds, c.components, np.asarray(self.values(t), dtype=float))

@@ -27,6 +27,13 @@ def _parser() -> argparse.ArgumentParser:
     cant.add_argument("--load-steps", type=int, default=None, help="maximum load increment = 1/steps")
     cant.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
     cant.add_argument("--out", type=Path, default=Path("out/cantilever"), help="output directory")
+    run = sub.add_parser("run", help="run a scene file (TOML), writing XDMF, checkpoints and a summary")
+    run.add_argument("scene", type=Path)
+    run.add_argument("--out", type=Path, required=True, help="output directory")
+    run.add_argument("--steps", type=int, default=None, help="number of time steps (overrides the scene)")
+    run.add_argument("--restart", type=Path, default=None, help="continue from DIR/checkpoint.h5")
+    run.add_argument("--force", action="store_true", help="overwrite a non-empty output directory")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
     bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
     bench.add_argument("--patches", type=int, nargs="+", default=[10, 20, 30])
     bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
@@ -53,10 +60,24 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger(noisy).setLevel(max(level, logging.WARNING))
 
     from bhem_hpc import jobs
+    from bhem_hpc.bcs import BoundaryConditionError
+    from bhem_hpc.run import RunError, RunOptions, run_scene
+    from bhem_hpc.scene import SceneError
     from bhem_hpc.solver import SolverError
 
     try:
-        if args.command == "cantilever":
+        if args.command == "run":
+            options = RunOptions(args.scene, args.out, args.steps, args.restart, args.force, not args.no_progress)
+            summary = run_scene(options, comm)
+            if comm.rank == 0:
+                steps = summary["steps"]
+                print(
+                    f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
+                    f"{comm.size} rank(s), {sum(s['newton_iterations'] for s in steps)} Newton iterations, "
+                    f"{sum(s.get('recoveries', 0) for s in steps)} recoveries\n"
+                    f"  output: {args.out}/surface.xdmf (ParaView), last.png, summary.json, checkpoint.h5"
+                )
+        elif args.command == "cantilever":
             summary = jobs.cantilever(args.gamma, args.out, args.patches, args.load_steps, args.hessian, comm)
             if comm.rank == 0:
                 print(
@@ -89,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                             f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
                             f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}"
                         )
-    except (ValueError, SolverError) as exc:
+    except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
         return 2

@@ -88,3 +88,94 @@ def render_surface_png(path: str | Path, surface: HermiteSurface, title: str = "
     fig.savefig(path)
     plt.close(fig)
     return Path(path)
+
+
+class SurfaceTimeSeries:
+    """An XDMF time series of tessellated surfaces that ParaView plays as an animation.
+
+    Heavy data go to ``<name>.h5`` (appended and flushed per frame); the ``.xdmf`` is rewritten
+    atomically after every frame, so a run killed mid-way leaves a readable file listing every
+    completed frame. Serial: call on one rank with gathered surfaces.
+    """
+
+    def __init__(self, path: str | Path, rest: HermiteSurface, material, density: int = 4):
+        from bhem_hpc.fields import energy_densities, mean_curvature
+
+        self._energy_densities, self._mean_curvature = energy_densities, mean_curvature
+        self.path = Path(path)
+        self.h5_path = self.path.with_suffix(".h5")
+        self.material = material
+        self.density = density
+        _, self.quads, self.params = rest.tessellate(density)
+        self.rest_point = rest.evaluate(self.params[:, 0], self.params[:, 1])
+        self.times: list[float] = []
+        self.file = h5py.File(self.h5_path, "w")
+        self.file["topology"] = self.quads.astype(np.int64)
+        self.file["parameters"] = self.params
+
+    def write(self, time: float, surface: HermiteSurface) -> None:
+        point = surface.evaluate(self.params[:, 0], self.params[:, 1])
+        membrane, bending = self._energy_densities(self.rest_point, point, self.material)
+        group = self.file.create_group(f"frames/{len(self.times)}")
+        group["geometry"] = point.x
+        group["normal"] = point.normal
+        group["mean_curvature"] = self._mean_curvature(point)
+        group["membrane_energy_density"] = membrane
+        group["bending_energy_density"] = bending
+        self.file.flush()
+        self.times.append(float(time))
+        self._write_xml()
+
+    def _write_xml(self) -> None:
+        npoints, ncells = len(self.params), len(self.quads)
+        h5 = self.h5_path.name
+        grids = []
+        for k, t in enumerate(self.times):
+            attributes = "".join(
+                f'<Attribute Name="{name}" AttributeType="{kind}" Center="Node">'
+                f'<DataItem Dimensions="{npoints}{dims}" Format="HDF">{h5}:/frames/{k}/{name}</DataItem></Attribute>'
+                for name, kind, dims in (
+                    ("normal", "Vector", " 3"),
+                    ("mean_curvature", "Scalar", ""),
+                    ("membrane_energy_density", "Scalar", ""),
+                    ("bending_energy_density", "Scalar", ""),
+                )
+            )
+            grids.append(
+                f'      <Grid Name="frame_{k}" GridType="Uniform"><Time Value="{t!r}"/>'
+                f'<Topology TopologyType="Quadrilateral" NumberOfElements="{ncells}">'
+                f'<DataItem Dimensions="{ncells} 4" NumberType="Int" Format="HDF">{h5}:/topology</DataItem></Topology>'
+                f'<Geometry GeometryType="XYZ"><DataItem Dimensions="{npoints} 3" Format="HDF">'
+                f"{h5}:/frames/{k}/geometry</DataItem></Geometry>{attributes}</Grid>"
+            )
+        xml = (
+            '<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n'
+            '    <Grid Name="surface" GridType="Collection" CollectionType="Temporal">\n'
+            + "\n".join(grids)
+            + "\n    </Grid>\n  </Domain>\n</Xdmf>\n"
+        )
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp.write_text(xml)
+        os.replace(tmp, self.path)
+
+    def close(self) -> None:
+        if self.file:
+            self.file.close()
+
+
+def write_checkpoint(path: str | Path, state: dict[str, np.ndarray], attributes: dict[str, object]) -> None:
+    """Write arrays and attributes to ``path`` atomically (temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        for name, array in state.items():
+            f[name] = array
+        for name, value in attributes.items():
+            f.attrs[name] = value
+    os.replace(tmp, path)
+
+
+def read_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, object]]:
+    """Arrays and attributes of a checkpoint written by :func:`write_checkpoint`."""
+    with h5py.File(path, "r") as f:
+        return {name: f[name][()] for name in f}, dict(f.attrs)

@@ -165,6 +165,7 @@ class ShellSolver:
         self.report = SolveReport()
         self.regularization = 0.0
 
+        PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
         self.snes = PETSc.SNES().create(comm)
         self.snes.setOptionsPrefix(prefix)
         self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
@@ -476,6 +477,16 @@ class ShellSolver:
         times["negative_pivots"] = self.negative_pivots()
         step.destroy()
         return times
+
+    @staticmethod
+    def linear_solver_seconds() -> tuple[float, float]:
+        """Cumulative ``(factorization, triangular solves)`` seconds of this process (PETSc log)."""
+
+        def seconds(*events: str) -> float:
+            return sum(PETSc.Log.Event(name).getPerfInfo()["time"] for name in events)
+
+        factor = seconds("MatCholFctrSym", "MatCholFctrNum", "MatLUFactorSym", "MatLUFactorNum")
+        return factor, seconds("MatSolve")
 
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the (closed) Jacobian as a full matrix (SBAIJ stores the upper triangle)."""

@@ -1,0 +1,47 @@
+"""Pointwise fields of a deformed surface for output (numpy only): curvature, energy densities."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bhem_hpc.material import Material
+from bhem_hpc.surface import SurfacePoint
+
+
+def fundamental_forms(point: SurfacePoint) -> tuple[np.ndarray, np.ndarray]:
+    """First and second fundamental forms ``(a, b)``, each of shape ``S + (2, 2)``."""
+    a1, a2, n = point.a1, point.a2, point.normal
+    a = np.stack(
+        [np.stack([(a1 * a1).sum(-1), (a1 * a2).sum(-1)], -1), np.stack([(a2 * a1).sum(-1), (a2 * a2).sum(-1)], -1)], -2
+    )
+    b = np.stack(
+        [
+            np.stack([(point.a11 * n).sum(-1), (point.a12 * n).sum(-1)], -1),
+            np.stack([(point.a12 * n).sum(-1), (point.a22 * n).sum(-1)], -1),
+        ],
+        -2,
+    )
+    return a, b
+
+
+def mean_curvature(point: SurfacePoint) -> np.ndarray:
+    """``H = tr(a^-1 b) / 2`` (sign follows the normal a1 x a2), shape ``S``."""
+    a, b = fundamental_forms(point)
+    return 0.5 * np.trace(np.linalg.solve(a, b), axis1=-2, axis2=-1)
+
+
+def energy_densities(rest: SurfacePoint, current: SurfacePoint, material: Material) -> tuple[np.ndarray, np.ndarray]:
+    """Membrane and bending energy per unit rest area (paper eqs. 7-8), each of shape ``S``."""
+    a_rest, b_rest = fundamental_forms(rest)
+    a, b = fundamental_forms(current)
+    nu, young = material.poisson, material.young
+    lmbda, mu = young * nu / (1 - nu**2), young / (2 * (1 + nu))
+    inverse = np.linalg.inv(a_rest)
+
+    def svk(strain: np.ndarray) -> np.ndarray:
+        mixed = inverse @ strain
+        trace = np.trace(mixed, axis1=-2, axis2=-1)
+        return 0.5 * lmbda * trace**2 + mu * np.trace(mixed @ mixed, axis1=-2, axis2=-1)
+
+    h = material.thickness
+    return h * svk(0.5 * (a - a_rest)), h**3 / 3 * svk(0.5 * (b - b_rest))

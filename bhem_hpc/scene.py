@@ -1,0 +1,471 @@
+"""Scene files (TOML): parsing and validation, before anything is built (numpy + stdlib only).
+
+Every error names the file, the key and what was expected. The format is documented in
+README.md ("Scene files"); :func:`load_scene` returns a :class:`Scene` whose parts map one to one
+onto the library's objects (surface, :class:`~bhem_hpc.material.Material`, constraints with
+motions, :class:`~bhem_hpc.shell.Loads`-like effects, time, solver and output settings).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bhem_hpc import bcs
+from bhem_hpc import surface as S
+from bhem_hpc.material import Material, MaterialError
+
+SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
+CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "fix")
+MOTION_TYPES = ("linear", "rotation", "keyframes")
+CORNERS = ("min_min", "min_max", "max_min", "max_max")
+# Effects a scene may list; those of the collision module are recognized but not built yet.
+EFFECTS = ("gravity", "pressure", "damping", "point_loads", "line_loads", "contact", "self_collision", "friction")
+NOT_YET_AVAILABLE = ("contact", "self_collision", "friction")
+
+
+class SceneError(ValueError):
+    """A scene file is malformed; the message names the file, the key and the expectation."""
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A prescribed motion of a constraint's values, as a function of time."""
+
+    kind: str
+    values: Callable[[float, np.ndarray], np.ndarray]  # (t, initial values) -> values
+
+
+@dataclass(frozen=True)
+class SceneConstraint:
+    constraint: bcs.NodalConstraint
+    motion: Motion | None = None
+    key: str = ""
+
+
+@dataclass(frozen=True)
+class Effects:
+    gravity: tuple[float, float, float] | None = None
+    pressure: float | None = None
+    mass_damping: float = 0.0
+    stiffness_damping: float = 0.0
+    point_loads: tuple[tuple[float, float, tuple[float, float, float]], ...] = ()
+    line_loads: tuple[tuple[str, tuple[float, float, float]], ...] = ()
+
+
+@dataclass(frozen=True)
+class Scene:
+    path: Path
+    surface: S.HermiteSurface
+    material: Material
+    constraints: tuple[SceneConstraint, ...]
+    effects: Effects
+    static: bool
+    dt: float
+    steps: int
+    load_steps: int
+    hessian: str
+    quadrature: int
+    petsc_options: dict[str, Any] = field(default_factory=dict)
+    output_every: int = 1
+    output_density: int = 4
+    raw: dict[str, Any] = field(default_factory=dict)
+
+
+class _Table:
+    """Typed access to one TOML table with errors that name file and key."""
+
+    def __init__(self, path: Path, name: str, data: Any):
+        self.path, self.name = path, name
+        if not isinstance(data, dict):
+            self.fail("", "a table", data)
+        self.data = data
+        self.used: set[str] = set()
+
+    def key(self, key: str) -> str:
+        return f"{self.name}.{key}" if self.name else key
+
+    def fail(self, key: str, expected: str, got: Any) -> None:
+        where = self.key(key) if key else self.name
+        raise SceneError(f"{self.path}: key '{where}' must be {expected}, got {got!r}")
+
+    def missing(self, key: str, expected: str) -> None:
+        raise SceneError(f"{self.path}: missing key '{self.key(key)}' ({expected})")
+
+    def get(
+        self, key: str, kind: str, default: Any = ..., check: Callable[[Any], bool] | None = None, expected: str = ""
+    ):
+        self.used.add(key)
+        if key not in self.data:
+            if default is ...:
+                self.missing(key, expected or kind)
+            return default
+        value = self.data[key]
+        ok = _KINDS[kind](value)
+        if ok and check is not None:
+            ok = check(value)
+        if not ok:
+            self.fail(key, expected or kind, value)
+        return value
+
+    def table(self, key: str, default: Any = ...) -> _Table | None:
+        self.used.add(key)
+        if key not in self.data:
+            if default is ...:
+                self.missing(key, "a table")
+            return default
+        return _Table(self.path, self.key(key), self.data[key])
+
+    def done(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise SceneError(f"{self.path}: unknown key '{self.key(unknown[0])}' (known: {sorted(self.used)})")
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _vector(n: int) -> Callable[[Any], bool]:
+    return lambda v: isinstance(v, list) and len(v) == n and all(_is_number(c) for c in v)
+
+
+_KINDS: dict[str, Callable[[Any], bool]] = {
+    "a number": _is_number,
+    "an integer": _is_int,
+    "a string": lambda v: isinstance(v, str),
+    "a boolean": lambda v: isinstance(v, bool),
+    "3 numbers": _vector(3),
+    "2 numbers": _vector(2),
+    "2 integers": lambda v: isinstance(v, list) and len(v) == 2 and all(_is_int(c) for c in v),
+    "a list": lambda v: isinstance(v, list),
+    "a table": lambda v: isinstance(v, dict),
+}
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file. Raises :class:`SceneError` on any problem."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read scene file ({exc.strerror})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML ({exc})") from exc
+    top = _Table(path, "", raw)
+    surface = _surface(top.table("surface"), path)
+    material = _material(top.table("material"))
+    effects = _effects(top.table("effects", None), path)
+    time_table = top.table("time")
+    static = time_table.get("static", "a boolean", False)
+    if static:
+        load_steps = time_table.get("load_steps", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
+        dt, steps = 0.0, 0
+    else:
+        dt = time_table.get("dt", "a number", check=lambda v: v > 0, expected="a number > 0 (time step [s])")
+        has_steps, has_duration = "steps" in time_table.data, "duration" in time_table.data
+        if has_steps == has_duration:
+            raise SceneError(f"{path}: table 'time' needs exactly one of 'steps' and 'duration'")
+        if has_steps:
+            steps = time_table.get("steps", "an integer", check=lambda v: v >= 1, expected="an integer >= 1")
+        else:
+            duration = time_table.get("duration", "a number", check=lambda v: v > 0, expected="a number > 0 [s]")
+            steps = max(1, round(duration / dt))
+        load_steps = 1
+    time_table.done()
+    solver = top.table("solver", None)
+    hessian, quadrature, options = "exact", 4, {}
+    if solver is not None:
+        hessian = solver.get("hessian", "a string", "exact", lambda v: v in ("exact", "pseudo"), "'exact' or 'pseudo'")
+        quadrature = solver.get("quadrature", "an integer", 4, lambda v: v in (2, 3, 4, 5), "2, 3, 4 or 5")
+        options = solver.get("options", "a table", {})
+        for k, v in options.items():
+            if not isinstance(v, str | int | float | bool):
+                solver.fail(f"options.{k}", "a string, number or boolean", v)
+        solver.done()
+    output = top.table("output", None)
+    every, density = 1, 4
+    if output is not None:
+        every = output.get("every", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
+        density = output.get("density", "an integer", 4, lambda v: 1 <= v <= 32, "an integer in 1..32")
+        output.done()
+    constraints = _constraints(top, surface.grid, path)
+    top.done()
+    return Scene(
+        path=path,
+        surface=surface,
+        material=material,
+        constraints=constraints,
+        effects=effects,
+        static=static,
+        dt=dt,
+        steps=steps,
+        load_steps=load_steps,
+        hessian=hessian,
+        quadrature=quadrature,
+        petsc_options=dict(options),
+        output_every=every,
+        output_density=density,
+        raw=raw,
+    )
+
+
+def _surface(t: _Table, path: Path) -> S.HermiteSurface:
+    kind = t.get("kind", "a string", check=lambda v: v in SURFACE_KINDS, expected=f"one of {SURFACE_KINDS}")
+    positive = {"check": lambda v: v > 0, "expected": "a number > 0"}
+    try:
+        if kind == "file":
+            file = t.get("path", "a string")
+            target = Path(file) if Path(file).is_absolute() else path.parent / file
+            if not target.exists():
+                target = Path(file)
+            surface = S.HermiteSurface.load(target)
+        else:
+            patches = t.get("patches", "2 integers", check=lambda v: min(v) >= 1, expected="2 integers >= 1")
+            if kind == "rectangle":
+                size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
+                origin = t.get("origin", "3 numbers", [0.0, 0.0, 0.0])
+                surface = S.flat_rectangle(size[0], size[1], patches[0], patches[1], tuple(origin))
+            elif kind == "cylinder":
+                closed = t.get("closed", "a boolean", True)
+                angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
+                surface = S.cylinder(
+                    t.get("radius", "a number", **positive),
+                    t.get("length", "a number", **positive),
+                    patches[0],
+                    patches[1],
+                    closed,
+                    angle if not closed else 2 * math.pi,
+                )
+            elif kind == "sphere_zone":
+                polar = t.get("polar", "2 numbers")
+                surface = S.sphere_zone(t.get("radius", "a number", **positive), polar[0], polar[1], *patches)
+            elif kind == "annulus_sector":
+                radii, angles = t.get("radii", "2 numbers"), t.get("angles", "2 numbers")
+                surface = S.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches)
+            else:
+                radii = t.get("radii", "2 numbers")
+                surface = S.torus(radii[0], radii[1], *patches)
+    except S.SurfaceError as exc:
+        raise SceneError(f"{path}: table 'surface': {exc}") from exc
+    t.done()
+    return surface
+
+
+def _material(t: _Table) -> Material:
+    values = {k: t.get(k, "a number") for k in ("young", "poisson", "thickness")}
+    values["density"] = t.get("density", "a number", 0.0)
+    t.done()
+    try:
+        return Material(**values)
+    except MaterialError as exc:
+        raise SceneError(f"{t.path}: {exc}") from exc
+
+
+def _effects(t: _Table | None, path: Path) -> Effects:
+    if t is None:
+        return Effects()
+    for key in t.data:
+        if key not in EFFECTS:
+            raise SceneError(f"{path}: unknown effect 'effects.{key}' (known: {EFFECTS})")
+    for key in NOT_YET_AVAILABLE:
+        if key in t.data:
+            raise SceneError(
+                f"{path}: effect 'effects.{key}' needs the collision module, which this version does not have"
+            )
+    gravity = t.get("gravity", "3 numbers", None)
+    pressure = t.get("pressure", "a number", None)
+    mass_damping = stiffness_damping = 0.0
+    damping = t.table("damping", None)
+    if damping is not None:
+        if not damping.data:
+            raise SceneError(
+                f"{path}: effect 'effects.damping' lists no coefficient (expected 'mass' and/or 'stiffness')"
+            )
+        mass_damping = damping.get("mass", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [1/s]")
+        stiffness_damping = damping.get("stiffness", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [s]")
+        damping.done()
+    point_loads = []
+    for i, item in enumerate(t.get("point_loads", "a list", [])):
+        load = _Table(path, f"effects.point_loads[{i}]", item)
+        at = load.get("at", "2 numbers")
+        point_loads.append((at[0], at[1], tuple(load.get("force", "3 numbers"))))
+        load.done()
+    line_loads = []
+    for i, item in enumerate(t.get("line_loads", "a list", [])):
+        load = _Table(path, f"effects.line_loads[{i}]", item)
+        edge = load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
+        line_loads.append((edge, tuple(load.get("traction", "3 numbers"))))
+        load.done()
+    t.done()
+    return Effects(
+        gravity=tuple(gravity) if gravity is not None else None,
+        pressure=pressure,
+        mass_damping=mass_damping,
+        stiffness_damping=stiffness_damping,
+        point_loads=tuple(point_loads),
+        line_loads=tuple(line_loads),
+    )
+
+
+def _nodes(t: _Table, grid: S.ParameterGrid) -> np.ndarray:
+    """Nodes of a constraint from exactly one of 'nodes', 'edge', 'corners'."""
+    given = [k for k in ("nodes", "edge", "corners") if k in t.data]
+    if len(given) != 1:
+        raise SceneError(f"{t.path}: table '{t.name}' needs exactly one of 'nodes', 'edge', 'corners'")
+    m1, m2 = grid.node_shape
+    try:
+        if given[0] == "edge":
+            return bcs.edge_nodes(grid, t.get("edge", "a string"))
+        if given[0] == "corners":
+            names = t.get(
+                "corners", "a list", check=lambda v: all(c in CORNERS for c in v), expected=f"names from {CORNERS}"
+            )
+            pick = {"min": 0}
+            return np.array([[pick.get(a, m1 - 1), pick.get(b, m2 - 1)] for a, b in (c.split("_") for c in names)])
+    except bcs.BoundaryConditionError as exc:
+        raise SceneError(f"{t.path}: key '{t.key(given[0])}': {exc}") from exc
+    nodes = t.get(
+        "nodes",
+        "a list",
+        check=lambda v: all(_KINDS["2 integers"](n) for n in v) and len(v) > 0,
+        expected="a non-empty list of [i1, i2] integer pairs",
+    )
+    return np.array(nodes, dtype=np.int64)
+
+
+def _constraints(top: _Table, grid: S.ParameterGrid, path: Path) -> tuple[SceneConstraint, ...]:
+    out = []
+    for i, item in enumerate(top.get("constraints", "a list", [])):
+        t = _Table(path, f"constraints[{i}]", item)
+        kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
+        if kind == "simply_supported":
+            edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
+            try:
+                constraint = bcs.simply_supported(grid, edge)
+            except bcs.BoundaryConditionError as exc:
+                raise SceneError(f"{path}: key '{t.key('edge')}': {exc}") from exc
+        else:
+            nodes = _nodes(t, grid)
+            if kind == "clamp":
+                kinds: tuple[int, ...] = (0, 1, 2, 3)
+            elif kind == "pin":
+                kinds = (0,)
+            else:
+                names = t.get(
+                    "kinds",
+                    "a list",
+                    check=lambda v: len(v) > 0 and all(k in S.KIND_NAMES for k in v),
+                    expected=f"a non-empty list of names from {S.KIND_NAMES}",
+                )
+                kinds = tuple(S.KIND_NAMES.index(k) for k in names)
+            components = t.get(
+                "components",
+                "a list",
+                [0, 1, 2],
+                lambda v: len(v) > 0 and all(c in (0, 1, 2) for c in v),
+                "a non-empty subset of [0, 1, 2]",
+            )
+            constraint = bcs.NodalConstraint(nodes, kinds, tuple(components))
+        try:
+            constraint.validate(grid)
+        except bcs.BoundaryConditionError as exc:
+            raise SceneError(f"{path}: table '{t.name}': {exc}") from exc
+        motion_table = t.table("motion", None)
+        motion = _motion(motion_table, constraint) if motion_table is not None else None
+        t.done()
+        out.append(SceneConstraint(constraint, motion, t.name))
+    _check_motion_conflicts(out, path)
+    return tuple(out)
+
+
+def _motion(t: _Table, constraint: bcs.NodalConstraint) -> Motion:
+    kind = t.get("type", "a string", check=lambda v: v in MOTION_TYPES, expected=f"one of {MOTION_TYPES}")
+    comps = list(constraint.components)
+    if kind == "linear":
+        velocity = np.array(t.get("velocity", "3 numbers"))[comps]
+        t.done()
+        return Motion(kind, lambda time, initial: initial + velocity * time)
+    if kind == "rotation":
+        if comps != [0, 1, 2]:
+            t.fail("type", "used only on constraints of all three components", kind)
+        axis = np.array(
+            t.get("axis", "3 numbers", check=lambda v: np.linalg.norm(v) > 0, expected="a nonzero 3-vector")
+        )
+        center = np.array(t.get("center", "3 numbers", [0.0, 0.0, 0.0]))
+        speed = t.get("angular_speed", "a number")
+        axis = axis / np.linalg.norm(axis)
+        is_position = np.array([k == 0 for k in constraint.kinds])[None, :, None]
+        t.done()
+
+        def rotate(time: float, initial: np.ndarray) -> np.ndarray:
+            rotation = _rotation(axis, speed * time)
+            moved_positions = (initial - center) @ rotation.T + center
+            return np.where(is_position, moved_positions, initial @ rotation.T)
+
+        return Motion(kind, rotate)
+    times = np.array(
+        t.get(
+            "times",
+            "a list",
+            check=lambda v: len(v) >= 2 and all(_is_number(x) for x in v) and all(b > a for a, b in zip(v, v[1:], strict=False)),
+            expected="at least 2 increasing numbers",
+        )
+    )
+    values = t.get(
+        "values", "a list", check=lambda v: len(v) == len(times), expected=f"{len(times)} entries, one per time"
+    )
+    try:
+        frames = [
+            np.broadcast_to(np.array(v, dtype=float), (len(constraint.nodes), len(constraint.kinds), len(comps)))
+            for v in values
+        ]
+    except (ValueError, TypeError):
+        t.fail(
+            "values",
+            f"entries broadcastable to (nodes={len(constraint.nodes)}, kinds={len(constraint.kinds)}, "
+            f"components={len(comps)})",
+            values,
+        )
+    stacked = np.stack(frames)
+    t.done()
+
+    def keyframes(time: float, initial: np.ndarray) -> np.ndarray:
+        k = int(np.clip(np.searchsorted(times, time, side="right") - 1, 0, len(times) - 2))
+        w = float(np.clip((time - times[k]) / (times[k + 1] - times[k]), 0.0, 1.0))
+        return (1 - w) * stacked[k] + w * stacked[k + 1]
+
+    return Motion(kind, keyframes)
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
+
+
+def _check_motion_conflicts(constraints: list[SceneConstraint], path: Path) -> None:
+    """A DOF may be driven by at most one moving constraint and must not also be held fixed."""
+    owner: dict[tuple[int, int, int, int], tuple[str, bool]] = {}
+    for sc in constraints:
+        c = sc.constraint
+        for node in np.asarray(c.nodes):
+            for kind in c.kinds:
+                for comp in c.components:
+                    dof = (int(node[0]), int(node[1]), kind, comp)
+                    moving = sc.motion is not None
+                    if dof in owner and (moving or owner[dof][1]):
+                        raise SceneError(
+                            f"{path}: {sc.key} and {owner[dof][0]} both constrain node {tuple(dof[:2])}, "
+                            f"kind {S.KIND_NAMES[kind]}, component {comp}, and one of them moves it"
+                        )
+                    owner.setdefault(dof, (sc.key, moving))

@@ -1,0 +1,173 @@
+"""Scene files, `bhem-hpc run`, ParaView output, checkpoints and restarts."""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+
+from bhem_hpc.io import read_checkpoint
+from bhem_hpc.run import RunError, RunOptions, build_model, run_scene
+from bhem_hpc.scene import SceneError, load_scene
+
+BASE = """
+[surface]
+kind = "rectangle"
+size = [0.4, 0.3]
+patches = [3, 2]
+
+[material]
+young = 1.0e4
+poisson = 0.3
+thickness = 1.0e-3
+density = 200.0
+
+[time]
+dt = 0.01
+steps = 6
+
+[output]
+every = 2
+density = 2
+
+[effects]
+gravity = [0.0, 0.0, -9.81]
+damping = { mass = 0.5 }
+
+[[constraints]]
+type = "clamp"
+corners = ["min_min"]
+
+[[constraints]]
+type = "fix"
+corners = ["max_min"]
+kinds = ["x"]
+motion = { type = "linear", velocity = [-0.5, 0.0, 0.0] }
+"""
+
+
+@pytest.fixture
+def workdir(comm):
+    return Path(comm.bcast(tempfile.mkdtemp(prefix="bhem-scene-") if comm.rank == 0 else None))
+
+
+def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
+    path = directory / name
+    if comm.rank == 0:
+        path.write_text(text)
+    comm.Barrier()
+    return path
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (
+            lambda s: s.replace("young = 1.0e4", 'young = "stiff"'),
+            r"key 'material.young' must be a number, got 'stiff'",
+        ),
+        (
+            lambda s: s.replace("dt = 0.01", "dt = 0.0"),
+            r"key 'time.dt' must be a number > 0 \(time step \[s\]\), got 0.0",
+        ),
+        (lambda s: s.replace("steps = 6", "steps = 6\nduration = 1.0"), "exactly one of 'steps' and 'duration'"),
+        (lambda s: s.replace("patches = [3, 2]", "patches = [3, 2]\ncolour = 1"), r"unknown key 'surface.colour'"),
+        (lambda s: s.replace("[material]\n", "[material]\nyoungs = 1\n"), r"unknown key 'material.youngs'"),
+        (lambda s: s.replace("poisson = 0.3", ""), r"missing key 'material.poisson'"),
+        (lambda s: s.replace("poisson = 0.3", "poisson = 0.7"), r"material.poisson = 0.7 is invalid"),
+        (lambda s: s.replace("damping = { mass = 0.5 }", "damping = {}"), r"'effects.damping' lists no coefficient"),
+        (lambda s: s.replace("damping = { mass = 0.5 }", "contact = true"), r"'effects.contact' needs the collision"),
+        (lambda s: s.replace("damping = { mass = 0.5 }", "wind = 3"), r"unknown effect 'effects.wind'"),
+        (
+            lambda s: s.replace('corners = ["max_min"]', 'corners = ["min_min"]'),
+            r"constraints\[1\] and constraints\[0\] both constrain node \(0, 0\), kind x, component 0",
+        ),
+        (
+            lambda s: s.replace('corners = ["min_min"]', "nodes = [[9, 0]]"),
+            r"names node \(9, 0\), which does not exist",
+        ),
+        (lambda s: s.replace('kinds = ["x"]', 'kinds = ["x", "d3"]'), r"key 'constraints\[1\].kinds' must be"),
+        (lambda s: s + "\n[solver]\nhessian = 'approx'\n", r"key 'solver.hessian' must be 'exact' or 'pseudo'"),
+        (lambda s: s.replace("[output]", "[outputs]"), r"unknown key 'outputs'"),
+        (lambda s: "effects = 3\n" + s.replace("[effects]", "[unused]"), r"key 'effects' must be a table, got 3"),
+    ],
+)
+def test_bad_scenes_name_file_key_and_expectation(comm, workdir, edit, message):
+    path = write(comm, workdir, edit(BASE))
+    with pytest.raises(SceneError, match=message) as info:
+        load_scene(path)
+    assert str(path) in str(info.value)
+
+
+def test_only_listed_effects_are_built(comm, workdir):
+    plain = build_model(load_scene(write(comm, workdir, BASE.replace("damping = { mass = 0.5 }", ""))), comm)
+    assert not hasattr(plain, "pressure") and not hasattr(plain, "mass_damping")
+    pressured = build_model(
+        load_scene(write(comm, workdir, BASE.replace("damping = { mass = 0.5 }", "pressure = 2.0"), "p.toml")), comm
+    )
+    # The pressure constant appears in the residual only when the scene lists pressure.
+    assert pressured.pressure in pressured.ufl_residual.constants()
+    assert len(pressured.ufl_residual.constants()) == len(plain.ufl_residual.constants()) + 1
+    assert "bhem_hpc.collision" not in sys.modules
+
+
+def test_run_writes_series_summary_checkpoint_and_restarts_exactly(comm, workdir):
+    scene = write(comm, workdir, BASE)
+    full = run_scene(RunOptions(scene, workdir / "full", progress=False), comm)
+    assert len(full["steps"]) == 6 and full["time"] == pytest.approx(0.06)
+    assert full["dofs"] == 3 * 4 * 12 and full["ranks"] == comm.size
+    step = full["steps"][-1]
+    for key in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "output_s", "newton_iterations"):
+        assert key in step
+    assert set(step["energies"]) == {"membrane", "bending", "gravity", "kinetic"}
+    comm.Barrier()
+    # ParaView's file: an independent XML + HDF5 read, then meshio's XDMF time-series reader.
+    root = ET.parse(workdir / "full" / "surface.xdmf").getroot()
+    frames = root.findall(".//Grid[@GridType='Uniform']")
+    times = [float(g.find("Time").get("Value")) for g in frames]
+    np.testing.assert_allclose(times, [0.0, 0.02, 0.04, 0.06])
+    with h5py.File(workdir / "full" / "surface.h5") as f:
+        last = f["frames/3/geometry"][:]
+        assert f["topology"].shape == (3 * 2 * 4, 4)
+        for name in ("normal", "mean_curvature", "membrane_energy_density", "bending_energy_density"):
+            assert np.all(np.isfinite(f[f"frames/3/{name}"][:]))
+    with meshio.xdmf.TimeSeriesReader(workdir / "full" / "surface.xdmf") as reader:
+        points, _ = reader.read_points_cells()
+        assert reader.num_steps == 4
+        np.testing.assert_allclose(points, h5py.File(workdir / "full" / "surface.h5")["frames/0/geometry"][:])
+    assert last[:, 2].min() < -1e-3  # it fell
+    # the moving corner followed its prescribed motion: x = 0.4 - 0.5 t
+    arrays, attrs = read_checkpoint(workdir / "full" / "checkpoint.h5")
+    assert attrs["step"] == 6
+    np.testing.assert_allclose(arrays["position_nodal"][3, 0, 0], [0.4 - 0.5 * 0.06, 0.0, 0.0], atol=1e-14)
+
+    run_scene(RunOptions(scene, workdir / "first", steps=3, progress=False), comm)
+    run_scene(RunOptions(scene, workdir / "second", steps=3, restart=workdir / "first", progress=False), comm)
+    restarted, attrs2 = read_checkpoint(workdir / "second" / "checkpoint.h5")
+    assert attrs2["step"] == 6 and attrs2["time"] == pytest.approx(0.06)
+    scale = np.abs(arrays["position_dofs"]).max()
+    assert np.abs(restarted["position_dofs"] - arrays["position_dofs"]).max() <= 1e-12 * scale
+    assert np.abs(restarted["velocity_dofs"] - arrays["velocity_dofs"]).max() <= 1e-10
+
+
+def test_run_refuses_to_overwrite_and_foreign_restarts(comm, workdir):
+    scene = write(comm, workdir, BASE)
+    run_scene(RunOptions(scene, workdir / "a", steps=1, progress=False), comm)
+    with pytest.raises(RunError, match="exists and is not empty: pass --force"):
+        run_scene(RunOptions(scene, workdir / "a", steps=1, progress=False), comm)
+    finer = write(comm, workdir, BASE.replace("patches = [3, 2]", "patches = [4, 2]"), "finer.toml")
+    with pytest.raises(RunError, match="different scene or resolution"):
+        run_scene(RunOptions(finer, workdir / "b", steps=1, restart=workdir / "a", progress=False), comm)
+    assert not (workdir / "b").exists()  # nothing written before the check
+    if comm.rank == 0:
+        blocked = workdir / "file"
+        blocked.write_text("")
+    comm.Barrier()
+    with pytest.raises(RunError, match="cannot be written"):
+        run_scene(RunOptions(scene, workdir / "file" / "sub", steps=1, progress=False), comm)

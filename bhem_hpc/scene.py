@@ -418,7 +418,7 @@ def _motion(t: _Table, constraint: bcs.NodalConstraint) -> Motion:
         t.get(
             "times",
             "a list",
-            check=lambda v: len(v) >= 2 and all(_is_number(x) for x in v) and all(b > a for a, b in zip(v, v[1:], strict=False)),
+            check=lambda v: len(v) >= 2 and all(_is_number(x) for x in v) and all(np.diff(v) > 0),
             expected="at least 2 increasing numbers",
         )
     )

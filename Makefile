@@ -4,8 +4,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 MPIRUN := mpirun --allow-run-as-root --oversubscribe
 RUFF_VERSION := 0.8.4
-# The cantilever master-curve demo: Gamma* and output directory.
-GAMMA ?= 20
+# The main job: a scene and its output directory (overwritten).
+SCENE ?= jobs/drape.toml
 OUT ?= out/demo
 
 .PHONY: setup demo test test-serial test-mpi lint bench study clean
@@ -20,7 +20,7 @@ $(VENV)/.installed: pyproject.toml scripts/install-system-packages
 	touch $@
 
 demo: setup
-	$(VENV)/bin/bhem-hpc cantilever --gamma $(GAMMA) --out $(OUT)
+	$(VENV)/bin/bhem-hpc run $(SCENE) --out $(OUT) --force
 
 test: setup lint test-serial test-mpi
 

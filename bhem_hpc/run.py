@@ -237,6 +237,7 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
                     "time": report.time,
                     "newton_iterations": report.newton_iterations,
                     "recoveries": report.regularized_retries + report.dt_halvings,
+                    "negative_pivots": solver.report.negative_pivots[-1] if solver.report.negative_pivots else -1,
                     "wall_s": report.wall_s + output_s,
                     "assembly_s": assemble - assemble0,
                     "factorization_s": factor - factor0,

@@ -361,8 +361,8 @@ class ShellSolver:
         Args:
             bc_values: reference-DOF values of the constrained DOFs (``model.constrained``);
                 default: the model's targets.
-            regularizations: relative diagonal regularizers tried in turn when Newton fails or
-                the LDL^T factorization shows negative pivots (an indefinite Hessian).
+            regularizations: relative diagonal regularizers ``r`` (``J + r |diag J|``) tried in turn
+                when Newton fails (the line search stalls or the iteration limit is hit).
 
         Returns:
             Newton iterations of the successful attempt.
@@ -383,12 +383,17 @@ class ShellSolver:
                     self.x.array[self.bc_local] = self.bc_values
                 self.snes.solve(None, self.x)
                 pivots = self.negative_pivots()
-                if self._converged() and (pivots <= 0 or regularization > 0):
+                if self._converged():
+                    # A converged step whose last LDL^T showed negative pivots is a stationary point
+                    # of an indefinite incremental potential: recorded, not retried (a regularized
+                    # retry converges to the same point).
                     self.update_state(self.x)
                     its = self.snes.getIterationNumber()
                     self.report.newton_iterations.append(its)
                     self.report.negative_pivots.append(pivots)
                     return its
+                if attempt == len(regularizations):
+                    break
                 self.report.regularized_retries += 1
                 log.warning(
                     "%s: attempt %d failed (%s, %d negative pivots); retrying with diagonal regularizer %.0e",
@@ -396,7 +401,7 @@ class ShellSolver:
                     attempt,
                     SNES_REASONS.get(self.snes.getConvergedReason()),
                     pivots,
-                    regularizations[min(attempt, len(regularizations) - 1)],
+                    regularizations[attempt],
                 )
             self._raise(1.0, f"{len(regularizations)} regularized retries")
         finally:

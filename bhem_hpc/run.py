@@ -218,6 +218,7 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
     progress = _progress(total, options.progress and comm.rank == 0)
     assemble0 = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
     factor0, solve0 = solver.linear_solver_seconds()
+    regularized0 = solver.report.regularized_iterations
     try:
         for _ in range(total):
             report = stepper.advance()
@@ -238,6 +239,7 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
                     "newton_iterations": report.newton_iterations,
                     "recoveries": report.regularized_retries + report.dt_halvings,
                     "negative_pivots": solver.report.negative_pivots[-1] if solver.report.negative_pivots else -1,
+                    "regularized_iterations": solver.report.regularized_iterations - regularized0,
                     "wall_s": report.wall_s + output_s,
                     "assembly_s": assemble - assemble0,
                     "factorization_s": factor - factor0,
@@ -248,6 +250,7 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
                 }
             )
             assemble0, factor0, solve0 = assemble, factor, solve
+            regularized0 = solver.report.regularized_iterations
             progress(report, stepper)
     except StepFailure as exc:
         raise RunError(str(exc)) from exc

@@ -98,6 +98,7 @@ class SolveReport:
     backtracks: int = 0
     cuts: int = 0
     regularized_retries: int = 0
+    regularized_iterations: int = 0
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
@@ -229,10 +230,10 @@ class ShellSolver:
         energy0 = self.potential_energy()
         slope = -self.f.dot(y)  # d/dlambda of the potential along x - lambda y, at lambda = 0
         resolution = 1e-12 * abs(energy0)
+        if self.negative_pivots() > 0 or slope > 0:
+            slope = self._regularized_direction(y)
         if abs(slope) <= 1e3 * resolution:
             return
-        if slope > 0:
-            log.debug("%s: Newton direction ascends the potential (indefinite Jacobian)", self.prefix)
         step = 1.0
         for _ in range(max_backtracks):
             self._trial.waxpy(-step, y, x)
@@ -244,15 +245,39 @@ class ShellSolver:
             guess = -slope * step**2 / (2 * curvature) if np.isfinite(energy) and curvature > 0 else 0.1 * step
             step = min(0.5 * step, max(0.1 * step, guess))
         else:
-            log.warning(
-                "%s: energy backtracking hit its bound of %d steps (step %.3e)",
-                self.prefix,
-                max_backtracks,
-                step,
-            )
+            # No decrease found: take no step rather than accept an energy increase; Newton then
+            # stalls and the caller's recovery (regularized retry, smaller increment) takes over.
+            log.warning("%s: energy backtracking found no decrease in %d steps", self.prefix, max_backtracks)
+            step = 0.0
         self.report.backtracks += int(step < 1.0)
         if step < 1.0:
             y.scale(step)
+
+    def _regularized_direction(self, y: PETSc.Vec, factors: tuple[float, ...] = (1e-6, 1e-4, 1e-2, 1.0)) -> float:
+        """Re-solve for ``y`` with ``J + r |diag J|``, raising ``r`` until LDL^T shows no negative
+        pivots (the paper's diagonal regularizer, applied within the Newton iteration).
+
+        Returns:
+            The new slope ``-F.y`` (negative once the matrix is positive definite).
+        """
+        ksp = self.snes.getKSP()
+        magnitude = self.jacobian.getDiagonal()
+        magnitude.abs()
+        applied = 0.0
+        for factor in factors:
+            increment = magnitude.copy()
+            increment.scale(factor - applied)
+            self.jacobian.setDiagonal(increment, addv=PETSc.InsertMode.ADD)
+            increment.destroy()
+            applied = factor
+            ksp.setOperators(self.jacobian)
+            ksp.solve(self.f, y)
+            if self.negative_pivots() <= 0:
+                break
+        magnitude.destroy()
+        self.report.regularized_iterations += 1
+        log.info("%s: indefinite Jacobian regularized with r = %.0e", self.prefix, applied)
+        return -self.f.dot(y)
 
     def _assemble_open_jacobian(self) -> None:
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked

@@ -129,3 +129,34 @@ def test_periodic_cylinder_under_inner_pressure_matches_membrane_theory(comm):
     expected = np.sqrt(1 + 2 * pressure * radius / (material.young * material.thickness))
     assert np.ptp(stretch) < 1e-9
     assert abs((stretch.mean() - 1) / (expected - 1) - 1) < 2e-3
+
+
+def test_post_buckling_needs_and_gets_the_regularizer(comm):
+    """A clamped strip shortened by 5 %: the straight state is a saddle (indefinite Hessian).
+
+    Newton regularizes the indefinite iterations and reaches the buckled minimum, whose amplitude
+    matches the inextensible first mode ``w = A (1 - cos(2 pi x / L)) / 2`` with
+    ``shortening = A^2 pi^2 / (4 L)``.
+    """
+    rest = strip(16)
+    grid = rest.grid
+    imperfect = S.from_callable(lambda a, b: np.stack([a, b, 1e-4 * np.sin(np.pi * a)], -1), grid)
+    tip = bcs.edge_nodes(grid, "xi1_max")
+    shortening = 0.05
+    constraints = [
+        bcs.clamp(bcs.edge_nodes(grid, "xi1_min")),
+        bcs.NodalConstraint(tip, (1, 2, 3)),
+        bcs.prescribe(
+            tip,
+            ["x"],
+            [0, 1, 2],
+            np.array([[LENGTH - shortening, 0.0, 0.0], [LENGTH - shortening, WIDTH, 0.0]])[:, None],
+        ),
+    ]
+    model = ShellModel(rest, BEAM, None, constraints, comm=comm, initial=imperfect)
+    with ShellSolver(model) as solver:
+        report = solver.solve(5)
+        assert report.regularized_iterations > 0
+        assert solver.time_newton_iteration()["negative_pivots"] == 0  # a minimum, not a saddle
+    amplitude = np.abs(model.state_surface().nodal[:, :, 0, 2]).max()
+    assert abs(amplitude / (np.sqrt(4 * LENGTH * shortening) / np.pi) - 1) < 0.05

@@ -104,6 +104,7 @@ class TimeStepper:
         model.x_predicted.x.array[:] = x_n + dt * v_n
         model.x.x.array[:] = model.x_predicted.x.array  # the inertial prediction is the first guess
         try:
+            self.solver.set_point_targets(t_start + dt)
             report.newton_iterations += self.solver.solve_step(self.bc_values_at(t_start + dt))
         except SolverError as exc:
             model.x.x.array[:] = x_n

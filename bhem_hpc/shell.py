@@ -9,7 +9,7 @@ from __future__ import annotations
 import hashlib
 import os
 import platform
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -50,6 +50,27 @@ class PointLoad:
     xi1: float
     xi2: float
     force: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class PointConstraint:
+    """Hold the material point ``(xi1, xi2)`` at a target (paper §6.1, augmented Lagrangian).
+
+    Attributes:
+        xi1, xi2: parameters of the point (anywhere on the surface, not only at nodes).
+        target: position ``(3,)`` or a callable of time (dynamics) / load factor (statics)
+            returning it; only ``components`` are constrained.
+        components: constrained Cartesian components.
+    """
+
+    xi1: float
+    xi2: float
+    target: Callable[[float], np.ndarray] | tuple[float, float, float]
+    components: tuple[int, ...] = (0, 1, 2)
+
+    def target_at(self, t: float) -> np.ndarray:
+        value = self.target(t) if callable(self.target) else self.target
+        return np.asarray(value, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -159,6 +180,8 @@ class ShellModel:
         quadrature_points: Gauss points per direction and patch (4 = the paper's 4x4 rule).
         comm: MPI communicator.
         initial: initial state (default: the rest surface).
+        point_constraints: material points held at (moving) targets by the augmented Lagrangian
+            method in the solver.
         dynamics: time stepping; adds inertia (and damping) potentials, the ``x_predicted``,
             ``x_previous`` and ``velocity`` Functions and a ``kinetic`` energy. ``None``: statics.
     """
@@ -174,6 +197,7 @@ class ShellModel:
         comm: MPI.Comm = MPI.COMM_WORLD,
         initial: HermiteSurface | None = None,
         dynamics: Dynamics | None = None,
+        point_constraints: Sequence[PointConstraint] = (),
     ):
         loads = loads or Loads()
         # Validate everything before building anything.
@@ -190,6 +214,15 @@ class ShellModel:
             raise ModelError("initial and rest surfaces have different grids")
         for c in constraints:
             c.validate(rest.grid)
+        for i, pc in enumerate(point_constraints):
+            if not set(pc.components) <= {0, 1, 2} or not pc.components:
+                raise ModelError(
+                    f"point_constraints[{i}].components = {pc.components!r}; expected a subset of (0, 1, 2)"
+                )
+            target = pc.target_at(0.0)
+            if target.shape != (3,) or not np.all(np.isfinite(target)):
+                raise ModelError(f"point_constraints[{i}].target must give 3 finite numbers, got {target!r}")
+            rest.grid.locate(np.array(pc.xi1), np.array(pc.xi2))  # raises if outside the surface
 
         self.comm = comm
         self.material = material
@@ -311,6 +344,10 @@ class ShellModel:
             blocks, values = disc.point_basis(load.xi1, load.xi2)
             for comp in range(3):
                 np.add.at(self.point_load_open, 3 * blocks + comp, values * load.force[comp])
+
+        # Point constraints: the 16 basis values of the containing patch (on its owning rank only).
+        self.point_constraints = tuple(point_constraints)
+        self.point_constraint_basis = [disc.point_basis(pc.xi1, pc.xi2) for pc in self.point_constraints]
 
         # Boundary conditions as owned closed DOFs with initial and target values.
         target = target_surface(initial, self.constraints)

@@ -99,6 +99,7 @@ class SolveReport:
     cuts: int = 0
     regularized_retries: int = 0
     regularized_iterations: int = 0
+    multiplier_updates: int = 0
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
@@ -165,6 +166,19 @@ class ShellSolver:
         self.bc_values = model.constrained_initial.copy()
         self.report = SolveReport()
         self.regularization = 0.0
+        # Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks.
+        count = len(model.point_constraints)
+        self.alm_multipliers = np.zeros((count, 3))
+        self.alm_mask = np.zeros((count, 3))
+        for k, pc in enumerate(model.point_constraints):
+            self.alm_mask[k, list(pc.components)] = 1.0
+        self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
+        self.alm_penalty = 1e3 * model.material.young * model.material.thickness
+        lo, hi = (
+            model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
+            model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
+        )
+        self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
 
         PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
         self.snes = PETSc.SNES().create(comm)
@@ -199,6 +213,12 @@ class ShellSolver:
         with self.f_open.localForm() as local:
             local.set(0.0)
         fem_petsc.assemble_vector(self.f_open, self.model.residual_form)
+        if len(self.alm_multipliers):
+            force = (self.alm_multipliers + self.alm_penalty * self.point_constraint_violation()) * self.alm_mask
+            with self.f_open.localForm() as local:
+                blocked = local.array.reshape(-1, 3)
+                for k, (blocks, values) in enumerate(self.model.point_constraint_basis):
+                    blocked[blocks] += values[:, None] * force[k]
         self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         self.f_open.axpy(-float(self.model.load_factor.value), self.point_loads)
         if self.prolongation is not None:
@@ -210,12 +230,44 @@ class ShellSolver:
             values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
         self.report.assemble_residual_s += time.perf_counter() - t0
 
+    def point_constraint_violation(self) -> np.ndarray:
+        """``x(xi_p) - target`` of every point constraint (constrained components), collective.
+
+        Returns:
+            Array of shape ``(points, 3)``; unconstrained components are 0.
+        """
+        local = np.zeros_like(self.alm_multipliers)
+        positions = self.model.x.x.array.reshape(-1, 3)
+        for k, (blocks, values) in enumerate(self.model.point_constraint_basis):
+            if len(blocks):
+                local[k] = values @ positions[blocks]
+        return (self.model.comm.allreduce(local) - self.alm_targets) * self.alm_mask
+
+    def _solve_constrained(self, max_updates: int = 30) -> bool:
+        """SNES solve, wrapped in augmented-Lagrangian multiplier updates when points are held."""
+        for _ in range(max_updates):
+            self.snes.solve(None, self.x)
+            if not self._converged() or not len(self.alm_multipliers):
+                return self._converged()
+            self.update_state(self.x)
+            violation = self.point_constraint_violation()
+            if np.abs(violation).max() <= self.alm_tolerance:
+                return True
+            self.alm_multipliers += self.alm_penalty * violation
+            self.report.multiplier_updates += 1
+        log.warning("%s: augmented Lagrangian not converged after %d multiplier updates", self.prefix, max_updates)
+        return False
+
     def potential_energy(self) -> float:
         """Total potential at the model's current state (internal - external work), collective."""
         local = fem.assemble_scalar(self.model.potential_form)
         local -= float(self.model.load_factor.value) * float(
             np.dot(self.point_loads.array_r, self.model.x.vector.array_r)
         )
+        if len(self.alm_multipliers):
+            c = self.point_constraint_violation()
+            alm = float(np.sum(self.alm_multipliers * c) + 0.5 * self.alm_penalty * np.sum(c * c))
+            local += alm if self.model.comm.rank == 0 else 0.0
         return self.model.comm.allreduce(local)
 
     def damp_step(self, x: PETSc.Vec, y: PETSc.Vec, max_backtracks: int = 30) -> None:
@@ -283,6 +335,11 @@ class ShellSolver:
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
         fem_petsc.assemble_matrix(target, self.model.jacobian_form)
+        for blocks, values in self.model.point_constraint_basis:  # rho Phi Phi^T per component
+            block = self.alm_penalty * np.outer(values, values)
+            for comp in range(3):
+                rows = (3 * blocks + comp).astype(PETSc.IntType)
+                target.setValuesLocal(rows, rows, block, addv=PETSc.InsertMode.ADD)
         target.assemble()
         if self.jacobian_blocked is not None:
             self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
@@ -335,10 +392,10 @@ class ShellSolver:
                 self.x.axpy((trial - factor) / (factor - last_factor), accepted - last)
             model.load_factor.value = trial
             self.bc_values = model.constrained_initial + trial * (model.constrained_target - model.constrained_initial)
+            self.set_point_targets(trial, ramp=True)
             if len(self.bc_local):
                 self.x.array[self.bc_local] = self.bc_values
-            self.snes.solve(None, self.x)
-            if not self._converged():
+            if not self._solve_constrained():
                 cuts += 1
                 self.report.cuts += 1
                 if cuts > max_cuts:
@@ -378,6 +435,20 @@ class ShellSolver:
         self.report.wall_s += time.perf_counter() - start
         return self.report
 
+    def set_point_targets(self, t: float, ramp: bool = False) -> None:
+        """Targets of the point constraints at time (or load factor) ``t``.
+
+        With ``ramp`` (static load stepping) a fixed target is approached linearly from the
+        point's initial position, as prescribed nodal values are.
+        """
+        initial = self.model.initial_surface
+        for k, pc in enumerate(self.model.point_constraints):
+            if ramp and not callable(pc.target):
+                start = initial.evaluate(np.array(pc.xi1), np.array(pc.xi2)).x
+                self.alm_targets[k] = start + t * (pc.target_at(t) - start)
+            else:
+                self.alm_targets[k] = pc.target_at(t)
+
     def solve_step(
         self, bc_values: np.ndarray | None = None, regularizations: tuple[float, ...] = (1e-6, 1e-4, 1e-2)
     ) -> int:
@@ -406,9 +477,9 @@ class ShellSolver:
                 start.copy(self.x)
                 if len(self.bc_local):
                     self.x.array[self.bc_local] = self.bc_values
-                self.snes.solve(None, self.x)
+                converged = self._solve_constrained()
                 pivots = self.negative_pivots()
-                if self._converged():
+                if converged:
                     # A converged step whose last LDL^T showed negative pivots is a stationary point
                     # of an indefinite incremental potential: recorded, not retried (a regularized
                     # retry converges to the same point).

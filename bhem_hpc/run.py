@@ -22,7 +22,7 @@ from bhem_hpc import __version__
 from bhem_hpc.dynamics import PrescribedMotion, StepFailure, TimeStepper
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
 from bhem_hpc.scene import Scene, load_scene
-from bhem_hpc.shell import Dynamics, LineLoad, Loads, PointLoad, ShellModel
+from bhem_hpc.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.solver import ShellSolver
 
 log = logging.getLogger(__name__)
@@ -91,6 +91,10 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
         quadrature_points=scene.quadrature,
         comm=comm,
         dynamics=dynamics,
+        point_constraints=[
+            PointConstraint(p.xi1, p.xi2, p.target_at if p.motion is not None else p.target, p.components)
+            for p in scene.point_constraints
+        ],
     )
 
 

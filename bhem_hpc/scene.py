@@ -50,6 +50,25 @@ class SceneConstraint:
 
 
 @dataclass(frozen=True)
+class ScenePoint:
+    """A material point held at a target: fixed (``target``) or moving (``motion``)."""
+
+    xi1: float
+    xi2: float
+    components: tuple[int, ...]
+    target: tuple[float, float, float]
+    motion: Motion | None = None
+
+    def target_at(self, t: float) -> np.ndarray:
+        """Full 3-vector target at time ``t`` (unconstrained components keep ``target``)."""
+        out = np.array(self.target, dtype=float)
+        if self.motion is not None:
+            comps = list(self.components)
+            out[comps] = np.asarray(self.motion.values(t, out[comps][None, None, :]), dtype=float).reshape(-1)
+        return out
+
+
+@dataclass(frozen=True)
 class Effects:
     gravity: tuple[float, float, float] | None = None
     pressure: float | None = None
@@ -73,6 +92,7 @@ class Scene:
     hessian: str
     quadrature: int
     petsc_options: dict[str, Any] = field(default_factory=dict)
+    point_constraints: tuple[ScenePoint, ...] = ()
     output_every: int = 1
     output_density: int = 4
     raw: dict[str, Any] = field(default_factory=dict)
@@ -200,6 +220,7 @@ def load_scene(path: str | Path) -> Scene:
         density = output.get("density", "an integer", 4, lambda v: 1 <= v <= 32, "an integer in 1..32")
         output.done()
     constraints = _constraints(top, surface.grid, path)
+    points = _point_constraints(top, surface, path)
     top.done()
     return Scene(
         path=path,
@@ -214,6 +235,7 @@ def load_scene(path: str | Path) -> Scene:
         hessian=hessian,
         quadrature=quadrature,
         petsc_options=dict(options),
+        point_constraints=points,
         output_every=every,
         output_density=density,
         raw=raw,
@@ -386,6 +408,37 @@ def _constraints(top: _Table, grid: S.ParameterGrid, path: Path) -> tuple[SceneC
         t.done()
         out.append(SceneConstraint(constraint, motion, t.name))
     _check_motion_conflicts(out, path)
+    return tuple(out)
+
+
+def _point_constraints(top: _Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:
+    out = []
+    grid = surface.grid
+    for i, item in enumerate(top.get("point_constraints", "a list", [])):
+        t = _Table(path, f"point_constraints[{i}]", item)
+        at = t.get("at", "2 numbers", expected="[xi1, xi2] parameters of the material point")
+        try:
+            grid.locate(np.array(at[0]), np.array(at[1]))
+        except S.SurfaceError as exc:
+            raise SceneError(f"{path}: key '{t.key('at')}': {exc}") from exc
+        components = tuple(
+            t.get(
+                "components",
+                "a list",
+                [0, 1, 2],
+                lambda v: len(v) > 0 and all(c in (0, 1, 2) for c in v),
+                "a non-empty subset of [0, 1, 2]",
+            )
+        )
+        start = surface.evaluate(np.array(at[0]), np.array(at[1])).x
+        target = tuple(t.get("target", "3 numbers", list(start)))
+        motion_table = t.table("motion", None)
+        motion = None
+        if motion_table is not None:
+            shape = bcs.NodalConstraint(np.zeros((1, 2), dtype=np.int64), (0,), components)
+            motion = _motion(motion_table, shape)
+        t.done()
+        out.append(ScenePoint(float(at[0]), float(at[1]), components, target, motion))
     return tuple(out)
 
 

@@ -15,6 +15,7 @@ import pytest
 from bhem_hpc.io import read_checkpoint
 from bhem_hpc.run import RunError, RunOptions, build_model, run_scene
 from bhem_hpc.scene import SceneError, load_scene
+from bhem_hpc.surface import HermiteSurface
 
 BASE = """
 [surface]
@@ -171,3 +172,25 @@ def test_run_refuses_to_overwrite_and_foreign_restarts(comm, workdir):
     comm.Barrier()
     with pytest.raises(RunError, match="cannot be written"):
         run_scene(RunOptions(scene, workdir / "file" / "sub", steps=1, progress=False), comm)
+
+
+def test_scene_point_constraint_moves_a_material_point(comm, workdir):
+    text = (
+        BASE.replace("steps = 6", "steps = 3")
+        + """
+[[point_constraints]]
+at = [0.37, 0.21]
+motion = { type = "linear", velocity = [0.0, 0.0, 0.2] }
+"""
+    )
+    scene = load_scene(write(comm, workdir, text, "point.toml"))
+    point = scene.point_constraints[0]
+    start = scene.surface.evaluate(np.array(0.37), np.array(0.21)).x
+    np.testing.assert_allclose(point.target_at(0.5), start + [0.0, 0.0, 0.1])
+    run_scene(RunOptions(workdir / "point.toml", workdir / "point", progress=False), comm)
+    arrays, _ = read_checkpoint(workdir / "point" / "checkpoint.h5")
+    final = HermiteSurface(scene.surface.grid, arrays["position_nodal"])
+    reached = final.evaluate(np.array(0.37), np.array(0.21)).x
+    np.testing.assert_allclose(reached, start + [0.0, 0.0, 0.2 * 0.03], atol=1e-8)
+    with pytest.raises(SceneError, match=r"key 'point_constraints\[0\].at': parameter xi1=2.0 lies outside"):
+        load_scene(write(comm, workdir, text.replace("at = [0.37, 0.21]", "at = [2.0, 0.21]"), "bad.toml"))

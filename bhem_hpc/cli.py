@@ -39,6 +39,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
     bench.add_argument("--repeats", type=int, default=3)
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
+    bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
+    bench.add_argument("--steps", type=int, default=20, help="with --scene: steps to time")
     return parser
 
 
@@ -91,6 +93,19 @@ def main(argv: list[str] | None = None) -> int:
                     f"heavy elastica {summary['reference_W_over_L']:.6f}"
                     f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
                     f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, cantilever-3d.png, summary.json"
+                )
+        elif args.command == "bench" and args.scene is not None:
+            row = jobs.scene_benchmark(args.scene, args.steps, args.hessian, comm)
+            if comm.rank == 0:
+                print(
+                    json.dumps(row)
+                    if args.json
+                    else (
+                        f"{row['scene']}: {row['dofs']} DoFs, {row['ranks']} rank(s), {row['hessian']} Hessian, "
+                        f"{row['steps']} steps: {row['step_s']:.3f} s/step, {row['newton_per_step']:.2f} Newton "
+                        f"iterations/step (assembly {row['assembly_per_step_s']:.3f} s, factorization "
+                        f"{row['factor_per_step_s']:.3f} s per step), {row['recoveries']} recoveries"
+                    )
                 )
         elif args.command == "bench":
             rows = [jobs.benchmark(n, args.hessian, args.repeats, comm) for n in args.patches]

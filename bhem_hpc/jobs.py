@@ -171,3 +171,44 @@ def benchmark(
     result["factor_gflops"] = result["factor_gflop"] / result["factor_s"]
     result["host"] = platform.node()
     return result
+
+
+def scene_benchmark(scene_path: Path, steps: int, hessian: str | None = None, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
+    """Time ``steps`` implicit Euler steps of a scene (after one warm-up step), without output."""
+    import dataclasses
+
+    from bhem_hpc.dynamics import TimeStepper
+    from bhem_hpc.run import SOLVER_PREFIX, build_model, prescribed_motions
+    from bhem_hpc.scene import load_scene
+
+    if steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {steps!r}")
+    scene = load_scene(scene_path)
+    if scene.static:
+        raise ValueError(f"{scene_path}: a static scene has no time steps to benchmark")
+    if hessian is not None:
+        scene = dataclasses.replace(scene, hessian=hessian)
+    model = build_model(scene, comm)
+    with ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options) as solver:
+        stepper = TimeStepper(model, solver, prescribed_motions(scene))
+        stepper.advance()
+        assemble0 = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
+        factor0, _ = solver.linear_solver_seconds()
+        reports = [stepper.advance() for _ in range(steps)]
+        assemble = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s - assemble0
+        factor = solver.linear_solver_seconds()[0] - factor0
+        nnz = solver.matrix_nonzeros()
+    wall = float(np.mean([r.wall_s for r in reports]))
+    return {
+        "scene": str(scene_path),
+        "hessian": scene.hessian,
+        "dofs": 3 * model.discretization.num_closed,
+        "nnz": nnz,
+        "ranks": comm.size,
+        "steps": steps,
+        "step_s": comm.allreduce(wall, op=MPI.MAX),
+        "newton_per_step": float(np.mean([r.newton_iterations for r in reports])),
+        "assembly_per_step_s": assemble / steps,
+        "factor_per_step_s": factor / steps,
+        "recoveries": int(sum(r.regularized_retries + r.dt_halvings for r in reports)),
+    }

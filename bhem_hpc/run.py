@@ -98,7 +98,8 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
     )
 
 
-def _motions(scene: Scene) -> list[PrescribedMotion]:
+def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:
+    """The time-dependent nodal constraints of a scene."""
     motions = []
     for sc in scene.constraints:
         if sc.motion is None:
@@ -210,7 +211,7 @@ def _run_static(scene, model, solver, series, summary, comm) -> None:
 
 
 def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm) -> None:
-    stepper = TimeStepper(model, solver, _motions(scene))
+    stepper = TimeStepper(model, solver, prescribed_motions(scene))
     if checkpoint is not None:
         arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
         _restore(model, arrays)

@@ -194,3 +194,10 @@ motion = { type = "linear", velocity = [0.0, 0.0, 0.2] }
     np.testing.assert_allclose(reached, start + [0.0, 0.0, 0.2 * 0.03], atol=1e-8)
     with pytest.raises(SceneError, match=r"key 'point_constraints\[0\].at': parameter xi1=2.0 lies outside"):
         load_scene(write(comm, workdir, text.replace("at = [0.37, 0.21]", "at = [2.0, 0.21]"), "bad.toml"))
+
+
+@pytest.mark.parametrize("name", ["drape", "twisting", "locking", "drape-corners", "parasol"])
+def test_shipped_scenes_are_valid(name):
+    scene = load_scene(Path(__file__).resolve().parents[1] / "jobs" / f"{name}.toml")
+    assert scene.steps >= 100 and not scene.static
+    assert scene.constraints

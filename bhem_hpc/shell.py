@@ -332,6 +332,10 @@ class ShellModel:
         self.ufl_energies = energies
 
         jit = default_jit_params()
+        self.line_load_work_form = None
+        if loads.line_loads:
+            dead_work = sum(ufl.replace(w, {test: x}) for w in work_forms[1 if loads.pressure is not None else 0 :])
+            self.line_load_work_form = fem.form(dead_work, jit_params=jit)
         self.residual_form = fem.form(residual, jit_params=jit)
         self.jacobian_form = fem.form(jacobian, jit_params=jit)
         self.energy_forms = {
@@ -388,10 +392,20 @@ class ShellModel:
         return self.discretization.open_to_surface(self.x.x.array)
 
     def energies(self) -> dict[str, float]:
-        """Collective: every built energy term at the current state (load factor not applied)."""
-        return {
+        """Collective: every built energy term at the current state (load factor not applied).
+
+        ``external_work`` is the work of the dead loads at the current position: gravity, line
+        and point loads (a follower pressure has no potential and is not included).
+        """
+        values = {
             name: self.comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM) for name, form in self.energy_forms.items()
         }
+        # Point-load contributions sit once, on the rank owning the loaded cell: no double count.
+        work = float(np.dot(self.point_load_open, self.x.x.array))
+        if self.line_load_work_form is not None:
+            work += fem.assemble_scalar(self.line_load_work_form)
+        values["external_work"] = self.comm.allreduce(work, op=MPI.SUM) - values.get("gravity", 0.0)
+        return values
 
 
 def _merge(selections: Sequence[ConstrainedDofs]) -> ConstrainedDofs:

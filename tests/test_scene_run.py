@@ -126,7 +126,8 @@ def test_run_writes_series_summary_checkpoint_and_restarts_exactly(comm, workdir
     step = full["steps"][-1]
     for key in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "output_s", "newton_iterations"):
         assert key in step
-    assert set(step["energies"]) == {"membrane", "bending", "gravity", "kinetic"}
+    assert set(step["energies"]) == {"membrane", "bending", "gravity", "kinetic", "external_work"}
+    assert step["energies"]["external_work"] == pytest.approx(-step["energies"]["gravity"])
     comm.Barrier()
     # ParaView's file: an independent XML + HDF5 read, then meshio's XDMF time-series reader.
     root = ET.parse(workdir / "full" / "surface.xdmf").getroot()

@@ -37,6 +37,8 @@ def test_point_load_at_an_arbitrary_point_matches_beam_theory(comm):
         solver.solve()
     expected = -force * a**2 * (3 * LENGTH - a) / (6 * EI)
     assert abs(centreline_deflection(model, LENGTH) / expected - 1) < 1e-6
+    loaded = model.state_surface().evaluate(np.array(a), np.array(WIDTH / 2)).x
+    assert abs(model.energies()["external_work"] / (-force * loaded[2]) - 1) < 1e-12
 
 
 def test_line_load_on_the_free_edge_matches_beam_theory(comm):
@@ -46,6 +48,8 @@ def test_line_load_on_the_free_edge_matches_beam_theory(comm):
         solver.solve()
     expected = -traction * WIDTH * LENGTH**3 / (3 * EI)
     assert abs(centreline_deflection(model, LENGTH) / expected - 1) < 1e-6
+    # work of the dead edge load at the deflected position: (-t) * w_tip * width
+    assert abs(model.energies()["external_work"] / (-traction * expected * WIDTH) - 1) < 1e-6
 
 
 def test_prescribed_derivatives_and_pins(comm):

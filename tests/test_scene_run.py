@@ -202,3 +202,36 @@ def test_shipped_scenes_are_valid(name):
     scene = load_scene(Path(__file__).resolve().parents[1] / "jobs" / f"{name}.toml")
     assert scene.steps >= 100 and not scene.static
     assert scene.constraints
+
+
+def test_static_scene_with_loads(comm, workdir):
+    text = """
+[surface]
+kind = "rectangle"
+size = [1.0, 0.1]
+patches = [12, 1]
+
+[material]
+young = 1.0e6
+poisson = 0.0
+thickness = 0.01
+density = 1000.0
+
+[time]
+static = true
+load_steps = 2
+
+[effects]
+line_loads = [{ edge = "xi1_max", traction = [0.0, 0.0, -1.0e-5] }]
+
+[[constraints]]
+type = "clamp"
+edge = "xi1_min"
+"""
+    summary = run_scene(RunOptions(write(comm, workdir, text, "static.toml"), workdir / "static", progress=False), comm)
+    assert summary["static"] and len(summary["steps"]) == 1
+    comm.Barrier()
+    with h5py.File(workdir / "static" / "surface.h5") as f:
+        tip_drop = -f["frames/0/geometry"][:, 2].min()
+    ei = 1e6 * 0.1 * 0.01**3 / 12
+    assert abs(tip_drop / (1e-5 * 0.1 / (3 * ei)) - 1) < 1e-4  # P L^3 / (3 EI)

@@ -16,6 +16,13 @@ CLOTH = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
 G = 9.81
 
 
+def hanging_strip(comm, patches, dt):
+    """A 0.3 m x 0.05 m cloth strip clamped at xi1 = 0, under gravity, starting horizontal."""
+    rest = S.flat_rectangle(0.3, 0.05, patches, 1)
+    clamp = bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))
+    return ShellModel(rest, CLOTH, Loads(gravity=(0.0, 0.0, -G)), [clamp], comm=comm, dynamics=Dynamics(dt))
+
+
 def run(model, steps, motions=(), options=None):
     with ShellSolver(model, prefix="dyn_", options=options) as solver:
         stepper = TimeStepper(model, solver, motions)
@@ -59,15 +66,7 @@ def test_mass_damping_gives_the_exact_damped_sequence(comm):
 
 def test_undamped_swing_never_gains_energy(comm):
     """A strip clamped at one end falls from horizontal: implicit Euler only dissipates."""
-    rest = S.flat_rectangle(0.3, 0.05, 8, 1)
-    model = ShellModel(
-        rest,
-        CLOTH,
-        Loads(gravity=(0.0, 0.0, -G)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
-        comm=comm,
-        dynamics=Dynamics(0.005),
-    )
+    model = hanging_strip(comm, patches=8, dt=0.005)
     totals = []
     with ShellSolver(model, prefix="dyn_") as solver:
         stepper = TimeStepper(model, solver)
@@ -101,15 +100,7 @@ def test_prescribed_motion_drives_a_node(comm):
 
 
 def test_a_step_that_cannot_converge_stops_the_run_with_its_time(comm):
-    rest = S.flat_rectangle(0.3, 0.05, 6, 1)
-    model = ShellModel(
-        rest,
-        CLOTH,
-        Loads(gravity=(0.0, 0.0, -G)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
-        comm=comm,
-        dynamics=Dynamics(0.2),
-    )
+    model = hanging_strip(comm, patches=6, dt=0.2)
     before = model.x.x.array.copy()
     with ShellSolver(model, prefix="dyn_fail_", options={"snes_max_it": 1}) as solver:
         stepper = TimeStepper(model, solver, max_halvings=1)

@@ -1,0 +1,79 @@
+"""Bicubic Bezier nets: conversion from Hermite nodal data, evaluation, splitting, bounds.
+
+A net has shape ``(4, 4, 3)`` indexed ``[i, j, xyz]``: control point ``p_ij`` of
+``x(u, v) = sum_ij B_i(u) B_j(v) p_ij`` (paper eq. 22) with local parameters ``u, v in [0, 1]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bhem_hpc.surface import HermiteSurface, ParameterGrid
+
+
+def control_nets(grid: ParameterGrid, nodal: np.ndarray) -> np.ndarray:
+    """Exact Bezier nets of every patch, ``(n1 * n2, 4, 4, 3)`` in patch order ``p1 * n2 + p2``.
+
+    ``nodal`` is Hermite nodal data ``(m1, m2, 4, 3)``: positions, or velocities (the map is linear,
+    so velocities of control points come out the same way).
+    """
+    return HermiteSurface(grid, nodal).bezier_control_points().reshape(-1, 4, 4, 3)
+
+
+def _bernstein(t: np.ndarray, derivative: int = 0) -> np.ndarray:
+    t = np.asarray(t, dtype=float)
+    s = 1.0 - t
+    if derivative == 0:
+        return np.stack([s**3, 3 * t * s**2, 3 * t**2 * s, t**3], axis=-1)
+    if derivative == 1:
+        return np.stack([-3 * s**2, 3 * s**2 - 6 * t * s, 6 * t * s - 3 * t**2, 3 * t**2], axis=-1)
+    raise ValueError(f"Bernstein derivative order must be 0 or 1, got {derivative!r}")
+
+
+def evaluate(net: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> np.ndarray:
+    """Point (or first partial derivative) of a net at local parameters; shape ``S + (3,)``."""
+    return np.einsum("...i,...j,ijc->...c", _bernstein(u, du), _bernstein(v, dv), net)
+
+
+def _split_curves(points: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """de Casteljau on axis 0 of ``(4, ...)`` control polygons: the two halves at ``t``."""
+    p = points
+    a = (1 - t) * p[:-1] + t * p[1:]
+    b = (1 - t) * a[:-1] + t * a[1:]
+    c = (1 - t) * b[:-1] + t * b[1:]
+    left = np.stack([p[0], a[0], b[0], c[0]])
+    right = np.stack([c[0], b[1], a[2], p[3]])
+    return left, right
+
+
+def split_u(net: np.ndarray, u: float) -> tuple[np.ndarray, np.ndarray]:
+    """The nets of ``[0, u]`` and ``[u, 1]`` in the first parameter (exact)."""
+    return _split_curves(net, u)
+
+
+def split_v(net: np.ndarray, v: float) -> tuple[np.ndarray, np.ndarray]:
+    """The nets of ``[0, v]`` and ``[v, 1]`` in the second parameter (exact)."""
+    left, right = _split_curves(np.swapaxes(net, 0, 1), v)
+    return np.swapaxes(left, 0, 1), np.swapaxes(right, 0, 1)
+
+
+def subpatch(net: np.ndarray, u0: float, u1: float, v0: float, v1: float) -> np.ndarray:
+    """The net of the sub-rectangle ``[u0, u1] x [v0, v1]`` (exact, by two splits per direction)."""
+    if not (0.0 <= u0 < u1 <= 1.0 and 0.0 <= v0 < v1 <= 1.0):
+        raise ValueError(f"sub-rectangle [{u0}, {u1}] x [{v0}, {v1}] is not inside [0, 1]^2")
+    out = net
+    if u1 < 1.0:
+        out = split_u(out, u1)[0]
+    if u0 > 0.0:
+        out = split_u(out, u0 / u1)[1]
+    if v1 < 1.0:
+        out = split_v(out, v1)[0]
+    if v0 > 0.0:
+        out = split_v(out, v0 / v1)[1]
+    return out
+
+
+def aabb(net: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds of the control points (they contain the patch), ``(3,)`` each."""
+    points = np.asarray(net).reshape(-1, 3)
+    return points.min(axis=0), points.max(axis=0)

@@ -34,6 +34,11 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--restart", type=Path, default=None, help="continue from DIR/checkpoint.h5")
     run.add_argument("--force", action="store_true", help="overwrite a non-empty output directory")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
+    render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
+    render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
+    render.add_argument("--size", default="320x240", help="WIDTHxHEIGHT in pixels")
+    render.add_argument("--out", type=Path, default=None, help="PNG path (default: DIR/frame_K.png)")
     bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
     bench.add_argument("--patches", type=int, nargs="+", default=[10, 20, 30])
     bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
@@ -41,7 +46,28 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
     bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
     bench.add_argument("--steps", type=int, default=20, help="with --scene: steps to time")
+    bench.add_argument("--rays", action="store_true", help="ray-patch intersection: midpoint vs Newton-guided")
     return parser
+
+
+def _render(args: argparse.Namespace) -> None:
+    from bhem_hpc.io import read_frame
+    from bhem_hpc.render import render, write_png
+
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError as exc:
+        raise ValueError(f"--size must be WIDTHxHEIGHT, got {args.size!r}") from exc
+    if not (1 <= width <= 4096 and 1 <= height <= 4096):
+        raise ValueError(f"--size must be between 1x1 and 4096x4096, got {args.size!r}")
+    h5 = args.directory / "surface.h5"
+    if not h5.exists():
+        raise ValueError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
+    surface, time = read_frame(h5, args.frame)
+    image, mask = render(surface, width, height)
+    out = args.out or args.directory / f"frame_{args.frame if args.frame >= 0 else 'last'}.png"
+    write_png(out, image)
+    print(f"rendered t = {time:.6g} s, {width}x{height}, {int(mask.sum())} pixels on the surface: {out}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -68,7 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     from bhem_hpc.solver import SolverError
 
     try:
-        if args.command == "run":
+        if args.command == "render":
+            if comm.rank == 0:
+                _render(args)
+        elif args.command == "run":
             options = RunOptions(args.scene, args.out, args.steps, args.restart, args.force, not args.no_progress)
             summary = run_scene(options, comm)
             if comm.rank == 0:
@@ -93,6 +122,18 @@ def main(argv: list[str] | None = None) -> int:
                     f"heavy elastica {summary['reference_W_over_L']:.6f}"
                     f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
                     f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, cantilever-3d.png, summary.json"
+                )
+        elif args.command == "bench" and args.rays:
+            rows = [jobs.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
+            for row in rows:
+                print(
+                    json.dumps(row)
+                    if args.json
+                    else (
+                        f"{row['patches']}x{row['patches']} patches, {row['rays']} rays ({row['hits']} hits): midpoint "
+                        f"{row['midpoint_rays_per_s']:.0f} rays/s, Newton-guided {row['newton_rays_per_s']:.0f} rays/s "
+                        f"({row['speedup']:.1f}x), max |tau difference| {row['max_tau_difference']:.1e}"
+                    )
                 )
         elif args.command == "bench" and args.scene is not None:
             row = jobs.scene_benchmark(args.scene, args.steps, args.hessian, comm)

@@ -112,6 +112,11 @@ class SurfaceTimeSeries:
         self.file = h5py.File(self.h5_path, "w")
         self.file["topology"] = self.quads.astype(np.int64)
         self.file["parameters"] = self.params
+        grid = rest.grid
+        self.file.attrs["patches"] = [grid.n1, grid.n2]
+        self.file.attrs["xi1_range"] = grid.xi1_range
+        self.file.attrs["xi2_range"] = grid.xi2_range
+        self.file.attrs["periodic"] = [grid.periodic1, grid.periodic2]
 
     def write(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])
@@ -122,6 +127,8 @@ class SurfaceTimeSeries:
         group["mean_curvature"] = self._mean_curvature(point)
         group["membrane_energy_density"] = membrane
         group["bending_energy_density"] = bending
+        group["nodal"] = surface.nodal  # the exact patches, for the ray tracer
+        group.attrs["time"] = float(time)
         self.file.flush()
         self.times.append(float(time))
         self._write_xml()
@@ -179,3 +186,27 @@ def read_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
     """Arrays and attributes of a checkpoint written by :func:`write_checkpoint`."""
     with h5py.File(path, "r") as f:
         return {name: f[name][()] for name in f}, dict(f.attrs)
+
+
+def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, float]:
+    """The surface (exact nodal data) and time of a frame of a :class:`SurfaceTimeSeries`."""
+    from bhem_hpc.surface import ParameterGrid
+
+    with h5py.File(h5_path, "r") as f:
+        count = len(f["frames"]) if "frames" in f else 0
+        if count == 0:
+            raise ValueError(f"{h5_path}: no frames written")
+        index = frame if frame >= 0 else count + frame
+        if not 0 <= index < count:
+            raise ValueError(f"{h5_path}: frame {frame} does not exist (0..{count - 1})")
+        group = f[f"frames/{index}"]
+        a = f.attrs
+        grid = ParameterGrid(
+            int(a["patches"][0]),
+            int(a["patches"][1]),
+            tuple(a["xi1_range"]),
+            tuple(a["xi2_range"]),
+            bool(a["periodic"][0]),
+            bool(a["periodic"][1]),
+        )
+        return HermiteSurface(grid, group["nodal"][()]), float(group.attrs["time"])

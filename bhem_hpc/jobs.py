@@ -212,3 +212,34 @@ def scene_benchmark(scene_path: Path, steps: int, hessian: str | None = None, co
         "factor_per_step_s": factor / steps,
         "recoveries": int(sum(r.regularized_retries + r.dt_halvings for r in reports)),
     }
+
+
+def ray_benchmark(patches: int = 10, resolution: int = 32) -> dict:
+    """Rays per second on a draped-looking ``patches x patches`` surface, midpoint-only vs
+    Newton-guided splitting, measured in one run (paper Table 1). Serial, numpy only."""
+    import time as _time
+
+    from bhem_hpc.collision import PatchBVH, control_nets, intersect_rays
+
+    surface = S.from_callable(
+        lambda a, b: np.stack([a, b, 0.15 * np.sin(5 * a) * np.cos(4 * b) - 0.3 * (a - 0.5) ** 2], axis=-1),
+        S.ParameterGrid(patches, patches, (0.0, 1.0), (0.0, 1.0)),
+    )
+    bvh = PatchBVH(control_nets(surface.grid, surface.nodal))
+    s, t = np.meshgrid(np.linspace(0.05, 0.95, resolution), np.linspace(0.05, 0.95, resolution), indexing="ij")
+    eye = np.array([0.5, -1.0, 1.5])
+    targets = np.stack([s.ravel(), t.ravel(), np.zeros(s.size)], axis=-1)
+    directions = targets - eye
+    origins = np.broadcast_to(eye, directions.shape)
+    result = {"patches": patches, "rays": int(len(directions))}
+    hits = {}
+    for label, newton in (("midpoint", False), ("newton", True)):
+        start = _time.perf_counter()
+        hits[label] = intersect_rays(bvh, origins, directions, newton=newton)
+        elapsed = _time.perf_counter() - start
+        result[f"{label}_rays_per_s"] = len(directions) / elapsed
+    result["speedup"] = result["newton_rays_per_s"] / result["midpoint_rays_per_s"]
+    taus = [(a.tau, b.tau) for a, b in zip(hits["midpoint"], hits["newton"], strict=True) if a and b]
+    result["hits"] = len(taus)
+    result["max_tau_difference"] = float(max((abs(a - b) for a, b in taus), default=0.0))
+    return result

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
@@ -115,7 +117,18 @@ def test_only_listed_effects_are_built(comm, workdir):
     # The pressure constant appears in the residual only when the scene lists pressure.
     assert pressured.pressure in pressured.ufl_residual.constants()
     assert len(pressured.ufl_residual.constants()) == len(plain.ufl_residual.constants()) + 1
-    assert "bhem_hpc.collision" not in sys.modules
+    # A scene without contact runs without ever importing the collision package (fresh process).
+    if comm.rank == 0:
+        code = (
+            "import sys\n"
+            "from pathlib import Path\n"
+            "from bhem_hpc.run import RunOptions, run_scene\n"
+            f"run_scene(RunOptions(Path({str(workdir / 'scene.toml')!r}), Path({str(workdir / 'nocontact')!r}), "
+            "steps=1, progress=False))\n"
+            "assert 'bhem_hpc.collision' not in sys.modules, 'collision imported'\n"
+        )
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+        subprocess.run([sys.executable, "-c", code], check=True, env=env)
 
 
 def test_run_writes_series_summary_checkpoint_and_restarts_exactly(comm, workdir):

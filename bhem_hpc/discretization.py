@@ -55,15 +55,27 @@ class ConstrainedDofs:
 
 
 class Discretization(Protocol):
-    """What the solver needs from a discretization."""
+    """What the model and the solver need from a discretization (Hermite today, B-splines later).
+
+    Layouts: *open* arrays are dolfinx Function arrays (owned + ghost blocks of 3); *closed* arrays
+    are the owned part of the solver's unknowns; the prolongation from closed to open has one unit
+    entry per owned open block, in column ``closed_of_open[block]``.
+    """
 
     comm: MPI.Comm
     grid: ParameterGrid
     mesh: dolfinx.mesh.Mesh
     function_space: dolfinx.fem.FunctionSpace
+    num_owned_closed: int
+    num_closed: int
+    closed_of_open: np.ndarray
+    owned_closed_open_block: np.ndarray
 
     @property
     def is_periodic(self) -> bool: ...
+
+    @property
+    def open_blocks(self) -> np.ndarray: ...
 
     def surface_to_open(self, surface: HermiteSurface) -> np.ndarray: ...
 
@@ -71,11 +83,19 @@ class Discretization(Protocol):
 
     def closed_to_surface(self, closed: np.ndarray) -> HermiteSurface: ...
 
+    def open_to_surface(self, open_array: np.ndarray) -> HermiteSurface: ...
+
     def select_dofs(
         self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]
     ) -> ConstrainedDofs: ...
 
+    def dof_values(self, surface: HermiteSurface, dofs: ConstrainedDofs) -> np.ndarray: ...
+
     def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def gather_raw_dofs(self, open_array: np.ndarray) -> np.ndarray: ...
+
+    def scatter_raw_dofs(self, raw: np.ndarray) -> np.ndarray: ...
 
 
 def shared_jacobian(cell_vertices: np.ndarray, patch_size: tuple[float, float], comm: MPI.Comm) -> np.ndarray:
@@ -278,6 +298,24 @@ class HermiteDiscretization:
         """Collective: the surface of an open-layout array (owned blocks are read)."""
         owned = np.asarray(open_array).reshape(-1, 3)[self.owned_closed_open_block].ravel()
         return self.closed_to_surface(owned)
+
+    def gather_raw_dofs(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the DOF values themselves (no unit conversion), for bit-exact checkpoints.
+
+        Returns:
+            ``(m1, m2, 4, 3)`` indexed ``[i1, i2, reference DOF, component]``, on every rank.
+        """
+        blocks = self.owned_closed_open_block
+        local = (self.distinct_node[blocks], self.block_reference_kind[blocks], open_array.reshape(-1, 3)[blocks])
+        out = np.zeros((*self.grid.node_shape, 4, 3))
+        for node, kind, values in self.comm.allgather(local):
+            out[node[:, 0], node[:, 1], kind] = values
+        return out
+
+    def scatter_raw_dofs(self, raw: np.ndarray) -> np.ndarray:
+        """Inverse of :meth:`gather_raw_dofs`: the open-layout array (owned + ghost blocks)."""
+        node, kind = self.distinct_node, self.block_reference_kind
+        return np.asarray(raw)[node[:, 0], node[:, 1], kind].ravel()
 
     def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs:
         """Owned closed DOFs of the given distinct nodes ``(k, 2)``, parametric kinds and components."""

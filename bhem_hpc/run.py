@@ -265,28 +265,15 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
 
 
 def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
-    """Set position and velocity from a checkpoint's reference-DOF arrays (bit-exact)."""
+    """Set position and velocity from a checkpoint's raw DOF arrays (bit-exact)."""
     disc = model.discretization
-    node = disc.distinct_node
-    kind = disc.block_reference_kind
-    model.x.x.array[:] = arrays["position_dofs"][node[:, 0], node[:, 1], kind].ravel()
-    model.velocity.x.array[:] = arrays["velocity_dofs"][node[:, 0], node[:, 1], kind].ravel()
-
-
-def _gather_dofs(model: ShellModel, values: np.ndarray) -> np.ndarray:
-    """Owned reference-DOF values of every rank arranged as ``(m1, m2, 4 reference kinds, 3)``."""
-    disc = model.discretization
-    blocks = disc.owned_closed_open_block
-    local = (disc.distinct_node[blocks], disc.block_reference_kind[blocks], values.reshape(-1, 3)[blocks])
-    out = np.zeros((*disc.grid.node_shape, 4, 3))
-    for node, kind, v in model.comm.allgather(local):
-        out[node[:, 0], node[:, 1], kind] = v
-    return out
+    model.x.x.array[:] = disc.scatter_raw_dofs(arrays["position_dofs"])
+    model.velocity.x.array[:] = disc.scatter_raw_dofs(arrays["velocity_dofs"])
 
 
 def _checkpoint(path: Path, model: ShellModel, stepper: TimeStepper, summary: dict, comm: MPI.Comm) -> None:
-    position = _gather_dofs(model, model.x.x.array)
-    velocity = _gather_dofs(model, model.velocity.x.array)
+    position = model.discretization.gather_raw_dofs(model.x.x.array)
+    velocity = model.discretization.gather_raw_dofs(model.velocity.x.array)
     surface = model.state_surface()
     if comm.rank == 0:
         write_checkpoint(

@@ -22,7 +22,7 @@ from mpi4py import MPI
 
 from bhem_hpc import forms
 from bhem_hpc.bcs import EDGES, NodalConstraint, target_surface
-from bhem_hpc.discretization import ConstrainedDofs, HermiteDiscretization
+from bhem_hpc.discretization import ConstrainedDofs, Discretization, HermiteDiscretization
 from bhem_hpc.material import Material
 from bhem_hpc.surface import HermiteSurface
 
@@ -232,7 +232,7 @@ class ShellModel:
         self.rest_surface = rest
         self.initial_surface = initial
         self.constraints = tuple(constraints)
-        self.discretization = HermiteDiscretization(rest.grid, comm)
+        self.discretization: Discretization = HermiteDiscretization(rest.grid, comm)
         disc = self.discretization
         mesh = disc.mesh
         space = disc.function_space

@@ -2,7 +2,8 @@
 SYSTEM_PYTHON := /usr/bin/python3
 VENV := .venv
 PY := $(VENV)/bin/python
-MPIRUN := mpirun --allow-run-as-root --oversubscribe
+# One BLAS thread per MPI rank (see jobs/run.sh).
+MPIRUN := OPENBLAS_NUM_THREADS=1 mpirun --allow-run-as-root --oversubscribe -x OPENBLAS_NUM_THREADS
 RUFF_VERSION := 0.8.4
 # The main job: a scene and its output directory (overwritten).
 SCENE ?= jobs/drape.toml

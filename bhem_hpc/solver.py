@@ -614,6 +614,8 @@ class ShellSolver:
         ]
         if self.jacobian_blocked is not None:
             objects.append(self.jacobian_blocked)
+        if hasattr(self, "_trial"):
+            objects.append(self._trial)
         if self.prolongation is not None:
             objects += [self.prolongation, self.jacobian]
         for obj in objects:

@@ -73,3 +73,31 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
     if np.linalg.det(q) < 0:
         q[:, 0] = -q[:, 0]
     return q
+
+
+def ray_triangle_distances(origin: np.ndarray, direction: np.ndarray, p0, p1, p2, slack: float = 0.0) -> np.ndarray:
+    """Moller-Trumbore for one ray against triangles ``(T, 3)`` each; ``tau`` or ``inf`` per triangle.
+
+    ``slack`` widens the barycentric test (to catch hits on shared edges).
+    """
+    e1, e2 = p1 - p0, p2 - p0
+    s = origin - p0
+    h = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = 1.0 / det
+        u = f * np.einsum("ij,ij->i", s, h)
+        q = np.cross(s, e1)
+        v = f * (q @ direction)
+        t = f * np.einsum("ij,ij->i", e2, q)
+    ok = (np.abs(det) > 1e-15) & (u >= -slack) & (v >= -slack) & (u + v <= 1 + slack) & (t > 0)
+    return np.where(ok, t, np.inf)
+
+
+def assert_imports_without(module: str, heavy=("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")) -> None:
+    """Import ``module`` in a fresh interpreter and check none of ``heavy`` got loaded."""
+    import subprocess
+    import sys
+
+    code = f"import sys, {module}\nbad = [m for m in {tuple(heavy)!r} if m in sys.modules]\nassert not bad, bad"
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from helpers import ray_triangle_distances
 
 from bhem_hpc import surface as S
 from bhem_hpc.io import SurfaceTimeSeries, read_frame
@@ -16,19 +17,7 @@ def _tessellation_coverage(surface, eye, directions, density=24):
     points, quads, _ = surface.tessellate(density)
     triangles = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     p0, p1, p2 = points[triangles[:, 0]], points[triangles[:, 1]], points[triangles[:, 2]]
-    e1, e2 = p1 - p0, p2 - p0
-    s = eye - p0
-    covered = np.zeros(len(directions), dtype=bool)
-    for k, d in enumerate(directions):
-        h = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, h)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            f = 1.0 / det
-            u = f * np.einsum("ij,ij->i", s, h)
-            q = np.cross(s, e1)
-            v = f * (q @ d)
-            t = f * np.einsum("ij,ij->i", e2, q)
-        covered[k] = np.any((np.abs(det) > 1e-15) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0))
+    covered = np.array([np.isfinite(ray_triangle_distances(eye, d, p0, p1, p2)).any() for d in directions])
     return covered
 
 

@@ -106,7 +106,8 @@ class SolveReport:
 
 
 class ShellSolver:
-    """Newton solver for the static equilibrium of a :class:`ShellModel`.
+    """Newton solver for a :class:`ShellModel`: static equilibria (:meth:`solve`, with load stepping)
+    and single time steps (:meth:`solve_step`, driven by :class:`~bhem_hpc.dynamics.TimeStepper`).
 
     Args:
         model: the shell problem (forms, constraints, loads).
@@ -128,69 +129,71 @@ class ShellSolver:
         with self.point_loads.localForm() as local:
             local.array[:] = model.point_load_open
         self.point_loads.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        pushed = _push_options(prefix, default_options(model), options or {})
         opts = PETSc.Options()
-        ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
-        mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
-        # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
-        # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
-        # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
-        serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and not disc.is_periodic
-        self.matrix_format = "sbaij" if serial_sbaij else "aij"
-        self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
-        fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
-        self.jacobian_blocked.assemble()
-        self.jacobian_open = PETSc.Mat()
-        self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
-        if serial_sbaij:
-            self.jacobian_open.setOption(PETSc.Mat.Option.IGNORE_LOWER_TRIANGULAR, True)
-            self.jacobian_blocked.destroy()
-            self.jacobian_blocked = None
-        self.prolongation: PETSc.Mat | None = None
-        if disc.is_periodic:
-            blocks = disc.open_blocks
-            rows = 3 * blocks.size
-            cols = (3 * disc.closed_of_open[blocks][:, None] + np.arange(3)).ravel().astype(PETSc.IntType)
-            indptr = np.arange(rows + 1, dtype=PETSc.IntType)
-            self.prolongation = PETSc.Mat().createAIJ(
-                ((rows, 3 * disc.function_space.dofmap.index_map.size_global), (n_local, n_global)),
-                csr=(indptr, cols, np.ones(rows)),
-                comm=comm,
+        pushed = _push_options(prefix, default_options(model), options or {})
+        try:  # the pushed defaults are removed again whatever happens
+            ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
+            mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
+            # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
+            # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
+            # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
+            serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and not disc.is_periodic
+            self.matrix_format = "sbaij" if serial_sbaij else "aij"
+            self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
+            fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
+            self.jacobian_blocked.assemble()
+            self.jacobian_open = PETSc.Mat()
+            self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
+            if serial_sbaij:
+                self.jacobian_open.setOption(PETSc.Mat.Option.IGNORE_LOWER_TRIANGULAR, True)
+                self.jacobian_blocked.destroy()
+                self.jacobian_blocked = None
+            self.prolongation: PETSc.Mat | None = None
+            if disc.is_periodic:
+                blocks = disc.open_blocks
+                rows = 3 * blocks.size
+                cols = (3 * disc.closed_of_open[blocks][:, None] + np.arange(3)).ravel().astype(PETSc.IntType)
+                indptr = np.arange(rows + 1, dtype=PETSc.IntType)
+                self.prolongation = PETSc.Mat().createAIJ(
+                    ((rows, 3 * disc.function_space.dofmap.index_map.size_global), (n_local, n_global)),
+                    csr=(indptr, cols, np.ones(rows)),
+                    comm=comm,
+                )
+                self.jacobian = self.jacobian_open.PtAP(self.prolongation)
+            else:
+                self.jacobian = self.jacobian_open
+            self.jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, model.symmetric)
+            self.bc_local = model.constrained.local.astype(np.int64)
+            self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
+            self.bc_values = model.constrained_initial.copy()
+            self.report = SolveReport()
+            self.regularization = 0.0
+            # Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks.
+            count = len(model.point_constraints)
+            self.alm_multipliers = np.zeros((count, 3))
+            self.alm_mask = np.zeros((count, 3))
+            for k, pc in enumerate(model.point_constraints):
+                self.alm_mask[k, list(pc.components)] = 1.0
+            self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
+            self.alm_penalty = 1e3 * model.material.young * model.material.thickness
+            lo, hi = (
+                model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
+                model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
             )
-            self.jacobian = self.jacobian_open.PtAP(self.prolongation)
-        else:
-            self.jacobian = self.jacobian_open
-        self.jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, model.symmetric)
-        self.bc_local = model.constrained.local.astype(np.int64)
-        self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
-        self.bc_values = model.constrained_initial.copy()
-        self.report = SolveReport()
-        self.regularization = 0.0
-        # Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks.
-        count = len(model.point_constraints)
-        self.alm_multipliers = np.zeros((count, 3))
-        self.alm_mask = np.zeros((count, 3))
-        for k, pc in enumerate(model.point_constraints):
-            self.alm_mask[k, list(pc.components)] = 1.0
-        self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
-        self.alm_penalty = 1e3 * model.material.young * model.material.thickness
-        lo, hi = (
-            model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
-            model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
-        )
-        self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
+            self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
 
-        PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
-        self.snes = PETSc.SNES().create(comm)
-        self.snes.setOptionsPrefix(prefix)
-        self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
-        self.snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
-        if model.potential_form is not None:
-            self._trial = self.x.duplicate()
-            self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
-        self.snes.setFromOptions()
-        for name in pushed:
-            opts.delValue(name)
+            PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
+            self.snes = PETSc.SNES().create(comm)
+            self.snes.setOptionsPrefix(prefix)
+            self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
+            self.snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
+            if model.potential_form is not None:
+                self._trial = self.x.duplicate()
+                self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
+            self.snes.setFromOptions()
+        finally:
+            for name in pushed:
+                opts.delValue(name)
 
     # -- assembly --------------------------------------------------------------------------------
     def update_state(self, x: PETSc.Vec) -> None:

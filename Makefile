@@ -40,8 +40,9 @@ bench: setup
 	$(VENV)/bin/bhem-hpc bench --patches 10 20 30
 	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc bench --patches 10 20 30
 
+# Long studies (issue 5) run behind the `study` marker; exit status 5 means none are collected yet.
 study: setup
-	$(PY) -m pytest -m study
+	$(PY) -m pytest -m study || [ $$? -eq 5 ]
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

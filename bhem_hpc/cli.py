@@ -34,6 +34,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--restart", type=Path, default=None, help="continue from DIR/checkpoint.h5")
     run.add_argument("--force", action="store_true", help="overwrite a non-empty output directory")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    study = sub.add_parser("study", help="an accuracy-versus-cost study: CSV, Markdown table and PNG plot")
+    study.add_argument("name", help="study name (plate)")
+    study.add_argument("--out", type=Path, required=True, help="output directory (must not exist or be empty)")
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
@@ -94,7 +97,13 @@ def main(argv: list[str] | None = None) -> int:
     from bhem_hpc.solver import SolverError
 
     try:
-        if args.command == "render":
+        if args.command == "study":
+            from bhem_hpc.studies import run_study
+
+            rows = run_study(args.name, args.out, comm)
+            if comm.rank == 0:
+                print(f"study {args.name}: {len(rows)} configurations -> {args.out}/{args.name}.csv, .md, .png")
+        elif args.command == "render":
             if comm.rank == 0:
                 _render(args)
         elif args.command == "run":
@@ -166,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                             f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
                             f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}"
                         )
-    except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:
+    except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError too
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,55 @@
+"""Accuracy-versus-cost studies: the framework (default suite) and the full studies (`study` marker)."""
+
+from __future__ import annotations
+
+import csv
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bhem_hpc.studies import StudyError, run_study
+
+
+@pytest.fixture
+def out(comm):
+    return Path(comm.bcast(tempfile.mkdtemp(prefix="bhem-study-") if comm.rank == 0 else None)) / "plate"
+
+
+def test_study_writes_csv_table_and_plot(comm, out):
+    rows = run_study("plate", out, comm, limit=3)
+    assert [r["patches"] for r in rows] == [2, 4, 8]
+    comm.Barrier()
+    with open(out / "plate.csv") as f:
+        written = list(csv.DictReader(f))
+    assert len(written) == 3 and float(written[2]["error"]) < float(written[0]["error"])
+    assert "| simply_supported | 8 |" in (out / "plate.md").read_text()
+    assert (out / "plate.png").stat().st_size > 5000
+    with pytest.raises(StudyError, match="exists and is not empty"):
+        run_study("plate", out, comm, limit=1)
+    with pytest.raises(StudyError, match=r"study 'shell' does not exist; known: \['plate'\]"):
+        run_study("shell", out.parent / "other", comm)
+
+
+@pytest.mark.study
+def test_plate_study_converges(comm, out):
+    rows = run_study("plate", out, comm)
+    for support, min_rate, final in (("simply_supported", 3.5, 1e-6), ("clamped", 2.0, 1e-5)):
+        series = [
+            r
+            for r in rows
+            if r["support"] == support
+            and r["quadrature"] == 4
+            and r["hessian"] == "exact"
+            and r["factorization"] == "ldlt"
+        ]
+        patches = np.array([r["patches"] for r in series], dtype=float)
+        errors = np.array([r["error"] for r in series])
+        rates = np.log(errors[1:-1] / errors[2:]) / np.log(patches[2:] / patches[1:-1])
+        assert np.all(rates >= min_rate), (support, rates)
+        assert errors[-1] < final
+    # the knobs that must not change the answer: pseudo Hessian and LU reproduce the exact LDL^T value
+    for support in ("simply_supported", "clamped"):
+        same = [r["value"] for r in rows if r["support"] == support and r["patches"] == 16 and r["quadrature"] == 4]
+        assert np.ptp(same) < 1e-9 * np.mean(same)

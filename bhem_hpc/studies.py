@@ -25,22 +25,7 @@ from bhem_hpc.references import CLAMPED_SQUARE_PLATE, simply_supported_square_pl
 from bhem_hpc.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 
-COLUMNS = (
-    "study",
-    "support",
-    "patches",
-    "quadrature",
-    "hessian",
-    "factorization",
-    "ranks",
-    "dofs",
-    "nonzeros",
-    "value",
-    "reference",
-    "error",
-    "wall_s",
-    "newton_iterations",
-)
+RESULT_COLUMNS = ("ranks", "dofs", "nonzeros", "value", "reference", "error", "wall_s", "newton_iterations")
 
 
 class StudyError(ValueError):
@@ -49,10 +34,23 @@ class StudyError(ValueError):
 
 @dataclass(frozen=True)
 class Study:
+    """A named set of knob configurations and how to run one.
+
+    ``knobs`` are the configuration keys (CSV/table columns); the plot draws one error curve per
+    value of ``series`` over the configurations whose other knobs equal ``baseline``.
+    """
+
     name: str
     description: str
+    knobs: tuple[str, ...]
     configurations: Callable[[], Iterable[dict]]
     run: Callable[[dict, MPI.Comm], dict]
+    series: str
+    baseline: dict
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return ("study", *self.knobs, *RESULT_COLUMNS)
 
 
 def _plate_configurations() -> Iterable[dict]:
@@ -107,12 +105,60 @@ def run_plate(config: dict, comm: MPI.Comm) -> dict:
     }
 
 
+def _cantilever_configurations() -> Iterable[dict]:
+    gammas = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)
+    for patches, gamma in itertools.product((8, 16, 32), gammas):
+        yield {"gamma": gamma, "patches": patches, "hessian": "exact"}
+    for gamma in gammas:
+        yield {"gamma": gamma, "patches": 16, "hessian": "pseudo"}
+
+
+def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
+    """Strip under self-weight (nu = 0): tip drop H/L against the heavy elastica (paper Fig. 19)."""
+    from bhem_hpc.jobs import CANTILEVER_SIZE, cantilever_model
+    from bhem_hpc.references import heavy_cantilever_tip
+
+    gamma, patches = config["gamma"], config["patches"]
+    if not (0 < gamma <= 1e4) or not (1 <= patches <= 512):
+        raise StudyError(f"knobs gamma = {gamma!r} (0, 1e4] and patches = {patches!r} (1..512) out of range")
+    model = cantilever_model(gamma, patches, config["hessian"], comm)
+    with ShellSolver(model, prefix="bhem_study_") as solver:
+        start = time.perf_counter()
+        report = solver.solve(max(1, int(np.ceil(2 * np.sqrt(gamma)))))
+        wall = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
+        nonzeros = solver.matrix_nonzeros()
+    length, width = CANTILEVER_SIZE
+    drop = -model.state_surface().evaluate(np.array(length), np.array(width / 2)).x[2] / length
+    reference = heavy_cantilever_tip(gamma)[1]
+    return {
+        "dofs": 3 * model.discretization.num_closed,
+        "nonzeros": nonzeros,
+        "value": float(drop),
+        "reference": reference,
+        "error": abs(float(drop) / reference - 1),
+        "wall_s": wall,
+        "newton_iterations": sum(report.newton_iterations),
+    }
+
+
 STUDIES = {
     "plate": Study(
         "plate",
         "square plate under uniform load, simply supported and clamped, small deflection",
+        ("support", "patches", "quadrature", "hessian", "factorization"),
         _plate_configurations,
         run_plate,
+        "support",
+        {"quadrature": 4, "hessian": "exact", "factorization": "ldlt"},
+    ),
+    "cantilever": Study(
+        "cantilever",
+        "heavy cantilever strip, tip drop against the heavy elastica (master curve)",
+        ("gamma", "patches", "hessian"),
+        _cantilever_configurations,
+        run_cantilever,
+        "patches",
+        {"hessian": "exact"},
     ),
 }
 
@@ -135,7 +181,7 @@ def run_study(name: str, out: Path, comm: MPI.Comm = MPI.COMM_WORLD, limit: int 
     csv_path = out / f"{name}.csv"
     handle = open(csv_path, "w", newline="") if comm.rank == 0 else None  # noqa: SIM115 - kept open across rows
     try:
-        writer = csv.DictWriter(handle, fieldnames=COLUMNS) if handle else None
+        writer = csv.DictWriter(handle, fieldnames=study.columns) if handle else None
         if writer:
             writer.writeheader()
         for k, config in enumerate(study.configurations()):
@@ -144,7 +190,7 @@ def run_study(name: str, out: Path, comm: MPI.Comm = MPI.COMM_WORLD, limit: int 
             row = {"study": name, "ranks": comm.size, **config, **study.run(config, comm)}
             rows.append(row)
             if writer:
-                writer.writerow({c: row.get(c, "") for c in COLUMNS})
+                writer.writerow({c: row.get(c, "") for c in study.columns})
                 handle.flush()  # an interrupted study keeps the rows it finished
     finally:
         if handle:
@@ -156,13 +202,13 @@ def run_study(name: str, out: Path, comm: MPI.Comm = MPI.COMM_WORLD, limit: int 
 
 
 def _write_table(path: Path, study: Study, rows: list[dict]) -> None:
-    header = "| support | patches | quadrature | Hessian | factorization | DoFs | error | wall s |\n"
-    header += "| --- | ---: | ---: | --- | --- | ---: | ---: | ---: |\n"
-    body = "".join(
-        f"| {r['support']} | {r['patches']} | {r['quadrature']}x{r['quadrature']} | {r['hessian']} | "
-        f"{r['factorization']} | {r['dofs']} | {r['error']:.2e} | {r['wall_s']:.3f} |\n"
-        for r in rows
-    )
+    columns = (*study.knobs, "dofs", "error", "wall_s", "newton_iterations")
+    header = "| " + " | ".join(columns) + " |\n|" + " --- |" * len(columns) + "\n"
+
+    def cell(value: object) -> str:
+        return f"{value:.3g}" if isinstance(value, float) else str(value)
+
+    body = "".join("| " + " | ".join(cell(r[c]) for c in columns) + " |\n" for r in rows)
     path.write_text(f"# Study `{study.name}`: {study.description}\n\n{header}{body}")
 
 
@@ -173,29 +219,18 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
-    for support in sorted({r["support"] for r in rows}):
-        series = sorted(
-            (
-                r
-                for r in rows
-                if r["support"] == support
-                and r["quadrature"] == 4
-                and r["hessian"] == "exact"
-                and r["factorization"] == "ldlt"
-            ),
-            key=lambda r: r["dofs"],
-        )
-        if not series:
-            continue
+    baseline = [r for r in rows if all(r[k] == v for k, v in study.baseline.items())]
+    for label in sorted({r[study.series] for r in baseline}, key=str):
+        series = sorted((r for r in baseline if r[study.series] == label), key=lambda r: (r["dofs"], r["wall_s"]))
         errors = [max(r["error"], 1e-16) for r in series]
-        axes[0].loglog([r["wall_s"] for r in series], errors, "o-", label=support)
-        axes[1].loglog([r["dofs"] for r in series], errors, "o-", label=support)
-    axes[0].set_xlabel("wall time [s]")
+        axes[0].loglog([r["wall_s"] for r in series], errors, "o", label=f"{study.series} = {label}")
+        axes[1].loglog([r["dofs"] for r in series], errors, "o", label=f"{study.series} = {label}")
+    axes[0].set_xlabel("wall time of the solve [s]")
     axes[1].set_xlabel("DoFs")
     for ax in axes:
         ax.set_ylabel("relative error")
         ax.grid(alpha=0.3, which="both")
-        ax.legend()
+        ax.legend(fontsize=8)
     fig.suptitle(f"{study.name}: {study.description}")
     fig.tight_layout()
     fig.savefig(path)

@@ -24,11 +24,11 @@ def test_study_writes_csv_table_and_plot(comm, out):
     with open(out / "plate.csv") as f:
         written = list(csv.DictReader(f))
     assert len(written) == 3 and float(written[2]["error"]) < float(written[0]["error"])
-    assert "| simply_supported | 8 |" in (out / "plate.md").read_text()
+    assert "| simply_supported | 8 | 4 | exact | ldlt |" in (out / "plate.md").read_text()
     assert (out / "plate.png").stat().st_size > 5000
     with pytest.raises(StudyError, match="exists and is not empty"):
         run_study("plate", out, comm, limit=1)
-    with pytest.raises(StudyError, match=r"study 'shell' does not exist; known: \['plate'\]"):
+    with pytest.raises(StudyError, match=r"study 'shell' does not exist; known: \['cantilever', 'plate'\]"):
         run_study("shell", out.parent / "other", comm)
 
 
@@ -53,3 +53,13 @@ def test_plate_study_converges(comm, out):
     for support in ("simply_supported", "clamped"):
         same = [r["value"] for r in rows if r["support"] == support and r["patches"] == 16 and r["quadrature"] == 4]
         assert np.ptp(same) < 1e-9 * np.mean(same)
+
+
+@pytest.mark.study
+def test_cantilever_study_tracks_the_master_curve(comm, out):
+    rows = run_study("cantilever", out.parent / "cantilever", comm)
+    finest = [r for r in rows if r["patches"] == 32 and r["hessian"] == "exact"]
+    assert len(finest) == 8 and max(r["error"] for r in finest) < 0.005  # all Gamma* within 0.5 %
+    for gamma in {r["gamma"] for r in rows}:
+        by_patches = {r["patches"]: r["error"] for r in rows if r["gamma"] == gamma and r["hessian"] == "exact"}
+        assert by_patches[32] <= by_patches[8] + 1e-6  # refinement does not make it worse

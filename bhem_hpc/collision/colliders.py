@@ -1,0 +1,269 @@
+"""Colliders: rigid shapes a shell can touch (paper §6.2), each static or moving at constant velocity.
+
+Simple shapes (plane, sphere, infinite cylinder, capsule) give signed distances and outward normals
+of points and the earliest time of impact of linearly moving points (:meth:`time_of_impact`,
+``t in [0, 1]`` over the step). Complex shapes - triangle meshes and Bezier-patch models - are
+sampled the other way round: their vertices (or patch samples) are tested against the shell's
+patches with :func:`~bhem_hpc.collision.ccd.point_patch_toi`. numpy only; meshes are read with meshio.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bhem_hpc.collision.bezier import evaluate
+
+PATCH_FILE_FORMAT = "bhem-bezier-patches"
+
+
+class ColliderError(ValueError):
+    """An invalid collider: bad geometry, an empty or broken mesh, NaN/Inf."""
+
+
+def _vector(name: str, value, length: int = 3) -> np.ndarray:
+    array = np.asarray(value, dtype=float).reshape(-1)
+    if array.shape != (length,) or not np.all(np.isfinite(array)):
+        raise ColliderError(f"{name} must be {length} finite numbers, got {value!r}")
+    return array
+
+
+def _first_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Smallest root in [0, 1] of ``a t^2 + b t + c`` (``c <= 0`` means contact at t = 0); inf if none."""
+    t = np.full(np.shape(c), np.inf)
+    inside = c <= 0
+    t[inside] = 0.0
+    linear = ~inside & (np.abs(a) < 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.where(b != 0, -c / b, np.inf)
+        t[linear] = np.where((root[linear] >= 0) & (root[linear] <= 1), root[linear], np.inf)
+        quadratic = ~inside & ~linear
+        disc = b * b - 4 * a * c
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        r1 = (-b - sq) / (2 * a)
+        r2 = (-b + sq) / (2 * a)
+        lo, hi = np.minimum(r1, r2), np.maximum(r1, r2)
+        first = np.where(lo >= 0, lo, np.where(hi >= 0, hi, np.inf))
+    ok = quadratic & (disc >= 0) & (first <= 1)
+    t[ok] = first[ok]
+    return t
+
+
+@dataclass(frozen=True)
+class Plane:
+    """Half-space ``(x - point) . normal >= 0`` is outside; the plane moves at ``velocity``."""
+
+    point: np.ndarray
+    normal: np.ndarray
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        n = _vector("plane normal", self.normal)
+        if np.linalg.norm(n) == 0:
+            raise ColliderError("plane normal is zero")
+        object.__setattr__(self, "normal", n / np.linalg.norm(n))
+        object.__setattr__(self, "point", _vector("plane point", self.point))
+        object.__setattr__(self, "velocity", _vector("plane velocity", self.velocity))
+
+    def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Distances ``(N,)`` (negative inside) and outward normals ``(N, 3)`` at time ``t``."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        d = (points - self.point - t * self.velocity) @ self.normal
+        return d, np.broadcast_to(self.normal, points.shape)
+
+    def time_of_impact(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0) -> np.ndarray:
+        """Earliest ``t / dt in [0, 1]`` at which points moving from ``start`` to ``end`` come within
+        ``gap`` of the surface (0 if already there); ``inf`` where they do not. Shapes ``(N, 3)``."""
+        d0, _ = self.signed_distance(start, 0.0)
+        d1, _ = self.signed_distance(end, dt)
+        return _first_root(np.zeros_like(d0), d1 - d0, d0 - gap)
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """Ball of ``radius`` about ``center``, moving at ``velocity``."""
+
+    center: np.ndarray
+    radius: float
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", _vector("sphere center", self.center))
+        object.__setattr__(self, "velocity", _vector("sphere velocity", self.velocity))
+        if not (isinstance(self.radius, int | float) and math.isfinite(self.radius) and self.radius > 0):
+            raise ColliderError(f"sphere radius must be a finite number > 0, got {self.radius!r}")
+
+    def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        offset = points - self.center - t * self.velocity
+        length = np.linalg.norm(offset, axis=1)
+        normals = offset / np.maximum(length, 1e-300)[:, None]
+        return length - self.radius, normals
+
+    def time_of_impact(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0) -> np.ndarray:
+        start = np.asarray(start, dtype=float).reshape(-1, 3)
+        end = np.asarray(end, dtype=float).reshape(-1, 3)
+        p = start - self.center  # relative position and its change over the step
+        w = (end - start) - dt * self.velocity
+        r = self.radius + gap
+        return _first_root((w * w).sum(1), 2 * (p * w).sum(1), (p * p).sum(1) - r * r)
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """Points within ``radius`` of the segment ``a``-``b`` (a needle with a round tip), moving."""
+
+    a: np.ndarray
+    b: np.ndarray
+    radius: float
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        for name in ("a", "b", "velocity"):
+            object.__setattr__(self, name, _vector(f"capsule {name}", getattr(self, name)))
+        if np.allclose(self.a, self.b):
+            raise ColliderError("capsule end points coincide")
+        if not (math.isfinite(self.radius) and self.radius > 0):
+            raise ColliderError(f"capsule radius must be a finite number > 0, got {self.radius!r}")
+
+    def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        a = self.a + t * self.velocity
+        axis = self.b - self.a
+        s = np.clip(((points - a) @ axis) / (axis @ axis), 0.0, 1.0)
+        offset = points - (a + s[:, None] * axis)
+        length = np.linalg.norm(offset, axis=1)
+        return length - self.radius, offset / np.maximum(length, 1e-300)[:, None]
+
+    def _distance(self, points: np.ndarray, shift: np.ndarray) -> np.ndarray:
+        """Distances of ``points (N, 3)`` to the capsule translated by ``shift (N, 3)``."""
+        axis = self.b - self.a
+        rel = points - self.a - shift
+        s = np.clip((rel @ axis) / (axis @ axis), 0.0, 1.0)
+        return np.linalg.norm(rel - s[:, None] * axis, axis=1) - self.radius
+
+    def time_of_impact(
+        self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0, samples: int = 64
+    ) -> np.ndarray:
+        """First time (fraction of the step) at which the distance reaches ``gap``: sampled, then
+        bisected. Conservative for contacts longer than one sample; a point that crosses the whole
+        capsule between two samples (moving more than its diameter in 1/``samples`` of a step) can
+        be missed - the documented limit of this collider."""
+        start = np.asarray(start, dtype=float).reshape(-1, 3)
+        end = np.asarray(end, dtype=float).reshape(-1, 3)
+        motion = end - start
+
+        def distance(fraction: np.ndarray, rows: np.ndarray) -> np.ndarray:
+            return self._distance(
+                start[rows] + fraction[:, None] * motion[rows], fraction[:, None] * dt * self.velocity
+            )
+
+        out = np.full(len(start), np.inf)
+        everyone = np.arange(len(start))
+        out[distance(np.zeros(len(start)), everyone) <= gap] = 0.0
+        for k in range(1, samples + 1):
+            rows = np.flatnonzero(~np.isfinite(out))
+            if not len(rows):
+                break
+            now = np.full(len(rows), k / samples)
+            touching = distance(now, rows) <= gap
+            rows = rows[touching]
+            lo, hi = np.full(len(rows), (k - 1) / samples), np.full(len(rows), k / samples)
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                inside = distance(mid, rows) <= gap
+                hi, lo = np.where(inside, mid, hi), np.where(inside, lo, mid)
+            out[rows] = lo
+        return out
+
+
+@dataclass(frozen=True)
+class TriangleMesh:
+    """A closed or open triangle-mesh obstacle: its vertices are the collision samples (§6.2)."""
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    name: str = "mesh"
+
+    def __post_init__(self) -> None:
+        v = np.asarray(self.vertices, dtype=float)
+        f = np.asarray(self.triangles)
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise ColliderError(f"{self.name}: mesh is empty or not triangles (vertices {v.shape}, cells {f.shape})")
+        if not np.all(np.isfinite(v)):
+            bad = int(np.argwhere(~np.isfinite(v))[0, 0])
+            raise ColliderError(f"{self.name}: vertex {bad} has NaN/Inf coordinates {v[bad].tolist()}")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ColliderError(f"{self.name}: triangle indices outside 0..{len(v) - 1}")
+        edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+        _, counts = np.unique(edges, axis=0, return_counts=True)
+        if np.any(counts > 2):
+            raise ColliderError(
+                f"{self.name}: non-manifold mesh ({int(np.sum(counts > 2))} edges shared by > 2 triangles)"
+            )
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "triangles", f.astype(np.int64))
+        object.__setattr__(self, "velocity", _vector(f"{self.name} velocity", self.velocity))
+
+    @classmethod
+    def read(cls, path: str | Path, velocity=(0.0, 0.0, 0.0)) -> TriangleMesh:
+        """Read any meshio-supported file (OBJ, STL, PLY, ...) keeping its triangles."""
+        import meshio
+
+        try:
+            mesh = meshio.read(path)
+        except Exception as exc:  # meshio raises many types for unreadable files
+            raise ColliderError(f"{path}: cannot read mesh ({exc})") from exc
+        triangles = [c.data for c in mesh.cells if c.type == "triangle"]
+        points = np.asarray(mesh.points, dtype=float)
+        points = points[:, :3] if points.ndim == 2 and points.shape[1] >= 3 else np.zeros((0, 3))
+        cells = np.concatenate(triangles) if triangles else np.zeros((0, 3), dtype=int)
+        return cls(points, cells, velocity, str(path))
+
+
+@dataclass(frozen=True)
+class PatchModel:
+    """A rigid parametric obstacle made of bicubic Bezier patches ``(P, 4, 4, 3)``."""
+
+    nets: np.ndarray
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        nets = np.asarray(self.nets, dtype=float)
+        if nets.ndim != 4 or nets.shape[1:] != (4, 4, 3) or len(nets) == 0:
+            raise ColliderError(f"patch model must have nets of shape (P, 4, 4, 3), got {nets.shape}")
+        if not np.all(np.isfinite(nets)):
+            raise ColliderError("patch model contains NaN/Inf control points")
+        spans = np.ptp(nets.reshape(len(nets), -1, 3), axis=1)
+        flat = np.sort(spans, axis=1)[:, 1] == 0  # a zero-area control net spans at most a line
+        if np.any(flat):
+            raise ColliderError(f"patch {int(np.argmax(flat))} of the patch model has a zero-area control net")
+        object.__setattr__(self, "nets", nets)
+        object.__setattr__(self, "velocity", _vector("patch model velocity", self.velocity))
+
+    def samples(self, per_side: int = 4) -> np.ndarray:
+        """Sample points ``(P * per_side^2, 3)`` on every patch (the collider's side of §6.2)."""
+        g = (np.arange(per_side) + 0.5) / per_side
+        u, v = np.meshgrid(g, g, indexing="ij")
+        return np.concatenate([evaluate(net, u, v).reshape(-1, 3) for net in self.nets])
+
+    def save(self, path: str | Path) -> None:
+        np.savez(path, format=np.array(PATCH_FILE_FORMAT), version=np.array(1), nets=self.nets)
+
+    @classmethod
+    def load(cls, path: str | Path) -> PatchModel:
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                if str(data["format"]) != PATCH_FILE_FORMAT:
+                    raise ColliderError(
+                        f"{path}: key 'format' is {str(data['format'])!r}, expected {PATCH_FILE_FORMAT!r}"
+                    )
+                return cls(data["nets"])
+        except (OSError, KeyError, ValueError) as exc:
+            if isinstance(exc, ColliderError):
+                raise
+            raise ColliderError(f"{path}: cannot read patch file ({exc})") from exc

@@ -9,7 +9,7 @@ RUFF_VERSION := 0.8.4
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
 
-.PHONY: setup demo test test-serial test-mpi lint bench study clean
+.PHONY: setup demo test test-serial test-mpi lint bench study docs clean
 
 setup: $(VENV)/.installed
 
@@ -43,6 +43,10 @@ bench: setup
 # Long studies (issue 5) run behind the `study` marker; exit status 5 means none are collected yet.
 study: setup
 	$(PY) -m pytest -m study || [ $$? -eq 5 ]
+
+# Regenerate docs/accuracy-cost.md (runs every study, ~1 minute).
+docs: setup
+	$(VENV)/bin/bhem-hpc study --docs docs
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

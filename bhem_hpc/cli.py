@@ -35,8 +35,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--force", action="store_true", help="overwrite a non-empty output directory")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     study = sub.add_parser("study", help="an accuracy-versus-cost study: CSV, Markdown table and PNG plot")
-    study.add_argument("name", help="study name (plate)")
-    study.add_argument("--out", type=Path, required=True, help="output directory (must not exist or be empty)")
+    study.add_argument("name", nargs="?", help="study name (plate, cantilever)")
+    study.add_argument("--out", type=Path, help="output directory (must not exist or be empty)")
+    study.add_argument("--docs", type=Path, help="run every study and write DOCS/accuracy-cost.md")
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
@@ -98,11 +99,18 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         if args.command == "study":
-            from bhem_hpc.studies import run_study
+            from bhem_hpc.studies import run_study, write_accuracy_cost
 
-            rows = run_study(args.name, args.out, comm)
-            if comm.rank == 0:
-                print(f"study {args.name}: {len(rows)} configurations -> {args.out}/{args.name}.csv, .md, .png")
+            if args.docs is not None:
+                path = write_accuracy_cost(args.docs, comm)
+                if comm.rank == 0:
+                    print(f"wrote {path}")
+            elif args.name is None or args.out is None:
+                raise ValueError("study needs NAME and --out DIR, or --docs DIR")
+            else:
+                rows = run_study(args.name, args.out, comm)
+                if comm.rank == 0:
+                    print(f"study {args.name}: {len(rows)} configurations -> {args.out}/{args.name}.csv, .md, .png")
         elif args.command == "render":
             if comm.rank == 0:
                 _render(args)

@@ -63,3 +63,11 @@ def test_cantilever_study_tracks_the_master_curve(comm, out):
     for gamma in {r["gamma"] for r in rows}:
         by_patches = {r["patches"]: r["error"] for r in rows if r["gamma"] == gamma and r["hessian"] == "exact"}
         assert by_patches[32] <= by_patches[8] + 1e-6  # refinement does not make it worse
+
+
+def test_cheapest_configuration_per_tolerance():
+    from bhem_hpc.studies import cheapest
+
+    rows = [{"error": 2e-2, "wall_s": 0.1}, {"error": 5e-3, "wall_s": 0.3}, {"error": 4e-4, "wall_s": 0.2}]
+    assert cheapest(rows, 1e-2)["wall_s"] == 0.2 and cheapest(rows, 1e-3)["error"] == 4e-4
+    assert cheapest(rows, 1e-4) is None

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bhem_hpc.collision import Capsule, ColliderError, PatchModel, Plane, Sphere, TriangleMesh
+from bhem_hpc.collision import Capsule, ColliderError, Cylinder, PatchModel, Plane, Sphere, TriangleMesh
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 
@@ -28,8 +28,9 @@ def _dense_first_contact(collider, start, end, dt, gap=0.0, samples=20001):
         Plane([0, 0, 0.1], [0.2, 0.1, 1.0], velocity=[0, 0, 0.3]),
         Sphere([0.1, -0.2, 0.0], 0.4, velocity=[0.2, 0.0, -0.1]),
         Capsule([0, 0, -0.5], [0.1, 0.0, 0.5], 0.15, velocity=[0.3, 0.0, 0.0]),
+        Cylinder([0.1, 0.0, 0.0], [0.2, 1.0, 0.1], 0.3, velocity=[0.0, 0.0, 0.4]),
     ],
-    ids=["plane", "sphere", "capsule"],
+    ids=["plane", "sphere", "capsule", "cylinder"],
 )
 def test_time_of_impact_is_never_later_than_dense_sampling(rng, collider):
     start = rng.normal(size=(300, 3)) * 0.8
@@ -56,6 +57,9 @@ def test_signed_distances_and_normals():
     plane = Plane([0, 0, 1], [0, 0, 2])
     d, n = plane.signed_distance(np.array([[5.0, 3.0, 0.0]]), t=0.0)
     assert d[0] == -1.0 and np.allclose(n, [0, 0, 1])
+    cylinder = Cylinder([0, 0, 0], [0, 0, 3], 0.5)
+    d, n = cylinder.signed_distance(np.array([[1.0, 0, 7.0]]))
+    assert d[0] == 0.5 and np.allclose(n, [[1, 0, 0]])
     capsule = Capsule([0, 0, 0], [0, 0, 1], 0.1)
     d, _ = capsule.signed_distance(np.array([[0.5, 0, 0.5], [0, 0, 1.3]]))
     np.testing.assert_allclose(d, [0.4, 0.2])
@@ -78,6 +82,8 @@ def test_shipped_obstacles_are_valid():
 def test_bad_colliders_are_rejected(tmp_path):
     with pytest.raises(ColliderError, match="sphere radius must be a finite number > 0, got -1"):
         Sphere([0, 0, 0], -1)
+    with pytest.raises(ColliderError, match="cylinder axis is zero"):
+        Cylinder([0, 0, 0], [0, 0, 0], 1.0)
     with pytest.raises(ColliderError, match="plane normal is zero"):
         Plane([0, 0, 0], [0, 0, 0])
     with pytest.raises(ColliderError, match="empty"):

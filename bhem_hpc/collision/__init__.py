@@ -7,13 +7,22 @@ intersection with a BVH broad phase), :mod:`.ccd` (point-patch continuous collis
 
 from bhem_hpc.collision.bezier import aabb, control_nets, evaluate, split_u, split_v, subpatch
 from bhem_hpc.collision.ccd import point_patch_toi
-from bhem_hpc.collision.colliders import Capsule, ColliderError, PatchModel, Plane, Sphere, TriangleMesh
+from bhem_hpc.collision.colliders import (
+    Capsule,
+    ColliderError,
+    Cylinder,
+    PatchModel,
+    Plane,
+    Sphere,
+    TriangleMesh,
+)
 from bhem_hpc.collision.ray import BoundReached, Hit, PatchBVH, intersect_patch, intersect_rays, ray_aabb
 
 __all__ = [
     "BoundReached",
     "Capsule",
     "ColliderError",
+    "Cylinder",
     "PatchModel",
     "Plane",
     "Sphere",

@@ -113,6 +113,43 @@ class Sphere:
 
 
 @dataclass(frozen=True)
+class Cylinder:
+    """Infinite solid cylinder of ``radius`` about the line through ``point`` along ``axis``, moving."""
+
+    point: np.ndarray
+    axis: np.ndarray
+    radius: float
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self) -> None:
+        axis = _vector("cylinder axis", self.axis)
+        if np.linalg.norm(axis) == 0:
+            raise ColliderError("cylinder axis is zero")
+        object.__setattr__(self, "axis", axis / np.linalg.norm(axis))
+        object.__setattr__(self, "point", _vector("cylinder point", self.point))
+        object.__setattr__(self, "velocity", _vector("cylinder velocity", self.velocity))
+        if not (isinstance(self.radius, int | float) and math.isfinite(self.radius) and self.radius > 0):
+            raise ColliderError(f"cylinder radius must be a finite number > 0, got {self.radius!r}")
+
+    def _radial(self, vectors: np.ndarray) -> np.ndarray:
+        return vectors - np.outer(vectors @ self.axis, self.axis)
+
+    def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        radial = self._radial(points - self.point - t * self.velocity)
+        length = np.linalg.norm(radial, axis=1)
+        return length - self.radius, radial / np.maximum(length, 1e-300)[:, None]
+
+    def time_of_impact(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0) -> np.ndarray:
+        start = np.asarray(start, dtype=float).reshape(-1, 3)
+        end = np.asarray(end, dtype=float).reshape(-1, 3)
+        p = self._radial(start - self.point)
+        w = self._radial((end - start) - dt * self.velocity)
+        r = self.radius + gap
+        return _first_root((w * w).sum(1), 2 * (p * w).sum(1), (p * p).sum(1) - r * r)
+
+
+@dataclass(frozen=True)
 class Capsule:
     """Points within ``radius`` of the segment ``a``-``b`` (a needle with a round tip), moving."""
 

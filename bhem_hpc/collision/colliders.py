@@ -52,6 +52,17 @@ def _first_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     return t
 
 
+def _round_distance(offset: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances and outward normals for offsets ``(N, 3)`` from a centre (sphere) or axis."""
+    length = np.linalg.norm(offset, axis=1)
+    return length - radius, offset / np.maximum(length, 1e-300)[:, None]
+
+
+def _round_time_of_impact(offset: np.ndarray, motion: np.ndarray, radius: float) -> np.ndarray:
+    """First fraction of the step at which ``|offset + s motion| = radius`` (rows of ``(N, 3)``)."""
+    return _first_root((motion * motion).sum(1), 2 * (offset * motion).sum(1), (offset * offset).sum(1) - radius**2)
+
+
 @dataclass(frozen=True)
 class Plane:
     """Half-space ``(x - point) . normal >= 0`` is outside; the plane moves at ``velocity``."""
@@ -98,18 +109,13 @@ class Sphere:
 
     def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
-        offset = points - self.center - t * self.velocity
-        length = np.linalg.norm(offset, axis=1)
-        normals = offset / np.maximum(length, 1e-300)[:, None]
-        return length - self.radius, normals
+        return _round_distance(points - self.center - t * self.velocity, self.radius)
 
     def time_of_impact(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0) -> np.ndarray:
         start = np.asarray(start, dtype=float).reshape(-1, 3)
         end = np.asarray(end, dtype=float).reshape(-1, 3)
-        p = start - self.center  # relative position and its change over the step
-        w = (end - start) - dt * self.velocity
-        r = self.radius + gap
-        return _first_root((w * w).sum(1), 2 * (p * w).sum(1), (p * p).sum(1) - r * r)
+        # relative position at the start and relative motion over the step
+        return _round_time_of_impact(start - self.center, (end - start) - dt * self.velocity, self.radius + gap)
 
 
 @dataclass(frozen=True)
@@ -136,17 +142,13 @@ class Cylinder:
 
     def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
-        radial = self._radial(points - self.point - t * self.velocity)
-        length = np.linalg.norm(radial, axis=1)
-        return length - self.radius, radial / np.maximum(length, 1e-300)[:, None]
+        return _round_distance(self._radial(points - self.point - t * self.velocity), self.radius)
 
     def time_of_impact(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0) -> np.ndarray:
         start = np.asarray(start, dtype=float).reshape(-1, 3)
         end = np.asarray(end, dtype=float).reshape(-1, 3)
-        p = self._radial(start - self.point)
-        w = self._radial((end - start) - dt * self.velocity)
-        r = self.radius + gap
-        return _first_root((w * w).sum(1), 2 * (p * w).sum(1), (p * p).sum(1) - r * r)
+        motion = self._radial((end - start) - dt * self.velocity)
+        return _round_time_of_impact(self._radial(start - self.point), motion, self.radius + gap)
 
 
 @dataclass(frozen=True)

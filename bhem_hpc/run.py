@@ -24,6 +24,7 @@ from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, 
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.surface import HermiteSurface
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
@@ -158,14 +159,13 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     )
     try:
         if scene.static:
-            _run_static(scene, model, solver, series, summary, comm)
+            final = _run_static(scene, model, solver, series, summary, comm)
         else:
-            _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm)
+            final = _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm)
     finally:
         if series is not None:
             series.close()
         solver.close()
-    final = model.state_surface()
     if comm.rank == 0:
         render_surface_png(options.out / "last.png", final, f"{options.scene.name}, t = {summary.get('time', 0):.4g} s")
         tmp = options.out / "summary.json.tmp"
@@ -192,7 +192,8 @@ def _energies(model: ShellModel) -> dict[str, float]:
     return {k: float(v) for k, v in e.items()}
 
 
-def _run_static(scene, model, solver, series, summary, comm) -> None:
+def _run_static(scene, model, solver, series, summary, comm) -> HermiteSurface:
+    """Solve a static scene; returns the final surface (gathered on every rank)."""
     start = time.perf_counter()
     report = solver.solve(scene.load_steps)
     surface = model.state_surface()
@@ -208,18 +209,20 @@ def _run_static(scene, model, solver, series, summary, comm) -> None:
             "energies": _energies(model),
         }
     )
+    return surface
 
 
-def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm) -> None:
+def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
+    """Step a dynamic scene, writing frames and checkpoints; returns the final surface."""
     stepper = TimeStepper(model, solver, prescribed_motions(scene))
     if checkpoint is not None:
         arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
         _restore(model, arrays)
         stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
     total = options.steps if options.steps is not None else scene.steps
-    first = model.state_surface()
+    surface = model.state_surface()
     if series is not None and checkpoint is None:
-        series.write(stepper.time, first)
+        series.write(stepper.time, surface)
     progress = _progress(total, options.progress and comm.rank == 0)
     assemble0 = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
     factor0, solve0 = solver.linear_solver_seconds()
@@ -228,12 +231,11 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
         for _ in range(total):
             report = stepper.advance()
             t_out = time.perf_counter()
-            surface = None
-            if stepper.step % scene.output_every == 0 or _ == total - 1:
+            if stepper.step % scene.output_every == 0 or _ == total - 1:  # the last step always writes
                 surface = model.state_surface()
                 if series is not None:
                     series.write(stepper.time, surface)
-                _checkpoint(options.out / "checkpoint.h5", model, stepper, summary, comm)
+                _checkpoint(options.out / "checkpoint.h5", model, surface, stepper, summary, comm)
             output_s = time.perf_counter() - t_out
             assemble = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
             factor, solve = solver.linear_solver_seconds()
@@ -262,6 +264,7 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
     finally:
         progress(None, stepper)
     summary["time"] = stepper.time
+    return surface
 
 
 def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
@@ -271,10 +274,11 @@ def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
     model.velocity.x.array[:] = disc.scatter_raw_dofs(arrays["velocity_dofs"])
 
 
-def _checkpoint(path: Path, model: ShellModel, stepper: TimeStepper, summary: dict, comm: MPI.Comm) -> None:
+def _checkpoint(
+    path: Path, model: ShellModel, surface: HermiteSurface, stepper: TimeStepper, summary: dict, comm: MPI.Comm
+) -> None:
     position = model.discretization.gather_raw_dofs(model.x.x.array)
     velocity = model.discretization.gather_raw_dofs(model.velocity.x.array)
-    surface = model.state_surface()
     if comm.rank == 0:
         write_checkpoint(
             path,

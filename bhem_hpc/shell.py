@@ -262,7 +262,8 @@ class ShellModel:
         }
         # Terms whose exact Hessian is used even with hessian="pseudo" (all but bending).
         exact_part = energies["membrane"]
-        work_forms: list[ufl.Form] = []
+        work_forms: list[ufl.Form] = []  # rank-1 external virtual work: pressure, then line loads
+        line_works: list[ufl.Form] = []
         if loads.gravity is not None:
             self.gravity = constant(np.asarray(loads.gravity, dtype=float))
             energies["gravity"] = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
@@ -276,7 +277,8 @@ class ShellModel:
             for i, load in enumerate(loads.line_loads):
                 traction = constant(np.asarray(load.traction, dtype=float))
                 self.tractions.append(traction)
-                work_forms.append(forms.line_load_work(x_rest, traction, test, ds(i + 1)))
+                line_works.append(forms.line_load_work(x_rest, traction, test, ds(i + 1)))
+            work_forms.extend(line_works)
         self.dynamics = dynamics
         self.reporting_forms: dict[str, ufl.Form] = {}
         if dynamics is not None:
@@ -311,14 +313,15 @@ class ShellModel:
         residual = ufl.derivative(potential, x, test)
         for work in work_forms:
             residual = residual - lf * work
+        # Dead line loads have a potential, -work[x]; a follower pressure has none.
+        dead_line_work = sum(ufl.replace(w, {test: x}) for w in line_works) if line_works else None
+        jit = default_jit_params()
         # Conservative problems (no follower pressure) minimize a total potential; the line search
-        # uses it as merit function. Dead line loads contribute -work[x].
+        # uses it as merit function.
         self.potential_form = None
         if loads.pressure is None:
-            total = potential
-            for work in work_forms:
-                total = total - lf * ufl.replace(work, {test: x})
-            self.potential_form = fem.form(total, jit_params=default_jit_params())
+            total = potential if dead_line_work is None else potential - lf * dead_line_work
+            self.potential_form = fem.form(total, jit_params=jit)
         if hessian == "exact":
             jacobian = ufl.derivative(residual, x, trial)
         else:
@@ -331,11 +334,7 @@ class ShellModel:
         self.ufl_jacobian = jacobian
         self.ufl_energies = energies
 
-        jit = default_jit_params()
-        self.line_load_work_form = None
-        if loads.line_loads:
-            dead_work = sum(ufl.replace(w, {test: x}) for w in work_forms[1 if loads.pressure is not None else 0 :])
-            self.line_load_work_form = fem.form(dead_work, jit_params=jit)
+        self.line_load_work_form = None if dead_line_work is None else fem.form(dead_line_work, jit_params=jit)
         self.residual_form = fem.form(residual, jit_params=jit)
         self.jacobian_form = fem.form(jacobian, jit_params=jit)
         self.energy_forms = {

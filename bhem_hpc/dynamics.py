@@ -13,12 +13,16 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bhem_hpc.bcs import NodalConstraint, target_surface
 from bhem_hpc.shell import ShellModel
 from bhem_hpc.solver import ShellSolver, SolverError
+
+if TYPE_CHECKING:  # a scene without contact never imports the collision code
+    from bhem_hpc.contact import ContactHandler
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +42,10 @@ class StepReport:
     dt_halvings: int = 0
     regularized_retries: int = 0
     wall_s: float = 0.0
+    contacts: int = 0
+    contact_rounds: int = 0
+    earliest_toi: float = float("inf")
+    collision_s: float = 0.0
 
 
 @dataclass
@@ -50,12 +58,15 @@ class TimeStepper:
         motions: time-dependent nodal constraints: each maps time ``t`` to the parametric values
             of its ``(nodes, kinds, components)`` (see :class:`PrescribedMotion`).
         max_halvings: bound on recursive dt halvings of one step.
+        contact: contact detection and response run after every solve (None: no contact effects,
+            nothing is detected and nothing is paid for).
     """
 
     model: ShellModel
     solver: ShellSolver
     motions: Sequence[PrescribedMotion] = ()
     max_halvings: int = 4
+    contact: ContactHandler | None = None
     time: float = 0.0
     step: int = 0
     history: list[StepReport] = field(default_factory=list)
@@ -119,7 +130,14 @@ class TimeStepper:
             self._advance(t_start, dt / 2, depth + 1, report)
             self._advance(t_start + dt / 2, dt / 2, depth + 1, report)
             return
-        model.velocity.x.array[:] = (model.x.x.array - x_n) / dt
+        if self.contact is None:
+            model.velocity.x.array[:] = (model.x.x.array - x_n) / dt
+            return
+        contact = self.contact.respond(x_n, t_start, dt)
+        report.contacts = max(report.contacts, contact.contacts)
+        report.contact_rounds += contact.rounds
+        report.earliest_toi = min(report.earliest_toi, contact.earliest_toi)
+        report.collision_s += contact.detection_s + contact.response_s
 
 
 @dataclass(frozen=True)

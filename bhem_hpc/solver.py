@@ -20,9 +20,12 @@ from dataclasses import dataclass, field
 import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
 import numpy as np
+import ufl
+from mpi4py import MPI
 from petsc4py import PETSc
 
-from bhem_hpc.shell import ShellModel
+from bhem_hpc import forms
+from bhem_hpc.shell import ShellModel, default_jit_params
 
 log = logging.getLogger(__name__)
 
@@ -629,6 +632,225 @@ class ShellSolver:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn PETSc down already
+            pass
+
+
+class ContactProjector:
+    """Least-squares projection of velocities and positions onto linear contact constraints (§6.2).
+
+    Each contact row ``g`` is a linear function of the nodal data (a point's normal or tangential
+    velocity, or its separation). The update ``d`` of a nodal vector with rows ``G`` and targets
+    ``b`` minimizes ``|G (u + d) - b|^2 + eps d^T M d``: the normal equations
+    ``(G^T G + eps M) d = G^T (b - G u)`` have the mass matrix's sparsity and one MUMPS Cholesky
+    factorization serves the velocity and the position update of a round. ``eps`` is tiny relative
+    to ``G^T G``, so rows are met in the least-squares sense (exactly where they are compatible) and
+    the rest of the update is the mass-metric minimum: ``M d = G^T lambda`` with impulses
+    ``lambda = (b - G (u + d)) / eps``, i.e. an impulse response that conserves linear momentum
+    whenever the impulses do (self-contact pairs). Constrained DOFs do not move.
+
+    Args:
+        solver: the model's solver (its constrained rows and seam prolongation are reused).
+        prefix: PETSc options prefix of the projection's KSP.
+        options: PETSc options (without prefix) overriding the defaults.
+        regularization: ``eps`` relative to ``max diag(G^T G) / max diag(M)``.
+        smoothing: weight of the second-derivative term of the impulse metric
+            (:func:`forms.impulse_metric`; 0 = the bare mass matrix).
+    """
+
+    def __init__(
+        self,
+        solver: ShellSolver,
+        prefix: str = "bhem_contact_",
+        options: Mapping[str, object] | None = None,
+        regularization: float = 1e-8,
+        smoothing: float = 1.0,
+    ):
+        model = solver.model
+        if model.dynamics is None:
+            raise ValueError("contact response needs a dynamic ShellModel (its mass matrix)")
+        self.model = model
+        self.prefix = prefix
+        self.regularization = regularization
+        self._closed = False
+        disc = model.discretization
+        comm = model.comm
+        grid = model.rest_surface.grid
+        space = model.discretization.function_space
+
+        def assemble(mass_weight: float, smoothing_weight: float) -> PETSc.Mat:
+            form = fem.form(
+                forms.impulse_metric(
+                    ufl.TrialFunction(space), ufl.TestFunction(space), model.x_rest, model.density, model.thickness,
+                    (grid.h1, grid.h2), mass_weight, smoothing_weight, model.dx,
+                ),
+                jit_params=default_jit_params(),
+            )  # fmt: skip
+            matrix = fem_petsc.assemble_matrix(form)
+            matrix.assemble()
+            if solver.prolongation is None:
+                return matrix
+            closed = matrix.PtAP(solver.prolongation)
+            matrix.destroy()
+            return closed
+
+        self.mass = assemble(1.0, smoothing)  # M + S: the metric without a Jacobian
+        self.smoothing = assemble(0.0, smoothing)  # S alone, added to dt^2 J
+        self.bc_rows = solver.bc_rows
+        self.bc_local = solver.bc_local
+        # Flat nodal entry (distinct node, kind) -> global closed block and reference-DOF scale.
+        m1, m2 = model.rest_surface.grid.node_shape
+        blocks = disc.owned_closed_open_block
+        node = disc.distinct_node[blocks]
+        key = (node[:, 0] * m2 + node[:, 1]) * 4 + disc.block_kind[blocks]
+        self.owned_flat = key
+        self.flat_block = np.full(m1 * m2 * 4, -1, dtype=np.int64)
+        self.flat_scale = np.zeros(m1 * m2 * 4)
+        for keys, first, scales in comm.allgather((key, disc.closed_offset, disc.block_scale[blocks])):
+            self.flat_block[keys] = first + np.arange(len(keys))
+            self.flat_scale[keys] = scales
+        self.n_local, self.n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
+        self.options = {
+            "ksp_type": "preonly",
+            "pc_type": "cholesky",
+            "pc_factor_mat_solver_type": "mumps",
+            "mat_mumps_icntl_7": "2",
+        }
+        self.option_overrides = dict(options or {})
+        self.ksp: PETSc.KSP | None = None
+        self.factorizations = 0
+        self._rows = None
+
+    def _to_closed(self, flat: np.ndarray) -> PETSc.Vec:
+        """Owned closed vector of flat parametric nodal data ``(N, 3)`` (known on every rank)."""
+        vec = PETSc.Vec().createMPI((self.n_local, self.n_global), comm=self.model.comm)
+        vec.array[:] = (flat[self.owned_flat] * self.flat_scale[self.owned_flat, None]).ravel()
+        return vec
+
+    def _to_flat(self, vec: PETSc.Vec) -> np.ndarray:
+        """Collective: flat parametric nodal data ``(N, 3)`` of a closed vector, on every rank."""
+        out = np.zeros((len(self.flat_block), 3))
+        local = (self.owned_flat, vec.array_r.reshape(-1, 3).copy())
+        for keys, values in self.model.comm.allgather(local):
+            out[keys] = values / self.flat_scale[keys, None]
+        return out
+
+    def set_rows(
+        self, index: np.ndarray, coefficients: np.ndarray, jacobian: PETSc.Mat | None = None, time_step: float = 1.0
+    ) -> None:
+        """Collective: assemble and factor ``G^T G + eps W`` for contact rows (replaces earlier rows).
+
+        Args:
+            index: ``(r, K)`` flat nodal entries of each row (identical on every rank).
+            coefficients: ``(r, K, 3)`` each row's coefficients of those entries' components.
+            jacobian: the time step's Jacobian ``J = M / dt^2 + K (+ damping)``: the metric is then
+                ``W = dt^2 J + S`` - a stiff shell answers an impulse or a push as a whole, a
+                soft one locally; without it ``W = M + S``. Both satisfy ``W t = M t`` for rigid
+                translations ``t``, so impulses conserve linear momentum.
+            time_step: the ``dt`` of ``jacobian``.
+        """
+        self.release()
+        comm = self.model.comm
+        rows = len(index)
+        lo, hi = comm.rank * rows // comm.size, (comm.rank + 1) * rows // comm.size
+        cols = 3 * self.flat_block[index[lo:hi]][:, :, None] + np.arange(3)  # (r_local, K, 3)
+        values = coefficients[lo:hi] / self.flat_scale[index[lo:hi]][:, :, None]
+        width = cols.shape[1] * 3
+        g = PETSc.Mat().createAIJ(((hi - lo, rows), (self.n_local, self.n_global)), nnz=(width, width), comm=comm)
+        g.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        for i in range(hi - lo):
+            g.setValues([lo + i], cols[i].ravel().astype(PETSc.IntType), values[i].ravel(), PETSc.InsertMode.ADD)
+        g.assemble()
+        system = g.transposeMatMult(g)
+        gtg_max = comm.allreduce(float(np.abs(system.getDiagonal().array_r).max(initial=0.0)), op=MPI.MAX)
+        if jacobian is None:
+            weighted = self.mass.copy()
+        else:
+            # dt^2 J = M + dt^2 K (+ damping): the implicit step's effective inertia, plus S
+            weighted = PETSc.Mat()
+            jacobian.convert("aij", weighted)  # the serial LDL^T Jacobian is SBAIJ (one triangle)
+            weighted.scale(time_step**2)
+            weighted.axpy(1.0, self.smoothing, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        metric_max = comm.allreduce(float(np.abs(weighted.getDiagonal().array_r).max(initial=0.0)), op=MPI.MAX)
+        eps = self.regularization * gtg_max / metric_max if gtg_max > 0 else 1.0
+        system.axpy(eps, weighted, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        weighted.destroy()
+        system.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        system.setOption(PETSc.Mat.Option.SPD, True)
+        system.zeroRowsColumns(self.bc_rows, diag=1.0)
+        # A new KSP per row set: the pattern changes with the contacts, and a reused PC would keep
+        # the previous symbolic factorization.
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOptionsPrefix(self.prefix)
+        opts = PETSc.Options()
+        pushed = _push_options(self.prefix, self.options, self.option_overrides)
+        try:
+            self.ksp.setFromOptions()
+        finally:
+            for name in pushed:
+                opts.delValue(name)
+        self.ksp.setOperators(system)
+        self.ksp.setUp()
+        self.factorizations += 1
+        self._rows = (g, system, (lo, hi))
+
+    def solve(self, current: np.ndarray | None, targets: np.ndarray) -> np.ndarray:
+        """Collective: the correction ``d`` (flat parametric nodal ``(N, 3)``, on every rank).
+
+        Args:
+            current: flat nodal data the rows are evaluated on; None: the targets are increments.
+            targets: ``(r,)`` target values of the rows set by :meth:`set_rows`.
+        """
+        if self._rows is None:
+            raise RuntimeError("ContactProjector.solve called before set_rows")
+        g, system, (lo, hi) = self._rows
+        rhs, solution, target = system.createVecRight(), system.createVecRight(), g.createVecLeft()
+        try:
+            target.array[:] = targets[lo:hi]
+            if current is not None:
+                u = self._to_closed(current)
+                gu = g.createVecLeft()
+                g.mult(u, gu)
+                target.axpy(-1.0, gu)
+                u.destroy()
+                gu.destroy()
+            g.multTranspose(target, rhs)
+            rhs.array[self.bc_local] = 0.0
+            self.ksp.solve(rhs, solution)
+            reason = self.ksp.getConvergedReason()
+            if reason < 0:
+                raise SolverError(
+                    f"contact projection '{self.prefix}' failed: KSP {KSP_REASONS.get(reason, reason)} "
+                    f"({g.getSize()[0]} contact rows)"
+                )
+            return self._to_flat(solution)
+        finally:
+            for obj in (rhs, solution, target):
+                obj.destroy()
+
+    def release(self) -> None:
+        """Free the current rows' matrices."""
+        if getattr(self, "_rows", None) is not None:
+            g, system, _ = self._rows
+            g.destroy()
+            system.destroy()
+        if getattr(self, "ksp", None) is not None:
+            self.ksp.destroy()
+        self._rows = None
+        self.ksp = None
+
+    def close(self) -> None:
+        """Destroy the PETSc objects (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.release()
+        self.mass.destroy()
+        self.smoothing.destroy()
 
     def __del__(self) -> None:
         try:

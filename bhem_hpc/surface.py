@@ -206,6 +206,21 @@ class HermiteSurface:
             a22=contract(0, 2),
         )
 
+    def point_weights(
+        self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Linear map from nodal data to points: ``x = sum_j weights[..., j] nodal_flat[index[..., j]]``.
+
+        Args:
+            p1, p2: patch indices, shape ``S``; t1, t2: local coordinates in [0, 1], shape ``S``.
+
+        Returns:
+            ``(index, weights)`` of shape ``S + (16,)``: rows of ``nodal.reshape(-1, 3)``
+            (flat ``(i1 * m2 + i2) * 4 + kind``) and the parametric Hermite basis values. The
+            same map takes nodal velocities to point velocities (it is linear and fixed).
+        """
+        return point_weights(self.grid, p1, p2, t1, t2)
+
     def bezier_control_points(self) -> np.ndarray:
         """Exact Bezier control nets of all patches.
 
@@ -323,6 +338,28 @@ class HermiteSurface:
 # Constructors
 # ---------------------------------------------------------------------------------------------
 Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def point_weights(
+    grid: ParameterGrid, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """See :meth:`HermiteSurface.point_weights` (this form needs only the grid)."""
+    p1, p2, t1, t2 = np.broadcast_arrays(np.asarray(p1), np.asarray(p2), np.asarray(t1, float), np.asarray(t2, float))
+    b1, b2 = hermite.basis(t1), hermite.basis(t2)  # S + (4,): (v0, t0, v1, t1)
+    m2 = grid.node_shape[1]
+    index = np.empty(p1.shape + (16,), dtype=np.int64)
+    weights = np.empty(p1.shape + (16,))
+    scale = (1.0, grid.h1, grid.h2, grid.h1 * grid.h2)  # parametric derivative -> local theta units
+    j = 0
+    for c1 in (0, 1):
+        for c2 in (0, 1):
+            i1, i2 = grid.wrap_node(p1 + c1, p2 + c2)
+            base = (i1 * m2 + i2) * 4
+            for kind, (a, b) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+                index[..., j] = base + kind
+                weights[..., j] = scale[kind] * b1[..., 2 * c1 + a] * b2[..., 2 * c2 + b]
+                j += 1
+    return index, weights
 
 
 def from_callable(

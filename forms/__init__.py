@@ -9,7 +9,7 @@ compiles, assembles or touches PETSc. Conventions: the mesh *is* the parameter d
 from bhem_hpc.forms.bending import bending_energy, bending_pseudo_hessian
 from bhem_hpc.forms.damping import mass_damping_potential, stiffness_damping_potential
 from bhem_hpc.forms.gravity import gravity_potential
-from bhem_hpc.forms.inertia import inertia_potential
+from bhem_hpc.forms.inertia import impulse_metric, inertia_potential
 from bhem_hpc.forms.kinetic import kinetic_energy
 from bhem_hpc.forms.line_load import line_load_work
 from bhem_hpc.forms.membrane import membrane_energy
@@ -19,6 +19,7 @@ __all__ = [
     "bending_energy",
     "bending_pseudo_hessian",
     "gravity_potential",
+    "impulse_metric",
     "inertia_potential",
     "kinetic_energy",
     "mass_damping_potential",

@@ -27,12 +27,19 @@ def _bernstein(t: np.ndarray, derivative: int = 0) -> np.ndarray:
         return np.stack([s**3, 3 * t * s**2, 3 * t**2 * s, t**3], axis=-1)
     if derivative == 1:
         return np.stack([-3 * s**2, 3 * s**2 - 6 * t * s, 6 * t * s - 3 * t**2, 3 * t**2], axis=-1)
-    raise ValueError(f"Bernstein derivative order must be 0 or 1, got {derivative!r}")
+    if derivative == 2:
+        return np.stack([6 * s, 6 * t - 12 * s, 6 * s - 12 * t, 6 * t], axis=-1)
+    raise ValueError(f"Bernstein derivative order must be 0, 1 or 2, got {derivative!r}")
 
 
 def evaluate(net: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> np.ndarray:
     """Point (or first partial derivative) of a net at local parameters; shape ``S + (3,)``."""
     return np.einsum("...i,...j,ijc->...c", _bernstein(u, du), _bernstein(v, dv), net)
+
+
+def evaluate_many(nets: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> np.ndarray:
+    """One point (or partial derivative) per net: nets ``(N, 4, 4, 3)``, ``u, v (N,)`` -> ``(N, 3)``."""
+    return np.einsum("ni,nj,nijc->nc", _bernstein(u, du), _bernstein(v, dv), nets)
 
 
 def _split_curves(points: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,563 @@
+"""Contact detection between time steps (paper §6.2), numpy only.
+
+A time step of the solver moves the shell's nodal data linearly from ``start`` to ``end`` (implicit
+Euler: every point moves on a straight line over the step). Detection finds every contact of that
+motion within a push-out distance ``gap`` and describes it as a linear function of the nodal data:
+
+* shell samples against simple colliders (plane, sphere, cylinder, capsule): uniform samples of the
+  midsurface, analytic times of impact;
+* collider points against shell patches: the vertices of a triangle mesh, the samples of a patch
+  model, the tips of capsules (needles) - each projected onto the shell's patches at the start and
+  the end of the step;
+* self-collision: samples of each patch against the other patches (a broad phase over swept boxes,
+  never all pairs); patches that share a node with the sample's patch are skipped, and within one
+  patch nothing is tested (see :func:`self_contacts`).
+
+Each contact is a point ``a`` of the shell (16 nodal weights), optionally a second shell point ``b``
+(self-contact), a unit normal ``n`` along which ``a`` separates, and an obstacle point/velocity.
+Its separation ``n . (a - b - obstacle)`` and relative normal velocity are linear in the nodal data,
+which is what the response (a mass-metric least-squares projection in the solver) needs.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from bhem_hpc.collision.bezier import _bernstein, control_nets, evaluate_many
+from bhem_hpc.collision.ccd import point_patch_toi
+from bhem_hpc.collision.ray import BoundReached
+from bhem_hpc.surface import ParameterGrid, point_weights
+
+#: Local-parameter slack when deciding that a projected foot point lies inside a patch.
+INSIDE_EPS = 1e-9
+#: Newton iterations of the closest-point projection (it starts from the nearest of 5 x 5 samples).
+PROJECTION_ITERATIONS = 12
+
+
+@dataclass(frozen=True)
+class Contacts:
+    """``k`` contacts, each a linear function of the shell's flat nodal data ``(m1 * m2 * 4, 3)``.
+
+    Attributes:
+        key: ``(k,)`` deterministic order (source, sample) so every rank builds the same rows.
+        index_a, weights_a: ``(k, 16)`` the shell point ``a`` (see ``surface.point_weights``).
+        index_b, weights_b: ``(k, 16)`` a second shell point (self-contact), weights 0 otherwise.
+        normal: ``(k, 3)`` unit normal along which ``a`` separates from the obstacle.
+        obstacle_point: ``(k, 3)`` a point of the obstacle's tangent plane at the end of the step.
+        obstacle_velocity: ``(k, 3)`` the obstacle's velocity there (0 for self-contact).
+        clearance: ``(k,)`` separation that counts as touching (a capsule tip's radius, else 0).
+        toi: ``(k,)`` time of impact as a fraction of the step.
+        friction: ``(k,)`` Coulomb coefficient of the pair.
+    """
+
+    key: np.ndarray
+    index_a: np.ndarray
+    weights_a: np.ndarray
+    index_b: np.ndarray
+    weights_b: np.ndarray
+    normal: np.ndarray
+    obstacle_point: np.ndarray
+    obstacle_velocity: np.ndarray
+    clearance: np.ndarray
+    toi: np.ndarray
+    friction: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.key)
+
+    @staticmethod
+    def empty() -> Contacts:
+        z = np.zeros
+        return Contacts(
+            z(0, np.int64), z((0, 16), np.int64), z((0, 16)), z((0, 16), np.int64), z((0, 16)),
+            z((0, 3)), z((0, 3)), z((0, 3)), z(0), z(0), z(0),
+        )  # fmt: skip
+
+    @staticmethod
+    def concatenate(parts: Sequence[Contacts]) -> Contacts:
+        """All contacts of ``parts`` sorted by key (duplicate keys: the first is kept)."""
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return Contacts.empty()
+        merged = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Contacts)}
+        _, first = np.unique(merged["key"], return_index=True)
+        return Contacts(**{name: value[first] for name, value in merged.items()})
+
+    def take(self, rows: np.ndarray) -> Contacts:
+        """The contacts at ``rows``."""
+        return Contacts(**{f.name: getattr(self, f.name)[rows] for f in fields(Contacts)})
+
+    def separation(self, flat_nodal: np.ndarray) -> np.ndarray:
+        """``n . (a - b - obstacle_point)`` for nodal data ``(m1 * m2 * 4, 3)``, shape ``(k,)``."""
+        a = np.einsum("kj,kjc->kc", self.weights_a, flat_nodal[self.index_a])
+        b = np.einsum("kj,kjc->kc", self.weights_b, flat_nodal[self.index_b])
+        return np.einsum("kc,kc->k", self.normal, a - b - self.obstacle_point)
+
+    def relative_velocity(self, flat_velocity: np.ndarray) -> np.ndarray:
+        """Velocity of ``a`` relative to the obstacle, ``(k, 3)``."""
+        a = np.einsum("kj,kjc->kc", self.weights_a, flat_velocity[self.index_a])
+        b = np.einsum("kj,kjc->kc", self.weights_b, flat_velocity[self.index_b])
+        return a - b - self.obstacle_velocity
+
+
+def _empty_b(count: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros((count, 16), np.int64), np.zeros((count, 16))
+
+
+# -- shell samples ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ShellSamples:
+    """Uniform samples of the midsurface, about ``per_side^2`` per patch.
+
+    Attributes:
+        patch: ``(S,)`` flat patch index ``p1 * n2 + p2``; local: ``(S, 2)`` local coordinates.
+        index, weights: ``(S, 16)`` nodal weights of each sample.
+    """
+
+    patch: np.ndarray
+    local: np.ndarray
+    index: np.ndarray
+    weights: np.ndarray
+
+    @staticmethod
+    def build(grid: ParameterGrid, per_side: int) -> ShellSamples:
+        """A uniform lattice of ``n * per_side (+ 1)`` points per direction over the whole surface,
+        boundary edges included (an unsampled free edge could swing through a plane)."""
+        if not (isinstance(per_side, int) and per_side >= 1):
+            raise ValueError(f"samples per patch side must be an integer >= 1, got {per_side!r}")
+        axes = []
+        for n, (lo, hi), periodic in (
+            (grid.n1, grid.xi1_range, grid.periodic1),
+            (grid.n2, grid.xi2_range, grid.periodic2),
+        ):
+            count = n * per_side + (0 if periodic else 1)
+            axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
+        xi1, xi2 = (a.ravel() for a in np.meshgrid(*axes, indexing="ij"))
+        p1, p2, t1, t2 = grid.locate(xi1, xi2)
+        index, weights = point_weights(grid, p1, p2, t1, t2)
+        return ShellSamples(p1 * grid.n2 + p2, np.stack([t1, t2], axis=1), index, weights)
+
+    def positions(self, flat_nodal: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Positions ``(len(rows), 3)`` of samples ``rows`` for flat nodal data ``(N, 3)``."""
+        return np.einsum("sj,sjc->sc", self.weights[rows], flat_nodal[self.index[rows]])
+
+
+# -- broad phase ------------------------------------------------------------------------------------
+def overlapping_pairs(boxes_a: np.ndarray, boxes_b: np.ndarray, max_cells: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of overlapping axis-aligned boxes through a uniform hash grid (not all pairs).
+
+    Args:
+        boxes_a, boxes_b: ``(A, 2, 3)`` and ``(B, 2, 3)`` boxes ``[min, max]``.
+        max_cells: bound on grid cells one box may cover; larger boxes are tested against all of
+            ``boxes_a`` directly.
+
+    Returns:
+        ``(ia, ib)`` index arrays of every overlapping pair, sorted by ``(ib, ia)``.
+    """
+    boxes_a = np.asarray(boxes_a, dtype=float).reshape(-1, 2, 3)
+    boxes_b = np.asarray(boxes_b, dtype=float).reshape(-1, 2, 3)
+    if not len(boxes_a) or not len(boxes_b):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    extent = np.concatenate([boxes_a[:, 1] - boxes_a[:, 0], boxes_b[:, 1] - boxes_b[:, 0]]).max(axis=1)
+    cell = max(float(np.median(extent)), 1e-12)
+    origin = np.minimum(boxes_a[:, 0].min(axis=0), boxes_b[:, 0].min(axis=0))
+
+    def cells_of(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        lo = np.floor((boxes[:, 0] - origin) / cell).astype(np.int64)
+        hi = np.floor((boxes[:, 1] - origin) / cell).astype(np.int64)
+        count = np.prod(hi - lo + 1, axis=1)
+        small = np.flatnonzero(count <= max_cells)
+        owners, keys = [], []
+        span = hi - lo + 1
+        for offset in np.ndindex(*np.minimum(span[small].max(axis=0), max_cells) if len(small) else (0,)):
+            off = np.asarray(offset)
+            ok = small[np.all(off < span[small], axis=1)]
+            c = lo[ok] + off
+            owners.append(ok)
+            keys.append((c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791))
+        owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
+        key = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+        return owner, key, np.flatnonzero(count > max_cells)
+
+    owner_a, key_a, big_a = cells_of(boxes_a)
+    owner_b, key_b, big_b = cells_of(boxes_b)
+    order = np.argsort(key_a, kind="stable")
+    key_a, owner_a = key_a[order], owner_a[order]
+    left = np.searchsorted(key_a, key_b, side="left")
+    right = np.searchsorted(key_a, key_b, side="right")
+    counts = right - left
+    ib = np.repeat(owner_b, counts)
+    starts = np.repeat(left, counts)
+    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    ia = owner_a[starts + within]
+    extra_a = [np.repeat(big_a, len(boxes_b)), np.repeat(np.arange(len(boxes_a)), len(big_b))]
+    extra_b = [np.tile(np.arange(len(boxes_b)), len(big_a)), np.tile(big_b, len(boxes_a))]
+    ia = np.concatenate([ia, *extra_a])
+    ib = np.concatenate([ib, *extra_b])
+    pairs = np.unique(np.stack([ib, ia], axis=1), axis=0)
+    ib, ia = pairs[:, 0], pairs[:, 1]
+    overlap = np.all((boxes_a[ia, 0] <= boxes_b[ib, 1]) & (boxes_b[ib, 0] <= boxes_a[ia, 1]), axis=1)
+    return ia[overlap], ib[overlap]
+
+
+def swept_boxes(start: np.ndarray, end: np.ndarray, pad: float) -> np.ndarray:
+    """Boxes ``(N, 2, 3)`` around point sets ``(N, P, 3)`` (or points ``(N, 3)``) at both ends."""
+    start = np.asarray(start).reshape(len(start), -1, 3)
+    end = np.asarray(end).reshape(len(end), -1, 3)
+    lo = np.minimum(start.min(axis=1), end.min(axis=1)) - pad
+    hi = np.maximum(start.max(axis=1), end.max(axis=1)) + pad
+    return np.stack([lo, hi], axis=1)
+
+
+# -- closest points on patches -----------------------------------------------------------------------
+def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closest points of ``points (N, 3)`` on Bezier patches ``nets (N, 4, 4, 3)`` (one each).
+
+    Newton on the first-order conditions from the nearest of 5 x 5 samples, ``PROJECTION_ITERATIONS``
+    iterations, clamped to the patch (Gauss-Newton where the full Hessian is not positive).
+
+    Returns:
+        ``(uv (N, 2), foot (N, 3), unit normal (N, 3), inside (N,))``; ``inside`` is False where the
+        closest point lies on the patch boundary (the neighbouring patch owns that contact).
+    """
+    n = len(points)
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool)
+    grid = np.linspace(0.0, 1.0, 5)
+    gu, gv = np.meshgrid(grid, grid, indexing="ij")
+    bu, bv = _bernstein(gu.ravel()), _bernstein(gv.ravel())
+    samples = np.einsum("si,sj,nijc->nsc", bu, bv, nets)  # (N, 25, 3)
+    nearest = np.argmin(((samples - points[:, None]) ** 2).sum(-1), axis=1)
+    u, v = gu.ravel()[nearest], gv.ravel()[nearest]
+    for _ in range(PROJECTION_ITERATIONS):
+        r = evaluate_many(nets, u, v) - points
+        su, sv = evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1)
+        suu, svv, suv = (
+            evaluate_many(nets, u, v, 2, 0),
+            evaluate_many(nets, u, v, 0, 2),
+            evaluate_many(nets, u, v, 1, 1),
+        )
+        g1, g2 = (r * su).sum(1), (r * sv).sum(1)
+        a11, a12, a22 = (su * su).sum(1), (su * sv).sum(1), (sv * sv).sum(1)
+        h11, h12, h22 = a11 + (r * suu).sum(1), a12 + (r * suv).sum(1), a22 + (r * svv).sum(1)
+        full = (h11 > 0) & (h11 * h22 - h12 * h12 > 0)
+        h11, h12, h22 = np.where(full, h11, a11), np.where(full, h12, a12), np.where(full, h22, a22)
+        det = h11 * h22 - h12 * h12
+        det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+        du = -(h22 * g1 - h12 * g2) / det
+        dv = -(h11 * g2 - h12 * g1) / det
+        u = np.clip(u + np.clip(du, -0.5, 0.5), 0.0, 1.0)
+        v = np.clip(v + np.clip(dv, -0.5, 0.5), 0.0, 1.0)
+    foot = evaluate_many(nets, u, v)
+    normal = np.cross(evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1))
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    inside = (u > INSIDE_EPS) & (u < 1 - INSIDE_EPS) & (v > INSIDE_EPS) & (v < 1 - INSIDE_EPS)
+    return np.stack([u, v], axis=1), foot, normal, inside
+
+
+def _point_patch_pairs(
+    points_start: np.ndarray,
+    points_end: np.ndarray,
+    nets_start: np.ndarray,
+    nets_end: np.ndarray,
+    pairs: tuple[np.ndarray, np.ndarray],
+    gap: float,
+    dt: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Narrow phase of candidate (point, patch) pairs.
+
+    A pair is in contact when the point's projection onto the patch lies inside the patch at the
+    end of the step and the point is then closer than ``gap`` on the side where it started (or has
+    crossed). Pairs whose projections fall inside at one end only and that moved more than ``gap``
+    are decided by the exact point-patch CCD (:func:`point_patch_toi`).
+
+    Returns:
+        ``(pair rows, uv at the end (C, 2), side normal (C, 3), separation at the end (C,), toi (C,))``
+        where the side normal points from the patch towards the point's starting side.
+    """
+    ip, iq = pairs
+    if not len(ip):
+        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+    _, foot0, normal0, inside0 = project_to_patches(nets_start[iq], points_start[ip])
+    uv1, foot1, normal1, inside1 = project_to_patches(nets_end[iq], points_end[ip])
+    d0 = ((points_start[ip] - foot0) * normal0).sum(1)
+    d1 = ((points_end[ip] - foot1) * normal1).sum(1)
+    # the side the point started on; a point starting on the surface takes the side it approaches from
+    motion = ((points_end[ip] - points_start[ip]) - (foot1 - foot0)) * normal1
+    side = np.where(np.abs(d0) > 1e-3 * gap, np.sign(d0), -np.sign(motion.sum(1)))
+    side = np.where(side == 0, 1.0, side)
+    separation = side * d1
+    near = inside1 & (np.abs(d0) < 10 * gap + np.linalg.norm(points_end[ip] - points_start[ip], axis=1))
+    hit = near & (separation < gap)
+    denominator = np.where(side * (d0 - d1) > 0, side * (d0 - d1), np.inf)
+    toi = np.clip((side * d0 - gap) / denominator, 0.0, 1.0)
+    # disagreeing projections on fast motion: exact CCD decides
+    moved = np.linalg.norm(points_end[ip] - points_start[ip], axis=1) > gap
+    doubtful = np.flatnonzero((inside0 != inside1) & moved & ~hit)
+    uv = uv1.copy()
+    for row in doubtful:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", BoundReached)
+            try:
+                found = point_patch_toi(
+                    nets_start[iq[row]],
+                    (nets_end[iq[row]] - nets_start[iq[row]]) / dt,
+                    points_start[ip[row]],
+                    (points_end[ip[row]] - points_start[ip[row]]) / dt,
+                    dt,
+                    tolerance=gap,
+                )
+            except BoundReached:
+                found = (0.0, 0.5, 0.5)  # undecided: treat as a contact (never a silent miss)
+        if found is not None:
+            hit[row] = True
+            toi[row] = found[0] / dt
+            uv[row] = found[1:]
+            separation[row] = min(separation[row], 0.0)
+    rows = np.flatnonzero(hit)
+    return rows, uv[rows], side[rows, None] * normal1[rows], separation[rows], toi[rows]
+
+
+# -- detection ---------------------------------------------------------------------------------------
+def simple_collider_contacts(
+    collider, source: int, samples: ShellSamples, rows: np.ndarray, start: np.ndarray, end: np.ndarray, dt: float,
+    gap: float, friction: float,
+) -> Contacts:  # fmt: skip
+    """Shell samples ``rows`` against a plane, sphere, cylinder or capsule (analytic distances)."""
+    p0 = samples.positions(start, rows)
+    p1 = samples.positions(end, rows)
+    toi = collider.time_of_impact(p0, p1, dt, gap)
+    hit = np.flatnonzero(toi <= 1.0)
+    if not len(hit):
+        return Contacts.empty()
+    d1, normal1 = collider.signed_distance(p1[hit], dt)
+    # The normal where the sample touches (a rigidly translating collider: shift the points back
+    # instead of moving the collider); the tangent plane passes through the foot point at the end.
+    contact_point = p0[hit] + toi[hit, None] * (p1[hit] - p0[hit])
+    _, normal = collider.signed_distance(contact_point - (toi[hit] * dt)[:, None] * collider.velocity, 0.0)
+    foot = p1[hit] - d1[:, None] * normal1
+    b_index, b_weights = _empty_b(len(hit))
+    sample = rows[hit]
+    return Contacts(
+        key=source * 2**40 + sample,
+        index_a=samples.index[sample],
+        weights_a=samples.weights[sample],
+        index_b=b_index,
+        weights_b=b_weights,
+        normal=normal,
+        obstacle_point=foot,
+        obstacle_velocity=np.broadcast_to(collider.velocity, (len(hit), 3)).copy(),
+        clearance=np.zeros(len(hit)),
+        toi=toi[hit],
+        friction=np.full(len(hit), friction),
+    )
+
+
+def point_contacts(
+    points_start: np.ndarray, velocity: np.ndarray, clearance: float, source: int, rows: np.ndarray,
+    grid: ParameterGrid, nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float,
+) -> Contacts:  # fmt: skip
+    """Collider points ``rows`` (mesh vertices, patch-model samples, needle tips) against shell patches.
+
+    The points move at ``velocity``; ``clearance`` is the radius around each point that counts as
+    touching (a round needle tip).
+    """
+    q0 = points_start[rows]
+    q1 = q0 + dt * velocity
+    reach = gap + clearance
+    ip, iq = overlapping_pairs(swept_boxes(nets_start, nets_end, reach), swept_boxes(q0, q1, 0.0))
+    found, uv, side_normal, separation, toi = _point_patch_pairs(q0, q1, nets_start, nets_end, (iq, ip), reach, dt)
+    if not len(found):
+        return Contacts.empty()
+    point, patch = iq[found], ip[found]
+    if clearance == 0.0:
+        # a vertex touches the shell once: keep its nearest patch
+        order = np.lexsort((separation, point))
+        first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+        point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
+    # a round tip or a sphere's centre keeps every patch within reach: each patch's closest point
+    index, weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    b_index, b_weights = _empty_b(len(point))
+    # the shell point must stay on its side: the normal points from the collider point to the shell
+    return Contacts(
+        key=source * 2**40 + rows[point] * grid.n1 * grid.n2 + patch,
+        index_a=index,
+        weights_a=weights,
+        index_b=b_index,
+        weights_b=b_weights,
+        normal=-side_normal,
+        obstacle_point=q1[point],
+        obstacle_velocity=np.broadcast_to(velocity, (len(point), 3)).copy(),
+        clearance=np.full(len(point), clearance),
+        toi=toi,
+        friction=np.full(len(point), friction),
+    )
+
+
+def self_contacts(
+    samples: ShellSamples, rows: np.ndarray, grid: ParameterGrid, start: np.ndarray, end: np.ndarray,
+    nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float, source: int,
+) -> Contacts:  # fmt: skip
+    """Shell samples ``rows`` against the shell's other patches.
+
+    Patches sharing a node with the sample's own patch are skipped: at this sampling a sample is
+    always within ``gap`` of them. Self-contact inside that 3 x 3 neighbourhood would need a patch
+    folded tighter than its own size, which the bending energy of these shells does not allow at the
+    resolutions used; it is not detected.
+    """
+    p0 = samples.positions(start, rows)
+    p1 = samples.positions(end, rows)
+    ip, iq = overlapping_pairs(swept_boxes(nets_start, nets_end, gap), swept_boxes(p0, p1, 0.0))
+    own = samples.patch[rows][iq]
+    d1 = np.abs(own // grid.n2 - ip // grid.n2)
+    d2 = np.abs(own % grid.n2 - ip % grid.n2)
+    if grid.periodic1:
+        d1 = np.minimum(d1, grid.n1 - d1)
+    if grid.periodic2:
+        d2 = np.minimum(d2, grid.n2 - d2)
+    far = (d1 > 1) | (d2 > 1)
+    ip, iq = ip[far], iq[far]
+    found, uv, side_normal, separation, toi = _point_patch_pairs(p0, p1, nets_start, nets_end, (iq, ip), gap, dt)
+    if not len(found):
+        return Contacts.empty()
+    point, patch = iq[found], ip[found]
+    order = np.lexsort((separation, point))
+    first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+    point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
+    b_index, b_weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    sample = rows[point]
+    return Contacts(
+        key=source * 2**40 + sample,
+        index_a=samples.index[sample],
+        weights_a=samples.weights[sample],
+        index_b=b_index,
+        weights_b=b_weights,
+        normal=side_normal,
+        obstacle_point=np.zeros((len(sample), 3)),
+        obstacle_velocity=np.zeros((len(sample), 3)),
+        clearance=np.zeros(len(sample)),
+        toi=toi,
+        friction=np.full(len(sample), friction),
+    )
+
+
+@dataclass(frozen=True)
+class ColliderEntry:
+    """A collider with the friction coefficient of its contact with the shell."""
+
+    collider: object
+    friction: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.friction) and self.friction >= 0):
+            raise ValueError(f"friction coefficient must be a finite number >= 0, got {self.friction!r}")
+
+
+class ContactDetector:
+    """All contacts of one step's motion, for one rank's share of the samples.
+
+    Args:
+        grid: the shell's parameter grid.
+        colliders: the scene's colliders with their friction coefficients.
+        samples_per_side: shell samples per patch side (simple colliders and self-collision).
+        self_collision: test the shell against itself; self_friction its coefficient.
+    """
+
+    def __init__(
+        self,
+        grid: ParameterGrid,
+        colliders: Sequence[ColliderEntry],
+        samples_per_side: int = 4,
+        self_collision: bool = False,
+        self_friction: float = 0.0,
+    ):
+        self.grid = grid
+        self.colliders = tuple(colliders)
+        self.samples = ShellSamples.build(grid, samples_per_side)
+        self.self_collision = self_collision
+        self.self_friction = self_friction
+
+    @property
+    def num_samples(self) -> int:
+        """Sample points tested per step: shell samples (if used) plus collider points."""
+        count = sum(len(collider_points(e.collider)[0]) for e in self.colliders)
+        if self.self_collision or any(_is_simple(e.collider) for e in self.colliders):
+            count += len(self.samples.patch)
+        return count
+
+    def detect(
+        self, start: np.ndarray, end: np.ndarray, time: float, dt: float, gap: float, rank: int = 0, size: int = 1
+    ) -> Contacts:
+        """Contacts of the motion ``start -> end`` (flat nodal ``(m1 * m2 * 4, 3)``) over ``[time, time + dt]``.
+
+        Each of ``size`` ranks tests an interleaved share of the samples; the union over ranks is
+        the serial result.
+        """
+        grid = self.grid
+        nodal_shape = (*grid.node_shape, 4, 3)
+        nets_start = control_nets(grid, start.reshape(nodal_shape))
+        nets_end = control_nets(grid, end.reshape(nodal_shape))
+        shell_rows = np.arange(rank, len(self.samples.patch), size)
+        parts = []
+        for source, entry in enumerate(self.colliders):
+            collider = collider_at(entry.collider, time)
+            if _is_simple(collider):
+                parts.append(
+                    simple_collider_contacts(
+                        collider, 2 * source, self.samples, shell_rows, start, end, dt, gap, entry.friction
+                    )
+                )
+            points, clearance = collider_points(collider)
+            if len(points):
+                rows = np.arange(rank, len(points), size)
+                parts.append(
+                    point_contacts(
+                        points, collider.velocity, clearance, 2 * source + 1, rows, grid, nets_start, nets_end,
+                        dt, gap, entry.friction,
+                    )
+                )  # fmt: skip
+        if self.self_collision:
+            parts.append(
+                self_contacts(
+                    self.samples, shell_rows, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
+                    2 * len(self.colliders),
+                )
+            )  # fmt: skip
+        return Contacts.concatenate(parts)
+
+
+def _is_simple(collider) -> bool:
+    return hasattr(collider, "time_of_impact")
+
+
+def collider_at(collider, time: float):
+    """The collider translated to where its constant velocity has taken it at ``time``."""
+    if time == 0.0 or not np.any(collider.velocity):
+        return collider
+    shift = time * collider.velocity
+    moved = {
+        name: getattr(collider, name) + shift
+        for name in ("point", "center", "a", "b", "vertices")
+        if hasattr(collider, name)
+    }
+    if hasattr(collider, "nets"):
+        moved["nets"] = collider.nets + shift
+    return replace(collider, **moved)
+
+
+def collider_points(collider) -> tuple[np.ndarray, float]:
+    """The collider's own sample points ``(P, 3)`` at the start of the step and their clearance."""
+    if hasattr(collider, "radius") and hasattr(collider, "a"):  # capsule: its two round tips
+        return np.stack([collider.a, collider.b]), float(collider.radius)
+    if hasattr(collider, "center"):  # sphere: the deepest point of each nearby patch
+        return collider.center.reshape(1, 3), float(collider.radius)
+    if hasattr(collider, "vertices"):
+        return collider.vertices, 0.0
+    if hasattr(collider, "samples"):
+        return collider.samples(), 0.0
+    return np.zeros((0, 3)), 0.0

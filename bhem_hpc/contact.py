@@ -1,0 +1,247 @@
+"""Contact response between time steps (paper §6.2): detection rounds, impulses, friction, push-out.
+
+After the SNES solve of a step has moved the shell from ``x_n`` to a candidate ``x*`` with velocity
+``v* = (x* - x_n) / dt``, :meth:`ContactHandler.respond` runs rounds of
+
+1. detection (:mod:`bhem_hpc.collision.contact`) of every contact of the straight-line motion
+   ``x_n -> x*`` within the push-out distance - simultaneous contacts together, the earliest time
+   of impact recorded;
+2. the velocity update: zero restitution, i.e. the normal velocity of every approaching contact
+   point relative to its obstacle becomes 0 (separating points keep theirs); with friction the
+   tangential velocity is reduced by ``mu`` times the normal velocity change, Coulomb's cone
+   [Bridson et al. 2002], as rows solved together with the normal rows. All rows are met in least
+   squares with the mass matrix as metric (:class:`~bhem_hpc.solver.ContactProjector`);
+3. the position update: positions restart from ``x_n`` with the new velocity - each contact point's
+   motion is rolled back to its collision moment and continues with the post-impulse velocity -
+   and every contact point is pushed out to the push-out distance (linear position rows, same
+   factorization).
+
+A round that finds nothing closer than half the push-out distance ends the loop (at most
+``max_rounds``). Every rank tests an interleaved share of the samples and the contact list is
+gathered, so all ranks build the same rows and the result equals the serial one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bhem_hpc.collision.contact import ContactDetector, Contacts
+from bhem_hpc.shell import ShellModel
+from bhem_hpc.solver import ContactProjector, ShellSolver
+from bhem_hpc.surface import HermiteSurface
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ContactSettings:
+    """Contact parameters of a scene (``[contact]`` table)."""
+
+    push_out: float = 1e-4
+    samples_per_side: int = 4
+    max_rounds: int = 4
+    self_collision: bool = False
+    self_friction: float = 0.0
+
+    def validate(self) -> None:
+        if not (math.isfinite(self.push_out) and self.push_out > 0):
+            raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
+        if not (isinstance(self.samples_per_side, int) and 1 <= self.samples_per_side <= 16):
+            raise ValueError(f"contact samples_per_side must be an integer in 1..16, got {self.samples_per_side!r}")
+        if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):
+            raise ValueError(f"contact max_rounds must be an integer >= 1, got {self.max_rounds!r}")
+        if not (math.isfinite(self.self_friction) and self.self_friction >= 0):
+            raise ValueError(f"self_friction must be a finite number >= 0, got {self.self_friction!r}")
+
+
+@dataclass
+class ContactReport:
+    """What the contact response did in one step."""
+
+    contacts: int = 0
+    rounds: int = 0
+    earliest_toi: float = float("inf")
+    min_separation: float = float("inf")
+    bound_reached: bool = False
+    detection_s: float = 0.0
+    response_s: float = 0.0
+    impulse_rows: list[int] = field(default_factory=list)
+
+
+def _tangents(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit tangents ``(k, 3)`` orthogonal to each normal and to each other."""
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(normal, helper)
+    t1 /= np.linalg.norm(t1, axis=1)[:, None]
+    return t1, np.cross(normal, t1)
+
+
+def _rows(contacts: Contacts, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``d . (a - b)`` for directions ``(k, 3)``: ``(index (k, 32), coefficients (k, 32, 3))``."""
+    index = np.concatenate([contacts.index_a, contacts.index_b], axis=1)
+    weights = np.concatenate([contacts.weights_a, -contacts.weights_b], axis=1)
+    return index, weights[:, :, None] * directions[:, None, :]
+
+
+class ContactHandler:
+    """Contact detection and response of a dynamic model, called by the time stepper after each solve.
+
+    Args:
+        model: a dynamic :class:`ShellModel`.
+        solver: its solver (the projector reuses its constraints).
+        detector: the scene's colliders and sampling.
+        settings: push-out distance and loop bounds.
+        options: PETSc options of the projection (prefix ``bhem_contact_``).
+    """
+
+    def __init__(
+        self,
+        model: ShellModel,
+        solver: ShellSolver,
+        detector: ContactDetector,
+        settings: ContactSettings | None = None,
+        options=None,
+    ):
+        self.settings = settings or ContactSettings()
+        self.settings.validate()
+        self.model = model
+        self.detector = detector
+        self.projector = ContactProjector(solver, options=options)
+        self.jacobian = solver.jacobian  # the last Newton iteration's, at (nearly) the step's end
+        self.history: list[ContactReport] = []
+
+    def _flat(self, open_array: np.ndarray) -> np.ndarray:
+        return self.model.discretization.open_to_surface(open_array).nodal.reshape(-1, 3)
+
+    def _to_open(self, flat: np.ndarray) -> np.ndarray:
+        grid = self.model.rest_surface.grid
+        return self.model.discretization.surface_to_open(HermiteSurface(grid, flat.reshape(*grid.node_shape, 4, 3)))
+
+    def _detect(self, start: np.ndarray, end: np.ndarray, t: float, dt: float, gap: float) -> Contacts:
+        comm = self.model.comm
+        local = self.detector.detect(start, end, t, dt, gap, comm.rank, comm.size)
+        return Contacts.concatenate(comm.allgather(local))
+
+    def respond(self, x_start: np.ndarray, t: float, dt: float) -> ContactReport:
+        """Resolve the contacts of the step from ``x_start`` (open layout) to the model's state.
+
+        Updates the model's position and velocity Functions in place.
+        """
+        model = self.model
+        settings = self.settings
+        report = ContactReport()
+        t0 = time.perf_counter()
+        start = self._flat(x_start)
+        end = self._flat(model.x.x.array)
+        velocity = (end - start) / dt
+        gap = settings.push_out
+        active = Contacts.empty()
+        delta_velocity = np.zeros_like(start)
+        delta_position = np.zeros_like(start)
+        report.detection_s += time.perf_counter() - t0
+        for round_ in range(settings.max_rounds):
+            t1 = time.perf_counter()
+            # Round 0 catches everything within the push-out distance; later rounds only what the
+            # previous update left closer than half of it (pushed-out points sit at the full distance).
+            found = self._detect(start, end, t, dt, gap if round_ == 0 else 0.5 * gap)
+            report.detection_s += time.perf_counter() - t1
+            if not len(found):
+                break
+            report.earliest_toi = min(report.earliest_toi, float(found.toi.min()))
+            active = Contacts.concatenate([active, found])
+            report.rounds += 1
+            t2 = time.perf_counter()
+            dv, dx = self._respond(active, start, velocity, dt, gap)
+            velocity = velocity + dv
+            end = start + dt * velocity + dx
+            delta_velocity += dv
+            delta_position += dx
+            report.impulse_rows.append(len(active))
+            report.response_s += time.perf_counter() - t2
+        else:
+            final = self._detect(start, end, t, dt, 0.5 * gap)
+            if len(final):
+                report.bound_reached = True
+                log.warning(
+                    "contact: %d contacts still closer than half the push-out distance after %d rounds",
+                    len(final),
+                    settings.max_rounds,
+                )
+        report.contacts = len(active)
+        model.velocity.x.array[:] = (model.x.x.array - x_start) / dt
+        if len(active):
+            report.min_separation = float((active.separation(end) - active.clearance).min())
+            # Corrections are added to the solver's arrays, so a step without contact stays bit-exact.
+            model.velocity.x.array[:] += self._to_open(delta_velocity)
+            model.x.x.array[:] = model.x.x.array + self._to_open(dt * delta_velocity + delta_position)
+        self.history.append(report)
+        return report
+
+    def _respond(
+        self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Velocity and position corrections (flat nodal) for the active contacts.
+
+        Only contacts that need a change get rows: too many rows on one patch (16 samples against
+        about 4 normal DOFs per node) make the least-squares problem ill-posed when their targets
+        disagree, so free contacts are left free rather than held at their current values.
+        """
+        dv = np.zeros_like(velocity)
+        dx = np.zeros_like(velocity)
+        normal = contacts.normal
+        relative = contacts.relative_velocity(velocity)
+        vn = np.einsum("kc,kc->k", relative, normal)
+        wn = np.einsum("kc,kc->k", contacts.obstacle_velocity, normal)
+        # Zero restitution: a point may close its distance down to the push-out gap within the step
+        # and stops there (its motion past the collision moment is removed). separation(start) is
+        # measured to the obstacle's end position: its own motion is added back.
+        allowed = np.maximum((contacts.separation(start) - contacts.clearance - gap) / dt + wn, 0.0)
+        hitting = np.flatnonzero(vn < -allowed)
+        if len(hitting):
+            sub = contacts.take(hitting)
+            index, coefficients = _rows(sub, normal[hitting])
+            targets = [wn[hitting] - allowed[hitting]]
+            frictional = np.flatnonzero(sub.friction > 0)
+            if len(frictional):
+                fric = sub.take(frictional)
+                n = fric.normal
+                rel = relative[hitting][frictional]
+                vt = rel - np.einsum("kc,kc->k", rel, n)[:, None] * n
+                speed = np.linalg.norm(vt, axis=1)
+                # Coulomb: the tangential speed drops by at most mu times the normal velocity change
+                change = (-allowed - vn)[hitting][frictional]
+                keep = np.maximum(0.0, 1.0 - fric.friction * change / np.maximum(speed, 1e-300))
+                for tangent in _tangents(n):
+                    i, c = _rows(fric, tangent)
+                    index = np.concatenate([index, i])
+                    coefficients = np.concatenate([coefficients, c])
+                    targets.append(
+                        np.einsum("kc,kc->k", fric.obstacle_velocity, tangent)
+                        + keep * np.einsum("kc,kc->k", vt, tangent)
+                    )
+            dv = self._project(index, coefficients, velocity, np.concatenate(targets), dt)
+        # what the new velocities leave closer than the push-out distance is pushed out to it
+        moved = start + dt * (velocity + dv)
+        separation = contacts.separation(moved) - contacts.clearance
+        close = np.flatnonzero(separation < gap)
+        if len(close):
+            sub = contacts.take(close)
+            index, coefficients = _rows(sub, sub.normal)
+            dx = self._project(index, coefficients, None, gap - separation[close], dt)
+        return dv, dx
+
+    def _project(self, index, coefficients, current, targets, dt) -> np.ndarray:
+        projector = self.projector
+        projector.set_rows(index, coefficients, self.jacobian, dt)
+        try:
+            return projector.solve(current, targets)
+        finally:
+            projector.release()
+
+    def close(self) -> None:
+        self.projector.close()

@@ -1,0 +1,176 @@
+"""Contact response between steps: no penetration, Coulomb friction, momentum, detection pieces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bhem_hpc import surface as S
+from bhem_hpc.collision import Plane
+from bhem_hpc.collision.bezier import evaluate_many
+from bhem_hpc.collision.contact import ColliderEntry, ContactDetector, overlapping_pairs, project_to_patches
+from bhem_hpc.contact import ContactHandler, ContactSettings
+from bhem_hpc.dynamics import TimeStepper
+from bhem_hpc.material import Material
+from bhem_hpc.shell import Dynamics, Loads, ShellModel
+from bhem_hpc.solver import ContactProjector, ShellSolver
+from bhem_hpc.surface import point_weights
+
+SHEET = Material(young=1e6, poisson=0.3, thickness=1e-3, density=500.0)
+G = 9.81
+
+
+def _incline(theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation tilting the xy-plane by ``theta`` about y, and the tilted plane's normal."""
+    c, s = np.cos(theta), np.sin(theta)
+    rotation = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+    return rotation, rotation @ np.array([0.0, 0.0, 1.0])
+
+
+def _slide(comm, theta_deg: float, mu: float, steps: int = 40, dt: float = 0.005) -> tuple[float, float]:
+    """A 0.1 m sheet resting on a plane inclined by theta: mean downhill displacement after the run."""
+    rotation, normal = _incline(np.radians(theta_deg))
+    gap = ContactSettings().push_out
+    rest = S.flat_rectangle(0.1, 0.1, 3, 3).transformed(rotation, gap * normal)
+    model = ShellModel(rest, SHEET, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(dt))
+    detector = ContactDetector(rest.grid, [ColliderEntry(Plane([0.0, 0.0, 0.0], normal), mu)], samples_per_side=3)
+    with ShellSolver(model, prefix="incline_") as solver:
+        handler = ContactHandler(model, solver, detector)
+        stepper = TimeStepper(model, solver, contact=handler)
+        before = model.state_surface().nodal[..., 0, :].copy()
+        for _ in range(steps):
+            stepper.advance()
+        after = model.state_surface().nodal[..., 0, :]
+        handler.close()
+    downhill = rotation @ np.array([-1.0, 0.0, 0.0])
+    lift = np.abs((after - before) @ normal).max()
+    return float(((after - before) @ downhill).mean()), float(lift)
+
+
+@pytest.mark.parametrize("theta, mu", [(20.0, 0.5), (35.0, 0.5), (30.0, 0.0)])
+def test_sheet_on_an_incline_sticks_below_atan_mu_and_slides_above(comm, theta, mu):
+    steps, dt = 40, 0.005
+    displacement, lift = _slide(comm, theta, mu, steps, dt)
+    th = np.radians(theta)
+    acceleration = G * max(np.sin(th) - mu * np.cos(th), 0.0)
+    expected = acceleration * dt**2 * steps * (steps + 1) / 2  # implicit Euler: x_N = sum_k k a dt^2
+    if acceleration == 0.0:
+        assert abs(displacement) < 1e-9  # sticks: tan(20 deg) = 0.36 < mu = 0.5
+    else:
+        assert displacement == pytest.approx(expected, rel=1e-4)
+    assert lift < 1e-12  # it neither sinks into nor lifts off the plane
+
+
+def test_sheet_dropped_on_a_plane_never_penetrates_and_rests_at_the_push_out_distance(comm):
+    rest = S.flat_rectangle(0.4, 0.4, 6, 6).transformed(np.eye(3), np.array([-0.2, -0.2, 0.02]))
+    rotation, normal = _incline(np.radians(10.0))  # the sheet hits the tilted plane corner first
+    model = ShellModel(
+        rest, SHEET, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005, mass_damping=1.0)
+    )
+    plane = Plane([0.0, 0.0, -0.03], normal)
+    detector = ContactDetector(rest.grid, [ColliderEntry(plane, 0.0)], samples_per_side=4)
+    u = np.linspace(0.0, 0.4, 49)
+    dense = np.meshgrid(u, u, indexing="ij")
+    lowest = []
+    with ShellSolver(model, prefix="drop_") as solver:
+        handler = ContactHandler(model, solver, detector)
+        stepper = TimeStepper(model, solver, contact=handler)
+        for _ in range(60):
+            stepper.advance()
+            distance, _ = plane.signed_distance(model.state_surface().evaluate(*dense).x.reshape(-1, 3))
+            lowest.append(distance.min())
+        handler.close()
+    contacts = [r.contacts for r in stepper.history]
+    assert contacts[0] == 0 and contacts[-1] > 0  # it fell, then touched
+    assert min(lowest) >= 0.0  # never penetrates (dense samples, not only the contact samples)
+    assert lowest[-1] == pytest.approx(ContactSettings().push_out, rel=1e-3)
+
+
+def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng):
+    """Self-contact rows ``n . (v_a - v_b) = 0`` on a free sheet: equal and opposite impulses."""
+    rest = S.flat_rectangle(0.4, 0.3, 6, 5)
+    model = ShellModel(rest, SHEET, comm=comm, dynamics=Dynamics(0.01))
+    grid = rest.grid
+    with ShellSolver(model, prefix="pair_") as solver:
+        projector = ContactProjector(solver)
+        count = 5
+        a = point_weights(
+            grid, rng.integers(0, 2, count), rng.integers(0, 5, count), rng.random(count), rng.random(count)
+        )
+        b = point_weights(
+            grid, rng.integers(4, 6, count), rng.integers(0, 5, count), rng.random(count), rng.random(count)
+        )
+        normal = rng.normal(size=(count, 3))
+        normal /= np.linalg.norm(normal, axis=1)[:, None]
+        index = np.concatenate([a[0], b[0]], axis=1)
+        coefficients = np.concatenate([a[1], -b[1]], axis=1)[:, :, None] * normal[:, None, :]
+        velocity = rng.normal(size=(grid.num_nodes * 4, 3))
+        projector.set_rows(index, coefficients, solver.jacobian, 0.01)
+        change = projector.solve(velocity, np.zeros(count))
+        new = velocity + change
+        one_sided = a[1][:, :, None] * normal[:, None, :]
+        projector.set_rows(a[0], one_sided, solver.jacobian, 0.01)
+        change_one_sided = projector.solve(velocity, np.zeros(count))
+        rows = np.einsum("kjc,kjc->k", coefficients, new[index])
+        momentum = []
+        for field in (velocity, change, change_one_sided):
+            closed = projector._to_closed(field)
+            weighted = closed.duplicate()
+            projector.mass.mult(closed, weighted)  # W t = M t for translations t
+            translation = closed.duplicate()
+            momentum.append([])
+            for axis in range(3):
+                flat = np.zeros_like(field)
+                flat.reshape(-1, 4, 3)[:, 0, axis] = 1.0
+                translation.array[:] = projector._to_closed(flat).array
+                momentum[-1].append(weighted.dot(translation))
+        projector.close()
+    assert np.abs(rows).max() < 1e-6 * np.abs(velocity).max()
+    # equal and opposite impulses: the change is round-off of the eps-regularized solve; one-sided
+    # rows (a collider) change the momentum by O(1) of the initial value
+    assert np.abs(momentum[1]).max() < 1e-5 * np.abs(momentum[0]).max()
+    assert np.abs(momentum[2]).max() > 1e-2 * np.abs(momentum[0]).max()
+
+
+def test_closest_points_match_a_dense_search(rng):
+    nets = (
+        rng.normal(size=(40, 4, 4, 3)) * 0.2
+        + np.stack(np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 4), [0.0], indexing="ij"), axis=-1)[:, :, 0, :]
+    )
+    points = rng.uniform([0.2, 0.2, -0.3], [0.8, 0.8, 0.3], size=(40, 3))
+    uv, foot, normal, inside = project_to_patches(nets, points)
+    g = np.linspace(0, 1, 401)
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    for k in np.flatnonzero(inside):
+        from bhem_hpc.collision.bezier import evaluate
+
+        dense = evaluate(nets[k], uu, vv).reshape(-1, 3)
+        best = np.linalg.norm(dense - points[k], axis=1).min()
+        assert np.linalg.norm(foot[k] - points[k]) <= best + 1e-9
+        tangent_u = evaluate_many(nets[k : k + 1], uv[k : k + 1, 0], uv[k : k + 1, 1], 1, 0)[0]
+        assert abs(np.dot(points[k] - foot[k], tangent_u)) < 1e-9 * (1 + np.linalg.norm(tangent_u))
+    assert inside.sum() >= 10
+
+
+def test_broad_phase_finds_exactly_the_overlapping_boxes(rng):
+    lo_a = rng.uniform(0, 1, size=(300, 3))
+    lo_b = rng.uniform(0, 1, size=(200, 3))
+    boxes_a = np.stack([lo_a, lo_a + rng.uniform(0.01, 0.1, size=(300, 3))], axis=1)
+    boxes_b = np.stack([lo_b, lo_b + rng.uniform(0.0, 0.3, size=(200, 3))], axis=1)
+    ia, ib = overlapping_pairs(boxes_a, boxes_b)
+    brute = np.all((boxes_a[:, None, 0] <= boxes_b[None, :, 1]) & (boxes_b[None, :, 0] <= boxes_a[:, None, 1]), axis=2)
+    expected = set(zip(*np.nonzero(brute), strict=True))
+    assert set(zip(ia.tolist(), ib.tolist(), strict=True)) == expected
+    assert len(expected) > 100
+
+
+def test_bad_contact_settings_are_refused():
+    for settings, message in [
+        (ContactSettings(push_out=0.0), "push_out"),
+        (ContactSettings(samples_per_side=0), "samples_per_side"),
+        (ContactSettings(self_friction=-0.1), "self_friction"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            settings.validate()
+    with pytest.raises(ValueError, match="friction coefficient"):
+        ColliderEntry(Plane([0, 0, 0], [0, 0, 1]), -0.2)

@@ -43,8 +43,9 @@ class ContactSettings:
     """Contact parameters of a scene (``[contact]`` table)."""
 
     push_out: float = 1e-4
-    samples_per_side: int = 4
+    samples_per_side: int = 2
     max_rounds: int = 4
+    max_active_set_iterations: int = 8
     self_collision: bool = False
     self_friction: float = 0.0
 
@@ -53,6 +54,10 @@ class ContactSettings:
             raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
         if not (isinstance(self.samples_per_side, int) and 1 <= self.samples_per_side <= 16):
             raise ValueError(f"contact samples_per_side must be an integer in 1..16, got {self.samples_per_side!r}")
+        if not (isinstance(self.max_active_set_iterations, int) and self.max_active_set_iterations >= 1):
+            raise ValueError(
+                f"contact max_active_set_iterations must be an integer >= 1, got {self.max_active_set_iterations!r}"
+            )
         if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):
             raise ValueError(f"contact max_rounds must be an integer >= 1, got {self.max_rounds!r}")
         if not (math.isfinite(self.self_friction) and self.self_friction >= 0):
@@ -124,8 +129,15 @@ class ContactHandler:
 
     def _detect(self, start: np.ndarray, end: np.ndarray, t: float, dt: float, gap: float) -> Contacts:
         comm = self.model.comm
-        local = self.detector.detect(start, end, t, dt, gap, comm.rank, comm.size)
-        return Contacts.concatenate(comm.allgather(local))
+        try:
+            local: Contacts | Exception = self.detector.detect(start, end, t, dt, gap, comm.rank, comm.size)
+        except Exception as exc:  # noqa: BLE001 - re-raised on every rank below
+            local = exc
+        gathered = comm.allgather(local)
+        for rank, part in enumerate(gathered):
+            if isinstance(part, Exception):  # every rank stops, none waits in a collective
+                raise RuntimeError(f"contact detection failed on rank {rank}: {part!r}") from part
+        return Contacts.concatenate(gathered)
 
     def respond(self, x_start: np.ndarray, t: float, dt: float) -> ContactReport:
         """Resolve the contacts of the step from ``x_start`` (open layout) to the model's state.
@@ -185,59 +197,94 @@ class ContactHandler:
     def _respond(
         self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Velocity and position corrections (flat nodal) for the active contacts.
-
-        Only contacts that need a change get rows: too many rows on one patch (16 samples against
-        about 4 normal DOFs per node) make the least-squares problem ill-posed when their targets
-        disagree, so free contacts are left free rather than held at their current values.
-        """
-        dv = np.zeros_like(velocity)
-        dx = np.zeros_like(velocity)
+        """Velocity and position corrections (flat nodal) for the active contacts."""
         normal = contacts.normal
-        relative = contacts.relative_velocity(velocity)
-        vn = np.einsum("kc,kc->k", relative, normal)
         wn = np.einsum("kc,kc->k", contacts.obstacle_velocity, normal)
         # Zero restitution: a point may close its distance down to the push-out gap within the step
         # and stops there (its motion past the collision moment is removed). separation(start) is
         # measured to the obstacle's end position: its own motion is added back.
         allowed = np.maximum((contacts.separation(start) - contacts.clearance - gap) / dt + wn, 0.0)
-        hitting = np.flatnonzero(vn < -allowed)
-        if len(hitting):
-            sub = contacts.take(hitting)
-            index, coefficients = _rows(sub, normal[hitting])
-            targets = [wn[hitting] - allowed[hitting]]
-            frictional = np.flatnonzero(sub.friction > 0)
-            if len(frictional):
-                fric = sub.take(frictional)
-                n = fric.normal
-                rel = relative[hitting][frictional]
-                vt = rel - np.einsum("kc,kc->k", rel, n)[:, None] * n
-                speed = np.linalg.norm(vt, axis=1)
-                # Coulomb: the tangential speed drops by at most mu times the normal velocity change
-                change = (-allowed - vn)[hitting][frictional]
-                keep = np.maximum(0.0, 1.0 - fric.friction * change / np.maximum(speed, 1e-300))
-                for tangent in _tangents(n):
-                    i, c = _rows(fric, tangent)
-                    index = np.concatenate([index, i])
-                    coefficients = np.concatenate([coefficients, c])
-                    targets.append(
-                        np.einsum("kc,kc->k", fric.obstacle_velocity, tangent)
-                        + keep * np.einsum("kc,kc->k", vt, tangent)
-                    )
-            dv = self._project(index, coefficients, velocity, np.concatenate(targets), dt)
+        index, coefficients = _rows(contacts, normal)
+        dv, active = self._inequalities(index, coefficients, velocity, wn - allowed)
+        if len(active) and np.any(contacts.friction[active] > 0):
+            dv = self._friction(contacts.take(active), index[active], coefficients[active], velocity, dv)
         # what the new velocities leave closer than the push-out distance is pushed out to it
         moved = start + dt * (velocity + dv)
-        separation = contacts.separation(moved) - contacts.clearance
-        close = np.flatnonzero(separation < gap)
-        if len(close):
-            sub = contacts.take(close)
-            index, coefficients = _rows(sub, sub.normal)
-            dx = self._project(index, coefficients, None, gap - separation[close], dt)
+        deficit = gap - (contacts.separation(moved) - contacts.clearance)
+        dx, _ = self._inequalities(index, coefficients, None, deficit)
         return dv, dx
 
-    def _project(self, index, coefficients, current, targets, dt) -> np.ndarray:
+    def _inequalities(
+        self, index: np.ndarray, coefficients: np.ndarray, current: np.ndarray | None, lower: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The smallest correction ``d`` with ``rows . (current + d) >= lower``, pushing only.
+
+        An active set: rows below their bound are solved as equalities; a row whose multiplier
+        comes out negative (it would pull - the sign of its least-squares residual) is released,
+        a row the update left below its bound joins. Rows on one patch can outnumber its DOFs, and
+        rows held at values they do not need make the least-squares problem fight itself.
+
+        Returns:
+            ``(d, active rows)``.
+        """
+        base = np.zeros((len(self.projector.flat_block), 3)) if current is None else current
+        value = np.einsum("kjc,kjc->k", coefficients, base[index])
+        # rows count as met within round-off of the largest needed change
+        tolerance = 1e-9 * max(float(np.abs(lower - value).max(initial=0.0)), 1e-300)
+        active = np.flatnonzero(value < lower - tolerance)
+        correction = np.zeros_like(base)
+        history: list[frozenset] = []
+        for _ in range(self.settings.max_active_set_iterations):
+            if not len(active):
+                return np.zeros_like(base), active
+            correction = self._project(index[active], coefficients[active], current, lower[active])
+            value = np.einsum("kjc,kjc->k", coefficients, (base + correction)[index])
+            # Semismooth Newton on the penalty: the rows the update leaves below their bound (an
+            # equality row that would pull ends slightly above it and drops out by itself).
+            below = np.flatnonzero(value < lower - tolerance)
+            at_bound = active[value[active] <= lower[active] + tolerance]
+            next_active = np.union1d(below, at_bound)
+            log.debug("active set: %d active, %d next", len(active), len(next_active))
+            if np.array_equal(next_active, active):
+                break
+            key = frozenset(next_active.tolist())
+            if key in history:  # a cycle: keep every row seen in it
+                next_active = np.union1d(next_active, active)
+            history.append(key)
+            active = next_active
+        else:
+            log.warning("contact: active set not settled after %d iterations", self.settings.max_active_set_iterations)
+        return correction, active
+
+    def _friction(
+        self, contacts: Contacts, index: np.ndarray, coefficients: np.ndarray, velocity: np.ndarray, dv: np.ndarray
+    ) -> np.ndarray:
+        """Normal rows at their frictionless result plus Coulomb-limited tangential rows, together."""
+        normal = contacts.normal
+        before = contacts.relative_velocity(velocity)
+        after = contacts.relative_velocity(velocity + dv)
+        vn_before = np.einsum("kc,kc->k", before, normal)
+        vn_after = np.einsum("kc,kc->k", after, normal)
+        vt = before - vn_before[:, None] * normal
+        speed = np.linalg.norm(vt, axis=1)
+        # Coulomb: the tangential speed drops by at most mu times the normal velocity change
+        keep = np.maximum(0.0, 1.0 - contacts.friction * (vn_after - vn_before) / np.maximum(speed, 1e-300))
+        all_index, all_coefficients = [index], [coefficients]
+        targets = [np.einsum("kc,kc->k", after + contacts.obstacle_velocity, normal)]
+        for tangent in _tangents(normal):
+            i, c = _rows(contacts, tangent)
+            all_index.append(i)
+            all_coefficients.append(c)
+            targets.append(
+                np.einsum("kc,kc->k", contacts.obstacle_velocity, tangent) + keep * np.einsum("kc,kc->k", vt, tangent)
+            )
+        return self._project(
+            np.concatenate(all_index), np.concatenate(all_coefficients), velocity, np.concatenate(targets)
+        )
+
+    def _project(self, index, coefficients, current, targets) -> np.ndarray:
         projector = self.projector
-        projector.set_rows(index, coefficients, self.jacobian, dt)
+        projector.set_rows(index, coefficients, self.jacobian, self.model.time_step.value)
         try:
             return projector.solve(current, targets)
         finally:

@@ -80,13 +80,14 @@ class Contacts:
 
     @staticmethod
     def concatenate(parts: Sequence[Contacts]) -> Contacts:
-        """All contacts of ``parts`` sorted by key (duplicate keys: the first is kept)."""
+        """All contacts of ``parts`` sorted by key (duplicate keys: the last is kept - a later
+        detection round knows where the contact point is now)."""
         parts = [p for p in parts if len(p)]
         if not parts:
             return Contacts.empty()
-        merged = {f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Contacts)}
-        _, first = np.unique(merged["key"], return_index=True)
-        return Contacts(**{name: value[first] for name, value in merged.items()})
+        merged = {f.name: np.concatenate([getattr(p, f.name) for p in parts])[::-1] for f in fields(Contacts)}
+        _, last = np.unique(merged["key"], return_index=True)
+        return Contacts(**{name: value[last] for name, value in merged.items()})
 
     def take(self, rows: np.ndarray) -> Contacts:
         """The contacts at ``rows``."""
@@ -296,6 +297,16 @@ def _point_patch_pairs(
     hit = near & (separation < gap)
     denominator = np.where(side * (d0 - d1) > 0, side * (d0 - d1), np.inf)
     toi = np.clip((side * d0 - gap) / denominator, 0.0, 1.0)
+    side_normal = side[:, None] * normal1
+    # Closest point on the patch boundary (an edge or corner, e.g. a sphere's top under a node
+    # shared by four patches): a point contact at the Euclidean distance, normal along the offset.
+    offset = points_end[ip] - foot1
+    length = np.linalg.norm(offset, axis=1)
+    edge = ~inside1 & (length < gap) & (length > 0)
+    hit |= edge
+    separation = np.where(edge, length, separation)
+    side_normal[edge] = offset[edge] / length[edge, None]
+    toi[edge] = 0.0
     # disagreeing projections on fast motion: exact CCD decides
     moved = np.linalg.norm(points_end[ip] - points_start[ip], axis=1) > gap
     doubtful = np.flatnonzero((inside0 != inside1) & moved & ~hit)
@@ -320,7 +331,7 @@ def _point_patch_pairs(
             uv[row] = found[1:]
             separation[row] = min(separation[row], 0.0)
     rows = np.flatnonzero(hit)
-    return rows, uv[rows], side[rows, None] * normal1[rows], separation[rows], toi[rows]
+    return rows, uv[rows], side_normal[rows], separation[rows], toi[rows]
 
 
 # -- detection ---------------------------------------------------------------------------------------
@@ -329,6 +340,8 @@ def simple_collider_contacts(
     gap: float, friction: float,
 ) -> Contacts:  # fmt: skip
     """Shell samples ``rows`` against a plane, sphere, cylinder or capsule (analytic distances)."""
+    if not len(rows):
+        return Contacts.empty()
     p0 = samples.positions(start, rows)
     p1 = samples.positions(end, rows)
     toi = collider.time_of_impact(p0, p1, dt, gap)
@@ -367,6 +380,8 @@ def point_contacts(
     The points move at ``velocity``; ``clearance`` is the radius around each point that counts as
     touching (a round needle tip).
     """
+    if not len(rows):
+        return Contacts.empty()
     q0 = points_start[rows]
     q1 = q0 + dt * velocity
     reach = gap + clearance
@@ -382,6 +397,14 @@ def point_contacts(
         point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
     # a round tip or a sphere's centre keeps every patch within reach: each patch's closest point
     index, weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    normal = -side_normal
+    if clearance > 0.0:
+        # round: the normal is radial, whatever side of the patch the centre is on
+        foot = evaluate_many(nets_end[patch], uv[:, 0], uv[:, 1])
+        offset = foot - q1[point]
+        length = np.linalg.norm(offset, axis=1)
+        radial = length > 1e-12 * clearance
+        normal[radial] = offset[radial] / length[radial, None]
     b_index, b_weights = _empty_b(len(point))
     # the shell point must stay on its side: the normal points from the collider point to the shell
     return Contacts(
@@ -390,7 +413,7 @@ def point_contacts(
         weights_a=weights,
         index_b=b_index,
         weights_b=b_weights,
-        normal=-side_normal,
+        normal=normal,
         obstacle_point=q1[point],
         obstacle_velocity=np.broadcast_to(velocity, (len(point), 3)).copy(),
         clearance=np.full(len(point), clearance),
@@ -410,6 +433,8 @@ def self_contacts(
     folded tighter than its own size, which the bending energy of these shells does not allow at the
     resolutions used; it is not detected.
     """
+    if not len(rows):
+        return Contacts.empty()
     p0 = samples.positions(start, rows)
     p1 = samples.positions(end, rows)
     ip, iq = overlapping_pairs(swept_boxes(nets_start, nets_end, gap), swept_boxes(p0, p1, 0.0))
@@ -472,7 +497,7 @@ class ContactDetector:
         self,
         grid: ParameterGrid,
         colliders: Sequence[ColliderEntry],
-        samples_per_side: int = 4,
+        samples_per_side: int = 2,
         self_collision: bool = False,
         self_friction: float = 0.0,
     ):

@@ -214,7 +214,19 @@ def _run_static(scene, model, solver, series, summary, comm) -> HermiteSurface:
 
 def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
     """Step a dynamic scene, writing frames and checkpoints; returns the final surface."""
-    stepper = TimeStepper(model, solver, prescribed_motions(scene))
+    contact = None
+    if scene.contact is not None:  # only scenes that list contact effects load the collision code
+        from bhem_hpc.collision.contact import ContactDetector
+        from bhem_hpc.contact import ContactHandler, ContactSettings
+
+        c = scene.contact
+        detector = ContactDetector(
+            scene.surface.grid, c.colliders, c.samples_per_side, c.self_collision, c.self_friction
+        )
+        settings = ContactSettings(c.push_out, c.samples_per_side, self_collision=c.self_collision)
+        contact = ContactHandler(model, solver, detector, settings)
+        summary["contact"] = {"colliders": len(c.colliders), "sample_points": detector.num_samples}
+    stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
     if checkpoint is not None:
         arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
         _restore(model, arrays)
@@ -251,7 +263,8 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
                     "assembly_s": assemble - assemble0,
                     "factorization_s": factor - factor0,
                     "linear_solve_s": solve - solve0,
-                    "collision_s": 0.0,
+                    "collision_s": report.collision_s,
+                    "contacts": report.contacts,
                     "output_s": output_s,
                     "energies": _energies(model),
                 }
@@ -263,6 +276,8 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
         raise RunError(str(exc)) from exc
     finally:
         progress(None, stepper)
+        if contact is not None:
+            contact.close()
     summary["time"] = stepper.time
     return surface
 

@@ -25,9 +25,10 @@ SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "toru
 CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "fix")
 MOTION_TYPES = ("linear", "rotation", "keyframes")
 CORNERS = ("min_min", "min_max", "max_min", "max_max")
-# Effects a scene may list; those of the collision module are recognized but not built yet.
+# Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = ("gravity", "pressure", "damping", "point_loads", "line_loads", "contact", "self_collision", "friction")
-NOT_YET_AVAILABLE = ("contact", "self_collision", "friction")
+CONTACT_EFFECTS = ("contact", "self_collision", "friction")
+COLLIDER_TYPES = ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
 
 
 class SceneError(ValueError):
@@ -79,6 +80,17 @@ class Effects:
 
 
 @dataclass(frozen=True)
+class SceneContact:
+    """Contact effects of a scene: colliders (built), settings and friction coefficients."""
+
+    colliders: tuple[Any, ...]  # bhem_hpc.collision.contact.ColliderEntry
+    push_out: float
+    samples_per_side: int
+    self_collision: bool
+    self_friction: float
+
+
+@dataclass(frozen=True)
 class Scene:
     path: Path
     surface: S.HermiteSurface
@@ -96,6 +108,7 @@ class Scene:
     output_every: int = 1
     output_density: int = 4
     raw: dict[str, Any] = field(default_factory=dict)
+    contact: SceneContact | None = None
 
 
 class _Table:
@@ -221,6 +234,7 @@ def load_scene(path: str | Path) -> Scene:
         output.done()
     constraints = _constraints(top, surface.grid, path)
     points = _point_constraints(top, surface, path)
+    contact = _contact(top, path, static)
     top.done()
     return Scene(
         path=path,
@@ -239,6 +253,7 @@ def load_scene(path: str | Path) -> Scene:
         output_every=every,
         output_density=density,
         raw=raw,
+        contact=contact,
     )
 
 
@@ -300,11 +315,8 @@ def _effects(t: _Table | None, path: Path) -> Effects:
     for key in t.data:
         if key not in EFFECTS:
             raise SceneError(f"{path}: unknown effect 'effects.{key}' (known: {EFFECTS})")
-    for key in NOT_YET_AVAILABLE:
-        if key in t.data:
-            raise SceneError(
-                f"{path}: effect 'effects.{key}' needs the collision module, which this version does not have"
-            )
+    for key in CONTACT_EFFECTS:
+        t.used.add(key)  # read by _contact
     gravity = t.get("gravity", "3 numbers", None)
     pressure = t.get("pressure", "a number", None)
     mass_damping = stiffness_damping = 0.0
@@ -522,3 +534,96 @@ def _check_motion_conflicts(constraints: list[SceneConstraint], path: Path) -> N
                             f"kind {S.KIND_NAMES[kind]}, component {comp}, and one of them moves it"
                         )
                     owner.setdefault(dof, (sc.key, moving))
+
+
+def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
+    """``effects.contact`` / ``self_collision`` / ``friction`` and the ``[[colliders]]`` list."""
+    effects = top.data.get("effects", {}) if isinstance(top.data.get("effects"), dict) else {}
+    listed = [k for k in CONTACT_EFFECTS if k in effects]
+    colliders_raw = top.get("colliders", "a list", [])
+    if not listed:
+        if colliders_raw:
+            raise SceneError(f"{path}: key 'colliders' is given but 'effects.contact' is not listed")
+        return None
+    if static:
+        raise SceneError(f"{path}: contact effects {listed} need a dynamic scene ('time.static' is true)")
+    if "contact" not in effects:
+        raise SceneError(f"{path}: effects {listed} need 'effects.contact' as well")
+    settings = effects["contact"]
+    if settings is True:
+        settings = {}
+    et = _Table(path, "effects.contact", settings)
+    push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
+    samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
+    et.done()
+    friction = effects.get("friction", 0.0)
+    if not (_is_number(friction) and friction >= 0):
+        raise SceneError(
+            f"{path}: key 'effects.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
+        )
+    self_collision = effects.get("self_collision", False)
+    self_friction = friction
+    if isinstance(self_collision, dict):
+        st = _Table(path, "effects.self_collision", self_collision)
+        self_friction = st.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0")
+        st.done()
+        self_collision = True
+    elif not isinstance(self_collision, bool):
+        raise SceneError(f"{path}: key 'effects.self_collision' must be a boolean or a table, got {self_collision!r}")
+    if not colliders_raw and not self_collision:
+        raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
+    from bhem_hpc.collision.colliders import ColliderError
+    from bhem_hpc.collision.contact import ColliderEntry
+
+    colliders = []
+    for i, item in enumerate(colliders_raw):
+        t = _Table(path, f"colliders[{i}]", item)
+        kind = t.get("type", "a string", check=lambda v: v in COLLIDER_TYPES, expected=f"one of {COLLIDER_TYPES}")
+        mu = t.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0 (Coulomb coefficient)")
+        try:
+            for collider in _colliders(t, kind, path):
+                colliders.append(ColliderEntry(collider, mu))
+        except ColliderError as exc:
+            raise SceneError(f"{path}: key '{t.name}': {exc}") from exc
+        t.done()
+    return SceneContact(tuple(colliders), push_out, samples, self_collision, self_friction)
+
+
+def _colliders(t: _Table, kind: str, path: Path) -> list[Any]:
+    from bhem_hpc.collision import colliders as C
+
+    velocity = t.get("velocity", "3 numbers", [0.0, 0.0, 0.0])
+    if kind == "plane":
+        return [C.Plane(t.get("point", "3 numbers"), t.get("normal", "3 numbers"), velocity)]
+    if kind == "sphere":
+        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+        return [C.Sphere(t.get("center", "3 numbers"), float(radius), velocity)]
+    if kind == "cylinder":
+        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+        return [C.Cylinder(t.get("point", "3 numbers"), t.get("axis", "3 numbers"), float(radius), velocity)]
+    if kind == "capsule":
+        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+        return [C.Capsule(t.get("a", "3 numbers"), t.get("b", "3 numbers"), float(radius), velocity)]
+    if kind == "needles":  # a grid of vertical needles standing on z = base
+        origin = np.asarray(t.get("origin", "3 numbers"), dtype=float)
+        spacing = t.get("spacing", "2 numbers")
+        count = t.get("count", "2 integers")
+        length = t.get("length", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+        out = []
+        for i in range(count[0]):
+            for j in range(count[1]):
+                foot = origin + np.array([i * spacing[0], j * spacing[1], 0.0])
+                out.append(C.Capsule(foot, foot + np.array([0.0, 0.0, length]), float(radius), velocity))
+        return out
+    file = t.get("file", "a string")
+    target = (path.parent / file).resolve()
+    if not target.exists():
+        t.fail("file", "an existing file (relative to the scene)", file)
+    scale = t.get("scale", "a number", 1.0, lambda v: v > 0, "a number > 0")
+    translate = np.asarray(t.get("translate", "3 numbers", [0.0, 0.0, 0.0]), dtype=float)
+    if kind == "mesh":
+        mesh = C.TriangleMesh.read(target, velocity)
+        return [C.TriangleMesh(mesh.vertices * scale + translate, mesh.triangles, mesh.velocity, str(target))]
+    model = C.PatchModel.load(target)
+    return [C.PatchModel(model.nets * scale + translate, np.asarray(velocity, dtype=float))]

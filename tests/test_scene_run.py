@@ -85,7 +85,35 @@ def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
         (lambda s: s.replace("poisson = 0.3", ""), r"missing key 'material.poisson'"),
         (lambda s: s.replace("poisson = 0.3", "poisson = 0.7"), r"material.poisson = 0.7 is invalid"),
         (lambda s: s.replace("damping = { mass = 0.5 }", "damping = {}"), r"'effects.damping' lists no coefficient"),
-        (lambda s: s.replace("damping = { mass = 0.5 }", "contact = true"), r"'effects.contact' needs the collision"),
+        (lambda s: s.replace("damping = { mass = 0.5 }", "contact = true"), r"no 'colliders' and no self-collision"),
+        (lambda s: s.replace("damping = { mass = 0.5 }", "friction = 0.3"), r"need 'effects.contact' as well"),
+        (
+            lambda s: s + "\n[[colliders]]\ntype = 'plane'\npoint = [0, 0, 0]\nnormal = [0, 0, 1]\n",
+            r"'colliders' is given but 'effects.contact' is not listed",
+        ),
+        (
+            lambda s: s.replace("damping = { mass = 0.5 }", "contact = true\nfriction = -0.1"),
+            r"key 'effects.friction' must be a number >= 0",
+        ),
+        (
+            lambda s: s.replace("damping = { mass = 0.5 }", "contact = true")
+            + "\n[[colliders]]\ntype = 'sphere'\ncenter = [0, 0, 0]\nradius = -1.0\n",
+            r"key 'colliders\[0\].radius' must be a number > 0",
+        ),
+        (
+            lambda s: s.replace("damping = { mass = 0.5 }", "contact = true")
+            + "\n[[colliders]]\ntype = 'mesh'\nfile = 'missing.obj'\n",
+            r"key 'colliders\[0\].file' must be an existing file",
+        ),
+        (
+            lambda s: s.replace("damping = { mass = 0.5 }", "contact = true")
+            + "\n[[colliders]]\ntype = 'plane'\npoint = [0, 0, 0]\nnormal = [0, 0, 0]\n",
+            r"key 'colliders\[0\]': plane normal is zero",
+        ),
+        (
+            lambda s: s.replace("damping = { mass = 0.5 }", "contact = { push_out = 0.0 }\nself_collision = true"),
+            r"key 'effects.contact.push_out' must be a number > 0",
+        ),
         (lambda s: s.replace("damping = { mass = 0.5 }", "wind = 3"), r"unknown effect 'effects.wind'"),
         (
             lambda s: s.replace('corners = ["max_min"]', 'corners = ["min_min"]'),

@@ -202,9 +202,13 @@ class Capsule:
 
         out = np.full(len(start), np.inf)
         everyone = np.arange(len(start))
-        out[distance(np.zeros(len(start)), everyone) <= gap] = 0.0
+        at_start = distance(np.zeros(len(start)), everyone)
+        out[at_start <= gap] = 0.0
+        # a point farther than its own and the capsule's travel cannot touch within the step
+        reach = np.linalg.norm(motion, axis=1) + dt * np.linalg.norm(self.velocity)
+        unreachable = at_start - reach > gap
         for k in range(1, samples + 1):
-            rows = np.flatnonzero(~np.isfinite(out))
+            rows = np.flatnonzero(~np.isfinite(out) & ~unreachable)
             if not len(rows):
                 break
             now = np.full(len(rows), k / samples)

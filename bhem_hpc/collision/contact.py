@@ -164,8 +164,10 @@ def overlapping_pairs(boxes_a: np.ndarray, boxes_b: np.ndarray, max_cells: int =
     boxes_b = np.asarray(boxes_b, dtype=float).reshape(-1, 2, 3)
     if not len(boxes_a) or not len(boxes_b):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    extent = np.concatenate([boxes_a[:, 1] - boxes_a[:, 0], boxes_b[:, 1] - boxes_b[:, 0]]).max(axis=1)
-    cell = max(float(np.median(extent)), 1e-12)
+    # cells about as large as the typical box of the coarser set: each box covers a few cells
+    extent_a = (boxes_a[:, 1] - boxes_a[:, 0]).max(axis=1)
+    extent_b = (boxes_b[:, 1] - boxes_b[:, 0]).max(axis=1)
+    cell = max(float(np.median(extent_a)), float(np.median(extent_b)), 1e-12)
     origin = np.minimum(boxes_a[:, 0].min(axis=0), boxes_b[:, 0].min(axis=0))
 
     def cells_of(boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -200,8 +202,8 @@ def overlapping_pairs(boxes_a: np.ndarray, boxes_b: np.ndarray, max_cells: int =
     extra_b = [np.tile(np.arange(len(boxes_b)), len(big_a)), np.tile(big_b, len(boxes_a))]
     ia = np.concatenate([ia, *extra_a])
     ib = np.concatenate([ib, *extra_b])
-    pairs = np.unique(np.stack([ib, ia], axis=1), axis=0)
-    ib, ia = pairs[:, 0], pairs[:, 1]
+    pairs = np.unique(ib * len(boxes_a) + ia)  # sorted by (ib, ia)
+    ib, ia = pairs // len(boxes_a), pairs % len(boxes_a)
     overlap = np.all((boxes_a[ia, 0] <= boxes_b[ib, 1]) & (boxes_b[ib, 0] <= boxes_a[ia, 1]), axis=1)
     return ia[overlap], ib[overlap]
 
@@ -336,14 +338,14 @@ def _point_patch_pairs(
 
 # -- detection ---------------------------------------------------------------------------------------
 def simple_collider_contacts(
-    collider, source: int, samples: ShellSamples, rows: np.ndarray, start: np.ndarray, end: np.ndarray, dt: float,
-    gap: float, friction: float,
+    collider, source: int, samples: ShellSamples, rows: np.ndarray, positions: tuple[np.ndarray, np.ndarray],
+    dt: float, gap: float, friction: float,
 ) -> Contacts:  # fmt: skip
-    """Shell samples ``rows`` against a plane, sphere, cylinder or capsule (analytic distances)."""
+    """Shell samples ``rows`` (at ``positions`` = start and end, ``(len(rows), 3)`` each) against a
+    plane, sphere, cylinder or capsule (analytic distances)."""
     if not len(rows):
         return Contacts.empty()
-    p0 = samples.positions(start, rows)
-    p1 = samples.positions(end, rows)
+    p0, p1 = positions
     toi = collider.time_of_impact(p0, p1, dt, gap)
     hit = np.flatnonzero(toi <= 1.0)
     if not len(hit):
@@ -528,13 +530,14 @@ class ContactDetector:
         nets_start = control_nets(grid, start.reshape(nodal_shape))
         nets_end = control_nets(grid, end.reshape(nodal_shape))
         shell_rows = np.arange(rank, len(self.samples.patch), size)
+        positions = (self.samples.positions(start, shell_rows), self.samples.positions(end, shell_rows))
         parts = []
         for source, entry in enumerate(self.colliders):
             collider = collider_at(entry.collider, time)
             if _is_simple(collider):
                 parts.append(
                     simple_collider_contacts(
-                        collider, 2 * source, self.samples, shell_rows, start, end, dt, gap, entry.friction
+                        collider, 2 * source, self.samples, shell_rows, positions, dt, gap, entry.friction
                     )
                 )
             points, clearance = collider_points(collider)

@@ -50,6 +50,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
     bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
     bench.add_argument("--steps", type=int, default=20, help="with --scene: steps to time")
+    bench.add_argument("--warmup", type=int, default=1, help="with --scene: untimed steps first (e.g. a fall)")
     bench.add_argument("--rays", action="store_true", help="ray-patch intersection: midpoint vs Newton-guided")
     return parser
 
@@ -153,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
                     )
                 )
         elif args.command == "bench" and args.scene is not None:
-            row = jobs.scene_benchmark(args.scene, args.steps, args.hessian, comm)
+            row = jobs.scene_benchmark(args.scene, args.steps, args.hessian, comm, args.warmup)
             if comm.rank == 0:
                 print(
                     json.dumps(row)
@@ -163,6 +164,13 @@ def main(argv: list[str] | None = None) -> int:
                         f"{row['steps']} steps: {row['step_s']:.3f} s/step, {row['newton_per_step']:.2f} Newton "
                         f"iterations/step (assembly {row['assembly_per_step_s']:.3f} s, factorization "
                         f"{row['factor_per_step_s']:.3f} s per step), {row['recoveries']} recoveries"
+                        + (
+                            f"; collision {row['collision_per_step_s']:.4f} s/step "
+                            f"({100 * row['collision_fraction']:.1f} % of the step, {row['sample_points']} sample "
+                            f"points, {row['contacts_per_step']:.0f} contacts/step)"
+                            if row["sample_points"]
+                            else ""
+                        )
                     )
                 )
         elif args.command == "bench":

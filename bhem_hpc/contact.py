@@ -168,6 +168,8 @@ class ContactHandler:
             active = Contacts.concatenate([active, found])
             report.rounds += 1
             t2 = time.perf_counter()
+            if round_ == 0:
+                self.projector.set_metric(self.jacobian, dt)
             dv, dx = self._respond(active, start, velocity, dt, gap)
             velocity = velocity + dv
             end = start + dt * velocity + dx
@@ -284,7 +286,9 @@ class ContactHandler:
 
     def _project(self, index, coefficients, current, targets) -> np.ndarray:
         projector = self.projector
-        projector.set_rows(index, coefficients, self.jacobian, self.model.time_step.value)
+        # a pair row (self-contact) has nonzero weights past the first point's 16
+        within_patches = not np.any(coefficients[:, 16:])
+        projector.set_rows(index, coefficients, within_patches)
         try:
             return projector.solve(current, targets)
         finally:

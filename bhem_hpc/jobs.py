@@ -173,12 +173,17 @@ def benchmark(
     return result
 
 
-def scene_benchmark(scene_path: Path, steps: int, hessian: str | None = None, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
-    """Time ``steps`` implicit Euler steps of a scene (after one warm-up step), without output."""
+def scene_benchmark(
+    scene_path: Path, steps: int, hessian: str | None = None, comm: MPI.Comm = MPI.COMM_WORLD, warmup: int = 1
+) -> dict:
+    """Time ``steps`` implicit Euler steps of a scene after ``warmup`` untimed steps, without output.
+
+    With contact effects the collision time (detection and response) is reported as well.
+    """
     import dataclasses
 
     from bhem_hpc.dynamics import TimeStepper
-    from bhem_hpc.run import SOLVER_PREFIX, build_model, prescribed_motions
+    from bhem_hpc.run import SOLVER_PREFIX, build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
 
     if steps < 1:
@@ -190,15 +195,21 @@ def scene_benchmark(scene_path: Path, steps: int, hessian: str | None = None, co
         scene = dataclasses.replace(scene, hessian=hessian)
     model = build_model(scene, comm)
     with ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options) as solver:
-        stepper = TimeStepper(model, solver, prescribed_motions(scene))
-        stepper.advance()
+        contact = build_contact(scene, model, solver)
+        stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
+        for _ in range(max(warmup, 1)):
+            stepper.advance()
         assemble0 = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
         factor0, _ = solver.linear_solver_seconds()
         reports = [stepper.advance() for _ in range(steps)]
         assemble = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s - assemble0
         factor = solver.linear_solver_seconds()[0] - factor0
         nnz = solver.matrix_nonzeros()
+        samples = contact.detector.num_samples if contact is not None else 0
+        if contact is not None:
+            contact.close()
     wall = float(np.mean([r.wall_s for r in reports]))
+    collision = float(np.mean([r.collision_s for r in reports]))
     return {
         "scene": str(scene_path),
         "hessian": scene.hessian,
@@ -211,6 +222,11 @@ def scene_benchmark(scene_path: Path, steps: int, hessian: str | None = None, co
         "assembly_per_step_s": assemble / steps,
         "factor_per_step_s": factor / steps,
         "recoveries": int(sum(r.regularized_retries + r.dt_halvings for r in reports)),
+        "collision_per_step_s": comm.allreduce(collision, op=MPI.MAX),
+        "collision_fraction": comm.allreduce(collision, op=MPI.MAX) / comm.allreduce(wall, op=MPI.MAX),
+        "contacts_per_step": float(np.mean([r.contacts for r in reports])),
+        "sample_points": samples,
+        "warmup": warmup,
     }
 
 

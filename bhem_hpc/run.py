@@ -99,6 +99,20 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
     )
 
 
+def build_contact(scene: Scene, model: ShellModel, solver: ShellSolver):
+    """The scene's :class:`~bhem_hpc.contact.ContactHandler`, or None: only scenes that list contact
+    effects load the collision code."""
+    if scene.contact is None:
+        return None
+    from bhem_hpc.collision.contact import ContactDetector
+    from bhem_hpc.contact import ContactHandler, ContactSettings
+
+    c = scene.contact
+    detector = ContactDetector(scene.surface.grid, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)
+    settings = ContactSettings(c.push_out, c.samples_per_side, self_collision=c.self_collision)
+    return ContactHandler(model, solver, detector, settings)
+
+
 def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:
     """The time-dependent nodal constraints of a scene."""
     motions = []
@@ -214,18 +228,12 @@ def _run_static(scene, model, solver, series, summary, comm) -> HermiteSurface:
 
 def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
     """Step a dynamic scene, writing frames and checkpoints; returns the final surface."""
-    contact = None
-    if scene.contact is not None:  # only scenes that list contact effects load the collision code
-        from bhem_hpc.collision.contact import ContactDetector
-        from bhem_hpc.contact import ContactHandler, ContactSettings
-
-        c = scene.contact
-        detector = ContactDetector(
-            scene.surface.grid, c.colliders, c.samples_per_side, c.self_collision, c.self_friction
-        )
-        settings = ContactSettings(c.push_out, c.samples_per_side, self_collision=c.self_collision)
-        contact = ContactHandler(model, solver, detector, settings)
-        summary["contact"] = {"colliders": len(c.colliders), "sample_points": detector.num_samples}
+    contact = build_contact(scene, model, solver)
+    if contact is not None:
+        summary["contact"] = {
+            "colliders": len(scene.contact.colliders),
+            "sample_points": contact.detector.num_samples,
+        }
     stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
     if checkpoint is not None:
         arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]

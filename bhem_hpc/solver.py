@@ -721,7 +721,10 @@ class ContactProjector:
             "mat_mumps_icntl_7": "2",
         }
         self.option_overrides = dict(options or {})
-        self.ksp: PETSc.KSP | None = None
+        self.weighted: PETSc.Mat | None = None
+        self.system: PETSc.Mat | None = None
+        self.ksp_within: PETSc.KSP | None = None
+        self.weighted_max = 1.0
         self.factorizations = 0
         self._rows = None
 
@@ -739,21 +742,46 @@ class ContactProjector:
             out[keys] = values / self.flat_scale[keys, None]
         return out
 
-    def set_rows(
-        self, index: np.ndarray, coefficients: np.ndarray, jacobian: PETSc.Mat | None = None, time_step: float = 1.0
-    ) -> None:
+    def set_metric(self, jacobian: PETSc.Mat | None = None, time_step: float = 1.0) -> None:
+        """Collective: the metric ``W`` of the following projections (once per time step).
+
+        Args:
+            jacobian: the time step's Jacobian ``J = M / dt^2 + K (+ damping)``: then
+                ``W = dt^2 J + S`` - a stiff shell answers an impulse or a push as a whole, a soft
+                one locally; without it ``W = M + S``. Both satisfy ``W t = M t`` for rigid
+                translations ``t``, so impulses conserve linear momentum.
+            time_step: the ``dt`` of ``jacobian``.
+        """
+        for obj in (self.weighted, self.system, self.ksp_within):
+            if obj is not None:
+                obj.destroy()
+        if jacobian is None:
+            self.weighted = self.mass.copy()
+        else:
+            self.weighted = PETSc.Mat()
+            jacobian.convert("aij", self.weighted)  # the serial LDL^T Jacobian is SBAIJ (one triangle)
+            self.weighted.scale(time_step**2)
+            self.weighted.axpy(1.0, self.smoothing, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        # one projection matrix (and KSP) per step with W's pattern: within the step only the
+        # numeric factorization is redone
+        self.system = self.weighted.duplicate(copy=True)
+        self.ksp_within = self._new_ksp()
+        diagonal = self.weighted.getDiagonal()
+        self.weighted_max = self.model.comm.allreduce(float(np.abs(diagonal.array_r).max(initial=0.0)), op=MPI.MAX)
+        diagonal.destroy()
+
+    def set_rows(self, index: np.ndarray, coefficients: np.ndarray, within_patches: bool = True) -> None:
         """Collective: assemble and factor ``G^T G + eps W`` for contact rows (replaces earlier rows).
 
         Args:
             index: ``(r, K)`` flat nodal entries of each row (identical on every rank).
             coefficients: ``(r, K, 3)`` each row's coefficients of those entries' components.
-            jacobian: the time step's Jacobian ``J = M / dt^2 + K (+ damping)``: the metric is then
-                ``W = dt^2 J + S`` - a stiff shell answers an impulse or a push as a whole, a
-                soft one locally; without it ``W = M + S``. Both satisfy ``W t = M t`` for rigid
-                translations ``t``, so impulses conserve linear momentum.
-            time_step: the ``dt`` of ``jacobian``.
+            within_patches: every row lies in one patch (no self-contact pair rows), so ``G^T G``
+                fits the Jacobian's pattern and the symbolic factorization is reused.
         """
         self.release()
+        if self.weighted is None:
+            self.set_metric()
         comm = self.model.comm
         rows = len(index)
         lo, hi = comm.rank * rows // comm.size, (comm.rank + 1) * rows // comm.size
@@ -763,40 +791,53 @@ class ContactProjector:
         g = PETSc.Mat().createAIJ(((hi - lo, rows), (self.n_local, self.n_global)), nnz=(width, width), comm=comm)
         g.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
         for i in range(hi - lo):
-            g.setValues([lo + i], cols[i].ravel().astype(PETSc.IntType), values[i].ravel(), PETSc.InsertMode.ADD)
+            nonzero = values[i].ravel() != 0.0  # the absent second point of a collider contact
+            g.setValues(
+                [lo + i],
+                cols[i].ravel()[nonzero].astype(PETSc.IntType),
+                values[i].ravel()[nonzero],
+                PETSc.InsertMode.ADD,
+            )
         g.assemble()
-        system = g.transposeMatMult(g)
-        gtg_max = comm.allreduce(float(np.abs(system.getDiagonal().array_r).max(initial=0.0)), op=MPI.MAX)
-        if jacobian is None:
-            weighted = self.mass.copy()
+        gtg = g.transposeMatMult(g)
+        diagonal = gtg.getDiagonal()
+        gtg_max = comm.allreduce(float(np.abs(diagonal.array_r).max(initial=0.0)), op=MPI.MAX)
+        diagonal.destroy()
+        eps = self.regularization * gtg_max / self.weighted_max if gtg_max > 0 else 1.0
+        if within_patches and comm.size == 1:
+            # One matrix object with W's pattern: only the numeric factorization is redone. (In
+            # parallel the off-process column maps of G^T G and W differ, the sum changes pattern
+            # and a reused PC would keep a stale symbolic factorization: a new one each time.)
+            system = self.system
+            self.weighted.copy(system, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            system.scale(eps)
+            system.axpy(1.0, gtg, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            gtg.destroy()
+            ksp = self.ksp_within
         else:
-            # dt^2 J = M + dt^2 K (+ damping): the implicit step's effective inertia, plus S
-            weighted = PETSc.Mat()
-            jacobian.convert("aij", weighted)  # the serial LDL^T Jacobian is SBAIJ (one triangle)
-            weighted.scale(time_step**2)
-            weighted.axpy(1.0, self.smoothing, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        metric_max = comm.allreduce(float(np.abs(weighted.getDiagonal().array_r).max(initial=0.0)), op=MPI.MAX)
-        eps = self.regularization * gtg_max / metric_max if gtg_max > 0 else 1.0
-        system.axpy(eps, weighted, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-        weighted.destroy()
+            system = gtg
+            system.axpy(eps, self.weighted, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            ksp = self._new_ksp()
         system.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         system.setOption(PETSc.Mat.Option.SPD, True)
         system.zeroRowsColumns(self.bc_rows, diag=1.0)
-        # A new KSP per row set: the pattern changes with the contacts, and a reused PC would keep
-        # the previous symbolic factorization.
-        self.ksp = PETSc.KSP().create(comm)
-        self.ksp.setOptionsPrefix(self.prefix)
+        ksp.setOperators(system)
+        ksp.setUp()
+        self.factorizations += 1
+        reused = within_patches and comm.size == 1
+        self._rows = (g, None if reused else system, (lo, hi), ksp, reused)
+
+    def _new_ksp(self) -> PETSc.KSP:
+        ksp = PETSc.KSP().create(self.model.comm)
+        ksp.setOptionsPrefix(self.prefix)
         opts = PETSc.Options()
         pushed = _push_options(self.prefix, self.options, self.option_overrides)
         try:
-            self.ksp.setFromOptions()
+            ksp.setFromOptions()
         finally:
             for name in pushed:
                 opts.delValue(name)
-        self.ksp.setOperators(system)
-        self.ksp.setUp()
-        self.factorizations += 1
-        self._rows = (g, system, (lo, hi))
+        return ksp
 
     def solve(self, current: np.ndarray | None, targets: np.ndarray) -> np.ndarray:
         """Collective: the correction ``d`` (flat parametric nodal ``(N, 3)``, on every rank).
@@ -807,8 +848,8 @@ class ContactProjector:
         """
         if self._rows is None:
             raise RuntimeError("ContactProjector.solve called before set_rows")
-        g, system, (lo, hi) = self._rows
-        rhs, solution, target = system.createVecRight(), system.createVecRight(), g.createVecLeft()
+        g, _, (lo, hi), ksp, _ = self._rows
+        rhs, solution, target = g.createVecRight(), g.createVecRight(), g.createVecLeft()
         try:
             target.array[:] = targets[lo:hi]
             if current is not None:
@@ -820,8 +861,8 @@ class ContactProjector:
                 gu.destroy()
             g.multTranspose(target, rhs)
             rhs.array[self.bc_local] = 0.0
-            self.ksp.solve(rhs, solution)
-            reason = self.ksp.getConvergedReason()
+            ksp.solve(rhs, solution)
+            reason = ksp.getConvergedReason()
             if reason < 0:
                 raise SolverError(
                     f"contact projection '{self.prefix}' failed: KSP {KSP_REASONS.get(reason, reason)} "
@@ -835,13 +876,12 @@ class ContactProjector:
     def release(self) -> None:
         """Free the current rows' matrices."""
         if getattr(self, "_rows", None) is not None:
-            g, system, _ = self._rows
+            g, system, _, ksp, reused = self._rows
             g.destroy()
-            system.destroy()
-        if getattr(self, "ksp", None) is not None:
-            self.ksp.destroy()
+            if not reused:
+                system.destroy()
+                ksp.destroy()
         self._rows = None
-        self.ksp = None
 
     def close(self) -> None:
         """Destroy the PETSc objects (idempotent)."""
@@ -849,8 +889,9 @@ class ContactProjector:
             return
         self._closed = True
         self.release()
-        self.mass.destroy()
-        self.smoothing.destroy()
+        for obj in (self.mass, self.smoothing, self.weighted, self.system, self.ksp_within):
+            if obj is not None:
+                obj.destroy()
 
     def __del__(self) -> None:
         try:

@@ -117,7 +117,10 @@ def test_cloth_dropped_on_a_sphere_never_penetrates(comm):
         top = model.state_surface().evaluate(np.array(0.2), np.array(0.2)).x
         handler.close()
     assert max(r.contacts for r in stepper.history) > 50  # it wraps the ball
-    assert min(lowest) >= 0.0
+    # samples stay at the push-out distance; between samples (spacing s = h / 2) the ball can rise
+    # by at most its sagitta s^2 / 8R
+    spacing = 0.4 / 8 / 2
+    assert min(lowest) >= -(spacing**2) / (8 * 0.1)
     assert top[2] == pytest.approx(ContactSettings().push_out, abs=2e-4)  # rests on the top
 
 
@@ -140,11 +143,12 @@ def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng):
         index = np.concatenate([a[0], b[0]], axis=1)
         coefficients = np.concatenate([a[1], -b[1]], axis=1)[:, :, None] * normal[:, None, :]
         velocity = rng.normal(size=(grid.num_nodes * 4, 3))
-        projector.set_rows(index, coefficients, solver.jacobian, 0.01)
+        projector.set_metric(solver.jacobian, 0.01)
+        projector.set_rows(index, coefficients, within_patches=False)
         change = projector.solve(velocity, np.zeros(count))
         new = velocity + change
         one_sided = a[1][:, :, None] * normal[:, None, :]
-        projector.set_rows(a[0], one_sided, solver.jacobian, 0.01)
+        projector.set_rows(a[0], one_sided)
         change_one_sided = projector.solve(velocity, np.zeros(count))
         rows = np.einsum("kjc,kjc->k", coefficients, new[index])
         momentum = []

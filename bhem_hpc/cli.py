@@ -166,8 +166,9 @@ def main(argv: list[str] | None = None) -> int:
                         f"{row['factor_per_step_s']:.3f} s per step), {row['recoveries']} recoveries"
                         + (
                             f"; collision {row['collision_per_step_s']:.4f} s/step "
-                            f"({100 * row['collision_fraction']:.1f} % of the step, {row['sample_points']} sample "
-                            f"points, {row['contacts_per_step']:.0f} contacts/step)"
+                            f"({100 * row['collision_fraction']:.1f} % of the step; detection "
+                            f"{row['detection_per_step_s']:.4f} s, {row['projections_per_step']:.1f} projections; "
+                            f"{row['sample_points']} sample points, {row['contacts_per_step']:.0f} contacts/step)"
                             if row["sample_points"]
                             else ""
                         )

@@ -75,6 +75,7 @@ class ContactReport:
     bound_reached: bool = False
     detection_s: float = 0.0
     response_s: float = 0.0
+    projections: int = 0
     impulse_rows: list[int] = field(default_factory=list)
 
 
@@ -147,6 +148,7 @@ class ContactHandler:
         model = self.model
         settings = self.settings
         report = ContactReport()
+        factorizations_before = self.projector.factorizations
         t0 = time.perf_counter()
         start = self._flat(x_start)
         end = self._flat(model.x.x.array)
@@ -187,6 +189,7 @@ class ContactHandler:
                     settings.max_rounds,
                 )
         report.contacts = len(active)
+        report.projections = self.projector.factorizations - factorizations_before
         model.velocity.x.array[:] = (model.x.x.array - x_start) / dt
         if len(active):
             report.min_separation = float((active.separation(end) - active.clearance).min())
@@ -217,7 +220,11 @@ class ContactHandler:
         return dv, dx
 
     def _inequalities(
-        self, index: np.ndarray, coefficients: np.ndarray, current: np.ndarray | None, lower: np.ndarray
+        self,
+        index: np.ndarray,
+        coefficients: np.ndarray,
+        current: np.ndarray | None,
+        lower: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The smallest correction ``d`` with ``rows . (current + d) >= lower``, pushing only.
 
@@ -233,7 +240,10 @@ class ContactHandler:
         value = np.einsum("kjc,kjc->k", coefficients, base[index])
         # rows count as met within round-off of the largest needed change
         tolerance = 1e-9 * max(float(np.abs(lower - value).max(initial=0.0)), 1e-300)
-        active = np.flatnonzero(value < lower - tolerance)
+        needed = value < lower - tolerance
+        if not np.any(needed):
+            return np.zeros_like(base), np.zeros(0, np.int64)
+        active = np.flatnonzero(needed)
         correction = np.zeros_like(base)
         history: list[frozenset] = []
         for _ in range(self.settings.max_active_set_iterations):

@@ -46,6 +46,8 @@ class StepReport:
     contact_rounds: int = 0
     earliest_toi: float = float("inf")
     collision_s: float = 0.0
+    detection_s: float = 0.0
+    projections: int = 0
 
 
 @dataclass
@@ -138,6 +140,8 @@ class TimeStepper:
         report.contact_rounds += contact.rounds
         report.earliest_toi = min(report.earliest_toi, contact.earliest_toi)
         report.collision_s += contact.detection_s + contact.response_s
+        report.detection_s += contact.detection_s
+        report.projections += contact.projections
 
 
 @dataclass(frozen=True)

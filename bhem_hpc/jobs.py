@@ -223,6 +223,8 @@ def scene_benchmark(
         "factor_per_step_s": factor / steps,
         "recoveries": int(sum(r.regularized_retries + r.dt_halvings for r in reports)),
         "collision_per_step_s": comm.allreduce(collision, op=MPI.MAX),
+        "detection_per_step_s": comm.allreduce(float(np.mean([r.detection_s for r in reports])), op=MPI.MAX),
+        "projections_per_step": float(np.mean([r.projections for r in reports])),
         "collision_fraction": comm.allreduce(collision, op=MPI.MAX) / comm.allreduce(wall, op=MPI.MAX),
         "contacts_per_step": float(np.mean([r.contacts for r in reports])),
         "sample_points": samples,

@@ -305,9 +305,12 @@ def _point_patch_pairs(
     offset = points_end[ip] - foot1
     length = np.linalg.norm(offset, axis=1)
     edge = ~inside1 & (length < gap) & (length > 0)
+    # a point that ended on the other side of the patch than it started has crossed it there
+    crossed = np.einsum("kc,kc->k", offset, side_normal) < 0
     hit |= edge
-    separation = np.where(edge, length, separation)
-    side_normal[edge] = offset[edge] / length[edge, None]
+    separation = np.where(edge, np.where(crossed, -length, length), separation)
+    rows = edge & ~crossed
+    side_normal[rows] = offset[rows] / length[rows, None]
     toi[edge] = 0.0
     # disagreeing projections on fast motion: exact CCD decides
     moved = np.linalg.norm(points_end[ip] - points_start[ip], axis=1) > gap

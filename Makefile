@@ -9,7 +9,7 @@ RUFF_VERSION := 0.8.4
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
 
-.PHONY: setup demo test test-serial test-mpi lint bench study docs clean
+.PHONY: setup demo test test-serial test-mpi lint bench stress study docs clean
 
 setup: $(VENV)/.installed
 
@@ -39,6 +39,11 @@ test-mpi: setup
 bench: setup
 	$(VENV)/bin/bhem-hpc bench --patches 10 20 30
 	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc bench --patches 10 20 30
+
+# Long stability cases (720-degree twist, cylinder buckling, 10,000 steps) behind the `stress` marker.
+stress: setup
+	$(PY) -m pytest -m stress
+	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no
 
 # Long studies (issue 5) run behind the `study` marker; exit status 5 means none are collected yet.
 study: setup

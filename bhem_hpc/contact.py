@@ -32,7 +32,7 @@ import numpy as np
 
 from bhem_hpc.collision.contact import ContactDetector, Contacts
 from bhem_hpc.shell import ShellModel
-from bhem_hpc.solver import ContactProjector, ShellSolver
+from bhem_hpc.solver import ContactProjector, ShellSolver, SolverError
 from bhem_hpc.surface import HermiteSurface
 
 log = logging.getLogger(__name__)
@@ -298,11 +298,26 @@ class ContactHandler:
         projector = self.projector
         # a pair row (self-contact) has nonzero weights past the first point's 16
         within_patches = not np.any(coefficients[:, 16:])
-        projector.set_rows(index, coefficients, within_patches)
+        base = projector.regularization
         try:
-            return projector.solve(current, targets)
+            for attempt in range(3):
+                # a factorization that fails (nearly dependent rows, round-off in the LDL^T pivots)
+                # is retried with a 1000x larger regularization of the rows' least squares
+                projector.regularization = base * 1e3**attempt
+                projector.set_rows(index, coefficients, within_patches)
+                try:
+                    return projector.solve(current, targets)
+                except SolverError:
+                    if attempt == 2:
+                        raise
+                    log.warning(
+                        "contact projection failed; retrying with regularization %.0e", base * 1e3 ** (attempt + 1)
+                    )
+                finally:
+                    projector.release()
         finally:
-            projector.release()
+            projector.regularization = base
+        raise AssertionError("unreachable")
 
     def close(self) -> None:
         self.projector.close()

@@ -716,9 +716,12 @@ class ContactProjector:
         self.n_local, self.n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.options = {
             "ksp_type": "preonly",
-            "pc_type": "cholesky",
+            # parallel MUMPS LDL^T of the pair rows' pattern failed with INFOG(1) = -9 here: LU there
+            "pc_type": "cholesky" if model.comm.size == 1 else "lu",
             "pc_factor_mat_solver_type": "mumps",
             "mat_mumps_icntl_7": "2",
+            # pair rows couple distant patches; MUMPS' workspace estimate can fall short (INFOG(1) = -9)
+            "mat_mumps_icntl_14": "200",
         }
         self.option_overrides = dict(options or {})
         self.weighted: PETSc.Mat | None = None
@@ -864,8 +867,13 @@ class ContactProjector:
             ksp.solve(rhs, solution)
             reason = ksp.getConvergedReason()
             if reason < 0:
+                mumps = ""
+                try:
+                    mumps = f", MUMPS INFOG(1) = {ksp.getPC().getFactorMatrix().getMumpsInfog(1)}"
+                except PETSc.Error:
+                    pass
                 raise SolverError(
-                    f"contact projection '{self.prefix}' failed: KSP {KSP_REASONS.get(reason, reason)} "
+                    f"contact projection '{self.prefix}' failed: KSP {KSP_REASONS.get(reason, reason)}{mumps} "
                     f"({g.getSize()[0]} contact rows)"
                 )
             return self._to_flat(solution)

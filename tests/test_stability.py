@@ -1,0 +1,153 @@
+"""Stability suite (issue 5): hard cases must stay finite, converge and not gain energy.
+
+Every case asserts: no NaN/Inf, every step converged (after at most the recoveries it records),
+total energy (kinetic + elastic + gravity) never grows by more than a stated tolerance when no
+external work is done, no penetration when contact is on. The suite runs serially and under
+``mpirun -n 2`` (the test command runs both); the fast cases are in the default suite, the long
+ones behind the ``stress`` marker (``make stress``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bhem_hpc import bcs
+from bhem_hpc import surface as S
+from bhem_hpc.dynamics import PrescribedMotion, TimeStepper
+from bhem_hpc.material import Material
+from bhem_hpc.shell import Dynamics, Loads, ShellModel
+from bhem_hpc.solver import ShellSolver
+
+G = 9.81
+
+
+def total_energy(model: ShellModel) -> float:
+    e = model.energies()
+    return e["kinetic"] + e["membrane"] + e["bending"] + e.get("gravity", 0.0)
+
+
+def run_case(model: ShellModel, steps: int, motions=(), energy_tolerance: float | None = 1e-9, contact=None):
+    """Step ``model``; check finiteness, convergence and (optionally) energy never growing."""
+    with ShellSolver(model, prefix="stress_") as solver:
+        handler = contact(model, solver) if contact is not None else None
+        stepper = TimeStepper(model, solver, motions, contact=handler)
+        energies = [total_energy(model)]
+        for _ in range(steps):
+            report = stepper.advance()  # raises StepFailure if a step cannot be completed
+            assert np.all(np.isfinite(model.x.x.array)), f"NaN/Inf at step {report.step}"
+            assert np.all(np.isfinite(model.velocity.x.array)), f"NaN/Inf velocity at step {report.step}"
+            energies.append(total_energy(model))
+        if handler is not None:
+            handler.close()
+    energies = np.array(energies)
+    scale = max(np.abs(energies).max(), 1e-300)
+    if energy_tolerance is not None:
+        growth = np.diff(energies).max()
+        assert growth <= energy_tolerance * scale, f"energy grew by {growth:.3e} (scale {scale:.3e})"
+    return stepper, energies
+
+
+def strip(material: Material, patches=(12, 2), size=(0.3, 0.05), dt=0.01, damping=0.0, comm=None, **kw):
+    rest = S.flat_rectangle(size[0], size[1], *patches)
+    clamp = bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))
+    return ShellModel(
+        rest, material, Loads(gravity=(0.0, 0.0, -G)), [clamp], comm=comm, dynamics=Dynamics(dt, damping), **kw
+    )
+
+
+def test_stiff_thin_metal_with_a_large_time_step(comm):
+    """Steel-like sheet (Y 1e9, h 1 mm) swinging down with dt = 20 ms: ~1000x the explicit limit."""
+    model = strip(Material(1e9, 0.3, 1e-3, 7800.0), dt=0.02, comm=comm)
+    stepper, energies = run_case(model, 25)
+    assert sum(r.dt_halvings for r in stepper.history) <= 25
+
+
+def test_incompressible_poisson_ratio(comm):
+    model = strip(Material(1e5, 0.5, 1e-3, 500.0), dt=0.01, comm=comm)
+    run_case(model, 25)
+
+
+def test_near_zero_bending_stiffness(comm):
+    """h = 1e-5 m: bending stiffness 1e-12 of the membrane's, the cloth hangs in folds."""
+    model = strip(Material(1e6, 0.3, 1e-5, 1000.0), patches=(10, 3), dt=0.005, damping=1.0, comm=comm)
+    run_case(model, 30)
+
+
+def test_random_large_initial_velocities(comm, rng):
+    """Every node starts with a random velocity of up to 5 m/s (seeded); undamped, no gravity."""
+    rest = S.flat_rectangle(0.3, 0.3, 4, 4)
+    model = ShellModel(rest, Material(1e5, 0.3, 1e-3, 200.0), comm=comm, dynamics=Dynamics(0.002))
+    velocity = np.zeros_like(rest.nodal)
+    velocity[..., 0, :] = rng.uniform(-5.0, 5.0, size=velocity[..., 0, :].shape)
+    velocity = comm.bcast(velocity, root=0)
+    model.velocity.x.array[:] = model.discretization.surface_to_open(S.HermiteSurface(rest.grid, velocity))
+    # implicit Euler dissipates; the energy may only fall (round-off of the Newton tolerance allowed)
+    stepper, energies = run_case(model, 30, energy_tolerance=1e-8)
+    assert energies[-1] < energies[0]
+
+
+def test_contact_drop_on_a_plane_stays_stable(comm):
+    from bhem_hpc.collision import Plane
+    from bhem_hpc.collision.contact import ColliderEntry, ContactDetector
+    from bhem_hpc.contact import ContactHandler
+
+    rest = S.flat_rectangle(0.3, 0.3, 5, 5).transformed(np.eye(3), np.array([0.0, 0.0, 0.01]))
+    model = ShellModel(
+        rest, Material(1e5, 0.3, 1e-3, 200.0), Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005)
+    )
+    plane = Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+
+    def contact(model, solver):
+        return ContactHandler(model, solver, ContactDetector(rest.grid, [ColliderEntry(plane, 0.3)]))
+
+    # contact removes energy (zero restitution); the push-out may add at most m g * push-out
+    stepper, energies = run_case(model, 40, energy_tolerance=1e-3, contact=contact)
+    assert model.state_surface().nodal[..., 0, 2].min() >= 0.0
+
+
+@pytest.mark.stress
+def test_sheet_twisted_through_720_degrees(comm):
+    """The centre node's first derivatives rotate 4 pi about z in 2 s (paper Fig. 18 scene)."""
+    rest = S.flat_rectangle(0.6, 0.6, 12, 12, (-0.3, -0.3, 0.0))
+    centre = np.array([[6, 6]])
+    held = bcs.NodalConstraint(centre, (0, 1, 2), (0, 1, 2), None)
+    model = ShellModel(
+        rest,
+        Material(1e4, 0.3, 1e-3, 200.0),
+        Loads(gravity=(0.0, 0.0, -G)),
+        [held],
+        comm=comm,
+        dynamics=Dynamics(0.005, mass_damping=20.0),
+    )
+    initial = rest.nodal[6, 6, :3]
+
+    def values(t: float) -> np.ndarray:
+        a = 2 * np.pi * t  # 720 degrees in 2 s
+        rotation = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        return (initial @ rotation.T)[None]
+
+    run_case(model, 400, motions=[PrescribedMotion(held, values)], energy_tolerance=None)
+
+
+@pytest.mark.stress
+def test_long_coarse_damped_run(comm):
+    """10,000 steps of a coarse damped strip: nothing drifts, the energy only falls."""
+    model = strip(Material(1e5, 0.3, 1e-3, 200.0), patches=(4, 1), dt=0.01, damping=0.5, comm=comm)
+    stepper, energies = run_case(model, 10_000)
+    assert np.ptp(energies[-100:]) < 1e-9 * np.abs(energies).max()  # at rest
+
+
+@pytest.mark.stress
+def test_cylinder_buckling_under_axial_compression(comm):
+    """A thin cylinder shortened past its buckling load (bifurcation) keeps converging."""
+    rest = S.cylinder(0.05, 0.15, 12, 16)
+    bottom = bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))
+    top_nodes = bcs.edge_nodes(rest.grid, "xi1_max")
+    top = bcs.NodalConstraint(top_nodes, (0,), (2,), None)
+    model = ShellModel(
+        rest, Material(1e9, 0.3, 5e-4, 1400.0), constraints=[bottom, top], comm=comm, dynamics=Dynamics(1e-4, 5.0)
+    )
+    z0 = rest.nodal[top_nodes[:, 0], top_nodes[:, 1], 0, 2][:, None, None]
+    motion = PrescribedMotion(top, lambda t: z0 - 0.5 * t)  # 0.5 m/s down
+    run_case(model, 300, motions=[motion], energy_tolerance=None)

@@ -49,8 +49,12 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--repeats", type=int, default=3)
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
     bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
-    bench.add_argument("--steps", type=int, default=20, help="with --scene: steps to time")
+    bench.add_argument("--steps", type=int, default=None, help="steps to time (--scene: 20, --paper: 5)")
     bench.add_argument("--warmup", type=int, default=1, help="with --scene: untimed steps first (e.g. a fall)")
+    bench.add_argument("--samples", type=int, default=None, help="with --scene: contact samples per patch side")
+    bench.add_argument(
+        "--paper", type=Path, default=None, help="benchmark the jobs of the paper's Table 2, write this Markdown file"
+    )
     bench.add_argument("--rays", action="store_true", help="ray-patch intersection: midpoint vs Newton-guided")
     return parser
 
@@ -153,8 +157,12 @@ def main(argv: list[str] | None = None) -> int:
                         f"({row['speedup']:.1f}x), max |tau difference| {row['max_tau_difference']:.1e}"
                     )
                 )
+        elif args.command == "bench" and args.paper is not None:
+            jobs.paper_comparison(Path(__file__).resolve().parents[1] / "jobs", args.paper, args.steps or 5, comm)
+            if comm.rank == 0:
+                print(args.paper.read_text())
         elif args.command == "bench" and args.scene is not None:
-            row = jobs.scene_benchmark(args.scene, args.steps, args.hessian, comm, args.warmup)
+            row = jobs.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples)
             if comm.rank == 0:
                 print(
                     json.dumps(row)

@@ -108,7 +108,26 @@ class SolveReport:
     wall_s: float = 0.0
 
 
-class ShellSolver:
+class _PetscOwner:
+    """Owns PETSc objects: an explicit ``close()`` (idempotent), a context manager, a guarded ``__del__``."""
+
+    def close(self) -> None:  # pragma: no cover - every subclass defines it
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn PETSc down already
+            pass
+
+
+class ShellSolver(_PetscOwner):
     """Newton solver for a :class:`ShellModel`: static equilibria (:meth:`solve`, with load stepping)
     and single time steps (:meth:`solve_step`, driven by :class:`~bhem_hpc.dynamics.TimeStepper`).
 
@@ -627,20 +646,8 @@ class ShellSolver:
         for obj in objects:
             obj.destroy()
 
-    def __enter__(self) -> ShellSolver:
-        return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn PETSc down already
-            pass
-
-
-class ContactProjector:
+class ContactProjector(_PetscOwner):
     """Least-squares projection of velocities and positions onto linear contact constraints (§6.2).
 
     Each contact row ``g`` is a linear function of the nodal data (a point's normal or tangential
@@ -900,9 +907,3 @@ class ContactProjector:
         for obj in (self.mass, self.smoothing, self.weighted, self.system, self.ksp_within):
             if obj is not None:
                 obj.destroy()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn PETSc down already
-            pass

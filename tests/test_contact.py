@@ -67,28 +67,34 @@ def test_sheet_on_an_incline_sticks_below_atan_mu_and_slides_above(comm, theta, 
     assert lift < 1e-9  # it neither sinks into nor lifts off the plane
 
 
-@pytest.mark.parametrize("samples, tolerance", [(2, 1e-3), (3, 3e-4)])
-def test_sheet_dropped_on_a_plane_never_penetrates_and_rests_at_the_push_out_distance(comm, samples, tolerance):
-    """Corner first onto a plane tilted by 10 degrees. Contacts hold at the samples; between them
-    the bending impact wave dips by less than ``tolerance`` (it shrinks with the sample spacing)."""
-    rest = S.flat_rectangle(0.4, 0.4, 6, 6).transformed(np.eye(3), np.array([-0.2, -0.2, 0.02]))
-    rotation, normal = _incline(np.radians(10.0))  # the sheet hits the tilted plane corner first
+def _drop(comm, material, patches, collider, samples=2, steps=60):
+    """A 0.4 m sheet released 2 cm above z = 0 onto ``collider``: the stepper, the lowest signed
+    distance of (8 * patches + 1)^2 dense points after each step, and the final surface."""
+    rest = S.flat_rectangle(0.4, 0.4, patches, patches).transformed(np.eye(3), np.array([-0.2, -0.2, 0.02]))
     model = ShellModel(
-        rest, SHEET, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005, mass_damping=1.0)
+        rest, material, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005, mass_damping=1.0)
     )
-    plane = Plane([0.0, 0.0, -0.03], normal)
-    detector = ContactDetector(rest.grid, [ColliderEntry(plane, 0.0)], samples_per_side=samples)
-    u = np.linspace(0.0, 0.4, 49)
+    detector = ContactDetector(rest.grid, [ColliderEntry(collider, 0.0)], samples_per_side=samples)
+    u = np.linspace(0.0, 0.4, 8 * patches + 1)
     dense = np.meshgrid(u, u, indexing="ij")
     lowest = []
     with ShellSolver(model, prefix="drop_") as solver:
         handler = ContactHandler(model, solver, detector)
         stepper = TimeStepper(model, solver, contact=handler)
-        for _ in range(60):
+        for _ in range(steps):
             stepper.advance()
-            distance, _ = plane.signed_distance(model.state_surface().evaluate(*dense).x.reshape(-1, 3))
+            distance, _ = collider.signed_distance(model.state_surface().evaluate(*dense).x.reshape(-1, 3))
             lowest.append(distance.min())
         handler.close()
+    return stepper, lowest, model.state_surface()
+
+
+@pytest.mark.parametrize("samples, tolerance", [(2, 1e-3), (3, 3e-4)])
+def test_sheet_dropped_on_a_plane_never_penetrates_and_rests_at_the_push_out_distance(comm, samples, tolerance):
+    """Corner first onto a plane tilted by 10 degrees. Contacts hold at the samples; between them
+    the bending impact wave dips by less than ``tolerance`` (it shrinks with the sample spacing)."""
+    _, normal = _incline(np.radians(10.0))  # the sheet hits the tilted plane corner first
+    stepper, lowest, _ = _drop(comm, SHEET, 6, Plane([0.0, 0.0, -0.03], normal), samples)
     contacts = [r.contacts for r in stepper.history]
     assert contacts[0] == 0 and contacts[-1] > 0  # it fell, then touched
     assert min(lowest) >= -tolerance  # dense samples, not only the contact samples
@@ -98,29 +104,13 @@ def test_sheet_dropped_on_a_plane_never_penetrates_and_rests_at_the_push_out_dis
 def test_cloth_dropped_on_a_sphere_never_penetrates(comm):
     """A soft 0.4 m cloth (8 x 8 patches) falls on a ball of radius 0.1 m and drapes over it."""
     cloth = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
-    rest = S.flat_rectangle(0.4, 0.4, 8, 8).transformed(np.eye(3), np.array([-0.2, -0.2, 0.02]))
-    model = ShellModel(
-        rest, cloth, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005, mass_damping=1.0)
-    )
-    ball = Sphere([0.0, 0.0, -0.1], 0.1)
-    detector = ContactDetector(rest.grid, [ColliderEntry(ball, 0.0)])
-    u = np.linspace(0.0, 0.4, 65)
-    dense = np.meshgrid(u, u, indexing="ij")
-    lowest = []
-    with ShellSolver(model, prefix="ball_") as solver:
-        handler = ContactHandler(model, solver, detector)
-        stepper = TimeStepper(model, solver, contact=handler)
-        for _ in range(60):
-            stepper.advance()
-            distance, _ = ball.signed_distance(model.state_surface().evaluate(*dense).x.reshape(-1, 3))
-            lowest.append(distance.min())
-        top = model.state_surface().evaluate(np.array(0.2), np.array(0.2)).x
-        handler.close()
+    stepper, lowest, final = _drop(comm, cloth, 8, Sphere([0.0, 0.0, -0.1], 0.1))
     assert max(r.contacts for r in stepper.history) > 50  # it wraps the ball
     # samples stay at the push-out distance; between samples (spacing s = h / 2) the ball can rise
     # by at most its sagitta s^2 / 8R
     spacing = 0.4 / 8 / 2
     assert min(lowest) >= -(spacing**2) / (8 * 0.1)
+    top = final.evaluate(np.array(0.2), np.array(0.2)).x
     assert top[2] == pytest.approx(ContactSettings().push_out, abs=2e-4)  # rests on the top
 
 

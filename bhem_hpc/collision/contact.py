@@ -340,6 +340,26 @@ def _point_patch_pairs(
 
 
 # -- detection ---------------------------------------------------------------------------------------
+def _sample_contacts(
+    source: int, samples: ShellSamples, sample: np.ndarray, second: tuple[np.ndarray, np.ndarray],
+    normal: np.ndarray, obstacle_point: np.ndarray, obstacle_velocity: np.ndarray, toi: np.ndarray, friction: float,
+) -> Contacts:  # fmt: skip
+    """Contacts whose point ``a`` is the shell sample ``sample``; ``second`` = (index, weights) of ``b``."""
+    return Contacts(
+        key=source * 2**40 + sample,
+        index_a=samples.index[sample],
+        weights_a=samples.weights[sample],
+        index_b=second[0],
+        weights_b=second[1],
+        normal=normal,
+        obstacle_point=obstacle_point,
+        obstacle_velocity=obstacle_velocity,
+        clearance=np.zeros(len(sample)),
+        toi=toi,
+        friction=np.full(len(sample), friction),
+    )
+
+
 def simple_collider_contacts(
     collider, source: int, samples: ShellSamples, rows: np.ndarray, positions: tuple[np.ndarray, np.ndarray],
     dt: float, gap: float, friction: float,
@@ -360,20 +380,10 @@ def simple_collider_contacts(
     _, normal = collider.signed_distance(contact_point - (toi[hit] * dt)[:, None] * collider.velocity, 0.0)
     foot = p1[hit] - d1[:, None] * normal1
     b_index, b_weights = _empty_b(len(hit))
-    sample = rows[hit]
-    return Contacts(
-        key=source * 2**40 + sample,
-        index_a=samples.index[sample],
-        weights_a=samples.weights[sample],
-        index_b=b_index,
-        weights_b=b_weights,
-        normal=normal,
-        obstacle_point=foot,
-        obstacle_velocity=np.broadcast_to(collider.velocity, (len(hit), 3)).copy(),
-        clearance=np.zeros(len(hit)),
-        toi=toi[hit],
-        friction=np.full(len(hit), friction),
-    )
+    return _sample_contacts(
+        source, samples, rows[hit], (b_index, b_weights), normal, foot,
+        np.broadcast_to(collider.velocity, (len(hit), 3)).copy(), toi[hit], friction,
+    )  # fmt: skip
 
 
 def point_contacts(
@@ -460,19 +470,9 @@ def self_contacts(
     first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
     point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
     b_index, b_weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
-    sample = rows[point]
-    return Contacts(
-        key=source * 2**40 + sample,
-        index_a=samples.index[sample],
-        weights_a=samples.weights[sample],
-        index_b=b_index,
-        weights_b=b_weights,
-        normal=side_normal,
-        obstacle_point=np.zeros((len(sample), 3)),
-        obstacle_velocity=np.zeros((len(sample), 3)),
-        clearance=np.zeros(len(sample)),
-        toi=toi,
-        friction=np.full(len(sample), friction),
+    zeros = np.zeros((len(point), 3))
+    return _sample_contacts(
+        source, samples, rows[point], (b_index, b_weights), side_normal, zeros, zeros, toi, friction
     )
 
 

@@ -172,11 +172,11 @@ class ContactHandler:
             t2 = time.perf_counter()
             if round_ == 0:
                 self.projector.set_metric(self.jacobian, dt)
-            dv, dx = self._respond(active, start, velocity, dt, gap)
+            dv, dx = self._respond(active, start, velocity, dt, gap, delta_position)
             velocity = velocity + dv
-            end = start + dt * velocity + dx
             delta_velocity += dv
-            delta_position += dx
+            delta_position += dx  # pushes of all rounds add up
+            end = start + dt * velocity + delta_position
             report.impulse_rows.append(len(active))
             report.response_s += time.perf_counter() - t2
         else:
@@ -200,9 +200,10 @@ class ContactHandler:
         return report
 
     def _respond(
-        self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float
+        self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float, pushed: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Velocity and position corrections (flat nodal) for the active contacts."""
+        """Velocity and position corrections (flat nodal) for the active contacts; ``pushed`` is the
+        position correction of earlier rounds."""
         normal = contacts.normal
         wn = np.einsum("kc,kc->k", contacts.obstacle_velocity, normal)
         # Zero restitution: a point may close its distance down to the push-out gap within the step
@@ -214,7 +215,7 @@ class ContactHandler:
         if len(active) and np.any(contacts.friction[active] > 0):
             dv = self._friction(contacts.take(active), index[active], coefficients[active], velocity, dv)
         # what the new velocities leave closer than the push-out distance is pushed out to it
-        moved = start + dt * (velocity + dv)
+        moved = start + dt * (velocity + dv) + pushed
         deficit = gap - (contacts.separation(moved) - contacts.clearance)
         dx, _ = self._inequalities(index, coefficients, None, deficit)
         return dv, dx

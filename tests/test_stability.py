@@ -223,16 +223,3 @@ def test_parasol_elongated_patches(comm, tmp_path_factory):
     out = tmp_path_factory.mktemp("parasol") if comm.rank == 0 else None
     summary = run_scene_case(comm.bcast(out), "parasol", 100)
     assert len(summary["steps"]) == 100
-
-
-@pytest.mark.stress
-def test_crushed_can_with_self_collision(comm, tmp_path_factory):
-    """A can crushed by a plank (contact + self-collision): no point ever above the plank."""
-    out = comm.bcast(tmp_path_factory.mktemp("can") if comm.rank == 0 else None)
-    summary = run_scene_case(out, "crushed-can", 120)
-    assert sum(s["contacts"] for s in summary["steps"]) > 0
-    from bhem_hpc.io import read_frame
-
-    surface, time = read_frame(out / "surface.h5", -1)
-    plank = 0.121 - 0.05 * time
-    assert surface.nodal[..., 0, 2].max() <= plank + 1e-6

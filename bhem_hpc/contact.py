@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -40,28 +40,22 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class ContactSettings:
-    """Contact parameters of a scene (``[contact]`` table)."""
+    """Parameters of the response (sampling and self-collision belong to the
+    :class:`~bhem_hpc.collision.contact.ContactDetector`)."""
 
     push_out: float = 1e-4
-    samples_per_side: int = 2
     max_rounds: int = 4
     max_active_set_iterations: int = 8
-    self_collision: bool = False
-    self_friction: float = 0.0
 
     def validate(self) -> None:
         if not (math.isfinite(self.push_out) and self.push_out > 0):
             raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
-        if not (isinstance(self.samples_per_side, int) and 1 <= self.samples_per_side <= 16):
-            raise ValueError(f"contact samples_per_side must be an integer in 1..16, got {self.samples_per_side!r}")
         if not (isinstance(self.max_active_set_iterations, int) and self.max_active_set_iterations >= 1):
             raise ValueError(
                 f"contact max_active_set_iterations must be an integer >= 1, got {self.max_active_set_iterations!r}"
             )
         if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):
             raise ValueError(f"contact max_rounds must be an integer >= 1, got {self.max_rounds!r}")
-        if not (math.isfinite(self.self_friction) and self.self_friction >= 0):
-            raise ValueError(f"self_friction must be a finite number >= 0, got {self.self_friction!r}")
 
 
 @dataclass
@@ -76,7 +70,6 @@ class ContactReport:
     detection_s: float = 0.0
     response_s: float = 0.0
     projections: int = 0
-    impulse_rows: list[int] = field(default_factory=list)
 
 
 def _tangents(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -177,7 +170,6 @@ class ContactHandler:
             delta_velocity += dv
             delta_position += dx  # pushes of all rounds add up
             end = start + dt * velocity + delta_position
-            report.impulse_rows.append(len(active))
             report.response_s += time.perf_counter() - t2
         else:
             final = self._detect(start, end, t, dt, 0.5 * gap)

@@ -664,7 +664,7 @@ class ContactProjector(_PetscOwner):
         solver: the model's solver (its constrained rows and seam prolongation are reused).
         prefix: PETSc options prefix of the projection's KSP.
         options: PETSc options (without prefix) overriding the defaults.
-        regularization: ``eps`` relative to ``max diag(G^T G) / max diag(M)``.
+        regularization: ``eps`` relative to ``max diag(G^T G) / max diag(W)``.
         smoothing: weight of the second-derivative term of the impulse metric
             (:func:`forms.impulse_metric`; 0 = the bare mass matrix).
     """

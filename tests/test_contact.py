@@ -194,13 +194,16 @@ def test_broad_phase_finds_exactly_the_overlapping_boxes(rng):
 
 
 def test_bad_contact_settings_are_refused():
-    for settings, message in [
-        (ContactSettings(push_out=0.0), "push_out"),
-        (ContactSettings(samples_per_side=0), "samples_per_side"),
-        (ContactSettings(self_friction=-0.1), "self_friction"),
+    with pytest.raises(ValueError, match="push_out"):
+        ContactSettings(push_out=0.0).validate()
+    grid = S.flat_rectangle(1.0, 1.0, 2, 2).grid
+    for kwargs, message in [
+        ({"samples_per_side": 0}, "samples_per_side"),
+        ({"samples_per_side": 17}, "samples_per_side"),
+        ({"self_collision": True, "self_friction": -0.1}, "self_friction"),
     ]:
         with pytest.raises(ValueError, match=message):
-            settings.validate()
+            ContactDetector(grid, [], **kwargs)
     with pytest.raises(ValueError, match="friction coefficient"):
         ColliderEntry(Plane([0, 0, 0], [0, 0, 1]), -0.2)
 

@@ -129,8 +129,8 @@ class ShellSamples:
     def build(grid: ParameterGrid, per_side: int) -> ShellSamples:
         """A uniform lattice of ``n * per_side (+ 1)`` points per direction over the whole surface,
         boundary edges included (an unsampled free edge could swing through a plane)."""
-        if not (isinstance(per_side, int) and per_side >= 1):
-            raise ValueError(f"samples per patch side must be an integer >= 1, got {per_side!r}")
+        if not (isinstance(per_side, int) and 1 <= per_side <= 16):
+            raise ValueError(f"samples_per_side must be an integer in 1..16, got {per_side!r}")
         axes = []
         for n, (lo, hi), periodic in (
             (grid.n1, grid.xi1_range, grid.periodic1),
@@ -340,6 +340,12 @@ def _point_patch_pairs(
 
 
 # -- detection ---------------------------------------------------------------------------------------
+def _nearest_per_point(point: np.ndarray, separation: np.ndarray) -> np.ndarray:
+    """Rows of the smallest separation for each distinct ``point`` (a point touches one patch)."""
+    order = np.lexsort((separation, point))
+    return order[np.r_[True, point[order][1:] != point[order][:-1]]]
+
+
 def _sample_contacts(
     source: int, samples: ShellSamples, sample: np.ndarray, second: tuple[np.ndarray, np.ndarray],
     normal: np.ndarray, obstacle_point: np.ndarray, obstacle_velocity: np.ndarray, toi: np.ndarray, friction: float,
@@ -405,10 +411,8 @@ def point_contacts(
     if not len(found):
         return Contacts.empty()
     point, patch = iq[found], ip[found]
-    if clearance == 0.0:
-        # a vertex touches the shell once: keep its nearest patch
-        order = np.lexsort((separation, point))
-        first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+    if clearance == 0.0:  # a vertex touches the shell once: keep its nearest patch
+        first = _nearest_per_point(point, separation)
         point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
     # a round tip or a sphere's centre keeps every patch within reach: each patch's closest point
     index, weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
@@ -466,8 +470,7 @@ def self_contacts(
     if not len(found):
         return Contacts.empty()
     point, patch = iq[found], ip[found]
-    order = np.lexsort((separation, point))
-    first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+    first = _nearest_per_point(point, separation)
     point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
     b_index, b_weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
     zeros = np.zeros((len(point), 3))
@@ -506,6 +509,8 @@ class ContactDetector:
         self_collision: bool = False,
         self_friction: float = 0.0,
     ):
+        if not (math.isfinite(self_friction) and self_friction >= 0):
+            raise ValueError(f"self_friction must be a finite number >= 0, got {self_friction!r}")
         self.grid = grid
         self.colliders = tuple(colliders)
         self.samples = ShellSamples.build(grid, samples_per_side)

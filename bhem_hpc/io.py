@@ -58,33 +58,25 @@ def write_surface_xdmf(path: str | Path, surface: HermiteSurface, density: int =
     return path
 
 
-def render_surface_png(path: str | Path, surface: HermiteSurface, title: str = "", density: int = 4) -> Path:
-    """A shaded matplotlib render of the tessellated surface (until the patch ray tracer exists)."""
+def render_surface_png(
+    path: str | Path, surface: HermiteSurface, title: str = "", size: tuple[int, int] = (480, 360)
+) -> Path:
+    """Ray-trace the surface's patches (:func:`bhem_hpc.render.render`) to a PNG with a title line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    points, quads, params = surface.tessellate(density)
-    normals = surface.evaluate(params[:, 0], params[:, 1]).normal
-    light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
-    shade = 0.35 + 0.65 * np.abs(normals[quads].mean(axis=1) @ light)
-    fig = plt.figure(figsize=(6, 5), dpi=120)
-    ax = fig.add_subplot(projection="3d")
-    faces = Poly3DCollection(points[quads], facecolors=plt.cm.Blues(0.3 + 0.6 * shade), edgecolor="none")
-    ax.add_collection3d(faces)
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
-    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, strict=False):
-        setter(c - half, c + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_zlabel("z")
+    from bhem_hpc.render import render
+
+    width, height = size
+    image, _ = render(surface, width, height)
+    fig = plt.figure(figsize=(width / 100, height / 100 + 0.3), dpi=100)
+    ax = fig.add_axes((0.0, 0.0, 1.0, height / (height + 30)))
+    ax.imshow(image, interpolation="none")
+    ax.set_axis_off()
     if title:
-        ax.set_title(title)
-    fig.tight_layout()
+        fig.suptitle(title, fontsize=10, y=0.99)
     fig.savefig(path)
     plt.close(fig)
     return Path(path)

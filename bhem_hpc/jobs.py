@@ -251,7 +251,7 @@ def ray_benchmark(patches: int = 10, resolution: int = 32) -> dict:
     Newton-guided splitting, measured in one run (paper Table 1). Serial, numpy only."""
     import time as _time
 
-    from bhem_hpc.collision import PatchBVH, control_nets, intersect_rays
+    from bhem_hpc.collision import PatchBVH, control_nets, trace_rays
 
     surface = S.from_callable(
         lambda a, b: np.stack([a, b, 0.15 * np.sin(5 * a) * np.cos(4 * b) - 0.3 * (a - 0.5) ** 2], axis=-1),
@@ -267,13 +267,13 @@ def ray_benchmark(patches: int = 10, resolution: int = 32) -> dict:
     hits = {}
     for label, newton in (("midpoint", False), ("newton", True)):
         start = _time.perf_counter()
-        hits[label] = intersect_rays(bvh, origins, directions, newton=newton)
+        hits[label] = trace_rays(bvh, origins, directions, newton=newton)
         elapsed = _time.perf_counter() - start
         result[f"{label}_rays_per_s"] = len(directions) / elapsed
     result["speedup"] = result["newton_rays_per_s"] / result["midpoint_rays_per_s"]
-    taus = [(a.tau, b.tau) for a, b in zip(hits["midpoint"], hits["newton"], strict=True) if a and b]
-    result["hits"] = len(taus)
-    result["max_tau_difference"] = float(max((abs(a - b) for a, b in taus), default=0.0))
+    both = (hits["midpoint"].patch >= 0) & (hits["newton"].patch >= 0)
+    result["hits"] = int(both.sum())
+    result["max_tau_difference"] = float(np.abs(hits["midpoint"].tau[both] - hits["newton"].tau[both]).max(initial=0.0))
     return result
 
 

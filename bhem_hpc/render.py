@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bhem_hpc.collision import PatchBVH, control_nets, evaluate, intersect_rays
+from bhem_hpc.collision import PatchBVH, control_nets, trace_rays
+from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.surface import HermiteSurface
 
 LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
@@ -43,19 +44,15 @@ def render(surface: HermiteSurface, width: int = 160, height: int = 120) -> tupl
     """Shaded image ``(height, width, 3)`` in [0, 1] and the coverage mask ``(height, width)``."""
     nets = control_nets(surface.grid, surface.nodal)
     eye, directions = camera_rays(surface, width, height)
-    hits = intersect_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
+    hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
+    mask = hits.patch >= 0
+    hit_nets, u, v = nets[hits.patch[mask]], hits.u[mask], hits.v[mask]
+    normal = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    diffuse = np.abs(normal @ LIGHT)[:, None]  # two-sided: shells have no inside
     image = np.ones((len(directions), 3))
-    mask = np.zeros(len(directions), dtype=bool)
     base = np.array([0.25, 0.45, 0.8])
-    for k, hit in enumerate(hits):
-        if hit is None:
-            continue
-        net = nets[hit.patch]
-        normal = np.cross(evaluate(net, hit.u, hit.v, du=1), evaluate(net, hit.u, hit.v, dv=1))
-        normal /= np.linalg.norm(normal) or 1.0
-        diffuse = abs(normal @ LIGHT)  # two-sided: shells have no inside
-        image[k] = np.clip(base * (0.25 + 0.75 * diffuse) + 0.15 * diffuse**20, 0.0, 1.0)
-        mask[k] = True
+    image[mask] = np.clip(base * (0.25 + 0.75 * diffuse) + 0.15 * diffuse**20, 0.0, 1.0)
     return image.reshape(height, width, 3), mask.reshape(height, width)
 
 

@@ -18,6 +18,7 @@ from bhem_hpc.collision import (
     point_patch_toi,
     split_u,
     subpatch,
+    trace_rays,
 )
 
 
@@ -131,6 +132,50 @@ def test_very_shallow_rays_report_the_bound_but_never_a_miss(rng):
         hit = intersect_patch(net, origin, direction, max_subpatches=500)
     assert hit is not None and abs(hit.tau - 0.3) < 1e-4
     assert np.linalg.norm(evaluate(net, hit.u, hit.v) - origin - hit.tau * direction) < 1e-9
+
+
+def test_vectorized_search_equals_the_per_ray_search_on_random_and_grazing_rays(rng):
+    """trace_rays (all rays and sub-patches at once) against intersect_patch and the brute-force
+    reference, on one random patch: random rays and grazing rays down to 3e-3 rad."""
+    net = control_nets(*(lambda s: (s.grid, s.nodal))(random_surface(rng, 1, 1, 0.25)))[0]
+    bvh = PatchBVH(net[None])
+    rays = list(_grazing_rays(rng, net, (1e-1, 1e-2, 3e-3), 4))
+    for _ in range(24):
+        target = evaluate(net, *rng.random(2))
+        origin = target + rng.normal(size=3) * 2.0
+        rays.append((origin, target - origin + 0.05 * rng.normal(size=3)))
+    origins, directions = (np.array(a) for a in zip(*rays, strict=True))
+    for newton in (True, False):
+        hits = trace_rays(bvh, origins, directions, newton=newton)
+        compared = 0
+        for k, (origin, direction) in enumerate(rays):
+            single = intersect_patch(net, origin, direction, newton=newton)
+            reference = _reference_first_hit(net, origin, direction, resolution=48)
+            if single is None:
+                assert hits.patch[k] == -1 and not np.isfinite(hits.tau[k])
+                assert reference is None
+                continue
+            compared += 1
+            assert hits.patch[k] == 0 and abs(hits.tau[k] - single.tau) <= 1e-8 * max(1.0, single.tau)
+            point = evaluate(net, hits.u[k], hits.v[k])
+            assert np.linalg.norm(point - origin - hits.tau[k] * direction) < 1e-8
+            if reference is not None and hits.tau[k] >= reference - 1e-8:
+                assert abs(hits.tau[k] - reference) <= 1e-8 * max(1.0, reference)
+        assert compared >= 30
+
+
+def test_vectorized_search_reports_its_bounds(rng):
+    net = control_nets(*(lambda s: (s.grid, s.nodal))(random_surface(rng, 1, 1, 0.2)))[0]
+    origin, direction = next(_grazing_rays(rng, net, (1e-6,), 1))
+    with pytest.warns(BoundReached, match="500 sub-patches"):
+        hits = trace_rays(PatchBVH(net[None]), origin[None], direction[None], max_subpatches=500)
+    assert hits.patch[0] == 0 and abs(hits.tau[0] - 0.3) < 1e-4
+    with pytest.warns(BoundReached, match="3 splitting rounds"):
+        trace_rays(PatchBVH(net[None]), origin[None], direction[None], max_rounds=3)
+    with pytest.raises(ValueError, match="ray 1 has a non-finite"):
+        trace_rays(PatchBVH(net[None]), np.zeros((2, 3)), np.array([[0, 0, 1.0], [np.nan, 0, 1]]))
+    with pytest.raises(ValueError, match=r"ray direction is zero \(ray 0\)"):
+        trace_rays(PatchBVH(net[None]), np.zeros((1, 3)), np.zeros((1, 3)))
 
 
 def test_bvh_over_many_patches_finds_the_same_first_hit_and_newton_is_faster(rng):

@@ -16,7 +16,16 @@ from bhem_hpc.collision.colliders import (
     Sphere,
     TriangleMesh,
 )
-from bhem_hpc.collision.ray import BoundReached, Hit, PatchBVH, intersect_patch, intersect_rays, ray_aabb
+from bhem_hpc.collision.ray import (
+    BoundReached,
+    Hit,
+    PatchBVH,
+    RayHits,
+    intersect_patch,
+    intersect_rays,
+    ray_aabb,
+    trace_rays,
+)
 
 __all__ = [
     "BoundReached",
@@ -29,6 +38,7 @@ __all__ = [
     "TriangleMesh",
     "Hit",
     "PatchBVH",
+    "RayHits",
     "aabb",
     "control_nets",
     "evaluate",
@@ -39,4 +49,5 @@ __all__ = [
     "split_u",
     "split_v",
     "subpatch",
+    "trace_rays",
 ]

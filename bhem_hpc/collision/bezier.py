@@ -80,6 +80,31 @@ def subpatch(net: np.ndarray, u0: float, u1: float, v0: float, v1: float) -> np.
     return out
 
 
+def _split_curves_many(points: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """de Casteljau on axis 1 of ``(N, 4, ...)`` control polygons at one ``t (N,)`` each."""
+    t = t.reshape((-1,) + (1,) * (points.ndim - 1))
+    p = points
+    a = (1 - t) * p[:, :-1] + t * p[:, 1:]
+    b = (1 - t) * a[:, :-1] + t * a[:, 1:]
+    c = (1 - t) * b[:, :-1] + t * b[:, 1:]
+    left = np.stack([p[:, 0], a[:, 0], b[:, 0], c[:, 0]], axis=1)
+    right = np.stack([c[:, 0], b[:, 1], a[:, 2], p[:, 3]], axis=1)
+    return left, right
+
+
+def subpatch_many(nets: np.ndarray, u0: np.ndarray, u1: np.ndarray, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
+    """:func:`subpatch` of ``nets (N, 4, 4, 3)``, one sub-rectangle each (``(N,)`` bounds, u0 < u1).
+
+    Splitting at 1 (or at 0) returns the curve itself exactly, so no case needs skipping.
+    """
+    out = _split_curves_many(nets, u1)[0]
+    out = _split_curves_many(out, u0 / u1)[1]
+    out = np.swapaxes(out, 1, 2)
+    out = _split_curves_many(out, v1)[0]
+    out = _split_curves_many(out, v0 / v1)[1]
+    return np.swapaxes(out, 1, 2)
+
+
 def aabb(net: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounds of the control points (they contain the patch), ``(3,)`` each."""
     points = np.asarray(net).reshape(-1, 3)

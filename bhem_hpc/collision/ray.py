@@ -19,12 +19,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bhem_hpc.collision.bezier import aabb, evaluate, subpatch
+from bhem_hpc.collision.bezier import aabb, evaluate, evaluate_many, subpatch, subpatch_many
 
 # Relative tolerance of a hit, in units of the patch's size.
 EPSILON = 1e-12
 NEWTON_ITERATIONS = 20
 MAX_SUBPATCHES = 20_000
+# Bound on rounds of the vectorized search.
+MAX_ROUNDS = MAX_SUBPATCHES
+# Pieces per ray tested together in one round of the vectorized search, nearest first.
+BATCH = 32
 # Hits are resolved to this relative accuracy in tau: boxes that could only improve the best hit by
 # less are not searched (this ends the otherwise endless refinement next to a grazing hit).
 TAU_TOLERANCE = 1e-10
@@ -282,10 +286,330 @@ class PatchBVH:
         return best
 
 
-def intersect_rays(bvh: PatchBVH, origins: np.ndarray, directions: np.ndarray, newton: bool = True) -> list[Hit | None]:
-    """First hits of many rays ``(R, 3)`` on the patches of ``bvh``; None where a ray misses."""
+@dataclass(frozen=True)
+class RayHits:
+    """First hits of ``R`` rays as arrays: ``tau, u, v (R,)`` float and ``patch (R,)`` int, where
+    a missed ray has ``tau = inf`` and ``patch = -1``."""
+
+    tau: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    patch: np.ndarray
+
+    def hit(self, ray: int) -> Hit | None:
+        return (
+            None
+            if self.patch[ray] < 0
+            else Hit(float(self.tau[ray]), float(self.u[ray]), float(self.v[ray]), int(self.patch[ray]))
+        )
+
+
+def _check_rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     origins = np.asarray(origins, dtype=float).reshape(-1, 3)
     directions = np.asarray(directions, dtype=float).reshape(-1, 3)
     if origins.shape != directions.shape:
         raise ValueError(f"{len(origins)} origins but {len(directions)} directions")
-    return [bvh.first_hit(o, d, newton) for o, d in zip(origins, directions, strict=True)]
+    finite = np.all(np.isfinite(origins), axis=1) & np.all(np.isfinite(directions), axis=1)
+    if not finite.all():
+        bad = int(np.flatnonzero(~finite)[0])
+        raise ValueError(
+            f"ray {bad} has a non-finite origin {origins[bad].tolist()} or direction {directions[bad].tolist()}"
+        )
+    zero = ~np.any(directions != 0.0, axis=1)
+    if zero.any():
+        raise ValueError(f"ray direction is zero (ray {int(np.flatnonzero(zero)[0])})")
+    return origins, directions
+
+
+def _slabs(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray, t_max: np.ndarray):
+    """Vectorized :func:`ray_aabb` over rows ``(K, 3)``: entry and exit ``(K,)``, and a hit mask."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / directions
+        near, far = (lo - origins) * inverse, (hi - origins) * inverse
+    parallel = directions == 0.0
+    inside = (origins >= lo) & (origins <= hi)
+    near = np.where(parallel, np.where(inside, -np.inf, np.inf), near)
+    far = np.where(parallel, np.where(inside, np.inf, -np.inf), far)
+    t0 = np.maximum(np.minimum(near, far).max(axis=1), 0.0)
+    t1 = np.minimum(np.maximum(near, far).min(axis=1), t_max)
+    return t0, t1, t0 <= t1
+
+
+def _bounds_entry_many(nets, origins, directions, pad, t_max):
+    """Vectorized :func:`_bounds_entry`: entry ``tau (K,)`` and a mask of the boxes the ray enters."""
+    points = nets.reshape(len(nets), 16, 3)
+    t0, t1, ok = _slabs(
+        origins, directions, points.min(axis=1) - pad[:, None], points.max(axis=1) + pad[:, None], t_max
+    )
+    half = np.full(len(nets), 0.5)
+    normal = np.cross(evaluate_many(nets, half, half, du=1), evaluate_many(nets, half, half, dv=1))
+    length = np.linalg.norm(normal, axis=1)
+    usable = (length > 0.0) & np.isfinite(length)
+    normal = normal / np.where(usable, length, 1.0)[:, None]
+    heights = np.einsum("kpc,kc->kp", points, normal)
+    start, speed = np.einsum("kc,kc->k", origins, normal), np.einsum("kc,kc->k", directions, normal)
+    low, high = heights.min(axis=1) - pad, heights.max(axis=1) + pad
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (low - start) / speed, (high - start) / speed
+    flat_ok = (low <= start) & (start <= high)
+    near = np.where(speed == 0.0, np.where(flat_ok, -np.inf, np.inf), np.minimum(a, b))
+    far = np.where(speed == 0.0, np.where(flat_ok, np.inf, -np.inf), np.maximum(a, b))
+    near = np.where(usable, near, -np.inf)
+    far = np.where(usable, far, np.inf)
+    t0, t1 = np.maximum(t0, near), np.minimum(t1, far)
+    return t0, ok & (t0 <= t1)
+
+
+def _newton_many(nets, origins, directions, tau, tol):
+    """Vectorized :func:`_newton` from each net's centre: ``(u, v, tau)`` and a success mask."""
+    count = len(nets)
+    u, v, tau = np.full(count, 0.5), np.full(count, 0.5), tau.copy()
+    active, success = np.ones(count, dtype=bool), np.zeros(count, dtype=bool)
+    for _ in range(NEWTON_ITERATIONS):
+        index = np.flatnonzero(active)
+        if not len(index):
+            break
+        n, o, d = nets[index], origins[index], directions[index]
+        residual = evaluate_many(n, u[index], v[index]) - o - tau[index, None] * d
+        done = np.linalg.norm(residual, axis=1) <= tol[index]
+        success[index[done]] = True
+        active[index[done]] = False
+        keep = ~done
+        index, n, o, d, residual = index[keep], n[keep], o[keep], d[keep], residual[keep]
+        jacobian = np.stack(
+            [evaluate_many(n, u[index], v[index], du=1), evaluate_many(n, u[index], v[index], dv=1), -d], axis=2
+        )
+        regular = np.abs(np.linalg.det(jacobian)) > 0.0
+        active[index[~regular]] = False
+        index, n, o, d, residual, jacobian = (a[regular] for a in (index, n, o, d, residual, jacobian))
+        step = np.linalg.solve(jacobian, residual[..., None])[..., 0]
+        u[index] -= step[:, 0]
+        v[index] -= step[:, 1]
+        tau[index] -= step[:, 2]
+        inside = (u[index] > -0.5) & (u[index] < 1.5) & (v[index] > -0.5) & (v[index] < 1.5)
+        active[index[~inside]] = False
+        stalled = inside & (np.abs(step[:, 0]) + np.abs(step[:, 1]) < 1e-14)
+        if stalled.any():  # converged as far as the conditioning allows
+            at = index[stalled]
+            residual = evaluate_many(n[stalled], u[at], v[at]) - o[stalled] - tau[at, None] * d[stalled]
+            success[at] = np.linalg.norm(residual, axis=1) <= 1e3 * tol[at]
+            active[at] = False
+    return u, v, tau, success
+
+
+_QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
+
+
+def _pieces_around_many(u: np.ndarray, v: np.ndarray, delta: np.ndarray):
+    """Vectorized :func:`_pieces_around`: ``(item (M,), a, b, c, d (M,))`` of the up to 8
+    sub-rectangles of ``[0, 1]^2`` around each excluded square."""
+    cuts_u = np.stack([np.zeros_like(u), np.clip(u - delta, 0, 1), np.clip(u + delta, 0, 1), np.ones_like(u)], axis=1)
+    cuts_v = np.stack([np.zeros_like(v), np.clip(v - delta, 0, 1), np.clip(v + delta, 0, 1), np.ones_like(v)], axis=1)
+    items, bounds = [], []
+    for i in range(3):
+        for j in range(3):
+            if i == 1 and j == 1:
+                continue  # the excluded neighbourhood
+            a, b, c, d = cuts_u[:, i], cuts_u[:, i + 1], cuts_v[:, j], cuts_v[:, j + 1]
+            keep = (b > a) & (d > c)
+            items.append(np.flatnonzero(keep))
+            bounds.append(np.stack([a, b, c, d], axis=1)[keep])
+    return np.concatenate(items), np.concatenate(bounds)
+
+
+def _record(best: tuple, rays: np.ndarray, tau: np.ndarray, u: np.ndarray, v: np.ndarray, patch: np.ndarray) -> None:
+    """Keep, per ray, the smallest ``tau`` among the candidates and the current best."""
+    best_tau, best_u, best_v, best_patch = best
+    order = np.lexsort((tau, rays))
+    rays, tau, u, v, patch = rays[order], tau[order], u[order], v[order], patch[order]
+    first = np.ones(len(rays), dtype=bool)
+    first[1:] = rays[1:] != rays[:-1]
+    rays, tau, u, v, patch = rays[first], tau[first], u[first], v[first], patch[first]
+    better = tau < best_tau[rays]
+    rays = rays[better]
+    best_tau[rays], best_u[rays], best_v[rays], best_patch[rays] = tau[better], u[better], v[better], patch[better]
+
+
+def _candidate_patches(bvh: PatchBVH, origins: np.ndarray, directions: np.ndarray):
+    """Broad phase for all rays at once: ``(ray, patch)`` pairs whose BVH leaf boxes the ray enters."""
+    lo, hi = np.asarray(bvh.lo), np.asarray(bvh.hi)
+    children = np.asarray(bvh.children)
+    rays, nodes = np.arange(len(origins)), np.zeros(len(origins), dtype=int)
+    pair_rays, pair_patches = [], []
+    for _ in range(len(lo) + 1):  # bound: the tree's depth is below its node count
+        if not len(rays):
+            break
+        _, _, entered = _slabs(origins[rays], directions[rays], lo[nodes], hi[nodes], np.full(len(rays), np.inf))
+        rays, nodes = rays[entered], nodes[entered]
+        leaf = children[nodes, 0] < 0
+        for node in np.unique(nodes[leaf]):
+            at = rays[leaf & (nodes == node)]
+            patches = bvh.leaves[node]
+            pair_rays.append(np.repeat(at, len(patches)))
+            pair_patches.append(np.tile(patches, len(at)))
+        inner = ~leaf
+        rays = np.concatenate([rays[inner], rays[inner]])
+        nodes = np.concatenate([children[nodes[inner], 0], children[nodes[inner], 1]])
+    if not pair_rays:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+    return np.concatenate(pair_rays), np.concatenate(pair_patches)
+
+
+def trace_rays(
+    bvh: PatchBVH,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    newton: bool = True,
+    epsilon: float = EPSILON,
+    max_rounds: int = MAX_ROUNDS,
+    max_subpatches: int = MAX_SUBPATCHES,
+    chunk: int = 4096,
+) -> RayHits:
+    """First hits of many rays on the patches of ``bvh``, vectorized over rays and sub-patches.
+
+    The same search as :func:`intersect_patch` (bounds entry, Newton-guided splitting with
+    neighbourhood exclusion or midpoint splitting, the same tolerances), run breadth first: every
+    round tests all live sub-patches of all rays at once and drops those that cannot beat their
+    ray's best hit.
+
+    Args:
+        bvh: the patches and their broad phase.
+        origins, directions: ``(R, 3)`` rays (directions nonzero and finite).
+        newton: False = midpoint splitting only.
+        epsilon: hit tolerance relative to each patch's bounding-box diagonal.
+        max_rounds: bound on splitting rounds; max_subpatches: bound on sub-patches tested per ray
+            (a :class:`BoundReached` warning when either is hit; the best hits so far are kept).
+        chunk: rays processed together (bounds memory).
+    """
+    origins, directions = _check_rays(origins, directions)
+    count = len(origins)
+    best = (np.full(count, np.inf), np.zeros(count), np.zeros(count), np.full(count, -1))
+    points = bvh.nets.reshape(len(bvh.nets), 16, 3)
+    patch_tol = epsilon * np.linalg.norm(points.max(axis=1) - points.min(axis=1), axis=1)
+    if np.any(patch_tol == 0.0):
+        raise ValueError(f"degenerate patch {int(np.flatnonzero(patch_tol == 0.0)[0])}: all control points coincide")
+    pieces_tested = np.zeros(count, dtype=np.int64)
+    warned = set()
+
+    def entered(pool: dict) -> dict:
+        """The pieces whose bounds the ray enters before its best hit, with their entry ``tau``."""
+        limit = best[0][pool["ray"]]
+        t_enter, inside = _bounds_entry_many(
+            pool["net"], origins[pool["ray"]], directions[pool["ray"]], patch_tol[pool["patch"]], limit
+        )
+        return {key: value[inside] for key, value in pool.items()} | {"tau": t_enter[inside]}
+
+    for first in range(0, count, chunk):
+        rays, patches = _candidate_patches(bvh, origins[first : first + chunk], directions[first : first + chunk])
+        rays += first
+        pool = entered(
+            {
+                "ray": rays,
+                "patch": patches,
+                "net": bvh.nets[patches],
+                "rect": np.tile([0.0, 1.0, 0.0, 1.0], (len(rays), 1)),
+            }
+        )
+        for _ in range(max_rounds):
+            # nothing left in a box can improve its ray's hit by more than the tolerance
+            limit = best[0][pool["ray"]]
+            alive = pool["tau"] <= limit - TAU_TOLERANCE * np.maximum(1.0, np.where(np.isfinite(limit), limit, 1.0))
+            pool = {key: value[alive] for key, value in pool.items()}
+            if not len(pool["ray"]):
+                break
+            # Best first, in batches: each ray's BATCH nearest pieces this round (a min-heap per ray
+            # would take one; a whole level at a time explodes along grazing rays).
+            order = np.lexsort((pool["tau"], pool["ray"]))
+            sorted_rays = pool["ray"][order]
+            group_start = np.flatnonzero(np.r_[True, sorted_rays[1:] != sorted_rays[:-1]])
+            rank = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
+            chosen = np.zeros(len(order), dtype=bool)
+            chosen[order[rank < BATCH]] = True
+            work = {key: value[chosen] for key, value in pool.items()}
+            pool = {key: value[~chosen] for key, value in pool.items()}
+            np.add.at(pieces_tested, work["ray"], 1)
+            over = pieces_tested[work["ray"]] > max_subpatches
+            if over.any():
+                warned.add("subpatches")
+                work = {key: value[~over] for key, value in work.items()}
+            rays, patches, nets, rect, t_enter = (work[key] for key in ("ray", "patch", "net", "rect", "tau"))
+            tol, o, d = patch_tol[patches], origins[rays], directions[rays]
+            accepted = np.zeros(len(rays), dtype=bool)
+            if newton and len(rays):
+                su, sv, tau, converged = _newton_many(nets, o, d, t_enter, tol)
+                accepted = converged & (su >= 0) & (su <= 1) & (sv >= 0) & (sv <= 1) & (tau >= 0)
+            span_u, span_v = rect[:, 1] - rect[:, 0], rect[:, 3] - rect[:, 2]
+            new_items, new_rects = [], []
+            if accepted.any():
+                at = np.flatnonzero(accepted)
+                _record(
+                    best,
+                    rays[at],
+                    tau[at],
+                    rect[at, 0] + su[at] * span_u[at],
+                    rect[at, 2] + sv[at] * span_v[at],
+                    patches[at],
+                )
+                # Discard a neighbourhood of each hit and split the rest (Fig. 10b); a grazing ray
+                # can cross twice close together, so the discarded square shrinks with its angle.
+                normal = np.cross(
+                    evaluate_many(nets[at], su[at], sv[at], du=1), evaluate_many(nets[at], su[at], sv[at], dv=1)
+                )
+                sine = np.abs(np.einsum("kc,kc->k", normal, d[at])) / np.maximum(
+                    np.linalg.norm(normal, axis=1) * np.linalg.norm(d[at], axis=1), 1e-300
+                )
+                item, pieces = _pieces_around_many(su[at], sv[at], NEIGHBOURHOOD * np.minimum(1.0, 10.0 * sine) ** 2)
+                new_items.append(at[item])
+                new_rects.append(pieces)
+            rest = np.flatnonzero(~accepted)
+            points = nets[rest].reshape(-1, 16, 3)
+            tiny = np.linalg.norm(points.max(axis=1) - points.min(axis=1), axis=1) <= tol[rest]
+            if tiny.any():  # a box below the tolerance that the ray enters: a grazing hit at its entry
+                at = rest[tiny]
+                _record(
+                    best,
+                    rays[at],
+                    t_enter[at],
+                    rect[at, 0] + 0.5 * span_u[at],
+                    rect[at, 2] + 0.5 * span_v[at],
+                    patches[at],
+                )
+            at = rest[~tiny]
+            new_items.append(np.repeat(at, 4))
+            new_rects.append(np.tile(_QUARTERS, (len(at), 1)))
+            item, local = np.concatenate(new_items), np.concatenate(new_rects)
+            parent = rect[item]
+            width_u, width_v = parent[:, 1] - parent[:, 0], parent[:, 3] - parent[:, 2]
+            children = {
+                "ray": rays[item],
+                "patch": patches[item],
+                "net": subpatch_many(nets[item], local[:, 0], local[:, 1], local[:, 2], local[:, 3]),
+                "rect": np.stack(
+                    [
+                        parent[:, 0] + local[:, 0] * width_u,
+                        parent[:, 0] + local[:, 1] * width_u,
+                        parent[:, 2] + local[:, 2] * width_v,
+                        parent[:, 2] + local[:, 3] * width_v,
+                    ],
+                    axis=1,
+                ),
+            }
+            children = entered(children)
+            pool = {key: np.concatenate([pool[key], children[key]]) for key in pool}
+        else:
+            if len(pool["ray"]):
+                warned.add("rounds")
+    if "subpatches" in warned:
+        warnings.warn(
+            f"ray-patch search stopped after {max_subpatches} sub-patches for some rays", BoundReached, stacklevel=2
+        )
+    if "rounds" in warned:
+        warnings.warn(f"ray-patch search stopped after {max_rounds} splitting rounds", BoundReached, stacklevel=2)
+    return RayHits(*best)
+
+
+def intersect_rays(bvh: PatchBVH, origins: np.ndarray, directions: np.ndarray, newton: bool = True) -> list[Hit | None]:
+    """First hits of many rays ``(R, 3)`` on the patches of ``bvh``; None where a ray misses
+    (:func:`trace_rays` as a list of :class:`Hit`)."""
+    hits = trace_rays(bvh, origins, directions, newton)
+    return [hits.hit(k) for k in range(len(hits.tau))]

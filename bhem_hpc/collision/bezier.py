@@ -39,7 +39,9 @@ def evaluate(net: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int
 
 def evaluate_many(nets: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> np.ndarray:
     """One point (or partial derivative) per net: nets ``(N, 4, 4, 3)``, ``u, v (N,)`` -> ``(N, 3)``."""
-    return np.einsum("ni,nj,nijc->nc", _bernstein(u, du), _bernstein(v, dv), nets)
+    # two batched matrix products: several times faster than one three-operand einsum
+    along_u = np.matmul(_bernstein(u, du)[:, None, :], nets.reshape(len(nets), 4, 12)).reshape(-1, 4, 3)
+    return np.matmul(_bernstein(v, dv)[:, None, :], along_u)[:, 0]
 
 
 def _split_curves(points: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -80,29 +82,39 @@ def subpatch(net: np.ndarray, u0: float, u1: float, v0: float, v1: float) -> np.
     return out
 
 
-def _split_curves_many(points: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """de Casteljau on axis 1 of ``(N, 4, ...)`` control polygons at one ``t (N,)`` each."""
-    t = t.reshape((-1,) + (1,) * (points.ndim - 1))
-    p = points
-    a = (1 - t) * p[:, :-1] + t * p[:, 1:]
-    b = (1 - t) * a[:, :-1] + t * a[:, 1:]
-    c = (1 - t) * b[:, :-1] + t * b[:, 1:]
-    left = np.stack([p[:, 0], a[:, 0], b[:, 0], c[:, 0]], axis=1)
-    right = np.stack([c[:, 0], b[:, 1], a[:, 2], p[:, 3]], axis=1)
-    return left, right
+def _restriction_matrices(t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
+    """``(N, 4, 4)`` matrices taking a cubic's Bezier control points to those of its piece on
+    ``[t0, t1]`` (de Casteljau applied to the identity: split at t1, keep the left part, split that
+    at t0 / t1, keep the right part; a split at 1 or 0 keeps the curve exactly)."""
+    points = np.broadcast_to(np.eye(4), (len(t0), 4, 4))
+    for t, keep_right in ((t1, False), (t0 / t1, True)):
+        t = t[:, None]
+        a = (1 - t[:, None]) * points[:, :-1] + t[:, None] * points[:, 1:]
+        b = (1 - t[:, None]) * a[:, :-1] + t[:, None] * a[:, 1:]
+        c = (1 - t[:, None]) * b[:, :-1] + t[:, None] * b[:, 1:]
+        if keep_right:
+            points = np.stack([c[:, 0], b[:, 1], a[:, 2], points[:, 3]], axis=1)
+        else:
+            points = np.stack([points[:, 0], a[:, 0], b[:, 0], c[:, 0]], axis=1)
+    return points
 
 
 def subpatch_many(nets: np.ndarray, u0: np.ndarray, u1: np.ndarray, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
-    """:func:`subpatch` of ``nets (N, 4, 4, 3)``, one sub-rectangle each (``(N,)`` bounds, u0 < u1).
+    """:func:`subpatch` of ``nets (N, 4, 4, 3)``, one sub-rectangle each (``(N,)`` bounds, u0 < u1)."""
+    count = len(nets)
+    along_u = np.matmul(_restriction_matrices(u0, u1), nets.reshape(count, 4, 12)).reshape(count, 4, 4, 3)
+    return np.matmul(_restriction_matrices(v0, v1)[:, None], along_u)
 
-    Splitting at 1 (or at 0) returns the curve itself exactly, so no case needs skipping.
-    """
-    out = _split_curves_many(nets, u1)[0]
-    out = _split_curves_many(out, u0 / u1)[1]
-    out = np.swapaxes(out, 1, 2)
-    out = _split_curves_many(out, v1)[0]
-    out = _split_curves_many(out, v0 / v1)[1]
-    return np.swapaxes(out, 1, 2)
+
+def bounds_many(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row minimum and maximum of ``(N, 2^k, 3)`` points, ``(N, 3)`` each (pairwise halving:
+    much faster than a strided ``min(axis=1)``)."""
+    lo = hi = points
+    while lo.shape[1] > 1:
+        half = lo.shape[1] // 2
+        lo = np.minimum(lo[:, :half], lo[:, half:])
+        hi = np.maximum(hi[:, :half], hi[:, half:])
+    return lo[:, 0], hi[:, 0]
 
 
 def aabb(net: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bhem_hpc.collision.bezier import aabb, evaluate, evaluate_many, subpatch, subpatch_many
+from bhem_hpc.collision.bezier import aabb, bounds_many, evaluate, evaluate_many, subpatch, subpatch_many
 
 # Relative tolerance of a hit, in units of the patch's size.
 EPSILON = 1e-12
@@ -338,17 +338,17 @@ def _slabs(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.n
 def _bounds_entry_many(nets, origins, directions, pad, t_max):
     """Vectorized :func:`_bounds_entry`: entry ``tau (K,)`` and a mask of the boxes the ray enters."""
     points = nets.reshape(len(nets), 16, 3)
-    t0, t1, ok = _slabs(
-        origins, directions, points.min(axis=1) - pad[:, None], points.max(axis=1) + pad[:, None], t_max
-    )
+    lo, hi = bounds_many(points)
+    t0, t1, ok = _slabs(origins, directions, lo - pad[:, None], hi + pad[:, None], t_max)
     half = np.full(len(nets), 0.5)
     normal = np.cross(evaluate_many(nets, half, half, du=1), evaluate_many(nets, half, half, dv=1))
     length = np.linalg.norm(normal, axis=1)
     usable = (length > 0.0) & np.isfinite(length)
     normal = normal / np.where(usable, length, 1.0)[:, None]
-    heights = np.einsum("kpc,kc->kp", points, normal)
+    heights = np.matmul(points, normal[:, :, None])
     start, speed = np.einsum("kc,kc->k", origins, normal), np.einsum("kc,kc->k", directions, normal)
-    low, high = heights.min(axis=1) - pad, heights.max(axis=1) + pad
+    low, high = bounds_many(heights)
+    low, high = low[:, 0] - pad, high[:, 0] + pad
     with np.errstate(divide="ignore", invalid="ignore"):
         a, b = (low - start) / speed, (high - start) / speed
     flat_ok = (low <= start) & (start <= high)
@@ -464,6 +464,7 @@ def trace_rays(
     max_rounds: int = MAX_ROUNDS,
     max_subpatches: int = MAX_SUBPATCHES,
     chunk: int = 4096,
+    tau_tolerance: float = TAU_TOLERANCE,
 ) -> RayHits:
     """First hits of many rays on the patches of ``bvh``, vectorized over rays and sub-patches.
 
@@ -480,6 +481,8 @@ def trace_rays(
         max_rounds: bound on splitting rounds; max_subpatches: bound on sub-patches tested per ray
             (a :class:`BoundReached` warning when either is hit; the best hits so far are kept).
         chunk: rays processed together (bounds memory).
+        tau_tolerance: relative accuracy of the first hit's ``tau`` (a picture needs far less than
+            the default, and pays for every digit near silhouettes).
     """
     origins, directions = _check_rays(origins, directions)
     count = len(origins)
@@ -513,7 +516,7 @@ def trace_rays(
         for _ in range(max_rounds):
             # nothing left in a box can improve its ray's hit by more than the tolerance
             limit = best[0][pool["ray"]]
-            alive = pool["tau"] <= limit - TAU_TOLERANCE * np.maximum(1.0, np.where(np.isfinite(limit), limit, 1.0))
+            alive = pool["tau"] <= limit - tau_tolerance * np.maximum(1.0, np.where(np.isfinite(limit), limit, 1.0))
             pool = {key: value[alive] for key, value in pool.items()}
             if not len(pool["ray"]):
                 break
@@ -563,7 +566,8 @@ def trace_rays(
                 new_rects.append(pieces)
             rest = np.flatnonzero(~accepted)
             points = nets[rest].reshape(-1, 16, 3)
-            tiny = np.linalg.norm(points.max(axis=1) - points.min(axis=1), axis=1) <= tol[rest]
+            lo, hi = bounds_many(points)
+            tiny = np.linalg.norm(hi - lo, axis=1) <= tol[rest]
             if tiny.any():  # a box below the tolerance that the ray enters: a grazing hit at its entry
                 at = rest[tiny]
                 _record(

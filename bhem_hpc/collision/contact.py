@@ -10,8 +10,9 @@ motion within a push-out distance ``gap`` and describes it as a linear function 
   model, the tips of capsules (needles) - each projected onto the shell's patches at the start and
   the end of the step;
 * self-collision: samples of each patch against the other patches (a broad phase over swept boxes,
-  never all pairs); patches that share a node with the sample's patch are skipped, and within one
-  patch nothing is tested (see :func:`self_contacts`).
+  never all pairs; :func:`self_contacts`), and, where the shell folds within a patch's 3 x 3
+  neighbourhood, against the pieces of a recursive subdivision of those patches
+  (:func:`folded_self_contacts`).
 
 Each contact is a point ``a`` of the shell (16 nodal weights), optionally a second shell point ``b``
 (self-contact), a unit normal ``n`` along which ``a`` separates, and an obstacle point/velocity.
@@ -28,7 +29,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from bhem_hpc.collision.bezier import _bernstein, control_nets, evaluate_many
+from bhem_hpc.collision.bezier import _bernstein, control_nets, evaluate_many, subpatch_many
 from bhem_hpc.collision.ccd import point_patch_toi
 from bhem_hpc.collision.ray import BoundReached
 from bhem_hpc.surface import ParameterGrid, point_weights
@@ -263,6 +264,13 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
     return np.stack([u, v], axis=1), foot, normal, inside
 
 
+def _along_normal(offset: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Rows of ``offset (N, 3)`` that are parallel to the unit ``normal (N, 3)`` to 1e-6 relative."""
+    along = np.einsum("kc,kc->k", offset, normal)
+    tangential = np.linalg.norm(offset - along[:, None] * normal, axis=1)
+    return tangential <= 1e-6 * np.abs(along)
+
+
 def _point_patch_pairs(
     points_start: np.ndarray,
     points_end: np.ndarray,
@@ -288,6 +296,12 @@ def _point_patch_pairs(
         return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     _, foot0, normal0, inside0 = project_to_patches(nets_start[iq], points_start[ip])
     uv1, foot1, normal1, inside1 = project_to_patches(nets_end[iq], points_end[ip])
+    # A foot on the patch boundary whose offset is normal to the surface is the true closest point
+    # of a point right above that boundary line (e.g. where two neighbouring patches meet):
+    # inside for both patches (the nearest-patch selection keeps one), or a crossing exactly
+    # there goes unseen.
+    inside0 |= _along_normal(points_start[ip] - foot0, normal0)
+    inside1 |= _along_normal(points_end[ip] - foot1, normal1)
     d0 = ((points_start[ip] - foot0) * normal0).sum(1)
     d1 = ((points_end[ip] - foot1) * normal1).sum(1)
     # the side the point started on; a point starting on the surface takes the side it approaches from
@@ -295,7 +309,9 @@ def _point_patch_pairs(
     side = np.where(np.abs(d0) > 1e-3 * gap, np.sign(d0), -np.sign(motion.sum(1)))
     side = np.where(side == 0, 1.0, side)
     separation = side * d1
-    near = inside1 & (np.abs(d0) < 10 * gap + np.linalg.norm(points_end[ip] - points_start[ip], axis=1))
+    # (the patch moves too: the relative motion bounds how far the point can have come)
+    relative_motion = np.linalg.norm((points_end[ip] - points_start[ip]) - (foot1 - foot0), axis=1)
+    near = inside1 & (np.abs(d0) < 10 * gap + relative_motion)
     hit = near & (separation < gap)
     denominator = np.where(side * (d0 - d1) > 0, side * (d0 - d1), np.inf)
     toi = np.clip((side * d0 - gap) / denominator, 0.0, 1.0)
@@ -309,12 +325,12 @@ def _point_patch_pairs(
     crossed = np.einsum("kc,kc->k", offset, side_normal) < 0
     hit |= edge
     separation = np.where(edge, np.where(crossed, -length, length), separation)
-    rows = edge & ~crossed
+    # (an offset far below the gap has no reliable direction: the side normal stays)
+    rows = edge & ~crossed & (length > 1e-2 * gap)
     side_normal[rows] = offset[rows] / length[rows, None]
     toi[edge] = 0.0
     # disagreeing projections on fast motion: exact CCD decides
-    moved = np.linalg.norm(points_end[ip] - points_start[ip], axis=1) > gap
-    doubtful = np.flatnonzero((inside0 != inside1) & moved & ~hit)
+    doubtful = np.flatnonzero((inside0 != inside1) & (relative_motion > gap) & ~hit)
     uv = uv1.copy()
     for row in doubtful:
         with warnings.catch_warnings():
@@ -447,10 +463,8 @@ def self_contacts(
 ) -> Contacts:  # fmt: skip
     """Shell samples ``rows`` against the shell's other patches.
 
-    Patches sharing a node with the sample's own patch are skipped: at this sampling a sample is
-    always within ``gap`` of them. Self-contact inside that 3 x 3 neighbourhood would need a patch
-    folded tighter than its own size, which the bending energy of these shells does not allow at the
-    resolutions used; it is not detected.
+    Patches sharing a node with the sample's own patch are skipped: a sample is always within
+    ``gap`` of them. Folds inside that 3 x 3 neighbourhood are :func:`folded_self_contacts`'s.
     """
     if not len(rows):
         return Contacts.empty()
@@ -476,6 +490,149 @@ def self_contacts(
     zeros = np.zeros((len(point), 3))
     return _sample_contacts(
         source, samples, rows[point], (b_index, b_weights), side_normal, zeros, zeros, toi, friction
+    )
+
+
+#: A region whose normals spread by more than this can fold onto itself: its patches are searched
+#: for contact within the 3 x 3 neighbourhood that :func:`self_contacts` skips.
+FOLD_SPREAD_DEGREES = 120.0
+#: Pieces of a folded patch are split while their own normals spread by more than this ...
+PIECE_SPREAD_DEGREES = 45.0
+#: ... down to at most this depth (4^depth pieces per patch).
+MAX_FOLD_DEPTH = 3
+_CONE_GRID = np.linspace(0.0, 1.0, 4)
+
+
+def unit_normals(nets: np.ndarray) -> np.ndarray:
+    """Unit normals ``(N, 16, 3)`` of nets ``(N, 4, 4, 3)`` at a 4 x 4 lattice including the corners."""
+    gu, gv = (a.ravel() for a in np.meshgrid(_CONE_GRID, _CONE_GRID, indexing="ij"))
+    du = np.einsum("si,sj,nijc->nsc", _bernstein(gu, 1), _bernstein(gv), nets)
+    dv = np.einsum("si,sj,nijc->nsc", _bernstein(gu), _bernstein(gv, 1), nets)
+    normal = np.cross(du, dv)
+    return normal / np.maximum(np.linalg.norm(normal, axis=2), 1e-300)[..., None]
+
+
+def normal_spread(first: np.ndarray, second: np.ndarray) -> np.ndarray:
+    """Largest angle (radians) between any normal of ``first (N, S, 3)`` and of ``second (N, S, 3)``."""
+    cosine = np.einsum("nsc,ntc->nst", first, second).min(axis=(1, 2))
+    return np.arccos(np.clip(cosine, -1.0, 1.0))
+
+
+def fold_pieces(net_start: np.ndarray, net_end: np.ndarray) -> np.ndarray:
+    """Recursive subdivision of one patch into pieces whose normals spread by at most
+    ``PIECE_SPREAD_DEGREES`` at both ends of the step (or of depth ``MAX_FOLD_DEPTH``).
+
+    Returns:
+        ``(L, 4)`` local parameter rectangles ``(u0, u1, v0, v1)`` covering ``[0, 1]^2``.
+    """
+    limit = math.radians(PIECE_SPREAD_DEGREES)
+    rects, leaves = np.array([[0.0, 1.0, 0.0, 1.0]]), []
+    for depth in range(MAX_FOLD_DEPTH + 1):
+        nets = [subpatch_many(np.broadcast_to(net, (len(rects), 4, 4, 3)), *rects.T) for net in (net_start, net_end)]
+        spread = np.maximum(*(normal_spread(unit_normals(n), unit_normals(n)) for n in nets))
+        done = (spread <= limit) | (depth == MAX_FOLD_DEPTH)
+        leaves.append(rects[done])
+        split = rects[~done]
+        mu, mv = 0.5 * (split[:, 0] + split[:, 1]), 0.5 * (split[:, 2] + split[:, 3])
+        rects = np.concatenate(
+            [
+                np.stack([split[:, 0], mu, split[:, 2], mv], 1),
+                np.stack([mu, split[:, 1], split[:, 2], mv], 1),
+                np.stack([split[:, 0], mu, mv, split[:, 3]], 1),
+                np.stack([mu, split[:, 1], mv, split[:, 3]], 1),
+            ]
+        )
+        if not len(rects):
+            break
+    return np.concatenate(leaves)
+
+
+def _neighbour_offsets(grid: ParameterGrid, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Patch-index offsets ``b - a`` per direction, wrapped on periodic directions (flat indices)."""
+    d1 = b // grid.n2 - a // grid.n2
+    d2 = b % grid.n2 - a % grid.n2
+    if grid.periodic1:
+        d1 = (d1 + grid.n1 // 2) % grid.n1 - grid.n1 // 2
+    if grid.periodic2:
+        d2 = (d2 + grid.n2 // 2) % grid.n2 - grid.n2 // 2
+    return d1, d2
+
+
+def folded_self_contacts(
+    samples: ShellSamples, rows: np.ndarray, grid: ParameterGrid, start: np.ndarray, end: np.ndarray,
+    nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float, source: int,
+) -> Contacts:  # fmt: skip
+    """Shell samples ``rows`` against the pieces of their own and neighbouring patches, where the
+    shell folds onto itself within that 3 x 3 neighbourhood.
+
+    A sample's patch P and a neighbour Q (P itself included) are searched when the normals of P and
+    Q spread by more than ``FOLD_SPREAD_DEGREES`` (at the start or the end of the step); Q is then
+    subdivided recursively (:func:`fold_pieces`) and the sample is tested against every piece that
+    does not lie within one piece width of it in the parameter domain (nearer pieces are the sample's
+    own surface, not a fold).
+    """
+    if not len(rows):
+        return Contacts.empty()
+    normals = [unit_normals(nets) for nets in (nets_start, nets_end)]
+    own = samples.patch[rows]
+    pairs_p, pairs_q = [], []
+    for o1 in (-1, 0, 1):
+        for o2 in (-1, 0, 1):
+            q1, q2 = own // grid.n2 + o1, own % grid.n2 + o2
+            if grid.periodic1:
+                q1 %= grid.n1
+            if grid.periodic2:
+                q2 %= grid.n2
+            valid = (q1 >= 0) & (q1 < grid.n1) & (q2 >= 0) & (q2 < grid.n2)
+            pairs_p.append(np.flatnonzero(valid))
+            pairs_q.append((q1 * grid.n2 + q2)[valid])
+    sample_row, neighbour = np.concatenate(pairs_p), np.concatenate(pairs_q)
+    patch_pairs, inverse = np.unique(np.stack([own[sample_row], neighbour], 1), axis=0, return_inverse=True)
+    spread = np.maximum(*(normal_spread(n[patch_pairs[:, 0]], n[patch_pairs[:, 1]]) for n in normals))
+    folded = spread > math.radians(FOLD_SPREAD_DEGREES)
+    if not folded.any():
+        return Contacts.empty()
+    keep = folded[inverse.ravel()]
+    sample_row, neighbour = sample_row[keep], neighbour[keep]
+    # pieces of every patch involved in a fold, in the patch's own local parameters
+    piece_patch, piece_rect = [], []
+    for patch in np.unique(neighbour):
+        rects = fold_pieces(nets_start[patch], nets_end[patch])
+        piece_patch.append(np.full(len(rects), patch))
+        piece_rect.append(rects)
+    piece_patch, piece_rect = np.concatenate(piece_patch), np.concatenate(piece_rect)
+    first_piece = np.searchsorted(piece_patch, neighbour, side="left")
+    count = np.searchsorted(piece_patch, neighbour, side="right") - first_piece
+    point = np.repeat(sample_row, count)
+    piece = np.concatenate([np.arange(a, a + c) for a, c in zip(first_piece, count, strict=True)])
+    # the sample's position relative to the piece's patch, in patch units (wrapped when periodic)
+    d1, d2 = _neighbour_offsets(grid, piece_patch[piece], own[point])
+    s1 = d1 + samples.local[rows[point], 0]
+    s2 = d2 + samples.local[rows[point], 1]
+    rect = piece_rect[piece]
+    width_u, width_v = rect[:, 1] - rect[:, 0], rect[:, 3] - rect[:, 2]
+    near = (s1 > rect[:, 0] - width_u) & (s1 < rect[:, 1] + width_u)
+    near &= (s2 > rect[:, 2] - width_v) & (s2 < rect[:, 3] + width_v)
+    point, piece, rect = point[~near], piece[~near], rect[~near]
+    if not len(point):
+        return Contacts.empty()
+    patch = piece_patch[piece]
+    sub_start = subpatch_many(nets_start[patch], *rect.T)
+    sub_end = subpatch_many(nets_end[patch], *rect.T)
+    p0, p1 = samples.positions(start, rows[point]), samples.positions(end, rows[point])
+    pairs = np.arange(len(point))
+    found, uv, side_normal, separation, toi = _point_patch_pairs(p0, p1, sub_start, sub_end, (pairs, pairs), gap, dt)
+    if not len(found):
+        return Contacts.empty()
+    first = _nearest_per_point(point[found], separation)
+    found, uv, side_normal, toi = found[first], uv[first], side_normal[first], toi[first]
+    rect, patch = rect[found], patch[found]
+    t1 = rect[:, 0] + uv[:, 0] * (rect[:, 1] - rect[:, 0])
+    t2 = rect[:, 2] + uv[:, 1] * (rect[:, 3] - rect[:, 2])
+    b_index, b_weights = point_weights(grid, patch // grid.n2, patch % grid.n2, t1, t2)
+    zeros = np.zeros((len(found), 3))
+    return _sample_contacts(
+        source, samples, rows[point[found]], (b_index, b_weights), side_normal, zeros, zeros, toi, friction
     )
 
 
@@ -562,6 +719,12 @@ class ContactDetector:
                 self_contacts(
                     self.samples, shell_rows, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
                     2 * len(self.colliders),
+                )
+            )  # fmt: skip
+            parts.append(
+                folded_self_contacts(
+                    self.samples, shell_rows, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
+                    2 * len(self.colliders) + 1,
                 )
             )  # fmt: skip
         return Contacts.concatenate(parts)

@@ -503,19 +503,35 @@ MAX_FOLD_DEPTH = 3
 _CONE_GRID = np.linspace(0.0, 1.0, 4)
 
 
+def _lattice_matrices() -> tuple[np.ndarray, np.ndarray]:
+    gu, gv = (a.ravel() for a in np.meshgrid(_CONE_GRID, _CONE_GRID, indexing="ij"))
+    along_u = np.einsum("si,sj->sij", _bernstein(gu, 1), _bernstein(gv)).reshape(16, 16)
+    along_v = np.einsum("si,sj->sij", _bernstein(gu), _bernstein(gv, 1)).reshape(16, 16)
+    return along_u, along_v
+
+
+_LATTICE_DU, _LATTICE_DV = _lattice_matrices()
+
+
 def unit_normals(nets: np.ndarray) -> np.ndarray:
     """Unit normals ``(N, 16, 3)`` of nets ``(N, 4, 4, 3)`` at a 4 x 4 lattice including the corners."""
-    gu, gv = (a.ravel() for a in np.meshgrid(_CONE_GRID, _CONE_GRID, indexing="ij"))
-    du = np.einsum("si,sj,nijc->nsc", _bernstein(gu, 1), _bernstein(gv), nets)
-    dv = np.einsum("si,sj,nijc->nsc", _bernstein(gu), _bernstein(gv, 1), nets)
-    normal = np.cross(du, dv)
+    points = nets.reshape(len(nets), 16, 3)
+    normal = np.cross(_LATTICE_DU @ points, _LATTICE_DV @ points)
     return normal / np.maximum(np.linalg.norm(normal, axis=2), 1e-300)[..., None]
 
 
 def normal_spread(first: np.ndarray, second: np.ndarray) -> np.ndarray:
     """Largest angle (radians) between any normal of ``first (N, S, 3)`` and of ``second (N, S, 3)``."""
-    cosine = np.einsum("nsc,ntc->nst", first, second).min(axis=(1, 2))
+    cosine = np.matmul(first, np.swapaxes(second, 1, 2)).min(axis=(1, 2))
     return np.arccos(np.clip(cosine, -1.0, 1.0))
+
+
+def _normal_cones(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis ``(N, 3)`` and half-angle ``(N,)`` of a cone holding each row of ``normals (N, S, 3)``."""
+    axis = normals.sum(axis=1)
+    axis /= np.maximum(np.linalg.norm(axis, axis=1), 1e-300)[:, None]
+    cosine = np.einsum("nsc,nc->ns", normals, axis).min(axis=1)
+    return axis, np.arccos(np.clip(cosine, -1.0, 1.0))
 
 
 def fold_pieces(net_start: np.ndarray, net_end: np.ndarray) -> np.ndarray:
@@ -587,12 +603,23 @@ def folded_self_contacts(
             pairs_p.append(np.flatnonzero(valid))
             pairs_q.append((q1 * grid.n2 + q2)[valid])
     sample_row, neighbour = np.concatenate(pairs_p), np.concatenate(pairs_q)
-    patch_pairs, inverse = np.unique(np.stack([own[sample_row], neighbour], 1), axis=0, return_inverse=True)
-    spread = np.maximum(*(normal_spread(n[patch_pairs[:, 0]], n[patch_pairs[:, 1]]) for n in normals))
-    folded = spread > math.radians(FOLD_SPREAD_DEGREES)
-    if not folded.any():
+    # A pair of patches can fold only if the cones of their normals allow a spread past the limit
+    # (a cheap bound); the spread is then computed exactly for those pairs.
+    limit = math.radians(FOLD_SPREAD_DEGREES)
+    key = own[sample_row] * len(nets_end) + neighbour
+    possible = np.zeros(len(key), dtype=bool)
+    for n in normals:
+        axis, half = _normal_cones(n)
+        between = np.arccos(np.clip(np.einsum("kc,kc->k", axis[own[sample_row]], axis[neighbour]), -1.0, 1.0))
+        possible |= half[own[sample_row]] + half[neighbour] + between > limit
+    if not possible.any():
         return Contacts.empty()
-    keep = folded[inverse.ravel()]
+    candidates = np.unique(key[possible])
+    first, second = candidates // len(nets_end), candidates % len(nets_end)
+    spread = np.maximum(*(normal_spread(n[first], n[second]) for n in normals))
+    keep = np.isin(key, candidates[spread > limit])
+    if not keep.any():
+        return Contacts.empty()
     sample_row, neighbour = sample_row[keep], neighbour[keep]
     # pieces of every patch involved in a fold, in the patch's own local parameters
     piece_patch, piece_rect = [], []

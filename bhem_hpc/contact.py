@@ -32,7 +32,7 @@ import numpy as np
 
 from bhem_hpc.collision.contact import ContactDetector, Contacts
 from bhem_hpc.shell import ShellModel
-from bhem_hpc.solver import ContactProjector, ShellSolver, SolverError
+from bhem_hpc.solver import ContactProjector, ShellSolver
 from bhem_hpc.surface import HermiteSurface
 
 log = logging.getLogger(__name__)
@@ -45,15 +45,10 @@ class ContactSettings:
 
     push_out: float = 1e-4
     max_rounds: int = 4
-    max_active_set_iterations: int = 8
 
     def validate(self) -> None:
         if not (math.isfinite(self.push_out) and self.push_out > 0):
             raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
-        if not (isinstance(self.max_active_set_iterations, int) and self.max_active_set_iterations >= 1):
-            raise ValueError(
-                f"contact max_active_set_iterations must be an integer >= 1, got {self.max_active_set_iterations!r}"
-            )
         if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):
             raise ValueError(f"contact max_rounds must be an integer >= 1, got {self.max_rounds!r}")
 
@@ -141,7 +136,7 @@ class ContactHandler:
         model = self.model
         settings = self.settings
         report = ContactReport()
-        factorizations_before = self.projector.factorizations
+        projections_before = self.projector.projections
         t0 = time.perf_counter()
         start = self._flat(x_start)
         end = self._flat(model.x.x.array)
@@ -181,7 +176,7 @@ class ContactHandler:
                     settings.max_rounds,
                 )
         report.contacts = len(active)
-        report.projections = self.projector.factorizations - factorizations_before
+        report.projections = self.projector.projections - projections_before
         model.velocity.x.array[:] = (model.x.x.array - x_start) / dt
         if len(active):
             report.min_separation = float((active.separation(end) - active.clearance).min())
@@ -219,47 +214,29 @@ class ContactHandler:
         current: np.ndarray | None,
         lower: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The smallest correction ``d`` with ``rows . (current + d) >= lower``, pushing only.
+        """The smallest correction ``d`` (in the projector's metric) with
+        ``rows . (current + d) >= lower`` whose impulses only push.
 
-        An active set: rows below their bound are solved as equalities; a row whose multiplier
-        comes out negative (it would pull - the sign of its least-squares residual) is released,
-        a row the update left below its bound joins. Rows on one patch can outnumber its DOFs, and
-        rows held at values they do not need make the least-squares problem fight itself.
+        The impulses solve a linear complementarity problem on the rows' dual system: a row ends
+        above its bound with no impulse, or at its bound pushing. Rows on one patch can outnumber its
+        DOFs; the dual system's regularization keeps it positive definite.
 
         Returns:
-            ``(d, active rows)``.
+            ``(d, rows that push)``.
         """
         base = np.zeros((len(self.projector.flat_block), 3)) if current is None else current
         value = np.einsum("kjc,kjc->k", coefficients, base[index])
         # rows count as met within round-off of the largest needed change
         tolerance = 1e-9 * max(float(np.abs(lower - value).max(initial=0.0)), 1e-300)
-        needed = value < lower - tolerance
-        if not np.any(needed):
+        if not np.any(value < lower - tolerance):
             return np.zeros_like(base), np.zeros(0, np.int64)
-        active = np.flatnonzero(needed)
-        correction = np.zeros_like(base)
-        history: list[frozenset] = []
-        for _ in range(self.settings.max_active_set_iterations):
-            if not len(active):
-                return np.zeros_like(base), active
-            correction = self._project(index[active], coefficients[active], current, lower[active])
-            value = np.einsum("kjc,kjc->k", coefficients, (base + correction)[index])
-            # Semismooth Newton on the penalty: the rows the update leaves below their bound (an
-            # equality row that would pull ends slightly above it and drops out by itself).
-            below = np.flatnonzero(value < lower - tolerance)
-            at_bound = active[value[active] <= lower[active] + tolerance]
-            next_active = np.union1d(below, at_bound)
-            log.debug("active set: %d active, %d next", len(active), len(next_active))
-            if np.array_equal(next_active, active):
-                break
-            key = frozenset(next_active.tolist())
-            if key in history:  # a cycle: keep every row seen in it
-                next_active = np.union1d(next_active, active)
-            history.append(key)
-            active = next_active
-        else:
-            log.warning("contact: active set not settled after %d iterations", self.settings.max_active_set_iterations)
-        return correction, active
+        projector = self.projector
+        projector.set_rows(index, coefficients)
+        try:
+            correction, impulse = projector.solve_pushing(current, lower)
+        finally:
+            projector.release()
+        return correction, np.flatnonzero(impulse > 0.0)
 
     def _friction(
         self, contacts: Contacts, index: np.ndarray, coefficients: np.ndarray, velocity: np.ndarray, dv: np.ndarray
@@ -289,28 +266,11 @@ class ContactHandler:
 
     def _project(self, index, coefficients, current, targets) -> np.ndarray:
         projector = self.projector
-        # a pair row (self-contact) has nonzero weights past the first point's 16
-        within_patches = not np.any(coefficients[:, 16:])
-        base = projector.regularization
+        projector.set_rows(index, coefficients)
         try:
-            for attempt in range(3):
-                # a factorization that fails (nearly dependent rows, round-off in the LDL^T pivots)
-                # is retried with a 1000x larger regularization of the rows' least squares
-                projector.regularization = base * 1e3**attempt
-                projector.set_rows(index, coefficients, within_patches)
-                try:
-                    return projector.solve(current, targets)
-                except SolverError:
-                    if attempt == 2:
-                        raise
-                    log.warning(
-                        "contact projection failed; retrying with regularization %.0e", base * 1e3 ** (attempt + 1)
-                    )
-                finally:
-                    projector.release()
+            return projector.solve(current, targets)
         finally:
-            projector.regularization = base
-        raise AssertionError("unreachable")
+            projector.release()
 
     def close(self) -> None:
         self.projector.close()

@@ -652,17 +652,19 @@ class ContactProjector(_PetscOwner):
 
     Each contact row ``g`` is a linear function of the nodal data (a point's normal or tangential
     velocity, or its separation). The update ``d`` of a nodal vector with rows ``G`` and targets
-    ``b`` minimizes ``|G (u + d) - b|^2 + eps d^T M d``: the normal equations
-    ``(G^T G + eps M) d = G^T (b - G u)`` have the mass matrix's sparsity and one MUMPS Cholesky
-    factorization serves the velocity and the position update of a round. ``eps`` is tiny relative
-    to ``G^T G``, so rows are met in the least-squares sense (exactly where they are compatible) and
-    the rest of the update is the mass-metric minimum: ``M d = G^T lambda`` with impulses
-    ``lambda = (b - G (u + d)) / eps``, i.e. an impulse response that conserves linear momentum
-    whenever the impulses do (self-contact pairs). Constrained DOFs do not move.
+    ``b`` minimizes ``|G (u + d) - b|^2 + eps d^T W d``, i.e. ``(G^T G + eps W) d = G^T (b - G u)``.
+    It is solved in its dual (Woodbury) form ``d = Z lambda``, ``(G Z + eps I) lambda = b - G u``
+    with ``Z = W^-1 G^T``: W is factored once per time step (:meth:`set_metric`), ``Z`` is computed
+    for each new row with one multi-right-hand-side MUMPS solve and kept for the step, and every
+    projection after that (active-set iterations, friction, push-out, later rounds) is a small dense
+    solve. ``eps`` is tiny relative to ``G^T G``, so rows are met in the least-squares sense (exactly
+    where they are compatible) and the update is the W-metric minimum ``W d = G^T lambda``: an
+    impulse response that conserves linear momentum whenever the impulses do (self-contact pairs).
+    Constrained DOFs do not move.
 
     Args:
         solver: the model's solver (its constrained rows and seam prolongation are reused).
-        prefix: PETSc options prefix of the projection's KSP.
+        prefix: PETSc options prefix of the metric's KSP.
         options: PETSc options (without prefix) overriding the defaults.
         regularization: ``eps`` relative to ``max diag(G^T G) / max diag(W)``.
         smoothing: weight of the second-derivative term of the impulse metric
@@ -721,22 +723,28 @@ class ContactProjector(_PetscOwner):
             self.flat_block[keys] = first + np.arange(len(keys))
             self.flat_scale[keys] = scales
         self.n_local, self.n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
+        self.first_owned = 3 * disc.closed_offset
         self.options = {
             "ksp_type": "preonly",
-            # parallel MUMPS LDL^T of the pair rows' pattern failed with INFOG(1) = -9 here: LU there
-            "pc_type": "cholesky" if model.comm.size == 1 else "lu",
+            "pc_type": "cholesky",
             "pc_factor_mat_solver_type": "mumps",
             "mat_mumps_icntl_7": "2",
-            # pair rows couple distant patches; MUMPS' workspace estimate can fall short (INFOG(1) = -9)
-            "mat_mumps_icntl_14": "200",
         }
         self.option_overrides = dict(options or {})
         self.weighted: PETSc.Mat | None = None
-        self.system: PETSc.Mat | None = None
-        self.ksp_within: PETSc.KSP | None = None
+        self.ksp: PETSc.KSP | None = None
         self.weighted_max = 1.0
         self.factorizations = 0
-        self._rows = None
+        self.projections = 0
+        self._forget_rows()
+        self._selected: np.ndarray | None = None
+
+    def _forget_rows(self) -> None:
+        """Empty the per-step cache of rows and their columns ``Z = W^-1 G^T``."""
+        self._row_ids: dict[bytes, int] = {}
+        self._row_closed: list[tuple[np.ndarray, np.ndarray]] = []  # (global closed indices, values)
+        self._z = np.zeros((self.n_local, 0))  # owned rows of Z, one column per cached row
+        self._schur = np.zeros((0, 0))  # G Z over the cached rows (identical on every rank)
 
     def _to_closed(self, flat: np.ndarray) -> PETSc.Vec:
         """Owned closed vector of flat parametric nodal data ``(N, 3)`` (known on every rank)."""
@@ -753,7 +761,7 @@ class ContactProjector(_PetscOwner):
         return out
 
     def set_metric(self, jacobian: PETSc.Mat | None = None, time_step: float = 1.0) -> None:
-        """Collective: the metric ``W`` of the following projections (once per time step).
+        """Collective: the metric ``W`` of the following projections, factored (once per time step).
 
         Args:
             jacobian: the time step's Jacobian ``J = M / dt^2 + K (+ damping)``: then
@@ -762,9 +770,11 @@ class ContactProjector(_PetscOwner):
                 translations ``t``, so impulses conserve linear momentum.
             time_step: the ``dt`` of ``jacobian``.
         """
-        for obj in (self.weighted, self.system, self.ksp_within):
+        self.release()
+        for obj in (self.weighted, self.ksp):
             if obj is not None:
                 obj.destroy()
+        self._forget_rows()
         if jacobian is None:
             self.weighted = self.mass.copy()
         else:
@@ -772,72 +782,12 @@ class ContactProjector(_PetscOwner):
             jacobian.convert("aij", self.weighted)  # the serial LDL^T Jacobian is SBAIJ (one triangle)
             self.weighted.scale(time_step**2)
             self.weighted.axpy(1.0, self.smoothing, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-        # one projection matrix (and KSP) per step with W's pattern: within the step only the
-        # numeric factorization is redone
-        self.system = self.weighted.duplicate(copy=True)
-        self.ksp_within = self._new_ksp()
         diagonal = self.weighted.getDiagonal()
         self.weighted_max = self.model.comm.allreduce(float(np.abs(diagonal.array_r).max(initial=0.0)), op=MPI.MAX)
         diagonal.destroy()
-
-    def set_rows(self, index: np.ndarray, coefficients: np.ndarray, within_patches: bool = True) -> None:
-        """Collective: assemble and factor ``G^T G + eps W`` for contact rows (replaces earlier rows).
-
-        Args:
-            index: ``(r, K)`` flat nodal entries of each row (identical on every rank).
-            coefficients: ``(r, K, 3)`` each row's coefficients of those entries' components.
-            within_patches: every row lies in one patch (no self-contact pair rows), so ``G^T G``
-                fits the Jacobian's pattern and the symbolic factorization is reused.
-        """
-        self.release()
-        if self.weighted is None:
-            self.set_metric()
-        comm = self.model.comm
-        rows = len(index)
-        lo, hi = comm.rank * rows // comm.size, (comm.rank + 1) * rows // comm.size
-        cols = 3 * self.flat_block[index[lo:hi]][:, :, None] + np.arange(3)  # (r_local, K, 3)
-        values = coefficients[lo:hi] / self.flat_scale[index[lo:hi]][:, :, None]
-        width = cols.shape[1] * 3
-        g = PETSc.Mat().createAIJ(((hi - lo, rows), (self.n_local, self.n_global)), nnz=(width, width), comm=comm)
-        g.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
-        for i in range(hi - lo):
-            nonzero = values[i].ravel() != 0.0  # the absent second point of a collider contact
-            g.setValues(
-                [lo + i],
-                cols[i].ravel()[nonzero].astype(PETSc.IntType),
-                values[i].ravel()[nonzero],
-                PETSc.InsertMode.ADD,
-            )
-        g.assemble()
-        gtg = g.transposeMatMult(g)
-        diagonal = gtg.getDiagonal()
-        gtg_max = comm.allreduce(float(np.abs(diagonal.array_r).max(initial=0.0)), op=MPI.MAX)
-        diagonal.destroy()
-        eps = self.regularization * gtg_max / self.weighted_max if gtg_max > 0 else 1.0
-        if within_patches and comm.size == 1:
-            # One matrix object with W's pattern: only the numeric factorization is redone. (In
-            # parallel the off-process column maps of G^T G and W differ, the sum changes pattern
-            # and a reused PC would keep a stale symbolic factorization: a new one each time.)
-            system = self.system
-            self.weighted.copy(system, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-            system.scale(eps)
-            system.axpy(1.0, gtg, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            gtg.destroy()
-            ksp = self.ksp_within
-        else:
-            system = gtg
-            system.axpy(eps, self.weighted, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-            ksp = self._new_ksp()
-        system.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        system.setOption(PETSc.Mat.Option.SPD, True)
-        system.zeroRowsColumns(self.bc_rows, diag=1.0)
-        ksp.setOperators(system)
-        ksp.setUp()
-        self.factorizations += 1
-        reused = within_patches and comm.size == 1
-        self._rows = (g, None if reused else system, (lo, hi), ksp, reused)
-
-    def _new_ksp(self) -> PETSc.KSP:
+        self.weighted.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.weighted.setOption(PETSc.Mat.Option.SPD, True)
+        self.weighted.zeroRowsColumns(self.bc_rows, diag=1.0)
         ksp = PETSc.KSP().create(self.model.comm)
         ksp.setOptionsPrefix(self.prefix)
         opts = PETSc.Options()
@@ -847,56 +797,180 @@ class ContactProjector(_PetscOwner):
         finally:
             for name in pushed:
                 opts.delValue(name)
-        return ksp
+        ksp.setOperators(self.weighted)
+        ksp.setUp()
+        self.ksp = ksp
+        self.factorizations += 1
+        try:
+            failed = ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
+        except PETSc.Error:  # not MUMPS (options overridden): its errors surface in the solves
+            failed = False
+        if failed:
+            raise SolverError(f"contact metric '{self.prefix}' could not be factored: {self._mumps_info()}")
+
+    def _mumps_info(self) -> str:
+        try:
+            return f"MUMPS INFOG(1) = {self.ksp.getPC().getFactorMatrix().getMumpsInfog(1)}"
+        except PETSc.Error:
+            return "no MUMPS information"
+
+    def _closed_rows(self, index: np.ndarray, coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Row ``(K,)`` entries / ``(K, 3)`` coefficients -> global closed indices and values (the
+        absent second point of a collider contact has zero weights and is dropped)."""
+        closed = 3 * self.flat_block[index][:, None] + np.arange(3)
+        values = coefficients / self.flat_scale[index][:, None]
+        nonzero = values != 0.0
+        return closed[nonzero], values[nonzero]
+
+    def _add_rows(self, index: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+        """Collective: cache ids of the rows, computing ``Z = W^-1 G^T`` for the new ones in one
+        multi-right-hand-side solve and extending ``G Z``."""
+        ids = np.empty(len(index), dtype=np.int64)
+        new: list[int] = []
+        for r in range(len(index)):
+            key = index[r].tobytes() + coefficients[r].tobytes()
+            if key not in self._row_ids:
+                self._row_ids[key] = len(self._row_closed)
+                self._row_closed.append(self._closed_rows(index[r], coefficients[r]))
+                new.append(len(self._row_closed) - 1)
+            ids[r] = self._row_ids[key]
+        if not new:
+            return ids
+        # right-hand sides G_new^T: this rank's rows of the closed vectors
+        rhs = np.zeros((self.n_local, len(new)), order="F")
+        for column, row in enumerate(new):
+            closed, values = self._row_closed[row]
+            owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
+            np.add.at(rhs[:, column], closed[owned] - self.first_owned, values[owned])
+        rhs[self.bc_local] = 0.0
+        comm = self.model.comm
+        sizes = ((self.n_local, self.n_global), (PETSc.DECIDE, len(new)))
+        b = PETSc.Mat().createDense(sizes, array=rhs, comm=comm)
+        x = PETSc.Mat().createDense(sizes, comm=comm)
+        x.setUp()
+        try:
+            self.ksp.getPC().getFactorMatrix().matSolve(b, x)
+            z_new = x.getDenseArray().copy()
+        except PETSc.Error as error:
+            raise SolverError(
+                f"contact projection '{self.prefix}': solving for {len(new)} new contact rows failed "
+                f"({self._mumps_info()})"
+            ) from error
+        finally:
+            b.destroy()
+            x.destroy()
+        if not np.all(np.isfinite(z_new)):
+            raise SolverError(f"contact projection '{self.prefix}': non-finite response to {len(new)} contact rows")
+        self._z = np.hstack([self._z, z_new])
+        # G Z for the new rows against every cached column (and by symmetry the transposed block)
+        block = np.zeros((len(new), self._z.shape[1]))
+        for k, row in enumerate(new):
+            closed, values = self._row_closed[row]
+            owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
+            block[k] = values[owned] @ self._z[closed[owned] - self.first_owned]
+        block = comm.allreduce(block, op=MPI.SUM)
+        old = self._schur.shape[0]
+        schur = np.zeros((self._z.shape[1], self._z.shape[1]))
+        schur[:old, :old] = self._schur
+        schur[old:, :] = block
+        schur[:old, old:] = block[:, :old].T
+        self._schur = 0.5 * (schur + schur.T)
+        return ids
+
+    def set_rows(self, index: np.ndarray, coefficients: np.ndarray, within_patches: bool = True) -> None:
+        """Collective: select the contact rows of the following :meth:`solve` (replaces earlier rows).
+
+        Args:
+            index: ``(r, K)`` flat nodal entries of each row (identical on every rank).
+            coefficients: ``(r, K, 3)`` each row's coefficients of those entries' components.
+            within_patches: kept for callers; the dual form treats pair rows like any other.
+        """
+        del within_patches
+        if self.ksp is None:
+            self.set_metric()
+        self._selected = self._add_rows(np.asarray(index), np.asarray(coefficients, dtype=float))
+        self._selected_rows = (np.asarray(index), np.asarray(coefficients, dtype=float))
+
+    def _dual(
+        self, current: np.ndarray | None, targets: np.ndarray, combine
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The selected rows' dual system: distinct cached rows, ``G Z + eps I`` on them and the
+        residual ``targets - G current``, duplicates of a row combined by ``combine`` (a ufunc)."""
+        if self._selected is None:
+            raise RuntimeError("ContactProjector.solve called before set_rows")
+        ids = self._selected
+        index, coefficients = self._selected_rows
+        residual = np.asarray(targets, dtype=float).copy()
+        if current is not None:
+            residual -= np.einsum("rkc,rkc->r", coefficients, current[index])
+        used, position = np.unique(ids, return_inverse=True)
+        gtg_max = float(self._diagonal_of(used).max(initial=0.0))
+        eps = self.regularization * gtg_max / self.weighted_max if gtg_max > 0 else 1.0
+        reduced = np.full(len(used), -np.inf) if combine is np.maximum else np.zeros(len(used))
+        combine.at(reduced, position, residual)
+        matrix = self._schur[np.ix_(used, used)] + eps * np.eye(len(used))
+        return used, matrix, reduced
+
+    def _correction(self, used: np.ndarray, multipliers: np.ndarray) -> np.ndarray:
+        """Collective: ``Z lambda`` as flat parametric nodal data on every rank."""
+        self.projections += 1
+        correction = PETSc.Vec().createMPI((self.n_local, self.n_global), comm=self.model.comm)
+        try:
+            correction.array[:] = self._z[:, used] @ multipliers
+            return self._to_flat(correction)
+        finally:
+            correction.destroy()
 
     def solve(self, current: np.ndarray | None, targets: np.ndarray) -> np.ndarray:
-        """Collective: the correction ``d`` (flat parametric nodal ``(N, 3)``, on every rank).
+        """Collective: the correction ``d`` (flat parametric nodal ``(N, 3)``, on every rank) that
+        brings the selected rows to ``targets`` (in the least-squares sense).
 
         Args:
             current: flat nodal data the rows are evaluated on; None: the targets are increments.
             targets: ``(r,)`` target values of the rows set by :meth:`set_rows`.
         """
-        if self._rows is None:
-            raise RuntimeError("ContactProjector.solve called before set_rows")
-        g, _, (lo, hi), ksp, _ = self._rows
-        rhs, solution, target = g.createVecRight(), g.createVecRight(), g.createVecLeft()
+        # a row selected twice holds one multiplier for the sum of its residuals: (c A + eps I)
+        used, matrix, reduced = self._dual(current, targets, np.add)
+        counts = np.bincount(np.unique(self._selected, return_inverse=True)[1], minlength=len(used))
+        matrix = matrix + (counts[:, None] - 1) * self._schur[np.ix_(used, used)]
         try:
-            target.array[:] = targets[lo:hi]
-            if current is not None:
-                u = self._to_closed(current)
-                gu = g.createVecLeft()
-                g.mult(u, gu)
-                target.axpy(-1.0, gu)
-                u.destroy()
-                gu.destroy()
-            g.multTranspose(target, rhs)
-            rhs.array[self.bc_local] = 0.0
-            ksp.solve(rhs, solution)
-            reason = ksp.getConvergedReason()
-            if reason < 0:
-                mumps = ""
-                try:
-                    mumps = f", MUMPS INFOG(1) = {ksp.getPC().getFactorMatrix().getMumpsInfog(1)}"
-                except PETSc.Error:
-                    pass
-                raise SolverError(
-                    f"contact projection '{self.prefix}' failed: KSP {KSP_REASONS.get(reason, reason)}{mumps} "
-                    f"({g.getSize()[0]} contact rows)"
-                )
-            return self._to_flat(solution)
-        finally:
-            for obj in (rhs, solution, target):
-                obj.destroy()
+            multipliers = np.linalg.solve(matrix, reduced)
+            # one step of iterative refinement: the dual matrix is as ill-conditioned as eps is small
+            multipliers += np.linalg.solve(matrix, reduced - matrix @ multipliers)
+        except np.linalg.LinAlgError as error:
+            raise SolverError(
+                f"contact projection '{self.prefix}' failed: singular dual system of {len(used)} contact rows"
+            ) from error
+        return self._correction(used, multipliers)
+
+    def solve_pushing(self, current: np.ndarray | None, lower: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the correction ``d`` with ``rows . (current + d) >= lower`` whose impulses
+        only push (a linear complementarity problem on the dual system, :func:`solve_lcp`).
+
+        Returns:
+            ``(d (N, 3) flat nodal, impulse (r,) of each selected row)``.
+        """
+        from bhem_hpc.collision.lcp import ComplementarityError, solve_lcp  # contact scenes only
+
+        used, matrix, reduced = self._dual(current, lower, np.maximum)
+        try:
+            multipliers, _ = solve_lcp(matrix, reduced)
+        except (ComplementarityError, np.linalg.LinAlgError) as error:
+            raise SolverError(f"contact projection '{self.prefix}' failed: {error}") from error
+        impulse = multipliers[np.unique(self._selected, return_inverse=True)[1]]
+        return self._correction(used, multipliers), impulse
+
+    def _diagonal_of(self, rows: np.ndarray) -> np.ndarray:
+        """diag(G^T G) over the closed DOFs of the selected cached rows."""
+        diagonal = np.zeros(self.n_global)
+        for row in rows:
+            closed, values = self._row_closed[row]
+            np.add.at(diagonal, closed, values**2)
+        return diagonal
 
     def release(self) -> None:
-        """Free the current rows' matrices."""
-        if getattr(self, "_rows", None) is not None:
-            g, system, _, ksp, reused = self._rows
-            g.destroy()
-            if not reused:
-                system.destroy()
-                ksp.destroy()
-        self._rows = None
+        """Forget the selected rows (the per-step cache stays until the next :meth:`set_metric`)."""
+        self._selected = None
 
     def close(self) -> None:
         """Destroy the PETSc objects (idempotent)."""
@@ -904,6 +978,6 @@ class ContactProjector(_PetscOwner):
             return
         self._closed = True
         self.release()
-        for obj in (self.mass, self.smoothing, self.weighted, self.system, self.ksp_within):
+        for obj in (self.mass, self.smoothing, self.weighted, self.ksp):
             if obj is not None:
                 obj.destroy()

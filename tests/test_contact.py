@@ -92,9 +92,11 @@ def _drop(comm, material, patches, collider, samples=2, steps=60):
 @pytest.mark.parametrize("samples, tolerance", [(2, 1e-3), (3, 3e-4)])
 def test_sheet_dropped_on_a_plane_never_penetrates_and_rests_at_the_push_out_distance(comm, samples, tolerance):
     """Corner first onto a plane tilted by 10 degrees. Contacts hold at the samples; between them
-    the bending impact wave dips by less than ``tolerance`` (it shrinks with the sample spacing)."""
+    the bending impact wave dips by less than ``tolerance`` (it shrinks with the sample spacing).
+    With push-only impulses and zero restitution the sheet's bending waves die out by mass damping:
+    after 0.75 s it lies flat at the push-out distance."""
     _, normal = _incline(np.radians(10.0))  # the sheet hits the tilted plane corner first
-    stepper, lowest, _ = _drop(comm, SHEET, 6, Plane([0.0, 0.0, -0.03], normal), samples)
+    stepper, lowest, _ = _drop(comm, SHEET, 6, Plane([0.0, 0.0, -0.03], normal), samples, steps=150)
     contacts = [r.contacts for r in stepper.history]
     assert contacts[0] == 0 and contacts[-1] > 0  # it fell, then touched
     assert min(lowest) >= -tolerance  # dense samples, not only the contact samples

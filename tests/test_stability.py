@@ -154,7 +154,9 @@ def test_cylinder_buckling_under_axial_compression(comm):
 
 
 def contact_case(comm, steps: int = 25) -> np.ndarray:
-    """A cloth dropped on a ball (6 x 6 patches): the final nodal positions ``(7, 7, 4, 3)``."""
+    """A cloth dropped on a ball (6 x 6 patches): the final nodal positions ``(7, 7, 4, 3)``. The ball
+    sits off the cloth's centre and its diagonals: in a symmetric drop the folds break the symmetry
+    one way or the other with round-off, and two correct runs differ by a mirror image."""
     from bhem_hpc.collision import Sphere
     from bhem_hpc.collision.contact import ColliderEntry, ContactDetector
     from bhem_hpc.contact import ContactHandler
@@ -167,7 +169,7 @@ def contact_case(comm, steps: int = 25) -> np.ndarray:
         comm=comm,
         dynamics=Dynamics(0.005, mass_damping=1.0),
     )
-    ball = ColliderEntry(Sphere([0.0, 0.0, -0.1], 0.1), 0.2)
+    ball = ColliderEntry(Sphere([0.03, 0.01, -0.1], 0.1), 0.2)
 
     def contact(model, solver):
         return ContactHandler(model, solver, ContactDetector(rest.grid, [ball]))
@@ -198,10 +200,9 @@ def test_two_ranks_give_the_serial_numbers(comm, tmp_path_factory):
     here_result = contact_case(comm)
     comm.Barrier()
     serial = np.load(result)
-    # Contact decisions (which rows are active) are discontinuous in round-off, and the parallel
-    # projection factors with LU instead of LDL^T: the runs agree within the push-out distance
-    # (measured: 2e-5 m on 2 ranks), not to round-off as runs without contact do.
-    np.testing.assert_allclose(here_result[..., 0, :], serial[..., 0, :], atol=1e-4)
+    # Contact decisions (which rows push) are discontinuous in round-off, so agreement to round-off
+    # is not guaranteed; measured: 5e-14 m (the dual solve is the same dense algebra on every rank).
+    np.testing.assert_allclose(here_result[..., 0, :], serial[..., 0, :], atol=1e-8)
 
 
 def run_scene_case(tmp_path, job: str, steps: int):

@@ -36,8 +36,11 @@ from bhem_hpc.surface import ParameterGrid, point_weights
 
 #: Local-parameter slack when deciding that a projected foot point lies inside a patch.
 INSIDE_EPS = 1e-9
-#: Newton iterations of the closest-point projection (it starts from the nearest of 5 x 5 samples).
+#: Newton iterations of the closest-point projection, its starting lattice (per side) and the
+#: halvings of a step that would increase the distance.
 PROJECTION_ITERATIONS = 12
+START_GRID = 7
+LINE_SEARCH_HALVINGS = 4
 
 
 @dataclass(frozen=True)
@@ -222,8 +225,12 @@ def swept_boxes(start: np.ndarray, end: np.ndarray, pad: float) -> np.ndarray:
 def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closest points of ``points (N, 3)`` on Bezier patches ``nets (N, 4, 4, 3)`` (one each).
 
-    Newton on the first-order conditions from the nearest of 5 x 5 samples, ``PROJECTION_ITERATIONS``
-    iterations, clamped to the patch (Gauss-Newton where the full Hessian is not positive).
+    Newton on the first-order conditions from the nearest of ``START_GRID^2`` samples,
+    ``PROJECTION_ITERATIONS`` iterations, clamped to the patch (Gauss-Newton where the full Hessian is
+    not positive), each step halved until the distance does not grow. The line search matters where
+    a patch wraps around the point (cloth on a ball, seen from the ball's centre): the distance is
+    then nearly constant over the patch, its Hessian nearly singular, and full Newton steps jump
+    between the patch's corners.
 
     Returns:
         ``(uv (N, 2), foot (N, 3), unit normal (N, 3), inside (N,))``; ``inside`` is False where the
@@ -232,12 +239,13 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
     n = len(points)
     if n == 0:
         return np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool)
-    grid = np.linspace(0.0, 1.0, 5)
+    grid = np.linspace(0.0, 1.0, START_GRID)
     gu, gv = np.meshgrid(grid, grid, indexing="ij")
-    bu, bv = _bernstein(gu.ravel()), _bernstein(gv.ravel())
-    samples = np.einsum("si,sj,nijc->nsc", bu, bv, nets)  # (N, 25, 3)
+    basis = np.einsum("si,sj->sij", _bernstein(gu.ravel()), _bernstein(gv.ravel())).reshape(-1, 16)
+    samples = basis @ nets.reshape(n, 16, 3)  # (N, START_GRID^2, 3)
     nearest = np.argmin(((samples - points[:, None]) ** 2).sum(-1), axis=1)
     u, v = gu.ravel()[nearest], gv.ravel()[nearest]
+    distance = ((evaluate_many(nets, u, v) - points) ** 2).sum(1)
     for _ in range(PROJECTION_ITERATIONS):
         r = evaluate_many(nets, u, v) - points
         su, sv = evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1)
@@ -253,10 +261,18 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
         h11, h12, h22 = np.where(full, h11, a11), np.where(full, h12, a12), np.where(full, h22, a22)
         det = h11 * h22 - h12 * h12
         det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-        du = -(h22 * g1 - h12 * g2) / det
-        dv = -(h11 * g2 - h12 * g1) / det
-        u = np.clip(u + np.clip(du, -0.5, 0.5), 0.0, 1.0)
-        v = np.clip(v + np.clip(dv, -0.5, 0.5), 0.0, 1.0)
+        du = np.clip(-(h22 * g1 - h12 * g2) / det, -0.5, 0.5)
+        dv = np.clip(-(h11 * g2 - h12 * g1) / det, -0.5, 0.5)
+        pending = np.ones(n, dtype=bool)
+        for _ in range(LINE_SEARCH_HALVINGS + 1):
+            tu, tv = np.clip(u + du, 0.0, 1.0), np.clip(v + dv, 0.0, 1.0)
+            trial = ((evaluate_many(nets, tu, tv) - points) ** 2).sum(1)
+            accept = pending & (trial <= distance)
+            u, v, distance = np.where(accept, tu, u), np.where(accept, tv, v), np.where(accept, trial, distance)
+            pending &= ~accept
+            if not pending.any():
+                break
+            du, dv = 0.5 * du, 0.5 * dv
     foot = evaluate_many(nets, u, v)
     normal = np.cross(evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1))
     normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -116,3 +117,52 @@ def heavy_cantilever(gamma: float, steps: int = 1000) -> tuple[float, float, np.
     # The path runs tip -> clamp relative to the tip; put the clamp at the origin, tip last.
     shape = np.array(path[::-1]) - np.array([-width, height])
     return width, height, shape
+
+
+@functools.cache
+def lateral_buckling_constant(steps: int = 1000) -> float:
+    """The eigenvalue ``lambda`` of lateral-torsional buckling of a cantilever under a uniform load
+    at its centroid (Michell-Prandtl): ``(q L^3)_cr = lambda sqrt(B C)`` with ``B`` the weak-axis
+    bending and ``C`` the torsional stiffness (Timoshenko & Gere tabulate 12.85).
+
+    The twist obeys ``phi'' + lambda^2 (1 - s)^4 / 4 phi = 0`` on ``s in [0, 1]`` (clamped:
+    ``phi(0) = 0``; free: ``phi'(1) = 0``): RK4 shooting, bisection on the first root of ``phi'(1)``.
+    """
+
+    def end_slope(lam: float) -> float:
+        h = 1.0 / steps
+        y = np.array([0.0, 1.0])
+
+        def f(s: float, y: np.ndarray) -> np.ndarray:
+            return np.array([y[1], -(lam**2) * (1 - s) ** 4 / 4 * y[0]])
+
+        s = 0.0
+        for _ in range(steps):
+            k1 = f(s, y)
+            k2 = f(s + h / 2, y + h / 2 * k1)
+            k3 = f(s + h / 2, y + h / 2 * k2)
+            k4 = f(s + h, y + h * k3)
+            y = y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            s += h
+        return float(y[1])
+
+    low, high = 1.0, 1.0
+    while end_slope(high) > 0:  # phi'(1) = 1 at lambda = 0 and first changes sign at the eigenvalue
+        low, high = high, 1.5 * high
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if end_slope(mid) > 0 else (low, mid)
+    return 0.5 * (low + high)
+
+
+def lateral_buckling_gamma(poisson: float) -> float:
+    """Critical ``Gamma* = 12 (1 - nu^2) rho g L^3 / (Y h^2)`` of a thin strip hanging on edge from a
+    clamp (width vertical, in its plane; the narrow-strip limit ``h << w << L``).
+
+    The strip's weight per length is ``q = rho g h w``; out of its plane it bends with
+    ``B = D w = Y h^3 w / (12 (1 - nu^2))`` (the plate stiffness, as the clamp and the shell's
+    kinematics hold the section) and twists with ``C = Y h^3 w / (6 (1 + nu))``; then
+    ``rho g L^3 / (Y h^2) = lambda / sqrt(72 (1 - nu^2)(1 + nu))`` and ``w`` drops out.
+    """
+    lam = lateral_buckling_constant()
+    return 12 * (1 - poisson**2) * lam / math.sqrt(72 * (1 - poisson**2) * (1 + poisson))

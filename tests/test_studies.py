@@ -28,7 +28,7 @@ def test_study_writes_csv_table_and_plot(comm, out):
     assert (out / "plate.png").stat().st_size > 5000
     with pytest.raises(StudyError, match="exists and is not empty"):
         run_study("plate", out, comm, limit=1)
-    with pytest.raises(StudyError, match=r"study 'shell' does not exist; known: \['cantilever', 'plate'\]"):
+    with pytest.raises(StudyError, match=r"study 'shell' does not exist; known: \['buckling', 'cantilever', 'plate'\]"):
         run_study("shell", out.parent / "other", comm)
 
 
@@ -71,3 +71,38 @@ def test_cheapest_configuration_per_tolerance():
     rows = [{"error": 2e-2, "wall_s": 0.1}, {"error": 5e-3, "wall_s": 0.3}, {"error": 4e-4, "wall_s": 0.2}]
     assert cheapest(rows, 1e-2)["wall_s"] == 0.2 and cheapest(rows, 1e-3)["error"] == 4e-4
     assert cheapest(rows, 1e-4) is None
+
+
+def test_lateral_buckling_reference():
+    """The Michell-Prandtl constant by shooting equals the tabulated 12.85 (Timoshenko & Gere)."""
+    from bhem_hpc.references import lateral_buckling_constant, lateral_buckling_gamma
+
+    assert lateral_buckling_constant() == pytest.approx(12.85, abs=0.005)
+    assert lateral_buckling_gamma(0.0) == pytest.approx(12 * 12.8538 / np.sqrt(72), rel=1e-4)
+
+
+def test_buckling_threshold_of_a_narrow_plate(comm):
+    """A 1 m x 2 cm plate hanging on edge (40 patches) buckles laterally within 2 % of beam theory
+    (measured 1.5 %; the rest is the plate's width, see the study)."""
+    from bhem_hpc.studies import run_buckling
+
+    row = run_buckling({"aspect": 0.02, "patches_per_m": 40, "poisson": 0.0}, comm)
+    assert row["error"] < 0.02, row
+
+
+@pytest.mark.study
+def test_buckling_study_approaches_beam_theory(comm, out):
+    rows = run_study("buckling", out.parent / "buckling", comm)
+    nu0 = [r for r in rows if r["poisson"] == 0.0]
+    narrow = {r["patches_per_m"]: r for r in nu0 if r["aspect"] == 0.02}
+    assert narrow[40]["error"] < 0.02
+    # the plate's threshold grows linearly with w / L; extrapolated to w / L -> 0 it is the beam's
+    fine = sorted((r["aspect"], r["value"] / r["reference"]) for r in nu0 if r["patches_per_m"] == 40)
+    slope, intercept = np.polyfit([a for a, _ in fine[:3]], [v for _, v in fine[:3]], 1)
+    assert abs(intercept - 1) < 0.01, (slope, intercept)
+    for aspect in {r["aspect"] for r in nu0}:
+        by = {r["patches_per_m"]: r["value"] for r in nu0 if r["aspect"] == aspect}
+        assert abs(by[40] / by[20] - 1) < 0.01  # converged in the resolution
+    # wider plates are stiffer near the clamp: the threshold rises with the aspect ratio
+    finest = sorted((r["aspect"], r["value"]) for r in nu0 if r["patches_per_m"] == 40)
+    assert all(b[1] >= a[1] * (1 - 2e-3) for a, b in zip(finest, finest[1:]))

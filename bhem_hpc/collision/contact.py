@@ -263,6 +263,7 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
         det = np.where(np.abs(det) > 1e-300, det, 1e-300)
         du = np.clip(-(h22 * g1 - h12 * g2) / det, -0.5, 0.5)
         dv = np.clip(-(h11 * g2 - h12 * g1) / det, -0.5, 0.5)
+        previous_u, previous_v = u, v
         pending = np.ones(n, dtype=bool)
         for _ in range(LINE_SEARCH_HALVINGS + 1):
             tu, tv = np.clip(u + du, 0.0, 1.0), np.clip(v + dv, 0.0, 1.0)
@@ -273,6 +274,8 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
             if not pending.any():
                 break
             du, dv = 0.5 * du, 0.5 * dv
+        if float(np.max(np.abs(u - previous_u) + np.abs(v - previous_v))) < 1e-13:
+            break  # no projection moves any more (converged, or held at the patch boundary)
     foot = evaluate_many(nets, u, v)
     normal = np.cross(evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1))
     normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]

@@ -28,7 +28,9 @@ def test_study_writes_csv_table_and_plot(comm, out):
     assert (out / "plate.png").stat().st_size > 5000
     with pytest.raises(StudyError, match="exists and is not empty"):
         run_study("plate", out, comm, limit=1)
-    with pytest.raises(StudyError, match=r"study 'shell' does not exist; known: \['buckling', 'cantilever', 'plate'\]"):
+    with pytest.raises(
+        StudyError, match=r"study 'shell' does not exist; known: \['buckling', 'cantilever', 'drape', 'plate'\]"
+    ):
         run_study("shell", out.parent / "other", comm)
 
 

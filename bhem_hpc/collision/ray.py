@@ -7,7 +7,10 @@ lands inside, records the hit and discards only a small neighbourhood of it (Fig
 grazing rays, which can cross twice close together); otherwise it
 splits at the midpoint (Fig. 10a). The search stops when no box can hold an earlier hit. Every loop
 has an explicit bound; reaching it emits a :class:`BoundReached` warning and returns the best hit so
-far. :class:`PatchBVH` is the broad phase over many patches.
+far. :class:`PatchBVH` is the broad phase over many patches. :func:`trace_rays` runs the same search
+for many rays at once in numpy (vectorized BVH traversal, then rounds that test each live ray's
+``BATCH`` nearest pieces together): the renderer and the benchmarks use it; :func:`intersect_patch`
+is the readable one-ray version the tests compare it with.
 """
 
 from __future__ import annotations

@@ -50,6 +50,7 @@ class Study:
     baseline: dict
     problem: str  # the knob that changes the problem itself (not its discretization)
     extra: tuple[str, ...] = ()  # result columns beyond RESULT_COLUMNS
+    note: str = ""  # how to read the errors (written under the study's heading in the docs)
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -343,6 +344,12 @@ STUDIES = {
         "aspect",
         {"poisson": 0.0},
         "aspect",
+        note=(
+            "The reference is beam theory, exact only as w/L -> 0: the errors at a given w/L are mostly the plate's "
+            "own stiffening near the clamp (the threshold rises about linearly with w/L; extrapolated to w/L = 0 it "
+            "is the beam's within 1 %, asserted by `make study`), not discretization error: 20 and 40 patches per "
+            "metre agree within 0.7 % at every w/L."
+        ),
     ),
     "drape": Study(
         "drape",
@@ -354,6 +361,12 @@ STUDIES = {
         {"dt": 0.01},
         "hessian",
         ("steps",),
+        note=(
+            "The reference is the 24 x 24 exact-Hessian run at dt = 0.01 s (its own row has error 0 and is left "
+            "out of the targets below). A run stops when every nodal velocity is below 1 mm/s, which leaves "
+            "differences of a few 1e-4 between runs that reach the same rest shape. The first step, where the "
+            "moved corners distort their patches, needs regularized retries and a dt halving."
+        ),
     ),
     "cantilever": Study(
         "cantilever",
@@ -460,6 +473,10 @@ def write_accuracy_cost(docs: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> Path:
     for name, study in STUDIES.items():
         rows = run_study(name, target / name, comm)
         lines = [f"## `{name}`: {study.description}", "", f"![{name}](studies/{name}/{name}.png)", ""]
+        if study.note:
+            lines += [study.note, ""]
+        # a study measured against its own finest run: that row is the reference, not a result
+        rows = [r for r in rows if r["error"] > 0.0 or r["value"] != r["reference"]]
         lines += [
             f"| {study.problem} | target error | cheapest configuration | error | solve time [s] | DoFs |",
             "| --- | --- | --- | ---: | ---: | ---: |",

@@ -437,6 +437,7 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
+    rows = _results(rows)
     baseline = [r for r in rows if all(r[k] == v for k, v in study.baseline.items())]
     for label in sorted({r[study.series] for r in baseline}, key=str):
         series = sorted((r for r in baseline if r[study.series] == label), key=lambda r: (r["dofs"], r["wall_s"]))
@@ -453,6 +454,11 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def _results(rows: list[dict]) -> list[dict]:
+    """The rows without a study's own reference row (measured against its finest run: error 0)."""
+    return [r for r in rows if r["error"] > 0.0 or r["value"] != r["reference"]]
 
 
 def cheapest(rows: list[dict], tolerance: float) -> dict | None:
@@ -475,8 +481,7 @@ def write_accuracy_cost(docs: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> Path:
         lines = [f"## `{name}`: {study.description}", "", f"![{name}](studies/{name}/{name}.png)", ""]
         if study.note:
             lines += [study.note, ""]
-        # a study measured against its own finest run: that row is the reference, not a result
-        rows = [r for r in rows if r["error"] > 0.0 or r["value"] != r["reference"]]
+        rows = _results(rows)
         lines += [
             f"| {study.problem} | target error | cheapest configuration | error | solve time [s] | DoFs |",
             "| --- | --- | --- | ---: | ---: | ---: |",

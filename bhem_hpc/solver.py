@@ -877,15 +877,13 @@ class ContactProjector(_PetscOwner):
         self._schur = 0.5 * (schur + schur.T)
         return ids
 
-    def set_rows(self, index: np.ndarray, coefficients: np.ndarray, within_patches: bool = True) -> None:
+    def set_rows(self, index: np.ndarray, coefficients: np.ndarray) -> None:
         """Collective: select the contact rows of the following :meth:`solve` (replaces earlier rows).
 
         Args:
             index: ``(r, K)`` flat nodal entries of each row (identical on every rank).
             coefficients: ``(r, K, 3)`` each row's coefficients of those entries' components.
-            within_patches: kept for callers; the dual form treats pair rows like any other.
         """
-        del within_patches
         if self.ksp is None:
             self.set_metric()
         self._selected = self._add_rows(np.asarray(index), np.asarray(coefficients, dtype=float))
@@ -893,9 +891,10 @@ class ContactProjector(_PetscOwner):
 
     def _dual(
         self, current: np.ndarray | None, targets: np.ndarray, combine
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The selected rows' dual system: distinct cached rows, ``G Z + eps I`` on them and the
-        residual ``targets - G current``, duplicates of a row combined by ``combine`` (a ufunc)."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The selected rows' dual system: distinct cached rows, each selected row's position among
+        them, ``G Z + eps I`` on them and the residual ``targets - G current`` (duplicates of a row
+        combined by ``combine``, a ufunc)."""
         if self._selected is None:
             raise RuntimeError("ContactProjector.solve called before set_rows")
         ids = self._selected
@@ -909,7 +908,7 @@ class ContactProjector(_PetscOwner):
         reduced = np.full(len(used), -np.inf) if combine is np.maximum else np.zeros(len(used))
         combine.at(reduced, position, residual)
         matrix = self._schur[np.ix_(used, used)] + eps * np.eye(len(used))
-        return used, matrix, reduced
+        return used, position, matrix, reduced
 
     def _correction(self, used: np.ndarray, multipliers: np.ndarray) -> np.ndarray:
         """Collective: ``Z lambda`` as flat parametric nodal data on every rank."""
@@ -930,8 +929,8 @@ class ContactProjector(_PetscOwner):
             targets: ``(r,)`` target values of the rows set by :meth:`set_rows`.
         """
         # a row selected twice holds one multiplier for the sum of its residuals: (c A + eps I)
-        used, matrix, reduced = self._dual(current, targets, np.add)
-        counts = np.bincount(np.unique(self._selected, return_inverse=True)[1], minlength=len(used))
+        used, position, matrix, reduced = self._dual(current, targets, np.add)
+        counts = np.bincount(position, minlength=len(used))
         matrix = matrix + (counts[:, None] - 1) * self._schur[np.ix_(used, used)]
         try:
             multipliers = np.linalg.solve(matrix, reduced)
@@ -952,12 +951,12 @@ class ContactProjector(_PetscOwner):
         """
         from bhem_hpc.collision.lcp import ComplementarityError, solve_lcp  # contact scenes only
 
-        used, matrix, reduced = self._dual(current, lower, np.maximum)
+        used, position, matrix, reduced = self._dual(current, lower, np.maximum)
         try:
             multipliers, _ = solve_lcp(matrix, reduced)
         except (ComplementarityError, np.linalg.LinAlgError) as error:
             raise SolverError(f"contact projection '{self.prefix}' failed: {error}") from error
-        impulse = multipliers[np.unique(self._selected, return_inverse=True)[1]]
+        impulse = multipliers[position]
         return self._correction(used, multipliers), impulse
 
     def _diagonal_of(self, rows: np.ndarray) -> np.ndarray:

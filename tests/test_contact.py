@@ -136,7 +136,7 @@ def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng):
         coefficients = np.concatenate([a[1], -b[1]], axis=1)[:, :, None] * normal[:, None, :]
         velocity = rng.normal(size=(grid.num_nodes * 4, 3))
         projector.set_metric(solver.jacobian, 0.01)
-        projector.set_rows(index, coefficients, within_patches=False)
+        projector.set_rows(index, coefficients)
         change = projector.solve(velocity, np.zeros(count))
         new = velocity + change
         one_sided = a[1][:, :, None] * normal[:, None, :]

@@ -259,35 +259,6 @@ class PatchBVH:
         self.children[node] = (left, right)
         return node
 
-    def first_hit(self, origin: np.ndarray, direction: np.ndarray, newton: bool = True) -> Hit | None:
-        """First hit of one ray on any patch, visiting boxes nearest first."""
-        origin, direction = _check_ray(origin, direction)
-        best: Hit | None = None
-        best_tau = math.inf
-        root = ray_aabb(origin, direction, self.lo[0], self.hi[0])
-        heap = [(root[0], 0)] if root is not None else []
-        visits = 0
-        while heap:
-            t_enter, node = heapq.heappop(heap)
-            if t_enter > best_tau:
-                break
-            visits += 1
-            if visits > 4 * len(self.lo):  # each node is pushed at most once
-                warnings.warn("BVH traversal exceeded its node bound", BoundReached, stacklevel=2)
-                break
-            leaf = self.leaves[node]
-            if leaf is not None:
-                for patch in leaf:
-                    hit = intersect_patch(self.nets[patch], origin, direction, int(patch), best_tau, newton=newton)
-                    if hit is not None and hit.tau < best_tau:
-                        best, best_tau = hit, hit.tau
-                continue
-            for child in self.children[node]:
-                span = ray_aabb(origin, direction, self.lo[child], self.hi[child], best_tau)
-                if span is not None:
-                    heapq.heappush(heap, (span[0], child))
-        return best
-
 
 @dataclass(frozen=True)
 class RayHits:

@@ -9,12 +9,14 @@ After the SNES solve of a step has moved the shell from ``x_n`` to a candidate `
 2. the velocity update: zero restitution, i.e. the normal velocity of every approaching contact
    point relative to its obstacle becomes 0 (separating points keep theirs); with friction the
    tangential velocity is reduced by ``mu`` times the normal velocity change, Coulomb's cone
-   [Bridson et al. 2002], as rows solved together with the normal rows. All rows are met in least
-   squares with the mass matrix as metric (:class:`~bhem_hpc.solver.ContactProjector`);
+   [Bridson et al. 2002], as rows solved together with the normal rows. Rows are met in least
+   squares in the metric ``W = dt^2 J + S`` (:class:`~bhem_hpc.solver.ContactProjector`, in dual
+   form: W factored once per step); impulses only push (a linear complementarity problem,
+   :func:`bhem_hpc.collision.lcp.solve_lcp`);
 3. the position update: positions restart from ``x_n`` with the new velocity - each contact point's
    motion is rolled back to its collision moment and continues with the post-impulse velocity -
-   and every contact point is pushed out to the push-out distance (linear position rows, same
-   factorization).
+   and every contact point is pushed out to the push-out distance (linear position rows, the same
+   factorization of W).
 
 A round that finds nothing closer than half the push-out distance ends the loop (at most
 ``max_rounds``). Every rank tests an interleaved share of the samples and the contact list is

@@ -737,12 +737,12 @@ class ContactProjector(_PetscOwner):
         self.factorizations = 0
         self.projections = 0
         self._forget_rows()
-        self._selected: np.ndarray | None = None
+        self._selected: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # (row ids, index, coefficients)
 
     def _forget_rows(self) -> None:
         """Empty the per-step cache of rows and their columns ``Z = W^-1 G^T``."""
         self._row_ids: dict[bytes, int] = {}
-        self._row_closed: list[tuple[np.ndarray, np.ndarray]] = []  # (global closed indices, values)
+        self._row_closed: list[tuple[np.ndarray, ...]] = []  # see _closed_rows
         self._z = np.zeros((self.n_local, 0))  # owned rows of Z, one column per cached row
         self._schur = np.zeros((0, 0))  # G Z over the cached rows (identical on every rank)
 
@@ -801,26 +801,31 @@ class ContactProjector(_PetscOwner):
         ksp.setUp()
         self.ksp = ksp
         self.factorizations += 1
-        try:
-            failed = ksp.getPC().getFactorMatrix().getMumpsInfog(1) < 0
-        except PETSc.Error:  # not MUMPS (options overridden): its errors surface in the solves
-            failed = False
-        if failed:
+        status = self._mumps_status()
+        if status is not None and status < 0:  # not MUMPS (options overridden): errors surface in the solves
             raise SolverError(f"contact metric '{self.prefix}' could not be factored: {self._mumps_info()}")
 
-    def _mumps_info(self) -> str:
+    def _mumps_status(self) -> int | None:
+        """MUMPS INFOG(1) of the metric's factorization (None if the factorization is not MUMPS')."""
         try:
-            return f"MUMPS INFOG(1) = {self.ksp.getPC().getFactorMatrix().getMumpsInfog(1)}"
+            return int(self.ksp.getPC().getFactorMatrix().getMumpsInfog(1))
         except PETSc.Error:
-            return "no MUMPS information"
+            return None
 
-    def _closed_rows(self, index: np.ndarray, coefficients: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _mumps_info(self) -> str:
+        status = self._mumps_status()
+        return "no MUMPS information" if status is None else f"MUMPS INFOG(1) = {status}"
+
+    def _closed_rows(self, index: np.ndarray, coefficients: np.ndarray) -> tuple[np.ndarray, ...]:
         """Row ``(K,)`` entries / ``(K, 3)`` coefficients -> global closed indices and values (the
-        absent second point of a collider contact has zero weights and is dropped)."""
+        absent second point of a collider contact has zero weights and is dropped), then the
+        positions among this rank's owned closed DOFs and values of the owned ones."""
         closed = 3 * self.flat_block[index][:, None] + np.arange(3)
         values = coefficients / self.flat_scale[index][:, None]
         nonzero = values != 0.0
-        return closed[nonzero], values[nonzero]
+        closed, values = closed[nonzero], values[nonzero]
+        owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
+        return closed, values, closed[owned] - self.first_owned, values[owned]
 
     def _add_rows(self, index: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
         """Collective: cache ids of the rows, computing ``Z = W^-1 G^T`` for the new ones in one
@@ -839,9 +844,8 @@ class ContactProjector(_PetscOwner):
         # right-hand sides G_new^T: this rank's rows of the closed vectors
         rhs = np.zeros((self.n_local, len(new)), order="F")
         for column, row in enumerate(new):
-            closed, values = self._row_closed[row]
-            owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
-            np.add.at(rhs[:, column], closed[owned] - self.first_owned, values[owned])
+            _, _, local, local_values = self._row_closed[row]
+            np.add.at(rhs[:, column], local, local_values)
         rhs[self.bc_local] = 0.0
         comm = self.model.comm
         sizes = ((self.n_local, self.n_global), (PETSc.DECIDE, len(new)))
@@ -865,9 +869,8 @@ class ContactProjector(_PetscOwner):
         # G Z for the new rows against every cached column (and by symmetry the transposed block)
         block = np.zeros((len(new), self._z.shape[1]))
         for k, row in enumerate(new):
-            closed, values = self._row_closed[row]
-            owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
-            block[k] = values[owned] @ self._z[closed[owned] - self.first_owned]
+            _, _, local, local_values = self._row_closed[row]
+            block[k] = local_values @ self._z[local]
         block = comm.allreduce(block, op=MPI.SUM)
         old = self._schur.shape[0]
         schur = np.zeros((self._z.shape[1], self._z.shape[1]))
@@ -886,8 +889,8 @@ class ContactProjector(_PetscOwner):
         """
         if self.ksp is None:
             self.set_metric()
-        self._selected = self._add_rows(np.asarray(index), np.asarray(coefficients, dtype=float))
-        self._selected_rows = (np.asarray(index), np.asarray(coefficients, dtype=float))
+        index, coefficients = np.asarray(index), np.asarray(coefficients, dtype=float)
+        self._selected = (self._add_rows(index, coefficients), index, coefficients)
 
     def _dual(
         self, current: np.ndarray | None, targets: np.ndarray, combine
@@ -897,8 +900,7 @@ class ContactProjector(_PetscOwner):
         combined by ``combine``, a ufunc)."""
         if self._selected is None:
             raise RuntimeError("ContactProjector.solve called before set_rows")
-        ids = self._selected
-        index, coefficients = self._selected_rows
+        ids, index, coefficients = self._selected
         residual = np.asarray(targets, dtype=float).copy()
         if current is not None:
             residual -= np.einsum("rkc,rkc->r", coefficients, current[index])
@@ -963,7 +965,7 @@ class ContactProjector(_PetscOwner):
         """diag(G^T G) over the closed DOFs of the selected cached rows."""
         diagonal = np.zeros(self.n_global)
         for row in rows:
-            closed, values = self._row_closed[row]
+            closed, values, _, _ = self._row_closed[row]
             np.add.at(diagonal, closed, values**2)
         return diagonal
 

@@ -490,14 +490,8 @@ def self_contacts(
     p0 = samples.positions(start, rows)
     p1 = samples.positions(end, rows)
     ip, iq = overlapping_pairs(swept_boxes(nets_start, nets_end, gap), swept_boxes(p0, p1, 0.0))
-    own = samples.patch[rows][iq]
-    d1 = np.abs(own // grid.n2 - ip // grid.n2)
-    d2 = np.abs(own % grid.n2 - ip % grid.n2)
-    if grid.periodic1:
-        d1 = np.minimum(d1, grid.n1 - d1)
-    if grid.periodic2:
-        d2 = np.minimum(d2, grid.n2 - d2)
-    far = (d1 > 1) | (d2 > 1)
+    d1, d2 = _neighbour_offsets(grid, samples.patch[rows][iq], ip)
+    far = (np.abs(d1) > 1) | (np.abs(d2) > 1)
     ip, iq = ip[far], iq[far]
     found, uv, side_normal, separation, toi = _point_patch_pairs(p0, p1, nets_start, nets_end, (iq, ip), gap, dt)
     if not len(found):

@@ -41,17 +41,20 @@ bench: setup
 	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc bench --patches 10 20 30
 
 # Long stability cases (720-degree twist, cylinder buckling, 10,000 steps) behind the `stress` marker.
+# The serial run saves each case's final positions; the 2-rank run must reproduce them.
 stress: setup
-	$(PY) -m pytest -m stress
-	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no
+	rm -rf out/stress-serial
+	$(PY) -m pytest -m stress --serial-results out/stress-serial
+	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no -s --serial-results out/stress-serial
 
 # Long studies (issue 5) run behind the `study` marker; exit status 5 means none are collected yet.
 study: setup
 	$(PY) -m pytest -m study || [ $$? -eq 5 ]
 
-# Regenerate docs/accuracy-cost.md (runs every study, ~1 minute).
+# Regenerate docs/accuracy-cost.md: every study serially, then on 2 ranks (the page sets them side by side).
 docs: setup
 	$(VENV)/bin/bhem-hpc study --docs docs
+	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc study --docs docs
 
 clean:
 	rm -rf $(VENV) out build *.egg-info

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,20 @@ logging.getLogger("ffcx").setLevel(logging.WARNING)
 logging.getLogger("UFL").setLevel(logging.WARNING)
 logging.getLogger("root").setLevel(logging.WARNING)
 logging.getLogger().setLevel(logging.WARNING)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--serial-results",
+        type=Path,
+        default=None,
+        help="stress cases: a serial run saves its final positions here, a 2-rank run compares with them",
+    )
+
+
+@pytest.fixture
+def serial_results(request: pytest.FixtureRequest) -> Path | None:
+    return request.config.getoption("--serial-results")
 
 
 @pytest.fixture

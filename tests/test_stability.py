@@ -9,6 +9,9 @@ ones behind the ``stress`` marker (``make stress``).
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -127,8 +130,7 @@ def test_contact_drop_on_a_plane_stays_stable(comm):
     assert model.state_surface().nodal[..., 0, 2].min() >= 0.0
 
 
-@pytest.mark.stress
-def test_sheet_twisted_through_720_degrees(comm):
+def twist_case(comm):
     """The centre node's first derivatives rotate 4 pi about z in 2 s (paper Fig. 18 scene)."""
     rest = S.flat_rectangle(0.6, 0.6, 12, 12, (-0.3, -0.3, 0.0))
     centre = np.array([[6, 6]])
@@ -148,19 +150,18 @@ def test_sheet_twisted_through_720_degrees(comm):
         rotation = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
         return (initial @ rotation.T)[None]
 
-    run_case(model, 400, motions=[PrescribedMotion(held, values)], energy_tolerance=None)
+    return run_case(model, 400, motions=[PrescribedMotion(held, values)], energy_tolerance=None)
 
 
-@pytest.mark.stress
-def test_long_coarse_damped_run(comm):
+def long_damped_case(comm):
     """10,000 steps of a coarse damped strip: nothing drifts, the energy only falls."""
     model = strip(Material(1e5, 0.3, 1e-3, 200.0), patches=(4, 1), dt=0.01, damping=0.5, comm=comm)
-    stepper, energies, _ = run_case(model, 10_000)
+    stepper, energies, model = run_case(model, 10_000)
     assert np.ptp(energies[-100:]) < 1e-9 * np.abs(energies).max()  # at rest
+    return stepper, energies, model
 
 
-@pytest.mark.stress
-def test_cylinder_buckling_under_axial_compression(comm):
+def cylinder_buckling_case(comm):
     """A thin cylinder shortened past its buckling load (bifurcation) keeps converging."""
     rest = S.cylinder(0.05, 0.15, 12, 16)
     bottom = bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))
@@ -171,7 +172,7 @@ def test_cylinder_buckling_under_axial_compression(comm):
     )
     z0 = rest.nodal[top_nodes[:, 0], top_nodes[:, 1], 0, 2][:, None, None]
     motion = PrescribedMotion(top, lambda t: z0 - 0.5 * t)  # 0.5 m/s down
-    run_case(model, 300, motions=[motion], energy_tolerance=None)
+    return run_case(model, 300, motions=[motion], energy_tolerance=None)
 
 
 def ball_drop_case(comm, steps: int = 25):
@@ -214,66 +215,27 @@ def final_positions(name: str, comm) -> np.ndarray:
     return CASES[name](comm)[2].state_surface().nodal[..., 0, :]
 
 
-@pytest.mark.parametrize("name", sorted(CASES))
-def test_two_ranks_give_the_serial_numbers(comm, tmp_path_factory, name):
-    """Each case in this process (2 ranks under mpirun) against a serial run in a fresh process."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
+SERIAL_POSITIONS = {name: (lambda comm, name=name: final_positions(name, comm)) for name in CASES}
 
-    here = comm.bcast(str(tmp_path_factory.mktemp("serial")) if comm.rank == 0 else None)
-    result = Path(here) / "serial.npy"
-    if comm.rank == 0:
-        code = (
-            "import sys, numpy as np\n"
-            f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-            "from mpi4py import MPI\n"
-            "from test_stability import final_positions\n"
-            f"np.save({str(result)!r}, final_positions({name!r}, MPI.COMM_SELF))\n"
-        )
-        env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
-        subprocess.run([sys.executable, "-c", code], check=True, env=env)
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_two_ranks_give_the_serial_numbers(comm, name):
+    """Each case in this process (2 ranks under mpirun) against a serial run in a fresh process."""
+    serial = serial_reference(name, "SERIAL_POSITIONS", comm, None)
     here_result = final_positions(name, comm)
-    comm.Barrier()
-    serial = np.load(result)
-    # Assembly order differs between rank counts; Newton stops at its tolerance, and contact
-    # decisions are discontinuous in round-off, so agreement to round-off is not guaranteed.
     # Measured: 1e-16 .. 5e-16 m without contact, 3e-19 m (plane) and 2e-13 m (ball) with it.
     np.testing.assert_allclose(here_result, serial, atol=1e-8)
 
 
-def run_scene_case(tmp_path, job: str, steps: int):
-    """``bhem-hpc run`` of a job for ``steps`` steps; its summary (a failed step raises)."""
+def job_case(job: str, steps: int, comm) -> tuple[float, list, np.ndarray]:
+    """Run ``jobs/JOB.toml`` for ``steps`` steps (its contact effects included); the lowest signed
+    distance of dense points (8 per patch side) to the job's simple colliders over all steps (inf
+    without colliders), the step reports and the final nodal positions ``(m1, m2, 3)``."""
     from pathlib import Path
 
-    from bhem_hpc.run import RunOptions, run_scene
-
-    jobs = Path(__file__).resolve().parents[1] / "jobs"
-    summary = run_scene(RunOptions(jobs / f"{job}.toml", tmp_path, steps=steps, progress=False, force=True))
-    for step in summary["steps"]:
-        assert all(np.isfinite(v) for v in step["energies"].values()), f"NaN/Inf energy at step {step['step']}"
-    return summary
-
-
-@pytest.mark.stress
-def test_parasol_elongated_patches(comm, tmp_path_factory):
-    """The 280 x 5 parasol (patches 18:1) folding for 0.5 s."""
-    out = tmp_path_factory.mktemp("parasol") if comm.rank == 0 else None
-    summary = run_scene_case(comm.bcast(out), "parasol", 100)
-    assert len(summary["steps"]) == 100
-
-
-def contact_job_penetration(job: str, steps: int, comm) -> tuple[float, list]:
-    """Run ``jobs/JOB.toml`` for ``steps`` steps; the lowest signed distance of dense points (8 per
-    patch side) to the job's simple colliders over all steps, and the step reports."""
-    from pathlib import Path
-
-    from bhem_hpc.collision.contact import collider_at
     from bhem_hpc.dynamics import TimeStepper
     from bhem_hpc.run import build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
-    from bhem_hpc.solver import ShellSolver
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "jobs" / f"{job}.toml")
     model = build_model(scene, comm)
@@ -286,24 +248,94 @@ def contact_job_penetration(job: str, steps: int, comm) -> tuple[float, list]:
         contact = build_contact(scene, model, solver)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
         for _ in range(steps):
-            stepper.advance()
+            report = stepper.advance()  # raises StepFailure if a step cannot be completed
+            assert np.all(np.isfinite(model.x.x.array)), f"NaN/Inf at step {report.step}"
+            if contact is None:
+                continue
+            from bhem_hpc.collision.contact import collider_at
+
             points = model.state_surface().evaluate(*dense).x.reshape(-1, 3)
             for entry in scene.contact.colliders:
                 collider = collider_at(entry.collider, stepper.time)
                 if hasattr(collider, "signed_distance"):
                     lowest = min(lowest, float(collider.signed_distance(points)[0].min()))
-        contact.close()
-    return lowest, stepper.history
+        if contact is not None:
+            contact.close()
+    return lowest, stepper.history, model.state_surface().nodal[..., 0, :]
+
+
+#: The stress cases, each ``comm -> final nodal positions (m1, m2, 3)`` after its own checks.
+STRESS_CASES = {
+    "twist_720": lambda comm: twist_case(comm)[2].state_surface().nodal[..., 0, :],
+    "long_damped": lambda comm: long_damped_case(comm)[2].state_surface().nodal[..., 0, :],
+    "cylinder_buckling": lambda comm: cylinder_buckling_case(comm)[2].state_surface().nodal[..., 0, :],
+    "parasol": lambda comm: job_case("parasol", 100, comm)[2],  # 280 x 5 patches (18:1) folding 0.5 s
+}
+#: The collision issue's scenes from their start: steps, penetration tolerance.
+CONTACT_JOBS = {"ball": (150, 1e-3), "needles": (80, 1e-3), "crushed-can": (40, 1e-3)}
+
+
+def contact_stress_case(job: str, comm) -> np.ndarray:
+    """Every step converges (recoveries counted), and dense points (8 per patch side) never sink
+    into a collider by more than the job's tolerance (between samples a collider can rise by its
+    sagitta; the samples themselves hold the push-out distance)."""
+    steps, tolerance = CONTACT_JOBS[job]
+    lowest, history, positions = job_case(job, steps, comm)
+    assert max(r.contacts for r in history) > 0
+    assert lowest > -tolerance, lowest
+    return positions
+
+
+for _job in CONTACT_JOBS:
+    STRESS_CASES[f"contact_{_job}"] = lambda comm, job=_job: contact_stress_case(job, comm)
+
+#: How far a 2-rank run may end from the serial one (m). Assembly order differs between rank
+#: counts, Newton stops at its tolerance, and contact decisions are discontinuous in round-off.
+STRESS_AGREEMENT = {name: 1e-8 for name in STRESS_CASES}
+
+
+def serial_reference(name: str, cases: str, comm, saved: Path | None) -> np.ndarray:
+    """Final positions of case ``name`` (a key of the dict ``cases`` in this module) from a serial
+    run: the file the serial stress run saved in ``saved`` (``--serial-results``), else a run in a
+    fresh serial process."""
+    import os
+    import subprocess
+    import sys
+
+    if saved is not None:
+        path = saved / f"{name}.npy"
+        if not path.exists():
+            pytest.fail(f"--serial-results {saved}: no {path.name}; run the serial suite with the same option first")
+        return np.load(path)
+    here = Path(comm.bcast(tempfile.mkdtemp(prefix="bhem-serial-") if comm.rank == 0 else None))
+    result = here / "serial.npy"
+    if comm.rank == 0:
+        code = (
+            "import sys, numpy as np\n"
+            f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+            "from mpi4py import MPI\n"
+            f"from test_stability import {cases}\n"
+            f"np.save({str(result)!r}, {cases}[{name!r}](MPI.COMM_SELF))\n"
+        )
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+        subprocess.run([sys.executable, "-c", code], check=True, env=env)
+    comm.Barrier()
+    return np.load(result)
 
 
 @pytest.mark.stress
-@pytest.mark.parametrize(
-    "job, steps, tolerance", [("ball", 150, 1e-3), ("needles", 80, 1e-3), ("crushed-can", 40, 1e-3)]
-)
-def test_contact_jobs_keep_stable_and_out_of_their_colliders(comm, job, steps, tolerance):
-    """The collision issue's scenes from their start: every step converges (recoveries counted), and
-    dense points (8 per patch side) never sink into a collider by more than ``tolerance`` (between
-    samples a collider can rise by its sagitta; the samples themselves hold the push-out distance)."""
-    lowest, history = contact_job_penetration(job, steps, comm)
-    assert max(r.contacts for r in history) > 0
-    assert lowest > -tolerance, lowest
+@pytest.mark.parametrize("name", list(STRESS_CASES))
+def test_stress_case(comm, serial_results, name):
+    """Each stress case passes its own checks; serially it saves its final positions (with
+    ``--serial-results DIR``), on 2 ranks they must equal the serial run's."""
+    positions = STRESS_CASES[name](comm)
+    assert np.all(np.isfinite(positions))
+    if comm.size == 1:
+        if serial_results is not None and comm.rank == 0:
+            serial_results.mkdir(parents=True, exist_ok=True)
+            np.save(serial_results / f"{name}.npy", positions)
+        return
+    serial = serial_reference(name, "STRESS_CASES", comm, serial_results)
+    distance = float(np.linalg.norm(positions - serial, axis=-1).max())
+    print(f"{name}: {comm.size} ranks vs serial: largest nodal distance {distance:.3e} m")
+    assert distance <= STRESS_AGREEMENT[name], distance

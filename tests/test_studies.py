@@ -28,9 +28,8 @@ def test_study_writes_csv_table_and_plot(comm, out):
     assert (out / "plate.png").stat().st_size > 5000
     with pytest.raises(StudyError, match="exists and is not empty"):
         run_study("plate", out, comm, limit=1)
-    with pytest.raises(
-        StudyError, match=r"study 'shell' does not exist; known: \['buckling', 'cantilever', 'drape', 'plate'\]"
-    ):
+    known = r"\['buckling', 'cantilever', 'drape', 'plate', 'wrinkle'\]"
+    with pytest.raises(StudyError, match=rf"study 'shell' does not exist; known: {known}"):
         run_study("shell", out.parent / "other", comm)
 
 
@@ -158,3 +157,29 @@ def test_stretched_sheet_wrinkles_at_10_patches(comm):
     assert 0.6 * WRINKLE_MEASURED < peak < 0.8 * WRINKLE_MEASURED, peak  # measured 0.255 mm
     assert count == 7, count
     assert run["steps"] < 100
+
+
+def test_accuracy_cost_page_sets_rank_counts_side_by_side(comm, out):
+    """The docs page from a serial and a 2-rank run's rows: cheapest configurations over both, and
+    a table of each configuration's value and time per rank count."""
+    import shutil
+
+    from bhem_hpc.studies import _accuracy_cost_markdown, read_rows
+
+    docs = out.parent / "docs"
+    rows = run_study("plate", docs / "studies" / "ranks-1" / "plate", comm, limit=2)
+    if comm.rank == 0:
+        (docs / "studies" / "ranks-2").mkdir()
+        shutil.copytree(docs / "studies" / "ranks-1" / "plate", docs / "studies" / "ranks-2" / "plate")
+        path = docs / "studies" / "ranks-2" / "plate" / "plate.csv"
+        back = read_rows(path)
+        assert [r["value"] for r in back] == [r["value"] for r in rows]  # numbers survive the CSV
+        assert back[0]["patches"] == 2 and back[0]["support"] == "simply_supported"
+        path.write_text(path.read_text().replace(",1,", ",2,", 1))  # first row: the 2-rank run's
+        page = _accuracy_cost_markdown(docs)
+        assert "on 1 and 2 rank(s)" in page
+        table = page[page.index("Rank counts") :]
+        first = rows[0]
+        assert f"| {first['value']:.6g} | {first['value']:.6g} |" in table
+        assert "studies/ranks-1/plate/plate.csv" in page and "studies/ranks-2/plate/plate.csv" in page
+        assert "## `cantilever`" not in page  # studies without rows are left out

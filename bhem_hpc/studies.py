@@ -51,6 +51,7 @@ class Study:
     problem: str  # the knob that changes the problem itself (not its discretization)
     extra: tuple[str, ...] = ()  # result columns beyond RESULT_COLUMNS
     note: str = ""  # how to read the errors (written under the study's heading in the docs)
+    figure: Callable[[Path, list[dict]], None] | None = None  # draws DIR/NAME-shapes.png from the rows
 
     @property
     def columns(self) -> tuple[str, ...]:
@@ -333,7 +334,8 @@ WRINKLE_RAMP = 0.2  # s, the pull's duration (smooth start and stop)
 def _wrinkle_configurations() -> Iterable[dict]:
     for patches in (5, 10, 15, 20, 30, 40):
         yield {"patches": patches, "quadrature": 4, "hessian": "exact", "dt": 0.01}
-    yield {"patches": 20, "quadrature": 3, "hessian": "exact", "dt": 0.01}
+    for patches in (20, 30):
+        yield {"patches": patches, "quadrature": 3, "hessian": "exact", "dt": 0.01}
     yield {"patches": 20, "quadrature": 4, "hessian": "pseudo", "dt": 0.01}
     yield {"patches": 20, "quadrature": 4, "hessian": "exact", "dt": 0.02}
 
@@ -447,10 +449,64 @@ def stretch_to_rest(
     }
 
 
+_WRINKLE_SHAPES: dict[tuple, S.HermiteSurface] = {}  # final surface per configuration, within one process
+
+
+def plot_wrinkles(path: Path, rows: list[dict]) -> None:
+    """Profiles across the width at mid-length for each resolution (exact Hessian, 4 x 4 Gauss,
+    dt 0.01), and the out-of-plane displacement of the finest sheet (paper Fig. 13)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    length, width = WRINKLE_SIZE
+    series = [
+        r
+        for r in rows
+        if (r["quadrature"], r["hessian"], r["dt"]) == (4, "exact", 0.01) and tuple(_config(r)) in _WRINKLE_SHAPES
+    ]
+    if not series:
+        return
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4), dpi=110, gridspec_kw={"width_ratios": [1, 1.4]})
+    across = np.linspace(0.0, width, 401)
+    for r in series:
+        z = _WRINKLE_SHAPES[tuple(_config(r))].evaluate(np.full_like(across, length / 2), across).x[:, 2]
+        axes[0].plot(across * 1e3, z * 1e3, label=f"{r['patches']} x {r['patches']}")
+    axes[0].axhline(WRINKLE_MEASURED * 1e3, color="k", lw=0.8, ls="--", label="measured peak 0.35 mm")
+    axes[0].axhline(-WRINKLE_MEASURED * 1e3, color="k", lw=0.8, ls="--")
+    axes[0].set_xlabel("position across the width at mid-length [mm]")
+    axes[0].set_ylabel("out-of-plane displacement [mm]")
+    axes[0].legend(fontsize=7)
+    axes[0].grid(alpha=0.3)
+    finest = max(series, key=lambda r: r["patches"])
+    surface = _WRINKLE_SHAPES[tuple(_config(finest))]
+    a, b = np.meshgrid(np.linspace(0.0, length, 401), np.linspace(0.0, width, 161), indexing="ij")
+    points = surface.evaluate(a, b).x
+    limit = np.abs(points[..., 2]).max() * 1e3
+    image = axes[1].pcolormesh(
+        points[..., 0] * 1e3, points[..., 1] * 1e3, points[..., 2] * 1e3, cmap="RdBu_r", vmin=-limit, vmax=limit
+    )
+    axes[1].set_aspect("equal")
+    axes[1].set_xlabel("x [mm] (pulled)")
+    axes[1].set_ylabel("y [mm]")
+    axes[1].set_title(f"{finest['patches']} x {finest['patches']} patches, stretched 10 %", fontsize=9)
+    fig.colorbar(image, ax=axes[1], label="z [mm]", shrink=0.8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _config(row: dict) -> list[tuple]:
+    """A wrinkle row's configuration items, in the configurations' key order."""
+    return [(k, row[k]) for k in ("patches", "quadrature", "hessian", "dt")]
+
+
 def run_wrinkle(config: dict, comm: MPI.Comm) -> dict:
     """Stretched-sheet wrinkles (paper Fig. 13, 17): peak amplitude against the measured 0.35 mm."""
     surface, run = stretch_to_rest(config["patches"], config["quadrature"], config["hessian"], config["dt"], comm)
     peak, count = wrinkle_profile(surface)
+    _WRINKLE_SHAPES[tuple(config.items())] = surface
     return {
         "dofs": run["dofs"],
         "nonzeros": run["nonzeros"],
@@ -518,6 +574,7 @@ STUDIES = {
         {"quadrature": 4, "dt": 0.01},
         "hessian",
         ("wrinkles", "steps"),
+        figure=plot_wrinkles,
         note=(
             "The reference is a physical measurement (0.35 mm, Wang et al. 2019, as in the paper's Fig. 17), not an "
             "exact solution: the error of the finest runs is the model's (Kirchhoff-Love, St. Venant-Kirchhoff, "
@@ -575,6 +632,8 @@ def run_study(name: str, out: Path, comm: MPI.Comm = MPI.COMM_WORLD, limit: int 
     if comm.rank == 0:
         _write_table(out / f"{name}.md", study, rows)
         _plot(out / f"{name}.png", study, rows)
+        if study.figure is not None:
+            study.figure(out / f"{name}-shapes.png", rows)
     return rows
 
 
@@ -674,6 +733,8 @@ def _accuracy_cost_markdown(docs: Path) -> str:
         first = min(by_ranks)
         picture = f"studies/ranks-{first}/{name}/{name}.png"
         lines = [f"## `{name}`: {study.description}", "", f"![{name}]({picture})", ""]
+        if (docs / picture.replace(".png", "-shapes.png")).exists():
+            lines += [f"![{name} shapes]({picture.replace('.png', '-shapes.png')})", ""]
         if study.note:
             lines += [study.note, ""]
         rows = _results([r for n in sorted(by_ranks) for r in by_ranks[n]])

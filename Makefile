@@ -44,8 +44,8 @@ bench: setup
 # The serial run saves each case's final positions; the 2-rank run must reproduce them.
 stress: setup
 	rm -rf out/stress-serial
-	$(PY) -m pytest -m stress --serial-results out/stress-serial
-	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no -s --serial-results out/stress-serial
+	$(PY) -m pytest -m stress --serial-results=out/stress-serial
+	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no -s --serial-results=out/stress-serial
 
 # Long studies (issue 5) run behind the `study` marker; exit status 5 means none are collected yet.
 study: setup

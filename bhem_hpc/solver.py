@@ -718,6 +718,10 @@ class ContactProjector(_PetscOwner):
         key = (node[:, 0] * m2 + node[:, 1]) * 4 + disc.block_kind[blocks]
         self.owned_flat = key
         self.flat_block = np.full(m1 * m2 * 4, -1, dtype=np.int64)
+        self._constrained_global = np.zeros(3 * disc.num_closed, dtype=bool)
+        for rows in comm.allgather(np.asarray(solver.bc_rows, dtype=np.int64)):
+            self._constrained_global[rows] = True
+        self.sparse_rhs = True
         self.flat_scale = np.zeros(m1 * m2 * 4)
         for keys, first, scales in comm.allgather((key, disc.closed_offset, disc.block_scale[blocks])):
             self.flat_block[keys] = first + np.arange(len(keys))
@@ -733,6 +737,7 @@ class ContactProjector(_PetscOwner):
         self.option_overrides = dict(options or {})
         self.weighted: PETSc.Mat | None = None
         self.ksp: PETSc.KSP | None = None
+        self._metric_kind = ""  # what `weighted` holds: "mass" (M + S) or "jacobian" (dt^2 J + S)
         self.weighted_max = 1.0
         self.factorizations = 0
         self.projections = 0
@@ -771,35 +776,51 @@ class ContactProjector(_PetscOwner):
             time_step: the ``dt`` of ``jacobian``.
         """
         self.release()
-        for obj in (self.weighted, self.ksp):
-            if obj is not None:
-                obj.destroy()
         self._forget_rows()
+        kind = "mass" if jacobian is None else "jacobian"
+        if self.ksp is not None and kind == self._metric_kind == "mass":
+            return  # M + S does not change: its factorization stays
+        # The same nonzero pattern every step: refill the values, and the KSP refactors numerically
+        # keeping MUMPS' symbolic analysis.
+        reuse = self.ksp is not None and kind == self._metric_kind
+        if not reuse:
+            for obj in (self.weighted, self.ksp):
+                if obj is not None:
+                    obj.destroy()
+            self.weighted = self.ksp = None
         if jacobian is None:
             self.weighted = self.mass.copy()
         else:
-            self.weighted = PETSc.Mat()
-            jacobian.convert("aij", self.weighted)  # the serial LDL^T Jacobian is SBAIJ (one triangle)
+            # W in the Jacobian's own format (SBAIJ for the serial LDL^T: one triangle), S too
+            if self.smoothing.getType() != jacobian.getType():
+                if jacobian.getType().endswith("sbaij"):
+                    self.smoothing.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+                self.smoothing.convert(jacobian.getType())  # in place
+            if reuse:
+                jacobian.copy(self.weighted, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            else:
+                self.weighted = jacobian.duplicate(copy=True)
             self.weighted.scale(time_step**2)
-            self.weighted.axpy(1.0, self.smoothing, PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+            self.weighted.axpy(1.0, self.smoothing, PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         diagonal = self.weighted.getDiagonal()
         self.weighted_max = self.model.comm.allreduce(float(np.abs(diagonal.array_r).max(initial=0.0)), op=MPI.MAX)
         diagonal.destroy()
         self.weighted.setOption(PETSc.Mat.Option.SYMMETRIC, True)
         self.weighted.setOption(PETSc.Mat.Option.SPD, True)
         self.weighted.zeroRowsColumns(self.bc_rows, diag=1.0)
-        ksp = PETSc.KSP().create(self.model.comm)
-        ksp.setOptionsPrefix(self.prefix)
-        opts = PETSc.Options()
-        pushed = _push_options(self.prefix, self.options, self.option_overrides)
-        try:
-            ksp.setFromOptions()
-        finally:
-            for name in pushed:
-                opts.delValue(name)
-        ksp.setOperators(self.weighted)
-        ksp.setUp()
-        self.ksp = ksp
+        if not reuse:
+            self.ksp = PETSc.KSP().create(self.model.comm)
+            self.ksp.setOptionsPrefix(self.prefix)
+            opts = PETSc.Options()
+            pushed = _push_options(self.prefix, self.options, self.option_overrides)
+            try:
+                self.ksp.setFromOptions()
+            finally:
+                for name in pushed:
+                    opts.delValue(name)
+            self._metric_kind = kind
+        self.ksp.setOperators(self.weighted)
+        self.ksp.setUp()
         self.factorizations += 1
         status = self._mumps_status()
         if status is not None and status < 0:  # not MUMPS (options overridden): errors surface in the solves
@@ -827,6 +848,44 @@ class ContactProjector(_PetscOwner):
         owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
         return closed, values, closed[owned] - self.first_owned, values[owned]
 
+    def _dense_rhs(self, rows: list[int]) -> PETSc.Mat:
+        """``G^T`` of cached ``rows`` as a dense matrix (this rank's rows of the closed vectors)."""
+        rhs = np.zeros((self.n_local, len(rows)), order="F")
+        for column, row in enumerate(rows):
+            _, _, local, local_values = self._row_closed[row]
+            np.add.at(rhs[:, column], local, local_values)
+        rhs[self.bc_local] = 0.0
+        sizes = ((self.n_local, self.n_global), (PETSc.DECIDE, len(rows)))
+        return PETSc.Mat().createDense(sizes, array=rhs, comm=self.model.comm)
+
+    def _sparse_rhs(self, rows: list[int]) -> PETSc.Mat:
+        """``G^T`` of cached ``rows`` as the transpose of a sparse ``G`` (all of it on rank 0):
+        MUMPS then skips the zero parts of each right-hand side in the forward elimination."""
+        comm = self.model.comm
+        if comm.rank == 0:
+            closed = [self._row_closed[row][0] for row in rows]
+            values = [self._row_closed[row][1] for row in rows]
+            row_of = np.repeat(np.arange(len(rows)), [len(c) for c in closed])
+            closed, values = np.concatenate(closed), np.concatenate(values)
+            keep = ~self._constrained_global[closed]  # constrained DOFs do not move
+            # one entry per (row, DOF): a point's weights can name a DOF twice
+            key, total = np.unique(row_of[keep] * self.n_global + closed[keep], return_inverse=True)
+            summed = np.bincount(total, weights=values[keep], minlength=len(key))
+            counts = np.bincount(key // self.n_global, minlength=len(rows))
+            csr = (np.concatenate([[0], np.cumsum(counts)]), key % self.n_global, summed)
+            local_rows = len(rows)
+        else:
+            csr, local_rows = (np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0)), 0
+        indptr, indices, data = csr
+        g = PETSc.Mat().createAIJ(
+            ((local_rows, len(rows)), (self.n_local, self.n_global)),
+            csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
+            comm=comm,
+        )
+        transposed = PETSc.Mat().createTranspose(g)
+        g.destroy()  # the transpose keeps a reference
+        return transposed
+
     def _add_rows(self, index: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
         """Collective: cache ids of the rows, computing ``Z = W^-1 G^T`` for the new ones in one
         multi-right-hand-side solve and extending ``G Z``."""
@@ -841,15 +900,9 @@ class ContactProjector(_PetscOwner):
             ids[r] = self._row_ids[key]
         if not new:
             return ids
-        # right-hand sides G_new^T: this rank's rows of the closed vectors
-        rhs = np.zeros((self.n_local, len(new)), order="F")
-        for column, row in enumerate(new):
-            _, _, local, local_values = self._row_closed[row]
-            np.add.at(rhs[:, column], local, local_values)
-        rhs[self.bc_local] = 0.0
         comm = self.model.comm
         sizes = ((self.n_local, self.n_global), (PETSc.DECIDE, len(new)))
-        b = PETSc.Mat().createDense(sizes, array=rhs, comm=comm)
+        b = self._sparse_rhs(new) if self.sparse_rhs else self._dense_rhs(new)
         x = PETSc.Mat().createDense(sizes, comm=comm)
         x.setUp()
         try:

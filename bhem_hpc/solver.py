@@ -721,7 +721,9 @@ class ContactProjector(_PetscOwner):
         self._constrained_global = np.zeros(3 * disc.num_closed, dtype=bool)
         for rows in comm.allgather(np.asarray(solver.bc_rows, dtype=np.int64)):
             self._constrained_global[rows] = True
-        self.sparse_rhs = True
+        # Sparse right-hand sides serially only: PETSc 3.18's parallel path stops with MUMPS
+        # INFOG(1) = -27 (the sparse RHS pointers do not match); in parallel G^T goes dense.
+        self.sparse_rhs = comm.size == 1
         self.flat_scale = np.zeros(m1 * m2 * 4)
         for keys, first, scales in comm.allgather((key, disc.closed_offset, disc.block_scale[blocks])):
             self.flat_block[keys] = first + np.arange(len(keys))
@@ -859,27 +861,30 @@ class ContactProjector(_PetscOwner):
         return PETSc.Mat().createDense(sizes, array=rhs, comm=self.model.comm)
 
     def _sparse_rhs(self, rows: list[int]) -> PETSc.Mat:
-        """``G^T`` of cached ``rows`` as the transpose of a sparse ``G`` (all of it on rank 0):
-        MUMPS then skips the zero parts of each right-hand side in the forward elimination."""
+        """``G^T`` of cached ``rows`` as the transpose of a sparse ``G``: MUMPS then skips the zero
+        parts of each right-hand side in the forward elimination (rows split among the ranks like
+        the solution's columns)."""
         comm = self.model.comm
-        if comm.rank == 0:
-            closed = [self._row_closed[row][0] for row in rows]
-            values = [self._row_closed[row][1] for row in rows]
-            row_of = np.repeat(np.arange(len(rows)), [len(c) for c in closed])
-            closed, values = np.concatenate(closed), np.concatenate(values)
-            keep = ~self._constrained_global[closed]  # constrained DOFs do not move
-            # one entry per (row, DOF): a point's weights can name a DOF twice
-            key, total = np.unique(row_of[keep] * self.n_global + closed[keep], return_inverse=True)
-            summed = np.bincount(total, weights=values[keep], minlength=len(key))
-            counts = np.bincount(key // self.n_global, minlength=len(rows))
-            csr = (np.concatenate([[0], np.cumsum(counts)]), key % self.n_global, summed)
-            local_rows = len(rows)
-        else:
-            csr, local_rows = (np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0)), 0
-        indptr, indices, data = csr
+        closed = [self._row_closed[row][0] for row in rows]
+        values = [self._row_closed[row][1] for row in rows]
+        row_of = np.repeat(np.arange(len(rows)), [len(c) for c in closed])
+        closed, values = np.concatenate(closed), np.concatenate(values)
+        keep = ~self._constrained_global[closed]  # constrained DOFs do not move
+        # one entry per (row, DOF): a point's weights can name a DOF twice
+        key, total = np.unique(row_of[keep] * self.n_global + closed[keep], return_inverse=True)
+        summed = np.bincount(total, weights=values[keep], minlength=len(key))
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(key // self.n_global, minlength=len(rows)))])
+        # this rank's rows, as PETSc.DECIDE splits the columns of the dense solution
+        count = len(rows) // comm.size + (comm.rank < len(rows) % comm.size)
+        first = comm.exscan(count) or 0
+        lo, hi = indptr[first], indptr[first + count]
         g = PETSc.Mat().createAIJ(
-            ((local_rows, len(rows)), (self.n_local, self.n_global)),
-            csr=(indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType), data),
+            ((count, len(rows)), (self.n_local, self.n_global)),
+            csr=(
+                (indptr[first : first + count + 1] - lo).astype(PETSc.IntType),
+                (key[lo:hi] % self.n_global).astype(PETSc.IntType),
+                summed[lo:hi],
+            ),
             comm=comm,
         )
         transposed = PETSc.Mat().createTranspose(g)

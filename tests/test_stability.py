@@ -316,6 +316,12 @@ for _job in CONTACT_JOBS:
 #: How far a 2-rank run may end from the serial one (m). Assembly order differs between rank
 #: counts, Newton stops at its tolerance, and contact decisions are discontinuous in round-off.
 STRESS_AGREEMENT = {name: 1e-8 for name in STRESS_CASES}
+# past the buckling point the rank counts' Newton round-off grows along the post-buckling path
+# (measured 2.2e-8 m on a 5 cm radius, 0.5 mm wall; 6.5 cm before the imperfection chose the mode)
+STRESS_AGREEMENT["cylinder_buckling"] = 1e-6
+# contact decisions are discontinuous in round-off: 1 % of the push-out distance (the ball job,
+# 150 steps and up to 405 contacts: measured 1.5e-7 m)
+STRESS_AGREEMENT.update({f"contact_{job}": 1e-6 for job in CONTACT_JOBS})
 
 
 def serial_reference(name: str, cases: str, comm, saved: Path | None) -> np.ndarray:

@@ -51,7 +51,7 @@ stress: setup
 study: setup
 	$(PY) -m pytest -m study || [ $$? -eq 5 ]
 
-# Regenerate docs/accuracy-cost.md: every study serially, then on 2 ranks (the page sets them side by side).
+# Regenerate docs/accuracy-cost.md: every study serially, then on 2 ranks (the page sets them side by side; ~32 min).
 docs: setup
 	$(VENV)/bin/bhem-hpc study --docs docs
 	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc study --docs docs

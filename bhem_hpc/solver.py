@@ -861,10 +861,8 @@ class ContactProjector(_PetscOwner):
         return PETSc.Mat().createDense(sizes, array=rhs, comm=self.model.comm)
 
     def _sparse_rhs(self, rows: list[int]) -> PETSc.Mat:
-        """``G^T`` of cached ``rows`` as the transpose of a sparse ``G``: MUMPS then skips the zero
-        parts of each right-hand side in the forward elimination (rows split among the ranks like
-        the solution's columns)."""
-        comm = self.model.comm
+        """``G^T`` of cached ``rows`` as the transpose of a sparse ``G`` (serial runs): MUMPS then
+        skips the zero parts of each right-hand side in the forward elimination."""
         closed = [self._row_closed[row][0] for row in rows]
         values = [self._row_closed[row][1] for row in rows]
         row_of = np.repeat(np.arange(len(rows)), [len(c) for c in closed])
@@ -874,18 +872,10 @@ class ContactProjector(_PetscOwner):
         key, total = np.unique(row_of[keep] * self.n_global + closed[keep], return_inverse=True)
         summed = np.bincount(total, weights=values[keep], minlength=len(key))
         indptr = np.concatenate([[0], np.cumsum(np.bincount(key // self.n_global, minlength=len(rows)))])
-        # this rank's rows, as PETSc.DECIDE splits the columns of the dense solution
-        count = len(rows) // comm.size + (comm.rank < len(rows) % comm.size)
-        first = comm.exscan(count) or 0
-        lo, hi = indptr[first], indptr[first + count]
         g = PETSc.Mat().createAIJ(
-            ((count, len(rows)), (self.n_local, self.n_global)),
-            csr=(
-                (indptr[first : first + count + 1] - lo).astype(PETSc.IntType),
-                (key[lo:hi] % self.n_global).astype(PETSc.IntType),
-                summed[lo:hi],
-            ),
-            comm=comm,
+            ((len(rows), len(rows)), (self.n_local, self.n_global)),
+            csr=(indptr.astype(PETSc.IntType), (key % self.n_global).astype(PETSc.IntType), summed),
+            comm=self.model.comm,
         )
         transposed = PETSc.Mat().createTranspose(g)
         g.destroy()  # the transpose keeps a reference

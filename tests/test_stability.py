@@ -224,12 +224,17 @@ CASES = {
 }
 
 
+def end_positions(case):
+    """A ``run_case``-style case as ``comm -> nodal positions (m1, m2, 3) at its end``."""
+    return lambda comm: case(comm)[2].state_surface().nodal[..., 0, :]
+
+
+SERIAL_POSITIONS = {name: end_positions(case) for name, case in CASES.items()}
+
+
 def final_positions(name: str, comm) -> np.ndarray:
     """Nodal positions ``(m1, m2, 3)`` at the end of case ``name``."""
-    return CASES[name](comm)[2].state_surface().nodal[..., 0, :]
-
-
-SERIAL_POSITIONS = {name: (lambda comm, name=name: final_positions(name, comm)) for name in CASES}
+    return SERIAL_POSITIONS[name](comm)
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -287,9 +292,9 @@ def job_case(job: str, steps: int, comm, imperfection: float = 0.0) -> tuple[flo
 
 #: The stress cases, each ``comm -> final nodal positions (m1, m2, 3)`` after its own checks.
 STRESS_CASES = {
-    "twist_720": lambda comm: twist_case(comm)[2].state_surface().nodal[..., 0, :],
-    "long_damped": lambda comm: long_damped_case(comm)[2].state_surface().nodal[..., 0, :],
-    "cylinder_buckling": lambda comm: cylinder_buckling_case(comm)[2].state_surface().nodal[..., 0, :],
+    "twist_720": end_positions(twist_case),
+    "long_damped": end_positions(long_damped_case),
+    "cylinder_buckling": end_positions(cylinder_buckling_case),
     "parasol": lambda comm: job_case("parasol", 100, comm)[2],  # 280 x 5 patches (18:1) folding 0.5 s
 }
 #: The collision issue's scenes from their start: steps, penetration tolerance, imperfection [m].

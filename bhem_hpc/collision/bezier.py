@@ -21,15 +21,24 @@ def control_nets(grid: ParameterGrid, nodal: np.ndarray) -> np.ndarray:
 
 
 def _bernstein(t: np.ndarray, derivative: int = 0) -> np.ndarray:
+    """Cubic Bernstein polynomials (or their first or second derivatives) at ``t``: shape ``t.shape + (4,)``."""
     t = np.asarray(t, dtype=float)
     s = 1.0 - t
+    out = np.empty(t.shape + (4,))  # filled column by column: np.stack costs more than the arithmetic
     if derivative == 0:
-        return np.stack([s**3, 3 * t * s**2, 3 * t**2 * s, t**3], axis=-1)
-    if derivative == 1:
-        return np.stack([-3 * s**2, 3 * s**2 - 6 * t * s, 6 * t * s - 3 * t**2, 3 * t**2], axis=-1)
-    if derivative == 2:
-        return np.stack([6 * s, 6 * t - 12 * s, 6 * s - 12 * t, 6 * t], axis=-1)
-    raise ValueError(f"Bernstein derivative order must be 0, 1 or 2, got {derivative!r}")
+        out[..., 0], out[..., 1], out[..., 2], out[..., 3] = s**3, 3 * t * s**2, 3 * t**2 * s, t**3
+    elif derivative == 1:
+        out[..., 0], out[..., 1], out[..., 2], out[..., 3] = (
+            -3 * s**2,
+            3 * s**2 - 6 * t * s,
+            6 * t * s - 3 * t**2,
+            3 * t**2,
+        )
+    elif derivative == 2:
+        out[..., 0], out[..., 1], out[..., 2], out[..., 3] = 6 * s, 6 * t - 12 * s, 6 * s - 12 * t, 6 * t
+    else:
+        raise ValueError(f"Bernstein derivative order must be 0, 1 or 2, got {derivative!r}")
+    return out
 
 
 def evaluate(net: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> np.ndarray:

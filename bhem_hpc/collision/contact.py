@@ -39,6 +39,8 @@ INSIDE_EPS = 1e-9
 #: Newton iterations of the closest-point projection, its starting lattice (per side) and the
 #: halvings of a step that would increase the distance.
 PROJECTION_ITERATIONS = 12
+#: A projection has settled when its distance falls by less than this times the patch's size.
+PROJECTION_TOLERANCE = 1e-12
 START_GRID = 7
 LINE_SEARCH_HALVINGS = 4
 
@@ -212,6 +214,13 @@ def overlapping_pairs(boxes_a: np.ndarray, boxes_b: np.ndarray, max_cells: int =
     return ia[overlap], ib[overlap]
 
 
+def box_distance(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
+    """Euclidean distances ``(N,)`` between paired boxes ``(N, 2, 3)``: a lower bound on the distance
+    between anything inside them."""
+    apart = np.maximum(0.0, np.maximum(boxes_a[:, 0] - boxes_b[:, 1], boxes_b[:, 0] - boxes_a[:, 1]))
+    return np.linalg.norm(apart, axis=1)
+
+
 def swept_boxes(start: np.ndarray, end: np.ndarray, pad: float) -> np.ndarray:
     """Boxes ``(N, 2, 3)`` around point sets ``(N, P, 3)`` (or points ``(N, 3)``) at both ends."""
     start = np.asarray(start).reshape(len(start), -1, 3)
@@ -222,12 +231,22 @@ def swept_boxes(start: np.ndarray, end: np.ndarray, pad: float) -> np.ndarray:
 
 
 # -- closest points on patches -----------------------------------------------------------------------
+def _derivatives(nets: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Points and partial derivatives up to second order of nets ``(N, 4, 4, 3)`` at ``u, v (N,)``:
+    ``(N, 3, 3, 3)`` indexed ``[order in u, order in v, xyz]`` (orders above 2 in total are unused)."""
+    along_u = np.stack([_bernstein(u, k) for k in range(3)], axis=1)  # (N, 3, 4)
+    along_v = np.stack([_bernstein(v, k) for k in range(3)], axis=1)
+    partial = np.matmul(along_u, nets.reshape(len(nets), 4, 12)).reshape(-1, 3, 4, 3)  # [n, order u, j, xyz]
+    return np.matmul(along_v[:, None], partial)  # [n, order u, order v, xyz]
+
+
 def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closest points of ``points (N, 3)`` on Bezier patches ``nets (N, 4, 4, 3)`` (one each).
 
-    Newton on the first-order conditions from the nearest of ``START_GRID^2`` samples,
-    ``PROJECTION_ITERATIONS`` iterations, clamped to the patch (Gauss-Newton where the full Hessian is
-    not positive), each step halved until the distance does not grow. The line search matters where
+    Newton on the first-order conditions from the nearest of ``START_GRID^2`` samples, at most
+    ``PROJECTION_ITERATIONS`` iterations (each projection stops once its distance falls by less than
+    ``PROJECTION_TOLERANCE`` times the patch's size), clamped to the patch (Gauss-Newton where the
+    full Hessian is not positive), each step halved until the distance does not grow. The line search matters where
     a patch wraps around the point (cloth on a ball, seen from the ball's centre): the distance is
     then nearly constant over the patch, its Hessian nearly singular, and full Newton steps jump
     between the patch's corners.
@@ -246,14 +265,14 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
     nearest = np.argmin(((samples - points[:, None]) ** 2).sum(-1), axis=1)
     u, v = gu.ravel()[nearest], gv.ravel()[nearest]
     distance = ((evaluate_many(nets, u, v) - points) ** 2).sum(1)
+    active = np.arange(n)  # the projections still iterating
+    tolerance = PROJECTION_TOLERANCE * np.linalg.norm(np.ptp(nets.reshape(n, 16, 3), axis=1), axis=1)
     for _ in range(PROJECTION_ITERATIONS):
-        r = evaluate_many(nets, u, v) - points
-        su, sv = evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1)
-        suu, svv, suv = (
-            evaluate_many(nets, u, v, 2, 0),
-            evaluate_many(nets, u, v, 0, 2),
-            evaluate_many(nets, u, v, 1, 1),
-        )
+        if not len(active):
+            break
+        net, point = nets[active], points[active]
+        d = _derivatives(net, u[active], v[active])
+        r, su, sv, suu, svv, suv = d[:, 0, 0] - point, d[:, 1, 0], d[:, 0, 1], d[:, 2, 0], d[:, 0, 2], d[:, 1, 1]
         g1, g2 = (r * su).sum(1), (r * sv).sum(1)
         a11, a12, a22 = (su * su).sum(1), (su * sv).sum(1), (sv * sv).sum(1)
         h11, h12, h22 = a11 + (r * suu).sum(1), a12 + (r * suv).sum(1), a22 + (r * svv).sum(1)
@@ -263,21 +282,28 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
         det = np.where(np.abs(det) > 1e-300, det, 1e-300)
         du = np.clip(-(h22 * g1 - h12 * g2) / det, -0.5, 0.5)
         dv = np.clip(-(h11 * g2 - h12 * g1) / det, -0.5, 0.5)
-        previous_u, previous_v = u, v
-        pending = np.ones(n, dtype=bool)
+        new_u, new_v, new_distance = u[active], v[active], distance[active]
+        pending = np.arange(len(active))
         for _ in range(LINE_SEARCH_HALVINGS + 1):
-            tu, tv = np.clip(u + du, 0.0, 1.0), np.clip(v + dv, 0.0, 1.0)
-            trial = ((evaluate_many(nets, tu, tv) - points) ** 2).sum(1)
-            accept = pending & (trial <= distance)
-            u, v, distance = np.where(accept, tu, u), np.where(accept, tv, v), np.where(accept, trial, distance)
-            pending &= ~accept
-            if not pending.any():
+            tu, tv = np.clip(new_u[pending] + du[pending], 0.0, 1.0), np.clip(new_v[pending] + dv[pending], 0.0, 1.0)
+            trial = ((evaluate_many(net[pending], tu, tv) - point[pending]) ** 2).sum(1)
+            accept = trial <= new_distance[pending]
+            taken = pending[accept]
+            new_u[taken], new_v[taken], new_distance[taken] = tu[accept], tv[accept], trial[accept]
+            pending = pending[~accept]
+            if not len(pending):
                 break
             du, dv = 0.5 * du, 0.5 * dv
-        if float(np.max(np.abs(u - previous_u) + np.abs(v - previous_v))) < 1e-13:
-            break  # no projection moves any more (converged, or held at the patch boundary)
-    foot = evaluate_many(nets, u, v)
-    normal = np.cross(evaluate_many(nets, u, v, 1, 0), evaluate_many(nets, u, v, 0, 1))
+        # Settled: the distance fell by less than the tolerance (Newton's next decrease is smaller
+        # still, or the foot only slides along a valley flat to round-off: a patch wrapped around
+        # the point), or the step was rejected (the same step would be taken and rejected again).
+        decrease = np.sqrt(distance[active]) - np.sqrt(new_distance)
+        moving = (decrease > tolerance[active]) & (np.abs(new_u - u[active]) + np.abs(new_v - v[active]) > 0.0)
+        u[active], v[active], distance[active] = new_u, new_v, new_distance
+        active = active[moving]
+    d = _derivatives(nets, u, v)
+    foot = d[:, 0, 0]
+    normal = np.cross(d[:, 1, 0], d[:, 0, 1])
     normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
     inside = (u > INSIDE_EPS) & (u < 1 - INSIDE_EPS) & (v > INSIDE_EPS) & (v < 1 - INSIDE_EPS)
     return np.stack([u, v], axis=1), foot, normal, inside
@@ -441,7 +467,12 @@ def point_contacts(
     q0 = points_start[rows]
     q1 = q0 + dt * velocity
     reach = gap + clearance
-    ip, iq = overlapping_pairs(swept_boxes(nets_start, nets_end, reach), swept_boxes(q0, q1, 0.0))
+    patch_boxes, point_boxes = swept_boxes(nets_start, nets_end, 0.0), swept_boxes(q0, q1, 0.0)
+    ip, iq = overlapping_pairs(patch_boxes + [[-reach], [reach]], point_boxes)
+    # The padded boxes overlap where the boxes are within reach in every axis; a round tip's reach
+    # (a sphere's radius) is large, so keep only the pairs within reach in Euclidean distance.
+    keep = box_distance(patch_boxes[ip], point_boxes[iq]) <= reach
+    ip, iq = ip[keep], iq[keep]
     found, uv, side_normal, separation, toi = _point_patch_pairs(q0, q1, nets_start, nets_end, (iq, ip), reach, dt)
     if not len(found):
         return Contacts.empty()

@@ -10,8 +10,9 @@ After the SNES solve of a step has moved the shell from ``x_n`` to a candidate `
    point relative to its obstacle becomes 0 (separating points keep theirs); with friction the
    tangential velocity is reduced by ``mu`` times the normal velocity change, Coulomb's cone
    [Bridson et al. 2002], as rows solved together with the normal rows. Rows are met in least
-   squares in the metric ``W = dt^2 J + S`` (:class:`~bhem_hpc.solver.ContactProjector`, in dual
-   form: W factored once per step); impulses only push (a linear complementarity problem,
+   squares in the metric ``W`` (:class:`~bhem_hpc.solver.ContactProjector`, in dual form):
+   ``M + S`` by default, factored once for the run, or ``dt^2 J + S`` (``metric = "jacobian"``),
+   refactored each step with contact; impulses only push (a linear complementarity problem,
    :func:`bhem_hpc.collision.lcp.solve_lcp`);
 3. the position update: positions restart from ``x_n`` with the new velocity - each contact point's
    motion is rolled back to its collision moment and continues with the post-impulse velocity -
@@ -43,12 +44,25 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class ContactSettings:
     """Parameters of the response (sampling and self-collision belong to the
-    :class:`~bhem_hpc.collision.contact.ContactDetector`)."""
+    :class:`~bhem_hpc.collision.contact.ContactDetector`).
+
+    Attributes:
+        push_out: distance every contact point is pushed out to [m].
+        max_rounds: bound on the detection-response rounds of a step.
+        metric: the metric ``W`` that distributes impulses and pushes over the nodal DOFs.
+            ``"mass"``: ``M + S`` (momentum-based impulses, as the paper's [HVTG08]; factored once
+            for the run, through its scalar block). ``"jacobian"``: ``dt^2 J + S`` with the step's
+            Jacobian (the implicit step's answer to an impulse: a stiff shell moves as a whole;
+            refactored every step with contact).
+    """
 
     push_out: float = 1e-4
     max_rounds: int = 4
+    metric: str = "mass"
 
     def validate(self) -> None:
+        if self.metric not in ("mass", "jacobian"):
+            raise ValueError(f"contact metric must be 'mass' or 'jacobian', got {self.metric!r}")
         if not (math.isfinite(self.push_out) and self.push_out > 0):
             raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
         if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):
@@ -77,11 +91,10 @@ def _tangents(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t1, np.cross(normal, t1)
 
 
-def _rows(contacts: Contacts, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``d . (a - b)`` for directions ``(k, 3)``: ``(index (k, 32), coefficients (k, 32, 3))``."""
+def _rows(contacts: Contacts) -> tuple[np.ndarray, np.ndarray]:
+    """The points ``a - b`` of the contacts' rows ``d . (a - b)``: ``(index (k, 32), weights (k, 32))``."""
     index = np.concatenate([contacts.index_a, contacts.index_b], axis=1)
-    weights = np.concatenate([contacts.weights_a, -contacts.weights_b], axis=1)
-    return index, weights[:, :, None] * directions[:, None, :]
+    return index, np.concatenate([contacts.weights_a, -contacts.weights_b], axis=1)
 
 
 class ContactHandler:
@@ -108,7 +121,8 @@ class ContactHandler:
         self.model = model
         self.detector = detector
         self.projector = ContactProjector(solver, options=options)
-        self.jacobian = solver.jacobian  # the last Newton iteration's, at (nearly) the step's end
+        # the last Newton iteration's Jacobian, at (nearly) the step's end
+        self.jacobian = solver.jacobian if self.settings.metric == "jacobian" else None
         self.history: list[ContactReport] = []
 
     def _flat(self, open_array: np.ndarray) -> np.ndarray:
@@ -199,20 +213,21 @@ class ContactHandler:
         # and stops there (its motion past the collision moment is removed). separation(start) is
         # measured to the obstacle's end position: its own motion is added back.
         allowed = np.maximum((contacts.separation(start) - contacts.clearance - gap) / dt + wn, 0.0)
-        index, coefficients = _rows(contacts, normal)
-        dv, active = self._inequalities(index, coefficients, velocity, wn - allowed)
+        index, weights = _rows(contacts)
+        dv, active = self._inequalities(index, weights, normal, velocity, wn - allowed)
         if len(active) and np.any(contacts.friction[active] > 0):
-            dv = self._friction(contacts.take(active), index[active], coefficients[active], velocity, dv)
+            dv = self._friction(contacts.take(active), index[active], weights[active], velocity, dv)
         # what the new velocities leave closer than the push-out distance is pushed out to it
         moved = start + dt * (velocity + dv) + pushed
         deficit = gap - (contacts.separation(moved) - contacts.clearance)
-        dx, _ = self._inequalities(index, coefficients, None, deficit)
+        dx, _ = self._inequalities(index, weights, normal, None, deficit)
         return dv, dx
 
     def _inequalities(
         self,
         index: np.ndarray,
-        coefficients: np.ndarray,
+        weights: np.ndarray,
+        directions: np.ndarray,
         current: np.ndarray | None,
         lower: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -227,13 +242,13 @@ class ContactHandler:
             ``(d, rows that push)``.
         """
         base = np.zeros((len(self.projector.flat_block), 3)) if current is None else current
-        value = np.einsum("kjc,kjc->k", coefficients, base[index])
+        value = np.einsum("kj,kjc,kc->k", weights, base[index], directions)
         # rows count as met within round-off of the largest needed change
         tolerance = 1e-9 * max(float(np.abs(lower - value).max(initial=0.0)), 1e-300)
         if not np.any(value < lower - tolerance):
             return np.zeros_like(base), np.zeros(0, np.int64)
         projector = self.projector
-        projector.set_rows(index, coefficients)
+        projector.set_rows(index, weights, directions)
         try:
             correction, impulse = projector.solve_pushing(current, lower)
         finally:
@@ -241,7 +256,7 @@ class ContactHandler:
         return correction, np.flatnonzero(impulse > 0.0)
 
     def _friction(
-        self, contacts: Contacts, index: np.ndarray, coefficients: np.ndarray, velocity: np.ndarray, dv: np.ndarray
+        self, contacts: Contacts, index: np.ndarray, weights: np.ndarray, velocity: np.ndarray, dv: np.ndarray
     ) -> np.ndarray:
         """Normal rows at their frictionless result plus Coulomb-limited tangential rows, together."""
         normal = contacts.normal
@@ -253,24 +268,17 @@ class ContactHandler:
         speed = np.linalg.norm(vt, axis=1)
         # Coulomb: the tangential speed drops by at most mu times the normal velocity change
         keep = np.maximum(0.0, 1.0 - contacts.friction * (vn_after - vn_before) / np.maximum(speed, 1e-300))
-        all_index, all_coefficients = [index], [coefficients]
+        tangents = _tangents(normal)
         targets = [np.einsum("kc,kc->k", after + contacts.obstacle_velocity, normal)]
-        for tangent in _tangents(normal):
-            i, c = _rows(contacts, tangent)
-            all_index.append(i)
-            all_coefficients.append(c)
+        for tangent in tangents:
             targets.append(
                 np.einsum("kc,kc->k", contacts.obstacle_velocity, tangent) + keep * np.einsum("kc,kc->k", vt, tangent)
             )
-        return self._project(
-            np.concatenate(all_index), np.concatenate(all_coefficients), velocity, np.concatenate(targets)
-        )
-
-    def _project(self, index, coefficients, current, targets) -> np.ndarray:
+        # the same contact points in three directions: the normal and both tangents
         projector = self.projector
-        projector.set_rows(index, coefficients)
+        projector.set_rows(np.tile(index, (3, 1)), np.tile(weights, (3, 1)), np.concatenate([normal, *tangents]))
         try:
-            return projector.solve(current, targets)
+            return projector.solve(velocity, np.concatenate(targets))
         finally:
             projector.release()
 

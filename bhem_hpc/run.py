@@ -109,7 +109,7 @@ def build_contact(scene: Scene, model: ShellModel, solver: ShellSolver):
 
     c = scene.contact
     detector = ContactDetector(scene.surface.grid, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)
-    settings = ContactSettings(c.push_out)
+    settings = ContactSettings(c.push_out, metric=c.metric)
     return ContactHandler(model, solver, detector, settings)
 
 

@@ -28,6 +28,8 @@ CORNERS = ("min_min", "min_max", "max_min", "max_max")
 # Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = ("gravity", "pressure", "damping", "point_loads", "line_loads", "contact", "self_collision", "friction")
 CONTACT_EFFECTS = ("contact", "self_collision", "friction")
+#: Metrics of the contact impulses (:class:`bhem_hpc.contact.ContactSettings`).
+CONTACT_METRICS = ("mass", "jacobian")
 COLLIDER_TYPES = ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
 
 
@@ -88,6 +90,7 @@ class SceneContact:
     samples_per_side: int
     self_collision: bool
     self_friction: float
+    metric: str = "mass"  # the impulse metric: "mass" (M + S) or "jacobian" (dt^2 J + S)
 
 
 @dataclass(frozen=True)
@@ -555,6 +558,7 @@ def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
     et = _Table(path, "effects.contact", settings)
     push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
     samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
+    metric = et.get("metric", "a string", "mass", lambda v: v in CONTACT_METRICS, f"one of {CONTACT_METRICS}")
     et.done()
     friction = effects.get("friction", 0.0)
     if not (_is_number(friction) and friction >= 0):
@@ -586,7 +590,7 @@ def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
         except ColliderError as exc:
             raise SceneError(f"{path}: key '{t.name}': {exc}") from exc
         t.done()
-    return SceneContact(tuple(colliders), push_out, samples, self_collision, self_friction)
+    return SceneContact(tuple(colliders), push_out, samples, self_collision, self_friction, metric)
 
 
 def _colliders(t: _Table, kind: str, path: Path) -> list[Any]:

@@ -662,6 +662,12 @@ class ContactProjector(_PetscOwner):
     impulse response that conserves linear momentum whenever the impulses do (self-contact pairs).
     Constrained DOFs do not move.
 
+    Every contact row is a direction times a scalar combination of nodal entries
+    (``d . sum_k w_k x[index_k]``). The metric ``M + S`` acts on the three components alike, so
+    when the constraints do too it is factored as its scalar ``(N, N)`` block ``W_s`` (a ninth of
+    the factor) and ``Z`` of a row is ``d`` times one scalar solve ``W_s^-1 w``, which also serves
+    the row's other directions (friction's tangents).
+
     Args:
         solver: the model's solver (its constrained rows and seam prolongation are reused).
         prefix: PETSc options prefix of the metric's KSP.
@@ -739,6 +745,18 @@ class ContactProjector(_PetscOwner):
         self.option_overrides = dict(options or {})
         self.weighted: PETSc.Mat | None = None
         self.ksp: PETSc.KSP | None = None
+        # the scalar block of M + S (see the class docstring): usable where every constrained
+        # nodal entry has all three components constrained
+        self.scalar_ksp: PETSc.KSP | None = None
+        self.scalar_weighted: PETSc.Mat | None = None
+        self._scalar_active = False  # the current metric is M + S through its scalar block
+        self._scalar_max = 1.0
+        self.scalar_metric = bool(
+            np.all(
+                self._constrained_global.reshape(-1, 3).all(axis=1)
+                == self._constrained_global.reshape(-1, 3).any(axis=1)
+            )
+        )
         self._metric_kind = ""  # what `weighted` holds: "mass" (M + S) or "jacobian" (dt^2 J + S)
         self.weighted_max = 1.0
         self.factorizations = 0
@@ -749,6 +767,8 @@ class ContactProjector(_PetscOwner):
     def _forget_rows(self) -> None:
         """Empty the per-step cache of rows and their columns ``Z = W^-1 G^T``."""
         self._row_ids: dict[bytes, int] = {}
+        self._scalar_ids: dict[bytes, int] = {}  # (index, weights) -> column of _scalar_z
+        self._scalar_z = np.zeros((self.n_local // 3, 0))  # owned rows of W_s^-1 w, one column per key
         self._row_closed: list[tuple[np.ndarray, ...]] = []  # see _closed_rows
         self._z = np.zeros((self.n_local, 0))  # owned rows of Z, one column per cached row
         self._schur = np.zeros((0, 0))  # G Z over the cached rows (identical on every rank)
@@ -779,6 +799,13 @@ class ContactProjector(_PetscOwner):
         """
         self.release()
         self._forget_rows()
+        if jacobian is None and self.scalar_metric:
+            self._scalar_active = True
+            if self.scalar_ksp is None:  # M + S does not change: factored once
+                self._factor_scalar_mass()
+            self.weighted_max = self._scalar_max
+            return
+        self._scalar_active = False
         kind = "mass" if jacobian is None else "jacobian"
         if self.ksp is not None and kind == self._metric_kind == "mass":
             return  # M + S does not change: its factorization stays
@@ -811,32 +838,63 @@ class ContactProjector(_PetscOwner):
         self.weighted.setOption(PETSc.Mat.Option.SPD, True)
         self.weighted.zeroRowsColumns(self.bc_rows, diag=1.0)
         if not reuse:
-            self.ksp = PETSc.KSP().create(self.model.comm)
-            self.ksp.setOptionsPrefix(self.prefix)
-            opts = PETSc.Options()
-            pushed = _push_options(self.prefix, self.options, self.option_overrides)
-            try:
-                self.ksp.setFromOptions()
-            finally:
-                for name in pushed:
-                    opts.delValue(name)
+            self.ksp = self._new_ksp(self.weighted)
             self._metric_kind = kind
         self.ksp.setOperators(self.weighted)
         self.ksp.setUp()
         self.factorizations += 1
-        status = self._mumps_status()
-        if status is not None and status < 0:  # not MUMPS (options overridden): errors surface in the solves
-            raise SolverError(f"contact metric '{self.prefix}' could not be factored: {self._mumps_info()}")
+        self._check_factored(self.ksp)
 
-    def _mumps_status(self) -> int | None:
-        """MUMPS INFOG(1) of the metric's factorization (None if the factorization is not MUMPS')."""
+    def _new_ksp(self, matrix: PETSc.Mat) -> PETSc.KSP:
+        """A KSP on ``matrix`` under the projector's prefix, its options pushed and overridable."""
+        ksp = PETSc.KSP().create(self.model.comm)
+        ksp.setOptionsPrefix(self.prefix)
+        opts = PETSc.Options()
+        pushed = _push_options(self.prefix, self.options, self.option_overrides)
         try:
-            return int(self.ksp.getPC().getFactorMatrix().getMumpsInfog(1))
-        except PETSc.Error:
+            ksp.setFromOptions()
+        finally:
+            for name in pushed:
+                opts.delValue(name)
+        ksp.setOperators(matrix)
+        return ksp
+
+    def _factor_scalar_mass(self) -> None:
+        """Collective: factor the scalar block ``W_s`` of ``M + S`` (rows ``3 b`` of the closed DOFs)."""
+        comm = self.model.comm
+        weighted = self.mass.copy()
+        diagonal = weighted.getDiagonal()  # before the constrained rows' unit diagonal, as set_metric
+        self._scalar_max = comm.allreduce(float(np.abs(diagonal.array_r).max(initial=0.0)), op=MPI.MAX)
+        diagonal.destroy()
+        weighted.zeroRowsColumns(self.bc_rows, diag=1.0)  # all three components of a constrained entry
+        rows = PETSc.IS().createStride(self.n_local // 3, first=self.first_owned, step=3, comm=comm)
+        try:
+            self.scalar_weighted = weighted.createSubMatrix(rows, rows)
+        finally:
+            rows.destroy()
+            weighted.destroy()
+        self.scalar_weighted.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.scalar_weighted.setOption(PETSc.Mat.Option.SPD, True)
+        self.scalar_ksp = self._new_ksp(self.scalar_weighted)
+        self.scalar_ksp.setUp()
+        self.factorizations += 1
+        self._check_factored(self.scalar_ksp)
+
+    def _check_factored(self, ksp: PETSc.KSP) -> None:
+        status = self._mumps_status(ksp)
+        if status is not None and status < 0:  # not MUMPS (options overridden): errors surface in the solves
+            raise SolverError(f"contact metric '{self.prefix}' could not be factored: {self._mumps_info(ksp)}")
+
+    @staticmethod
+    def _mumps_status(ksp: PETSc.KSP | None) -> int | None:
+        """MUMPS INFOG(1) of a factorization (None if there is none or it is not MUMPS')."""
+        try:
+            return int(ksp.getPC().getFactorMatrix().getMumpsInfog(1))
+        except (PETSc.Error, AttributeError):
             return None
 
-    def _mumps_info(self) -> str:
-        status = self._mumps_status()
+    def _mumps_info(self, ksp: PETSc.KSP | None = None) -> str:
+        status = self._mumps_status(ksp or (self.scalar_ksp if self._scalar_active else self.ksp))
         return "no MUMPS information" if status is None else f"MUMPS INFOG(1) = {status}"
 
     def _closed_rows(self, index: np.ndarray, coefficients: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -850,69 +908,100 @@ class ContactProjector(_PetscOwner):
         owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
         return closed, values, closed[owned] - self.first_owned, values[owned]
 
-    def _dense_rhs(self, rows: list[int]) -> PETSc.Mat:
-        """``G^T`` of cached ``rows`` as a dense matrix (this rank's rows of the closed vectors)."""
-        rhs = np.zeros((self.n_local, len(rows)), order="F")
-        for column, row in enumerate(rows):
-            _, _, local, local_values = self._row_closed[row]
-            np.add.at(rhs[:, column], local, local_values)
-        rhs[self.bc_local] = 0.0
-        sizes = ((self.n_local, self.n_global), (PETSc.DECIDE, len(rows)))
-        return PETSc.Mat().createDense(sizes, array=rhs, comm=self.model.comm)
-
-    def _sparse_rhs(self, rows: list[int]) -> PETSc.Mat:
-        """``G^T`` of cached ``rows`` as the transpose of a sparse ``G`` (serial runs): MUMPS then
-        skips the zero parts of each right-hand side in the forward elimination."""
-        closed = [self._row_closed[row][0] for row in rows]
-        values = [self._row_closed[row][1] for row in rows]
-        row_of = np.repeat(np.arange(len(rows)), [len(c) for c in closed])
-        closed, values = np.concatenate(closed), np.concatenate(values)
-        keep = ~self._constrained_global[closed]  # constrained DOFs do not move
-        # one entry per (row, DOF): a point's weights can name a DOF twice
-        key, total = np.unique(row_of[keep] * self.n_global + closed[keep], return_inverse=True)
-        summed = np.bincount(total, weights=values[keep], minlength=len(key))
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(key // self.n_global, minlength=len(rows)))])
+    def _right_hand_sides(self, columns: list[tuple[np.ndarray, np.ndarray]], scalar: bool = False) -> PETSc.Mat:
+        """Right-hand sides ``(n, len(columns))`` from each column's global closed indices and values
+        (duplicates add up) in the vector numbering (3 per closed nodal entry) or the scalar one (1
+        per entry); constrained DOFs stay zero (they do not move). Serially the transpose of a
+        sparse matrix: MUMPS then skips the zero parts of each column in the forward elimination
+        (PETSc 3.18's parallel path stops with MUMPS INFOG(1) = -27: in parallel they are dense)."""
+        step = 3 if scalar else 1
+        n_local, n_global, first = self.n_local // step, self.n_global // step, self.first_owned // step
+        constrained = self._constrained_global[::step]
+        index = np.concatenate([c for c, _ in columns])
+        values = np.concatenate([v for _, v in columns])
+        column_of = np.repeat(np.arange(len(columns)), [len(c) for c, _ in columns])
+        keep = ~constrained[index]
+        index, values, column_of = index[keep], values[keep], column_of[keep]
+        comm = self.model.comm
+        if not self.sparse_rhs:
+            owned = (index >= first) & (index < first + n_local)
+            rhs = np.zeros((n_local, len(columns)), order="F")
+            np.add.at(rhs, (index[owned] - first, column_of[owned]), values[owned])
+            sizes = ((n_local, n_global), (PETSc.DECIDE, len(columns)))
+            return PETSc.Mat().createDense(sizes, array=rhs, comm=comm)
+        key, total = np.unique(column_of * n_global + index, return_inverse=True)  # one entry per (column, DOF)
+        summed = np.bincount(total, weights=values, minlength=len(key))
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(key // n_global, minlength=len(columns)))])
         g = PETSc.Mat().createAIJ(
-            ((len(rows), len(rows)), (self.n_local, self.n_global)),
-            csr=(indptr.astype(PETSc.IntType), (key % self.n_global).astype(PETSc.IntType), summed),
-            comm=self.model.comm,
+            ((len(columns), len(columns)), (n_local, n_global)),
+            csr=(indptr.astype(PETSc.IntType), (key % n_global).astype(PETSc.IntType), summed),
+            comm=comm,
         )
         transposed = PETSc.Mat().createTranspose(g)
         g.destroy()  # the transpose keeps a reference
         return transposed
 
-    def _add_rows(self, index: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    def _solve_columns(self, ksp: PETSc.KSP, rhs: PETSc.Mat, what: str) -> np.ndarray:
+        """Collective: this rank's rows of ``W^-1 rhs`` through the factorization of ``ksp``."""
+        x = PETSc.Mat().createDense(rhs.getSizes(), comm=self.model.comm)
+        x.setUp()
+        try:
+            ksp.getPC().getFactorMatrix().matSolve(rhs, x)
+            solution = x.getDenseArray().copy()
+        except PETSc.Error as error:
+            raise SolverError(
+                f"contact projection '{self.prefix}': solving for {what} failed ({self._mumps_info(ksp)})"
+            ) from error
+        finally:
+            rhs.destroy()
+            x.destroy()
+        if not np.all(np.isfinite(solution)):
+            raise SolverError(f"contact projection '{self.prefix}': non-finite response to {what}")
+        return solution
+
+    def _scalar_columns(self, index: np.ndarray, weights: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Collective: owned rows of ``Z`` of rows ``(index (r, K), weights (r, K), directions (r, 3))``
+        as ``direction x W_s^-1 w``: one scalar solve per distinct ``(index, weights)``, kept for the step."""
+        columns = np.empty(len(index), dtype=np.int64)
+        fresh: list[int] = []
+        for r in range(len(index)):
+            key = index[r].tobytes() + weights[r].tobytes()
+            if key not in self._scalar_ids:
+                self._scalar_ids[key] = self._scalar_z.shape[1] + len(fresh)
+                fresh.append(r)
+            columns[r] = self._scalar_ids[key]
+        if fresh:
+            rhs = self._right_hand_sides(
+                [(self.flat_block[index[r]], weights[r] / self.flat_scale[index[r]]) for r in fresh], scalar=True
+            )
+            solved = self._solve_columns(self.scalar_ksp, rhs, f"{len(fresh)} new contact points")
+            self._scalar_z = np.hstack([self._scalar_z, solved])
+        z = self._scalar_z[:, columns]  # (n_local / 3, r); vector DOF 3 b + c is component c of entry b
+        return (z[:, None, :] * directions.T[None, :, :]).reshape(self.n_local, len(index))
+
+    def _add_rows(self, index: np.ndarray, weights: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Collective: cache ids of the rows, computing ``Z = W^-1 G^T`` for the new ones in one
         multi-right-hand-side solve and extending ``G Z``."""
+        coefficients = weights[:, :, None] * directions[:, None, :]
         ids = np.empty(len(index), dtype=np.int64)
         new: list[int] = []
+        new_rows: list[int] = []  # their positions among the given rows
         for r in range(len(index)):
             key = index[r].tobytes() + coefficients[r].tobytes()
             if key not in self._row_ids:
                 self._row_ids[key] = len(self._row_closed)
                 self._row_closed.append(self._closed_rows(index[r], coefficients[r]))
                 new.append(len(self._row_closed) - 1)
+                new_rows.append(r)
             ids[r] = self._row_ids[key]
         if not new:
             return ids
         comm = self.model.comm
-        sizes = ((self.n_local, self.n_global), (PETSc.DECIDE, len(new)))
-        b = self._sparse_rhs(new) if self.sparse_rhs else self._dense_rhs(new)
-        x = PETSc.Mat().createDense(sizes, comm=comm)
-        x.setUp()
-        try:
-            self.ksp.getPC().getFactorMatrix().matSolve(b, x)
-            z_new = x.getDenseArray().copy()
-        except PETSc.Error as error:
-            raise SolverError(
-                f"contact projection '{self.prefix}': solving for {len(new)} new contact rows failed "
-                f"({self._mumps_info()})"
-            ) from error
-        finally:
-            b.destroy()
-            x.destroy()
-        if not np.all(np.isfinite(z_new)):
-            raise SolverError(f"contact projection '{self.prefix}': non-finite response to {len(new)} contact rows")
+        if self._scalar_active:
+            z_new = self._scalar_columns(index[new_rows], weights[new_rows], directions[new_rows])
+        else:
+            rhs = self._right_hand_sides([self._row_closed[row][:2] for row in new])
+            z_new = self._solve_columns(self.ksp, rhs, f"{len(new)} new contact rows")
         self._z = np.hstack([self._z, z_new])
         # G Z for the new rows against every cached column (and by symmetry the transposed block)
         block = np.zeros((len(new), self._z.shape[1]))
@@ -928,17 +1017,21 @@ class ContactProjector(_PetscOwner):
         self._schur = 0.5 * (schur + schur.T)
         return ids
 
-    def set_rows(self, index: np.ndarray, coefficients: np.ndarray) -> None:
+    def set_rows(self, index: np.ndarray, weights: np.ndarray, directions: np.ndarray) -> None:
         """Collective: select the contact rows of the following :meth:`solve` (replaces earlier rows).
+
+        Row ``r`` is ``directions[r] . sum_k weights[r, k] x[index[r, k]]`` of nodal data ``x``.
 
         Args:
             index: ``(r, K)`` flat nodal entries of each row (identical on every rank).
-            coefficients: ``(r, K, 3)`` each row's coefficients of those entries' components.
+            weights: ``(r, K)`` their weights.
+            directions: ``(r, 3)`` the rows' directions.
         """
-        if self.ksp is None:
+        if self.ksp is None and not self._scalar_active:
             self.set_metric()
-        index, coefficients = np.asarray(index), np.asarray(coefficients, dtype=float)
-        self._selected = (self._add_rows(index, coefficients), index, coefficients)
+        index, weights, directions = np.asarray(index), np.asarray(weights, float), np.asarray(directions, float)
+        ids = self._add_rows(index, weights, directions)
+        self._selected = (ids, index, weights[:, :, None] * directions[:, None, :])
 
     def _dual(
         self, current: np.ndarray | None, targets: np.ndarray, combine
@@ -1027,6 +1120,6 @@ class ContactProjector(_PetscOwner):
             return
         self._closed = True
         self.release()
-        for obj in (self.mass, self.smoothing, self.weighted, self.ksp):
+        for obj in (self.mass, self.smoothing, self.weighted, self.ksp, self.scalar_weighted, self.scalar_ksp):
             if obj is not None:
                 obj.destroy()

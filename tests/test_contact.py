@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from bhem_hpc import surface as S
+from bhem_hpc.bcs import NodalConstraint, clamp, edge_nodes
 from bhem_hpc.collision import Plane, Sphere
 from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.collision.contact import (
@@ -116,8 +117,10 @@ def test_cloth_dropped_on_a_sphere_never_penetrates(comm):
     assert top[2] == pytest.approx(ContactSettings().push_out, abs=2e-4)  # rests on the top
 
 
-def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng):
-    """Self-contact rows ``n . (v_a - v_b) = 0`` on a free sheet: equal and opposite impulses."""
+@pytest.mark.parametrize("metric", ["jacobian", "mass"])
+def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng, metric):
+    """Self-contact rows ``n . (v_a - v_b) = 0`` on a free sheet: equal and opposite impulses, in
+    both metrics (``dt^2 J + S``; ``M + S`` through its scalar block)."""
     rest = S.flat_rectangle(0.4, 0.3, 6, 5)
     model = ShellModel(rest, SHEET, comm=comm, dynamics=Dynamics(0.01))
     grid = rest.grid
@@ -135,12 +138,12 @@ def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng):
         index = np.concatenate([a[0], b[0]], axis=1)
         coefficients = np.concatenate([a[1], -b[1]], axis=1)[:, :, None] * normal[:, None, :]
         velocity = rng.normal(size=(grid.num_nodes * 4, 3))
-        projector.set_metric(solver.jacobian, 0.01)
-        projector.set_rows(index, coefficients)
+        projector.set_metric(solver.jacobian if metric == "jacobian" else None, 0.01)
+        assert projector._scalar_active == (metric == "mass")
+        projector.set_rows(index, np.concatenate([a[1], -b[1]], axis=1), normal)
         change = projector.solve(velocity, np.zeros(count))
         new = velocity + change
-        one_sided = a[1][:, :, None] * normal[:, None, :]
-        projector.set_rows(a[0], one_sided)
+        projector.set_rows(a[0], a[1], normal)
         change_one_sided = projector.solve(velocity, np.zeros(count))
         rows = np.einsum("kjc,kjc->k", coefficients, new[index])
         momentum = []
@@ -161,6 +164,45 @@ def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng):
     # rows (a collider) change the momentum by O(1) of the initial value
     assert np.abs(momentum[1]).max() < 1e-5 * np.abs(momentum[0]).max()
     assert np.abs(momentum[2]).max() > 1e-2 * np.abs(momentum[0]).max()
+
+
+def test_scalar_mass_metric_equals_the_vector_one(comm, rng):
+    """``M + S`` factored as its scalar block gives the vector factorization's corrections, for a
+    clamped sheet (all components of an edge's entries constrained) and rows in three directions."""
+    rest = S.flat_rectangle(0.4, 0.3, 5, 4)
+    grid = rest.grid
+    clamped = [clamp(edge_nodes(grid, "xi1_min"))]
+    model = ShellModel(rest, SHEET, constraints=clamped, comm=comm, dynamics=Dynamics(0.01))
+    count = 6
+    index, weights = point_weights(
+        grid, rng.integers(0, 5, count), rng.integers(0, 4, count), rng.random(count), rng.random(count)
+    )
+    index, weights = np.tile(index, (3, 1)), np.tile(weights, (3, 1))
+    directions = rng.normal(size=(3 * count, 3))
+    velocity = rng.normal(size=(grid.num_nodes * 4, 3))
+    targets = rng.normal(size=3 * count)
+    changes = []
+    with ShellSolver(model, prefix="scalar_") as solver:
+        for scalar in (True, False):
+            projector = ContactProjector(solver)
+            assert projector.scalar_metric
+            projector.scalar_metric = scalar
+            projector.set_metric()
+            projector.set_rows(index, weights, directions)
+            changes.append(projector.solve(velocity, targets))
+            rows = np.einsum("kj,kjc,kc->k", weights, (velocity + changes[-1])[index], directions)
+            projector.close()
+            assert np.abs(rows - targets).max() < 1e-4 * np.abs(targets).max()  # eps-regularized least squares
+    assert np.abs(changes[0]).max() > 0.0
+    np.testing.assert_allclose(changes[0], changes[1], atol=1e-10 * np.abs(changes[1]).max())
+    assert np.all(changes[0].reshape(*grid.node_shape, 4, 3)[0] == 0.0)  # the clamped edge stays
+    # only z held on an edge: the components differ, the vector factorization is used
+    held_z = [NodalConstraint(edge_nodes(grid, "xi1_min"), (0,), (2,))]
+    model = ShellModel(rest, SHEET, constraints=held_z, comm=comm, dynamics=Dynamics(0.01))
+    with ShellSolver(model, prefix="vector_") as solver:
+        projector = ContactProjector(solver)
+        assert not projector.scalar_metric
+        projector.close()
 
 
 def test_closest_points_match_a_dense_search(rng):

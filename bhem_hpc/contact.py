@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bhem_hpc.collision.bezier import control_nets
 from bhem_hpc.collision.contact import ContactDetector, Contacts
 from bhem_hpc.shell import ShellModel
 from bhem_hpc.solver import ContactProjector, ShellSolver
@@ -124,6 +125,10 @@ class ContactHandler:
         # the last Newton iteration's Jacobian, at (nearly) the step's end
         self.jacobian = solver.jacobian if self.settings.metric == "jacobian" else None
         self.history: list[ContactReport] = []
+        grid = model.rest_surface.grid
+        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(grid.n1), np.arange(grid.n2), indexing="ij"))
+        corners = [grid.wrap_node(p1 + c1, p2 + c2) for c1 in (0, 1) for c2 in (0, 1)]
+        self._patch_nodes = np.stack([i1 * grid.node_shape[1] + i2 for i1, i2 in corners], axis=1)  # (n1 * n2, 4)
 
     def _flat(self, open_array: np.ndarray) -> np.ndarray:
         return self.model.discretization.open_to_surface(open_array).nodal.reshape(-1, 3)
@@ -132,10 +137,12 @@ class ContactHandler:
         grid = self.model.rest_surface.grid
         return self.model.discretization.surface_to_open(HermiteSurface(grid, flat.reshape(*grid.node_shape, 4, 3)))
 
-    def _detect(self, start: np.ndarray, end: np.ndarray, t: float, dt: float, gap: float) -> Contacts:
+    def _detect(
+        self, start: np.ndarray, end: np.ndarray, t: float, dt: float, gap: float, patches: np.ndarray | None = None
+    ) -> Contacts:
         comm = self.model.comm
         try:
-            local: Contacts | Exception = self.detector.detect(start, end, t, dt, gap, comm.rank, comm.size)
+            local: Contacts | Exception = self.detector.detect(start, end, t, dt, gap, comm.rank, comm.size, patches)
         except Exception as exc:  # noqa: BLE001 - re-raised on every rank below
             local = exc
         gathered = comm.allgather(local)
@@ -162,11 +169,16 @@ class ContactHandler:
         delta_velocity = np.zeros_like(start)
         delta_position = np.zeros_like(start)
         report.detection_s += time.perf_counter() - t0
+        first_end = end
         for round_ in range(settings.max_rounds):
             t1 = time.perf_counter()
             # Round 0 catches everything within the push-out distance; later rounds only what the
-            # previous update left closer than half of it (pushed-out points sit at the full distance).
-            found = self._detect(start, end, t, dt, gap if round_ == 0 else 0.5 * gap)
+            # previous update left closer than half of it (pushed-out points sit at the full distance),
+            # on the patches that can hold such a point.
+            if round_ == 0:
+                found = self._detect(start, end, t, dt, gap)
+            else:
+                found = self._detect(start, end, t, dt, 0.5 * gap, self._retest(first_end, end, active, 0.5 * gap))
             report.detection_s += time.perf_counter() - t1
             if not len(found):
                 break
@@ -183,7 +195,7 @@ class ContactHandler:
             end = start + dt * velocity + delta_position
             report.response_s += time.perf_counter() - t2
         else:
-            final = self._detect(start, end, t, dt, 0.5 * gap)
+            final = self._detect(start, end, t, dt, 0.5 * gap, self._retest(first_end, end, active, 0.5 * gap))
             if len(final):
                 report.bound_reached = True
                 log.warning(
@@ -201,6 +213,25 @@ class ContactHandler:
             model.x.x.array[:] = model.x.x.array + self._to_open(dt * delta_velocity + delta_position)
         self.history.append(report)
         return report
+
+    def _retest(self, first_end: np.ndarray, end: np.ndarray, found: Contacts, margin: float) -> np.ndarray:
+        """Mask ``(n1 * n2,)`` of the patches a later round must test again.
+
+        Round 0 found every point closer than ``gap`` over the motion to ``first_end``; the others
+        stayed at least ``gap`` away. A patch point is a convex combination of the patch's Bezier
+        control points, so moving the end to ``end`` moves it by at most the largest control-point
+        shift, and at every time of the step by no more. A patch that shifted by less than
+        ``margin = gap / 2`` cannot bring a point it did not have in contact closer than ``gap / 2``:
+        only the other patches, and those touched by a contact found so far, are tested again.
+        """
+        grid = self.model.rest_surface.grid
+        shift = control_nets(grid, (end - first_end).reshape(*grid.node_shape, 4, 3))
+        # (half the margin: round-off and the projections of collider points are not exact)
+        again = np.linalg.norm(shift, axis=-1).reshape(len(shift), -1).max(axis=1) >= 0.5 * margin
+        entries = np.concatenate([found.index_a[found.weights_a != 0], found.index_b[found.weights_b != 0]])
+        touched = np.zeros(grid.num_nodes, dtype=bool)
+        touched[entries // 4] = True  # flat nodal entry (i1 * m2 + i2) * 4 + kind
+        return again | touched[self._patch_nodes].any(axis=1)
 
     def _respond(
         self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float, pushed: np.ndarray

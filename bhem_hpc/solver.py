@@ -750,6 +750,11 @@ class ContactProjector(_PetscOwner):
         self.scalar_ksp: PETSc.KSP | None = None
         self.scalar_weighted: PETSc.Mat | None = None
         self._scalar_active = False  # the current metric is M + S through its scalar block
+        # W_s^-1 w of contact points (index, weights): M + S does not change, so the columns of
+        # points used in the previous step are kept (a shell sample keeps its weights)
+        self._scalar_ids: dict[bytes, int] = {}  # (index, weights) -> column of _scalar_z
+        self._scalar_z = np.zeros((self.n_local // 3, 0))  # owned rows, one column per point
+        self._scalar_used: set[int] = set()  # columns used since the last set_metric
         self._scalar_max = 1.0
         self.scalar_metric = bool(
             np.all(
@@ -767,10 +772,11 @@ class ContactProjector(_PetscOwner):
     def _forget_rows(self) -> None:
         """Empty the per-step cache of rows and their columns ``Z = W^-1 G^T``."""
         self._row_ids: dict[bytes, int] = {}
-        self._scalar_ids: dict[bytes, int] = {}  # (index, weights) -> column of _scalar_z
-        self._scalar_z = np.zeros((self.n_local // 3, 0))  # owned rows of W_s^-1 w, one column per key
         self._row_closed: list[tuple[np.ndarray, ...]] = []  # see _closed_rows
-        self._z = np.zeros((self.n_local, 0))  # owned rows of Z, one column per cached row
+        self._z = np.zeros((self.n_local, 0))  # owned rows of Z, one column per cached row (vector metric)
+        # scalar metric: Z of cached row r is _row_direction[r] x _scalar_z[:, _row_column[r]]
+        self._row_column: list[int] = []
+        self._row_direction: list[np.ndarray] = []
         self._schur = np.zeros((0, 0))  # G Z over the cached rows (identical on every rank)
 
     def _to_closed(self, flat: np.ndarray) -> PETSc.Vec:
@@ -803,6 +809,11 @@ class ContactProjector(_PetscOwner):
             self._scalar_active = True
             if self.scalar_ksp is None:  # M + S does not change: factored once
                 self._factor_scalar_mass()
+            keep = sorted(self._scalar_used)
+            position = {column: k for k, column in enumerate(keep)}
+            self._scalar_ids = {key: position[c] for key, c in self._scalar_ids.items() if c in position}
+            self._scalar_z = self._scalar_z[:, keep]
+            self._scalar_used = set()
             self.weighted_max = self._scalar_max
             return
         self._scalar_active = False
@@ -959,9 +970,10 @@ class ContactProjector(_PetscOwner):
             raise SolverError(f"contact projection '{self.prefix}': non-finite response to {what}")
         return solution
 
-    def _scalar_columns(self, index: np.ndarray, weights: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """Collective: owned rows of ``Z`` of rows ``(index (r, K), weights (r, K), directions (r, 3))``
-        as ``direction x W_s^-1 w``: one scalar solve per distinct ``(index, weights)``, kept for the step."""
+    def _scalar_columns(self, index: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Collective: the columns of ``_scalar_z`` holding ``W_s^-1 w`` of the contact points
+        ``(index (r, K), weights (r, K))``, one scalar solve per point not yet there (points are kept
+        for this step and the next)."""
         columns = np.empty(len(index), dtype=np.int64)
         fresh: list[int] = []
         for r in range(len(index)):
@@ -976,8 +988,19 @@ class ContactProjector(_PetscOwner):
             )
             solved = self._solve_columns(self.scalar_ksp, rhs, f"{len(fresh)} new contact points")
             self._scalar_z = np.hstack([self._scalar_z, solved])
-        z = self._scalar_z[:, columns]  # (n_local / 3, r); vector DOF 3 b + c is component c of entry b
-        return (z[:, None, :] * directions.T[None, :, :]).reshape(self.n_local, len(index))
+        self._scalar_used.update(columns.tolist())
+        return columns
+
+    def _scalar_gz(self, index: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Collective: ``w_a . W_s^-1 w`` of the points ``(index (r, K), weights (r, K))`` against
+        every column of ``_scalar_z``, ``(r, columns)``."""
+        first, count = self.first_owned // 3, self.n_local // 3
+        products = np.zeros((len(index), self._scalar_z.shape[1]))
+        for r in range(len(index)):
+            blocks, values = self.flat_block[index[r]] - first, weights[r] / self.flat_scale[index[r]]
+            owned = (blocks >= 0) & (blocks < count)
+            products[r] = values[owned] @ self._scalar_z[blocks[owned]]
+        return self.model.comm.allreduce(products, op=MPI.SUM)
 
     def _add_rows(self, index: np.ndarray, weights: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Collective: cache ids of the rows, computing ``Z = W^-1 G^T`` for the new ones in one
@@ -997,20 +1020,24 @@ class ContactProjector(_PetscOwner):
         if not new:
             return ids
         comm = self.model.comm
+        # G Z for the new rows against every cached row (and by symmetry the transposed block)
         if self._scalar_active:
-            z_new = self._scalar_columns(index[new_rows], weights[new_rows], directions[new_rows])
+            # row a against row b: (d_a . d_b) (w_a . W_s^-1 w_b)
+            self._row_column += self._scalar_columns(index[new_rows], weights[new_rows]).tolist()
+            self._row_direction += list(directions[new_rows])
+            products = self._scalar_gz(index[new_rows], weights[new_rows])
+            block = (directions[new_rows] @ np.array(self._row_direction).T) * products[:, self._row_column]
         else:
             rhs = self._right_hand_sides([self._row_closed[row][:2] for row in new])
-            z_new = self._solve_columns(self.ksp, rhs, f"{len(new)} new contact rows")
-        self._z = np.hstack([self._z, z_new])
-        # G Z for the new rows against every cached column (and by symmetry the transposed block)
-        block = np.zeros((len(new), self._z.shape[1]))
-        for k, row in enumerate(new):
-            _, _, local, local_values = self._row_closed[row]
-            block[k] = local_values @ self._z[local]
-        block = comm.allreduce(block, op=MPI.SUM)
+            self._z = np.hstack([self._z, self._solve_columns(self.ksp, rhs, f"{len(new)} new contact rows")])
+            block = np.zeros((len(new), self._z.shape[1]))
+            for k, row in enumerate(new):
+                _, _, local, local_values = self._row_closed[row]
+                block[k] = local_values @ self._z[local]
+            block = comm.allreduce(block, op=MPI.SUM)
         old = self._schur.shape[0]
-        schur = np.zeros((self._z.shape[1], self._z.shape[1]))
+        total = len(self._row_closed)
+        schur = np.zeros((total, total))
         schur[:old, :old] = self._schur
         schur[old:, :] = block
         schur[:old, old:] = block[:, :old].T
@@ -1058,7 +1085,15 @@ class ContactProjector(_PetscOwner):
         self.projections += 1
         correction = PETSc.Vec().createMPI((self.n_local, self.n_global), comm=self.model.comm)
         try:
-            correction.array[:] = self._z[:, used] @ multipliers
+            if self._scalar_active:  # sum_r lambda_r d_r x W_s^-1 w_r, per component
+                combined = np.zeros((self._scalar_z.shape[1], 3))
+                columns = np.asarray(self._row_column)[used]
+                np.add.at(combined, columns, multipliers[:, None] * np.asarray(self._row_direction)[used])
+                correction.array[:] = (self._scalar_z @ combined).ravel()
+            else:
+                every = np.zeros(self._z.shape[1])  # (gathering Z's used columns would copy them)
+                every[used] = multipliers
+                correction.array[:] = self._z @ every
             return self._to_flat(correction)
         finally:
             correction.destroy()

@@ -456,23 +456,25 @@ def simple_collider_contacts(
 def point_contacts(
     points_start: np.ndarray, velocity: np.ndarray, clearance: float, source: int, rows: np.ndarray,
     grid: ParameterGrid, nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float,
+    patches: np.ndarray | None = None,
 ) -> Contacts:  # fmt: skip
     """Collider points ``rows`` (mesh vertices, patch-model samples, needle tips) against shell patches.
 
     The points move at ``velocity``; ``clearance`` is the radius around each point that counts as
-    touching (a round needle tip).
+    touching (a round needle tip). ``patches``: a ``(n1 * n2,)`` mask of the patches to test (None: all).
     """
     if not len(rows):
         return Contacts.empty()
     q0 = points_start[rows]
     q1 = q0 + dt * velocity
     reach = gap + clearance
-    patch_boxes, point_boxes = swept_boxes(nets_start, nets_end, 0.0), swept_boxes(q0, q1, 0.0)
+    tested = np.arange(len(nets_start)) if patches is None else np.flatnonzero(patches)
+    patch_boxes, point_boxes = swept_boxes(nets_start[tested], nets_end[tested], 0.0), swept_boxes(q0, q1, 0.0)
     ip, iq = overlapping_pairs(patch_boxes + [[-reach], [reach]], point_boxes)
     # The padded boxes overlap where the boxes are within reach in every axis; a round tip's reach
     # (a sphere's radius) is large, so keep only the pairs within reach in Euclidean distance.
     keep = box_distance(patch_boxes[ip], point_boxes[iq]) <= reach
-    ip, iq = ip[keep], iq[keep]
+    ip, iq = tested[ip[keep]], iq[keep]
     found, uv, side_normal, separation, toi = _point_patch_pairs(q0, q1, nets_start, nets_end, (iq, ip), reach, dt)
     if not len(found):
         return Contacts.empty()
@@ -754,18 +756,28 @@ class ContactDetector:
         return count
 
     def detect(
-        self, start: np.ndarray, end: np.ndarray, time: float, dt: float, gap: float, rank: int = 0, size: int = 1
+        self,
+        start: np.ndarray,
+        end: np.ndarray,
+        time: float,
+        dt: float,
+        gap: float,
+        rank: int = 0,
+        size: int = 1,
+        patches: np.ndarray | None = None,
     ) -> Contacts:
         """Contacts of the motion ``start -> end`` (flat nodal ``(m1 * m2 * 4, 3)``) over ``[time, time + dt]``.
 
         Each of ``size`` ranks tests an interleaved share of the samples; the union over ranks is
-        the serial result.
+        the serial result. ``patches``: a ``(n1 * n2,)`` mask restricting the test against
+        colliders to those patches and their samples (None: all; self-collision always tests all).
         """
         grid = self.grid
         nodal_shape = (*grid.node_shape, 4, 3)
         nets_start = control_nets(grid, start.reshape(nodal_shape))
         nets_end = control_nets(grid, end.reshape(nodal_shape))
-        shell_rows = np.arange(rank, len(self.samples.patch), size)
+        every_row = np.arange(rank, len(self.samples.patch), size)
+        shell_rows = every_row if patches is None else every_row[patches[self.samples.patch[every_row]]]
         positions = (self.samples.positions(start, shell_rows), self.samples.positions(end, shell_rows))
         parts = []
         for source, entry in enumerate(self.colliders):
@@ -782,19 +794,19 @@ class ContactDetector:
                 parts.append(
                     point_contacts(
                         points, collider.velocity, clearance, 2 * source + 1, rows, grid, nets_start, nets_end,
-                        dt, gap, entry.friction,
+                        dt, gap, entry.friction, patches,
                     )
                 )  # fmt: skip
         if self.self_collision:
             parts.append(
                 self_contacts(
-                    self.samples, shell_rows, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
+                    self.samples, every_row, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
                     2 * len(self.colliders),
                 )
             )  # fmt: skip
             parts.append(
                 folded_self_contacts(
-                    self.samples, shell_rows, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
+                    self.samples, every_row, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
                     2 * len(self.colliders) + 1,
                 )
             )  # fmt: skip

@@ -114,6 +114,12 @@ def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
             lambda s: s.replace("damping = { mass = 0.5 }", "contact = { push_out = 0.0 }\nself_collision = true"),
             r"key 'effects.contact.push_out' must be a number > 0",
         ),
+        (
+            lambda s: s.replace(
+                "damping = { mass = 0.5 }", "contact = { metric = 'stiffness' }\nself_collision = true"
+            ),
+            r"key 'effects.contact.metric' must be one of \('mass', 'jacobian'\), got 'stiffness'",
+        ),
         (lambda s: s.replace("damping = { mass = 0.5 }", "wind = 3"), r"unknown effect 'effects.wind'"),
         (
             lambda s: s.replace('corners = ["max_min"]', 'corners = ["min_min"]'),

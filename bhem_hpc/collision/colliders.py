@@ -18,6 +18,8 @@ import numpy as np
 from bhem_hpc.collision.bezier import evaluate
 
 PATCH_FILE_FORMAT = "bhem-bezier-patches"
+#: Precision of a capsule's sampled-and-bisected time of impact, as a fraction of the step.
+TOI_TOLERANCE = 1e-12
 
 
 class ColliderError(ValueError):
@@ -204,18 +206,26 @@ class Capsule:
         everyone = np.arange(len(start))
         at_start = distance(np.zeros(len(start)), everyone)
         out[at_start <= gap] = 0.0
-        # a point farther than its own and the capsule's travel cannot touch within the step
-        reach = np.linalg.norm(motion, axis=1) + dt * np.linalg.norm(self.velocity)
-        unreachable = at_start - reach > gap
+        # The distance changes by at most `speed` per unit fraction of the step (the point's and the
+        # capsule's travel), so a point at distance d at fraction f cannot touch before
+        # f + (d - gap) / speed: samples before that are skipped (they would find no contact).
+        speed = np.linalg.norm(motion, axis=1) + dt * np.linalg.norm(self.velocity)
+        earliest = np.where(at_start > gap, (at_start - gap) / np.maximum(speed, 1e-300), 0.0)
+        halvings = math.ceil(math.log2(1.0 / (samples * TOI_TOLERANCE)))
         for k in range(1, samples + 1):
-            rows = np.flatnonzero(~np.isfinite(out) & ~unreachable)
-            if not len(rows):
+            fraction = k / samples
+            pending = ~np.isfinite(out) & (earliest <= 1.0)
+            if not pending.any():
                 break
-            now = np.full(len(rows), k / samples)
-            touching = distance(now, rows) <= gap
+            rows = np.flatnonzero(pending & (earliest <= fraction))
+            if not len(rows):
+                continue
+            now = distance(np.full(len(rows), fraction), rows)
+            touching = now <= gap
+            earliest[rows[~touching]] = fraction + (now[~touching] - gap) / np.maximum(speed[rows[~touching]], 1e-300)
             rows = rows[touching]
-            lo, hi = np.full(len(rows), (k - 1) / samples), np.full(len(rows), k / samples)
-            for _ in range(60):
+            lo, hi = np.full(len(rows), (k - 1) / samples), np.full(len(rows), fraction)
+            for _ in range(halvings):  # to TOI_TOLERANCE of the step
                 mid = 0.5 * (lo + hi)
                 inside = distance(mid, rows) <= gap
                 hi, lo = np.where(inside, mid, hi), np.where(inside, lo, mid)

@@ -39,6 +39,8 @@ INSIDE_EPS = 1e-9
 #: Newton iterations of the closest-point projection, its starting lattice (per side) and the
 #: halvings of a step that would increase the distance.
 PROJECTION_ITERATIONS = 12
+#: Point-patch candidate pairs tested directly, without the hash grid, up to this count.
+BRUTE_FORCE_PAIRS = 20_000
 #: A projection has settled when its distance falls by less than this times the patch's size.
 PROJECTION_TOLERANCE = 1e-12
 START_GRID = 7
@@ -427,6 +429,18 @@ def _sample_contacts(
     )
 
 
+def _swept_bounds(collider, dt: float) -> np.ndarray | None:
+    """Box ``(2, 3)`` holding a bounded simple collider (sphere, capsule) over the step, or None."""
+    if hasattr(collider, "center"):
+        ends = collider.center[None]
+    elif hasattr(collider, "a") and hasattr(collider, "b"):
+        ends = np.stack([collider.a, collider.b])
+    else:
+        return None  # a plane or an infinite cylinder
+    ends = np.concatenate([ends, ends + dt * collider.velocity])
+    return np.stack([ends.min(axis=0) - collider.radius, ends.max(axis=0) + collider.radius])
+
+
 def simple_collider_contacts(
     collider, source: int, samples: ShellSamples, rows: np.ndarray, positions: tuple[np.ndarray, np.ndarray],
     dt: float, gap: float, friction: float,
@@ -436,6 +450,12 @@ def simple_collider_contacts(
     if not len(rows):
         return Contacts.empty()
     p0, p1 = positions
+    bounds = _swept_bounds(collider, dt)
+    if bounds is not None:  # only the samples whose swept box comes within gap of the collider's
+        near = np.all((np.minimum(p0, p1) <= bounds[1] + gap) & (np.maximum(p0, p1) >= bounds[0] - gap), axis=1)
+        rows, p0, p1 = rows[near], p0[near], p1[near]
+        if not len(rows):
+            return Contacts.empty()
     toi = collider.time_of_impact(p0, p1, dt, gap)
     hit = np.flatnonzero(toi <= 1.0)
     if not len(hit):
@@ -456,12 +476,13 @@ def simple_collider_contacts(
 def point_contacts(
     points_start: np.ndarray, velocity: np.ndarray, clearance: float, source: int, rows: np.ndarray,
     grid: ParameterGrid, nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float,
-    patches: np.ndarray | None = None,
+    patches: np.ndarray | None = None, patch_boxes: np.ndarray | None = None,
 ) -> Contacts:  # fmt: skip
     """Collider points ``rows`` (mesh vertices, patch-model samples, needle tips) against shell patches.
 
     The points move at ``velocity``; ``clearance`` is the radius around each point that counts as
-    touching (a round needle tip). ``patches``: a ``(n1 * n2,)`` mask of the patches to test (None: all).
+    touching (a round needle tip). ``patches``: a ``(n1 * n2,)`` mask of the patches to test (None:
+    all); ``patch_boxes``: the patches' swept boxes (computed if None).
     """
     if not len(rows):
         return Contacts.empty()
@@ -469,8 +490,16 @@ def point_contacts(
     q1 = q0 + dt * velocity
     reach = gap + clearance
     tested = np.arange(len(nets_start)) if patches is None else np.flatnonzero(patches)
-    patch_boxes, point_boxes = swept_boxes(nets_start[tested], nets_end[tested], 0.0), swept_boxes(q0, q1, 0.0)
-    ip, iq = overlapping_pairs(patch_boxes + [[-reach], [reach]], point_boxes)
+    if patch_boxes is None:
+        patch_boxes = swept_boxes(nets_start[tested], nets_end[tested], 0.0)
+    else:
+        patch_boxes = patch_boxes[tested]
+    point_boxes = swept_boxes(q0, q1, 0.0)
+    if len(point_boxes) * len(tested) <= BRUTE_FORCE_PAIRS:
+        # a few points (a sphere's centre, needle tips): every pair, in overlapping_pairs' order
+        iq, ip = np.divmod(np.arange(len(point_boxes) * len(tested)), len(tested))
+    else:
+        ip, iq = overlapping_pairs(patch_boxes + [[-reach], [reach]], point_boxes)
     # The padded boxes overlap where the boxes are within reach in every axis; a round tip's reach
     # (a sphere's radius) is large, so keep only the pairs within reach in Euclidean distance.
     keep = box_distance(patch_boxes[ip], point_boxes[iq]) <= reach
@@ -776,6 +805,7 @@ class ContactDetector:
         nodal_shape = (*grid.node_shape, 4, 3)
         nets_start = control_nets(grid, start.reshape(nodal_shape))
         nets_end = control_nets(grid, end.reshape(nodal_shape))
+        patch_boxes = swept_boxes(nets_start, nets_end, 0.0)  # shared by every collider's points
         every_row = np.arange(rank, len(self.samples.patch), size)
         shell_rows = every_row if patches is None else every_row[patches[self.samples.patch[every_row]]]
         positions = (self.samples.positions(start, shell_rows), self.samples.positions(end, shell_rows))
@@ -794,7 +824,7 @@ class ContactDetector:
                 parts.append(
                     point_contacts(
                         points, collider.velocity, clearance, 2 * source + 1, rows, grid, nets_start, nets_end,
-                        dt, gap, entry.friction, patches,
+                        dt, gap, entry.friction, patches, patch_boxes,
                     )
                 )  # fmt: skip
         if self.self_collision:

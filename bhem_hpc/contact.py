@@ -35,6 +35,7 @@ import numpy as np
 
 from bhem_hpc.collision.bezier import control_nets
 from bhem_hpc.collision.contact import ContactDetector, Contacts
+from bhem_hpc.scene import CONTACT_METRICS
 from bhem_hpc.shell import ShellModel
 from bhem_hpc.solver import ContactProjector, ShellSolver
 from bhem_hpc.surface import HermiteSurface
@@ -62,8 +63,8 @@ class ContactSettings:
     metric: str = "mass"
 
     def validate(self) -> None:
-        if self.metric not in ("mass", "jacobian"):
-            raise ValueError(f"contact metric must be 'mass' or 'jacobian', got {self.metric!r}")
+        if self.metric not in CONTACT_METRICS:
+            raise ValueError(f"contact metric must be one of {CONTACT_METRICS}, got {self.metric!r}")
         if not (math.isfinite(self.push_out) and self.push_out > 0):
             raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
         if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):

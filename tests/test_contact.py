@@ -240,6 +240,8 @@ def test_broad_phase_finds_exactly_the_overlapping_boxes(rng):
 def test_bad_contact_settings_are_refused():
     with pytest.raises(ValueError, match="push_out"):
         ContactSettings(push_out=0.0).validate()
+    with pytest.raises(ValueError, match="metric must be one of .*got 'stiffness'"):
+        ContactSettings(metric="stiffness").validate()
     grid = S.flat_rectangle(1.0, 1.0, 2, 2).grid
     for kwargs, message in [
         ({"samples_per_side": 0}, "samples_per_side"),

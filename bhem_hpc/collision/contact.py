@@ -248,10 +248,10 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
     Newton on the first-order conditions from the nearest of ``START_GRID^2`` samples, at most
     ``PROJECTION_ITERATIONS`` iterations (each projection stops once its distance falls by less than
     ``PROJECTION_TOLERANCE`` times the patch's size), clamped to the patch (Gauss-Newton where the
-    full Hessian is not positive), each step halved until the distance does not grow. The line search matters where
-    a patch wraps around the point (cloth on a ball, seen from the ball's centre): the distance is
-    then nearly constant over the patch, its Hessian nearly singular, and full Newton steps jump
-    between the patch's corners.
+    full Hessian is not positive), each step halved until the distance does not grow. The line
+    search matters where a patch wraps around the point (cloth on a ball, seen from the ball's
+    centre): the distance is then nearly constant over the patch, its Hessian nearly singular, and
+    full Newton steps jump between the patch's corners.
 
     Returns:
         ``(uv (N, 2), foot (N, 3), unit normal (N, 3), inside (N,))``; ``inside`` is False where the
@@ -805,7 +805,7 @@ class ContactDetector:
         nodal_shape = (*grid.node_shape, 4, 3)
         nets_start = control_nets(grid, start.reshape(nodal_shape))
         nets_end = control_nets(grid, end.reshape(nodal_shape))
-        patch_boxes = swept_boxes(nets_start, nets_end, 0.0)  # shared by every collider's points
+        patch_boxes = None  # swept boxes of the patches, shared by every collider's points
         every_row = np.arange(rank, len(self.samples.patch), size)
         shell_rows = every_row if patches is None else every_row[patches[self.samples.patch[every_row]]]
         positions = (self.samples.positions(start, shell_rows), self.samples.positions(end, shell_rows))
@@ -820,6 +820,8 @@ class ContactDetector:
                 )
             points, clearance = collider_points(collider)
             if len(points):
+                if patch_boxes is None:
+                    patch_boxes = swept_boxes(nets_start, nets_end, 0.0)
                 rows = np.arange(rank, len(points), size)
                 parts.append(
                     point_contacts(

@@ -282,8 +282,11 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
         h11, h12, h22 = np.where(full, h11, a11), np.where(full, h12, a12), np.where(full, h22, a22)
         det = h11 * h22 - h12 * h12
         det = np.where(np.abs(det) > 1e-300, det, 1e-300)
-        du = np.clip(-(h22 * g1 - h12 * g2) / det, -0.5, 0.5)
-        dv = np.clip(-(h11 * g2 - h12 * g1) / det, -0.5, 0.5)
+        du, dv = -(h22 * g1 - h12 * g2) / det, -(h11 * g2 - h12 * g1) / det
+        # at most half a patch, scaled as a whole: clipping each component turns the step and it
+        # may then increase the distance at every length the line search tries
+        scale = np.minimum(1.0, 0.5 / np.maximum(np.maximum(np.abs(du), np.abs(dv)), 1e-300))
+        du, dv = scale * du, scale * dv
         new_u, new_v, new_distance = u[active], v[active], distance[active]
         pending = np.arange(len(active))
         for _ in range(LINE_SEARCH_HALVINGS + 1):
@@ -511,16 +514,25 @@ def point_contacts(
     if clearance == 0.0:  # a vertex touches the shell once: keep its nearest patch
         first = _nearest_per_point(point, separation)
         point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
-    # a round tip or a sphere's centre keeps every patch within reach: each patch's closest point
-    index, weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
     normal = -side_normal
     if clearance > 0.0:
-        # round: the normal is radial, whatever side of the patch the centre is on
+        # a round tip or a sphere's centre keeps every patch within reach: each patch's closest
+        # point, with the radial normal, whatever side of the patch the centre is on
         foot = evaluate_many(nets_end[patch], uv[:, 0], uv[:, 1])
         offset = foot - q1[point]
         length = np.linalg.norm(offset, axis=1)
+        # The row holds the Euclidean distance to the foot. A foot off the true closest point (next
+        # to a patch edge where the closest point lies on the edge) can be nearer along the patch
+        # normal than in distance: such a hit asks for nothing, and a later round would find it again.
+        keep = (length < reach) | (separation < 0.0)
+        point, patch, uv, normal, toi, offset, length = (
+            a[keep] for a in (point, patch, uv, normal, toi, offset, length)
+        )
         radial = length > 1e-12 * clearance
         normal[radial] = offset[radial] / length[radial, None]
+        if not len(point):
+            return Contacts.empty()
+    index, weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
     b_index, b_weights = _empty_b(len(point))
     # the shell point must stay on its side: the normal points from the collider point to the shell
     return Contacts(

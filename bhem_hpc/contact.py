@@ -38,7 +38,7 @@ from bhem_hpc.collision.contact import ContactDetector, Contacts
 from bhem_hpc.scene import CONTACT_METRICS
 from bhem_hpc.shell import ShellModel
 from bhem_hpc.solver import ContactProjector, ShellSolver
-from bhem_hpc.surface import HermiteSurface
+from bhem_hpc.surface import HermiteSurface, point_weights
 
 log = logging.getLogger(__name__)
 
@@ -128,8 +128,7 @@ class ContactHandler:
         self.history: list[ContactReport] = []
         grid = model.rest_surface.grid
         p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(grid.n1), np.arange(grid.n2), indexing="ij"))
-        corners = [grid.wrap_node(p1 + c1, p2 + c2) for c1 in (0, 1) for c2 in (0, 1)]
-        self._patch_nodes = np.stack([i1 * grid.node_shape[1] + i2 for i1, i2 in corners], axis=1)  # (n1 * n2, 4)
+        self._patch_entries = point_weights(grid, p1, p2, 0.0, 0.0)[0]  # (n1 * n2, 16) flat nodal entries
 
     def _flat(self, open_array: np.ndarray) -> np.ndarray:
         return self.model.discretization.open_to_surface(open_array).nodal.reshape(-1, 3)
@@ -229,10 +228,10 @@ class ContactHandler:
         shift = control_nets(grid, (end - first_end).reshape(*grid.node_shape, 4, 3))
         # (half the margin: round-off and the projections of collider points are not exact)
         again = np.linalg.norm(shift, axis=-1).reshape(len(shift), -1).max(axis=1) >= 0.5 * margin
-        entries = np.concatenate([found.index_a[found.weights_a != 0], found.index_b[found.weights_b != 0]])
-        touched = np.zeros(grid.num_nodes, dtype=bool)
-        touched[entries // 4] = True  # flat nodal entry (i1 * m2 + i2) * 4 + kind
-        return again | touched[self._patch_nodes].any(axis=1)
+        touched = np.zeros(4 * grid.num_nodes, dtype=bool)
+        touched[found.index_a[found.weights_a != 0]] = True
+        touched[found.index_b[found.weights_b != 0]] = True
+        return again | touched[self._patch_entries].any(axis=1)
 
     def _respond(
         self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float, pushed: np.ndarray

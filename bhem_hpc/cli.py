@@ -1,4 +1,6 @@
-"""Command line: ``bhem-hpc {cantilever,bench} ...``; trailing ``-prefix_option value`` pairs go to PETSc.
+"""Command line: ``bhem-hpc {run,render,study,bench,cantilever} ...``.
+
+Trailing ``-prefix_option value`` pairs go to PETSc.
 
 PETSc options must reach ``petsc4py.init`` before dolfinx is imported, so every command imports
 the solver lazily, after parsing.
@@ -79,6 +81,88 @@ def _render(args: argparse.Namespace) -> None:
     print(f"rendered t = {time:.6g} s, {width}x{height}, {int(mask.sum())} pixels on the surface: {out}")
 
 
+def _study(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.studies.report import run_study, write_accuracy_cost
+
+    if args.docs is not None:
+        path = write_accuracy_cost(args.docs, comm)
+        if comm.rank == 0:
+            print(f"wrote {path}")
+        return
+    if args.name is None or args.out is None:
+        raise ValueError("study needs NAME and --out DIR, or --docs DIR")
+    rows = run_study(args.name, args.out, comm)
+    if comm.rank == 0:
+        print(f"study {args.name}: {len(rows)} configurations -> {args.out}/{args.name}.csv, .md, .png")
+
+
+def _run(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.run import RunOptions, run_scene
+
+    options = RunOptions(args.scene, args.out, args.steps, args.restart, args.force, not args.no_progress)
+    summary = run_scene(options, comm)
+    if comm.rank == 0:
+        steps = summary["steps"]
+        print(
+            f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
+            f"{comm.size} rank(s), {sum(s['newton_iterations'] for s in steps)} Newton iterations, "
+            f"{sum(s.get('recoveries', 0) for s in steps)} recoveries\n"
+            f"  output: {args.out}/surface.xdmf (ParaView), last.png, summary.json, checkpoint.h5"
+        )
+
+
+def _cantilever(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.studies.cantilever import cantilever
+
+    summary = cantilever(args.gamma, args.out, args.patches, args.load_steps, args.hessian, comm)
+    if comm.rank == 0:
+        print(
+            f"cantilever Gamma* = {args.gamma:g}, {summary['patches'][0]} patches, {summary['dofs']} DoFs, "
+            f"{comm.size} rank(s): {summary['load_steps']} load steps, "
+            f"{sum(summary['newton_iterations'])} Newton iterations, {summary['solve_s']:.2f} s\n"
+            f"  tip drop H/L  = {summary['tip_H_over_L']:.6f}  "
+            f"heavy elastica {summary['reference_H_over_L']:.6f}"
+            f"  ({100 * summary['relative_error_H']:+.4f} %)\n"
+            f"  tip reach W/L = {summary['tip_W_over_L']:.6f}  "
+            f"heavy elastica {summary['reference_W_over_L']:.6f}"
+            f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
+            f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, cantilever-3d.png, summary.json"
+        )
+
+
+def _bench(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc import benchmarks
+
+    if args.rays:
+        rows = [benchmarks.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
+        for row in rows:
+            print(json.dumps(row) if args.json else benchmarks.format_ray_row(row))
+    elif args.paper is not None:
+        benchmarks.paper_comparison(Path(__file__).resolve().parents[1] / "jobs", args.paper, args.steps or 5, comm)
+        if comm.rank == 0:
+            print(args.paper.read_text())
+    elif args.scene is not None:
+        row = benchmarks.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples)
+        if comm.rank == 0:
+            print(json.dumps(row) if args.json else benchmarks.format_scene_row(row))
+    else:
+        rows = [benchmarks.benchmark(n, args.hessian, args.repeats, comm) for n in args.patches]
+        if comm.rank == 0:
+            table = benchmarks.format_newton_table(rows, args.hessian, args.repeats)
+            print("\n".join(json.dumps(row) for row in rows) if args.json else table)
+
+
+HANDLERS = {"study": _study, "run": _run, "cantilever": _cantilever, "bench": _bench}
+
+
+def _configure_logging(verbose: bool, rank: int) -> None:
+    """Warnings only unless ``--verbose``; the form compiler's command lines only with ``--verbose``."""
+    level = logging.INFO if verbose and rank == 0 else logging.WARNING
+    logging.basicConfig(level=level, format=f"[rank {rank}] %(levelname)s %(name)s: %(message)s", force=True)
+    for noisy in ("ffcx", "UFL", "root", "dolfinx"):
+        logging.getLogger(noisy).setLevel(logging.DEBUG if verbose else logging.ERROR)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args, petsc_args = _parser().parse_known_args(argv)
@@ -91,115 +175,19 @@ def main(argv: list[str] | None = None) -> int:
     from mpi4py import MPI
 
     comm = MPI.COMM_WORLD
-    level = logging.INFO if args.verbose and comm.rank == 0 else logging.WARNING
-    logging.basicConfig(level=level, format=f"[rank {comm.rank}] %(levelname)s %(name)s: %(message)s", force=True)
-    for noisy in ("ffcx", "UFL", "root"):
-        logging.getLogger(noisy).setLevel(max(level, logging.WARNING))
+    _configure_logging(args.verbose, comm.rank)
 
-    from bhem_hpc import jobs
-    from bhem_hpc.bcs import BoundaryConditionError
-    from bhem_hpc.run import RunError, RunOptions, run_scene
+    from bhem_hpc.model.bcs import BoundaryConditionError
+    from bhem_hpc.run import RunError
     from bhem_hpc.scene import SceneError
     from bhem_hpc.solver import SolverError
 
     try:
-        if args.command == "study":
-            from bhem_hpc.studies import run_study, write_accuracy_cost
-
-            if args.docs is not None:
-                path = write_accuracy_cost(args.docs, comm)
-                if comm.rank == 0:
-                    print(f"wrote {path}")
-            elif args.name is None or args.out is None:
-                raise ValueError("study needs NAME and --out DIR, or --docs DIR")
-            else:
-                rows = run_study(args.name, args.out, comm)
-                if comm.rank == 0:
-                    print(f"study {args.name}: {len(rows)} configurations -> {args.out}/{args.name}.csv, .md, .png")
-        elif args.command == "render":
+        if args.command == "render":
             if comm.rank == 0:
                 _render(args)
-        elif args.command == "run":
-            options = RunOptions(args.scene, args.out, args.steps, args.restart, args.force, not args.no_progress)
-            summary = run_scene(options, comm)
-            if comm.rank == 0:
-                steps = summary["steps"]
-                print(
-                    f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
-                    f"{comm.size} rank(s), {sum(s['newton_iterations'] for s in steps)} Newton iterations, "
-                    f"{sum(s.get('recoveries', 0) for s in steps)} recoveries\n"
-                    f"  output: {args.out}/surface.xdmf (ParaView), last.png, summary.json, checkpoint.h5"
-                )
-        elif args.command == "cantilever":
-            summary = jobs.cantilever(args.gamma, args.out, args.patches, args.load_steps, args.hessian, comm)
-            if comm.rank == 0:
-                print(
-                    f"cantilever Gamma* = {args.gamma:g}, {summary['patches'][0]} patches, {summary['dofs']} DoFs, "
-                    f"{comm.size} rank(s): {summary['load_steps']} load steps, "
-                    f"{sum(summary['newton_iterations'])} Newton iterations, {summary['solve_s']:.2f} s\n"
-                    f"  tip drop H/L  = {summary['tip_H_over_L']:.6f}  "
-                    f"heavy elastica {summary['reference_H_over_L']:.6f}"
-                    f"  ({100 * summary['relative_error_H']:+.4f} %)\n"
-                    f"  tip reach W/L = {summary['tip_W_over_L']:.6f}  "
-                    f"heavy elastica {summary['reference_W_over_L']:.6f}"
-                    f"  ({100 * summary['relative_error_W']:+.4f} %)\n"
-                    f"  output: {args.out}/cantilever.xdmf (ParaView), cantilever.png, cantilever-3d.png, summary.json"
-                )
-        elif args.command == "bench" and args.rays:
-            rows = [jobs.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
-            for row in rows:
-                print(
-                    json.dumps(row)
-                    if args.json
-                    else (
-                        f"{row['patches']}x{row['patches']} patches, {row['rays']} rays ({row['hits']} hits): midpoint "
-                        f"{row['midpoint_rays_per_s']:.0f} rays/s, Newton-guided {row['newton_rays_per_s']:.0f} rays/s "
-                        f"({row['speedup']:.1f}x), max |tau difference| {row['max_tau_difference']:.1e}"
-                    )
-                )
-        elif args.command == "bench" and args.paper is not None:
-            jobs.paper_comparison(Path(__file__).resolve().parents[1] / "jobs", args.paper, args.steps or 5, comm)
-            if comm.rank == 0:
-                print(args.paper.read_text())
-        elif args.command == "bench" and args.scene is not None:
-            row = jobs.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples)
-            if comm.rank == 0:
-                print(
-                    json.dumps(row)
-                    if args.json
-                    else (
-                        f"{row['scene']}: {row['dofs']} DoFs, {row['ranks']} rank(s), {row['hessian']} Hessian, "
-                        f"{row['steps']} steps: {row['step_s']:.3f} s/step, {row['newton_per_step']:.2f} Newton "
-                        f"iterations/step (assembly {row['assembly_per_step_s']:.3f} s, factorization "
-                        f"{row['factor_per_step_s']:.3f} s per step), {row['recoveries']} recoveries"
-                        + (
-                            f"; collision {row['collision_per_step_s']:.4f} s/step "
-                            f"({100 * row['collision_fraction']:.1f} % of the step; detection "
-                            f"{row['detection_per_step_s']:.4f} s, {row['projections_per_step']:.1f} projections; "
-                            f"{row['sample_points']} sample points, {row['contacts_per_step']:.0f} contacts/step)"
-                            if row["sample_points"]
-                            else ""
-                        )
-                    )
-                )
-        elif args.command == "bench":
-            rows = [jobs.benchmark(n, args.hessian, args.repeats, comm) for n in args.patches]
-            if comm.rank == 0:
-                if args.json:
-                    for row in rows:
-                        print(json.dumps(row))
-                else:
-                    print(f"Newton iteration, {args.hessian} Hessian, {comm.size} rank(s), median of {args.repeats}")
-                    print(
-                        f"{'patches':>8} {'DoFs':>7} {'nnz':>9} {'residual':>9} {'jacobian':>9} {'factor':>8} "
-                        f"{'solve':>8} {'total':>8} {'GFlop/s':>8}"
-                    )
-                    for r in rows:
-                        print(
-                            f"{r['patches']:>8} {r['dofs']:>7} {r['nnz']:>9} {r['assemble_residual_s']:>9.4f} "
-                            f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
-                            f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}"
-                        )
+        else:
+            HANDLERS[args.command](args, comm)
     except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError too
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)

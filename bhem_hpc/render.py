@@ -12,7 +12,7 @@ import numpy as np
 
 from bhem_hpc.collision import PatchBVH, control_nets, trace_rays
 from bhem_hpc.collision.bezier import evaluate_many
-from bhem_hpc.surface import HermiteSurface
+from bhem_hpc.geometry.surface import HermiteSurface
 
 LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
 VIEW = np.array([1.0, -1.6, 1.1])

@@ -19,12 +19,12 @@ import numpy as np
 from mpi4py import MPI
 
 from bhem_hpc import __version__
-from bhem_hpc.dynamics import PrescribedMotion, StepFailure, TimeStepper
+from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
+from bhem_hpc.model.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
-from bhem_hpc.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.surface import HermiteSurface
+from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
@@ -100,12 +100,12 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
 
 
 def build_contact(scene: Scene, model: ShellModel, solver: ShellSolver):
-    """The scene's :class:`~bhem_hpc.contact.ContactHandler`, or None: only scenes that list contact
+    """The scene's :class:`~bhem_hpc.contact.response.ContactHandler`, or None: only scenes that list contact
     effects load the collision code."""
     if scene.contact is None:
         return None
-    from bhem_hpc.collision.contact import ContactDetector
-    from bhem_hpc.contact import ContactHandler, ContactSettings
+    from bhem_hpc.contact.detection import ContactDetector
+    from bhem_hpc.contact.response import ContactHandler, ContactSettings
 
     c = scene.contact
     detector = ContactDetector(scene.surface.grid, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)

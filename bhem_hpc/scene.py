@@ -2,8 +2,8 @@
 
 Every error names the file, the key and what was expected. The format is documented in
 README.md ("Scene files"); :func:`load_scene` returns a :class:`Scene` whose parts map one to one
-onto the library's objects (surface, :class:`~bhem_hpc.material.Material`, constraints with
-motions, :class:`~bhem_hpc.shell.Loads`-like effects, time, solver and output settings).
+onto the library's objects (surface, :class:`~bhem_hpc.model.material.Material`, constraints with
+motions, :class:`~bhem_hpc.model.shell.Loads`-like effects, time, solver and output settings).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
-from bhem_hpc.material import Material, MaterialError
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material, MaterialError
 
 SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
 CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "fix")
@@ -85,7 +85,7 @@ class Effects:
 class SceneContact:
     """Contact effects of a scene: colliders (built), settings and friction coefficients."""
 
-    colliders: tuple[Any, ...]  # bhem_hpc.collision.contact.ColliderEntry
+    colliders: tuple[Any, ...]  # bhem_hpc.contact.detection.ColliderEntry
     push_out: float
     samples_per_side: int
     self_collision: bool
@@ -577,7 +577,7 @@ def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
     if not colliders_raw and not self_collision:
         raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
     from bhem_hpc.collision.colliders import ColliderError
-    from bhem_hpc.collision.contact import ColliderEntry
+    from bhem_hpc.contact.detection import ColliderEntry
 
     colliders = []
     for i, item in enumerate(colliders_raw):

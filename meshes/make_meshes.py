@@ -10,7 +10,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from bhem_hpc import surface as S
+from bhem_hpc.geometry import surface as S
 from bhem_hpc.collision import PatchModel, control_nets
 
 here = Path(__file__).resolve().parent

@@ -8,7 +8,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from bhem_hpc.shell import ShellModel
+from bhem_hpc.model.shell import ShellModel
 
 
 def total_internal_energy(model: ShellModel) -> float:

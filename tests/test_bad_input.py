@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
 from bhem_hpc.discretization import DiscretizationError, HermiteDiscretization, shared_jacobian
-from bhem_hpc.material import Material, MaterialError
-from bhem_hpc.shell import LineLoad, Loads, ModelError, PointLoad, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material, MaterialError
+from bhem_hpc.model.shell import LineLoad, Loads, ModelError, PointLoad, ShellModel
 from bhem_hpc.solver import ShellSolver, SolverError
 
 GOOD = {"young": 1e6, "poisson": 0.3, "thickness": 0.01, "density": 1.0}

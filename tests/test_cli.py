@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bhem_hpc import cli
-from bhem_hpc.surface import HermiteSurface
+from bhem_hpc.geometry.surface import HermiteSurface
 
 
 @pytest.fixture

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from helpers import assert_imports_without, ray_triangle_distances
 
-from bhem_hpc import surface as S
 from bhem_hpc.collision import (
     BoundReached,
     PatchBVH,
@@ -20,6 +19,7 @@ from bhem_hpc.collision import (
     subpatch,
     trace_rays,
 )
+from bhem_hpc.geometry import surface as S
 
 
 def test_collision_imports_numpy_only():

@@ -5,23 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bhem_hpc import surface as S
-from bhem_hpc.bcs import NodalConstraint, clamp, edge_nodes
 from bhem_hpc.collision import Plane, Sphere
 from bhem_hpc.collision.bezier import evaluate_many
-from bhem_hpc.collision.contact import (
+from bhem_hpc.contact.detection import (
     ColliderEntry,
     ContactDetector,
     Contacts,
     overlapping_pairs,
     project_to_patches,
 )
-from bhem_hpc.contact import ContactHandler, ContactSettings
-from bhem_hpc.dynamics import TimeStepper
-from bhem_hpc.material import Material
-from bhem_hpc.shell import Dynamics, Loads, ShellModel
-from bhem_hpc.solver import ContactProjector, ShellSolver
-from bhem_hpc.surface import point_weights
+from bhem_hpc.contact.petsc import ContactProjector
+from bhem_hpc.contact.response import ContactHandler, ContactSettings
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.geometry.surface import point_weights
+from bhem_hpc.model.bcs import NodalConstraint, clamp, edge_nodes
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Dynamics, Loads, ShellModel
+from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.dynamics import TimeStepper
 
 SHEET = Material(young=1e6, poisson=0.3, thickness=1e-3, density=500.0)
 G = 9.81

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import ufl
 
-from bhem_hpc import surface as S
 from bhem_hpc.discretization import HermiteDiscretization
+from bhem_hpc.geometry import surface as S
 
 
 @pytest.mark.parametrize(

@@ -9,8 +9,8 @@ import numpy as np
 import ufl
 
 from bhem_hpc.discretization import HermiteDiscretization
-from bhem_hpc.element import VERTEX_DOF_DERIVATIVES, create_hermite_element
-from bhem_hpc.surface import HermiteSurface, ParameterGrid
+from bhem_hpc.discretization.element import VERTEX_DOF_DERIVATIVES, create_hermite_element
+from bhem_hpc.geometry.surface import HermiteSurface, ParameterGrid
 
 
 def test_kronecker_property():

@@ -16,11 +16,11 @@ from helpers import (
     set_open_state_global,
 )
 
-from bhem_hpc import surface as S
 from bhem_hpc.forms.bending import _bending_strain
 from bhem_hpc.forms.kinematics import area_density, metric, plane_stress_lame, svk_bilinear
-from bhem_hpc.material import Material
-from bhem_hpc.shell import Loads, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 
 MATERIAL = Material(young=1e3, poisson=0.3, thickness=0.05, density=2.0)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
-from bhem_hpc.dynamics import TimeStepper
-from bhem_hpc.material import Material
-from bhem_hpc.shell import Dynamics, Loads, ModelError, PointConstraint, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Dynamics, Loads, ModelError, PointConstraint, ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.dynamics import TimeStepper
 
 CLOTH = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
 PLATE = Material(young=1e6, poisson=0.3, thickness=0.01, density=1000.0)

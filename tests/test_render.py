@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 from helpers import ray_triangle_distances
 
-from bhem_hpc import surface as S
+from bhem_hpc.benchmarks import ray_benchmark
+from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import SurfaceTimeSeries, read_frame
-from bhem_hpc.jobs import ray_benchmark
-from bhem_hpc.material import Material
+from bhem_hpc.model.material import Material
 from bhem_hpc.render import camera_rays, render
 
 

@@ -14,10 +14,10 @@ import meshio
 import numpy as np
 import pytest
 
+from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import read_checkpoint
 from bhem_hpc.run import RunError, RunOptions, build_model, run_scene
 from bhem_hpc.scene import SceneError, load_scene
-from bhem_hpc.surface import HermiteSurface
 
 BASE = """
 [surface]
@@ -160,7 +160,7 @@ def test_only_listed_effects_are_built(comm, workdir):
             "from bhem_hpc.run import RunOptions, run_scene\n"
             f"run_scene(RunOptions(Path({str(workdir / 'scene.toml')!r}), Path({str(workdir / 'nocontact')!r}), "
             "steps=1, progress=False))\n"
-            "for name in ('bhem_hpc.contact', 'bhem_hpc.collision.contact'):\n"
+            "for name in ('bhem_hpc.contact', 'bhem_hpc.contact.detection'):\n"
             "    assert name not in sys.modules, name + ' imported'\n"
         )
         env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from petsc4py import PETSc
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
-from bhem_hpc.material import Material
-from bhem_hpc.shell import LineLoad, Loads, PointLoad, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import LineLoad, Loads, PointLoad, ShellModel
 from bhem_hpc.solver import ShellSolver, SolverError
 
 BEAM = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)

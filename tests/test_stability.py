@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
-from bhem_hpc.dynamics import PrescribedMotion, TimeStepper
-from bhem_hpc.material import Material
-from bhem_hpc.shell import Dynamics, Loads, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Dynamics, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.dynamics import PrescribedMotion, TimeStepper
 
 G = 9.81
 
@@ -92,8 +92,8 @@ def plane_drop_case(comm):
     """A sheet dropped flat on a plane with friction 0.3; contact removes energy (zero restitution),
     the push-out may add at most m g * push-out."""
     from bhem_hpc.collision import Plane
-    from bhem_hpc.collision.contact import ColliderEntry, ContactDetector
-    from bhem_hpc.contact import ContactHandler
+    from bhem_hpc.contact.detection import ColliderEntry, ContactDetector
+    from bhem_hpc.contact.response import ContactHandler
 
     rest = S.flat_rectangle(0.3, 0.3, 5, 5).transformed(np.eye(3), np.array([0.0, 0.0, 0.01]))
     model = ShellModel(
@@ -194,8 +194,8 @@ def ball_drop_case(comm, steps: int = 25):
     sits off the cloth's centre and its diagonals: in a symmetric drop the folds break the symmetry
     one way or the other with round-off, and two correct runs differ by a mirror image."""
     from bhem_hpc.collision import Sphere
-    from bhem_hpc.collision.contact import ColliderEntry, ContactDetector
-    from bhem_hpc.contact import ContactHandler
+    from bhem_hpc.contact.detection import ColliderEntry, ContactDetector
+    from bhem_hpc.contact.response import ContactHandler
 
     rest = S.flat_rectangle(0.4, 0.4, 6, 6).transformed(np.eye(3), np.array([-0.2, -0.2, 0.01]))
     model = ShellModel(
@@ -254,9 +254,9 @@ def job_case(job: str, steps: int, comm, imperfection: float = 0.0) -> tuple[flo
     the initial state."""
     from pathlib import Path
 
-    from bhem_hpc.dynamics import TimeStepper
     from bhem_hpc.run import build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
+    from bhem_hpc.solver.dynamics import TimeStepper
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "jobs" / f"{job}.toml")
     model = build_model(scene, comm)
@@ -278,7 +278,7 @@ def job_case(job: str, steps: int, comm, imperfection: float = 0.0) -> tuple[flo
             assert np.all(np.isfinite(model.x.x.array)), f"NaN/Inf at step {report.step}"
             if contact is None:
                 continue
-            from bhem_hpc.collision.contact import collider_at
+            from bhem_hpc.contact.detection import collider_at
 
             points = model.state_surface().evaluate(*dense).x.reshape(-1, 3)
             for entry in scene.contact.colliders:

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bhem_hpc.studies import StudyError, run_study
+from bhem_hpc.studies.report import run_study
+from bhem_hpc.studies.study import StudyError
 
 
 @pytest.fixture
@@ -73,7 +74,7 @@ def test_cantilever_study_tracks_the_master_curve(comm, out):
 
 
 def test_cheapest_configuration_per_tolerance():
-    from bhem_hpc.studies import cheapest
+    from bhem_hpc.studies.report import cheapest
 
     rows = [{"error": 2e-2, "wall_s": 0.1}, {"error": 5e-3, "wall_s": 0.3}, {"error": 4e-4, "wall_s": 0.2}]
     assert cheapest(rows, 1e-2)["wall_s"] == 0.2 and cheapest(rows, 1e-3)["error"] == 4e-4
@@ -82,7 +83,7 @@ def test_cheapest_configuration_per_tolerance():
 
 def test_lateral_buckling_reference():
     """The Michell-Prandtl constant by shooting equals the tabulated 12.85 (Timoshenko & Gere)."""
-    from bhem_hpc.references import lateral_buckling_constant, lateral_buckling_gamma
+    from bhem_hpc.studies.references import lateral_buckling_constant, lateral_buckling_gamma
 
     assert lateral_buckling_constant() == pytest.approx(12.85, abs=0.005)
     assert lateral_buckling_gamma(0.0) == pytest.approx(12 * 12.8538 / np.sqrt(72), rel=1e-4)
@@ -91,7 +92,7 @@ def test_lateral_buckling_reference():
 def test_buckling_threshold_of_a_narrow_plate(comm):
     """A 1 m x 2 cm plate hanging on edge (40 patches) buckles laterally within 2 % of beam theory
     (measured 1.5 %; the rest is the plate's width, see the study)."""
-    from bhem_hpc.studies import run_buckling
+    from bhem_hpc.studies.buckling import run_buckling
 
     row = run_buckling({"aspect": 0.02, "patches_per_m": 40, "poisson": 0.0}, comm)
     assert row["error"] < 0.02, row
@@ -156,7 +157,7 @@ def test_stretched_sheet_wrinkles_at_10_patches(comm, out):
     """The wrinkle study's first rows (default suite): the pull buckles the flat sheet into
     wrinkles across the width; at 10 x 10 the amplitude is below the converged ~0.34 mm (paper
     Fig. 13c: 'several shallow wrinkles'). The shapes figure is drawn."""
-    from bhem_hpc.studies import WRINKLE_MEASURED
+    from bhem_hpc.studies.wrinkle import WRINKLE_MEASURED
 
     rows = run_study("wrinkle", out.parent / "wrinkle", comm, limit=2)
     coarse = rows[1]
@@ -174,7 +175,7 @@ def test_accuracy_cost_page_sets_rank_counts_side_by_side(comm, out):
     a table of each configuration's value and time per rank count."""
     import shutil
 
-    from bhem_hpc.studies import _accuracy_cost_markdown, read_rows
+    from bhem_hpc.studies.report import _accuracy_cost_markdown, read_rows
 
     docs = out.parent / "docs"
     rows = run_study("plate", docs / "studies" / "ranks-1" / "plate", comm, limit=2)

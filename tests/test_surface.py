@@ -9,12 +9,19 @@ import numpy as np
 import pytest
 from helpers import assert_imports_without
 
-from bhem_hpc import hermite
-from bhem_hpc import surface as S
+from bhem_hpc.geometry import hermite
+from bhem_hpc.geometry import surface as S
 
 
 def test_surface_module_imports_numpy_only():
-    for module in ("bhem_hpc.surface", "bhem_hpc.hermite", "bhem_hpc.bcs", "bhem_hpc.references", "bhem_hpc.scene"):
+    modules = (
+        "bhem_hpc.geometry.surface",
+        "bhem_hpc.geometry.hermite",
+        "bhem_hpc.model.bcs",
+        "bhem_hpc.studies.references",
+        "bhem_hpc.scene",
+    )
+    for module in modules:
         assert_imports_without(module)
 
 

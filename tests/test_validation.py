@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
-from bhem_hpc.jobs import CANTILEVER_SIZE, cantilever_model
-from bhem_hpc.material import Material
-from bhem_hpc.references import CLAMPED_SQUARE_PLATE, heavy_cantilever_tip, simply_supported_square_plate
-from bhem_hpc.shell import Loads, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.studies.cantilever import CANTILEVER_SIZE, cantilever_model
+from bhem_hpc.studies.references import CLAMPED_SQUARE_PLATE, heavy_cantilever_tip, simply_supported_square_plate
 
 PLATE = Material(young=1e6, poisson=0.3, thickness=0.01, density=1.0)
 EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bhem_hpc.surface import HermiteSurface, ParameterGrid
+from bhem_hpc.geometry.surface import HermiteSurface, ParameterGrid
 
 
 def control_nets(grid: ParameterGrid, nodal: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Implicit Euler time stepping (paper eq. 30) with recovery; no PETSc here.
 
-Each step minimizes the incremental potential built by :class:`bhem_hpc.shell.ShellModel` with
+Each step minimizes the incremental potential built by :class:`bhem_hpc.model.shell.ShellModel` with
 ``dynamics`` set: ``x_predicted = x_n + dt v_n``, ``x_previous = x_n``, solve, then
 ``v_{n+1} = (x_{n+1} - x_n) / dt``. A step whose solve fails (after the solver's regularized
 retries) is retried as two half steps, recursively, at most ``max_halvings`` deep; a step that
@@ -17,12 +17,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bhem_hpc.bcs import NodalConstraint, target_surface
-from bhem_hpc.shell import ShellModel
-from bhem_hpc.solver import ShellSolver, SolverError
+from bhem_hpc.model.bcs import NodalConstraint, target_surface
+from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.newton import ShellSolver
+from bhem_hpc.solver.petsc import SolverError
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
-    from bhem_hpc.contact import ContactHandler
+    from bhem_hpc.contact.response import ContactHandler
 
 log = logging.getLogger(__name__)
 

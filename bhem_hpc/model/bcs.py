@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bhem_hpc.surface import KIND_NAMES, HermiteSurface, ParameterGrid
+from bhem_hpc.geometry.surface import KIND_NAMES, HermiteSurface, ParameterGrid
 
 EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
 

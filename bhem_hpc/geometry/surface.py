@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bhem_hpc import hermite
+from bhem_hpc.geometry import hermite
 
 KIND_NAMES = ("x", "d1", "d2", "d12")
 FILE_FORMAT = "bhem-hermite-surface"

@@ -3,14 +3,14 @@
 After the SNES solve of a step has moved the shell from ``x_n`` to a candidate ``x*`` with velocity
 ``v* = (x* - x_n) / dt``, :meth:`ContactHandler.respond` runs rounds of
 
-1. detection (:mod:`bhem_hpc.collision.contact`) of every contact of the straight-line motion
+1. detection (:mod:`bhem_hpc.contact.detection`) of every contact of the straight-line motion
    ``x_n -> x*`` within the push-out distance - simultaneous contacts together, the earliest time
    of impact recorded;
 2. the velocity update: zero restitution, i.e. the normal velocity of every approaching contact
    point relative to its obstacle becomes 0 (separating points keep theirs); with friction the
    tangential velocity is reduced by ``mu`` times the normal velocity change, Coulomb's cone
    [Bridson et al. 2002], as rows solved together with the normal rows. Rows are met in least
-   squares in the metric ``W`` (:class:`~bhem_hpc.solver.ContactProjector`, in dual form):
+   squares in the metric ``W`` (:class:`~bhem_hpc.contact.petsc.ContactProjector`, in dual form):
    ``M + S`` by default, factored once for the run, or ``dt^2 J + S`` (``metric = "jacobian"``),
    refactored each step with contact; impulses only push (a linear complementarity problem,
    :func:`bhem_hpc.collision.lcp.solve_lcp`);
@@ -34,11 +34,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from bhem_hpc.collision.bezier import control_nets
-from bhem_hpc.collision.contact import ContactDetector, Contacts
+from bhem_hpc.contact.detection import ContactDetector, Contacts
+from bhem_hpc.contact.petsc import ContactProjector
+from bhem_hpc.geometry.surface import HermiteSurface, point_weights
+from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene import CONTACT_METRICS
-from bhem_hpc.shell import ShellModel
-from bhem_hpc.solver import ContactProjector, ShellSolver
-from bhem_hpc.surface import HermiteSurface, point_weights
+from bhem_hpc.solver import ShellSolver
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +47,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class ContactSettings:
     """Parameters of the response (sampling and self-collision belong to the
-    :class:`~bhem_hpc.collision.contact.ContactDetector`).
+    :class:`~bhem_hpc.contact.detection.ContactDetector`).
 
     Attributes:
         push_out: distance every contact point is pushed out to [m].

@@ -1,124 +1,21 @@
-"""Ready-made jobs: the cantilever master-curve check and the Newton-iteration benchmark.
+"""Benchmarks: Newton iterations on N x N sheets, time steps of scenes, ray tracing, the paper's Table 2.
 
 Collective functions: call them on every rank of ``comm``; rank 0 writes files and prints.
 """
 
 from __future__ import annotations
 
-import json
 import platform
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc import bcs
-from bhem_hpc import surface as S
-from bhem_hpc.io import render_surface_png, write_surface_xdmf
-from bhem_hpc.material import Material
-from bhem_hpc.references import heavy_cantilever
-from bhem_hpc.shell import Loads, ShellModel
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model import bcs
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
-
-CANTILEVER_SIZE = (1.0, 0.1)  # length, width [m]
-
-
-def cantilever_model(gamma: float, patches: int, hessian: str = "exact", comm: MPI.Comm = MPI.COMM_WORLD) -> ShellModel:
-    """The strip of :func:`cantilever`: nu = 0, clamped at xi1 = 0, gravity set by ``Gamma*``."""
-    length, width = CANTILEVER_SIZE
-    material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
-    gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
-    rest = S.flat_rectangle(length, width, patches, 1)
-    return ShellModel(
-        rest,
-        material,
-        Loads(gravity=(0.0, 0.0, -gravity)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
-        hessian=hessian,
-        comm=comm,
-    )
-
-
-def cantilever(
-    gamma: float,
-    out: Path,
-    patches: int = 32,
-    load_steps: int | None = None,
-    hessian: str = "exact",
-    comm: MPI.Comm = MPI.COMM_WORLD,
-    options: dict | None = None,
-) -> dict:
-    """A 1 m x 0.1 m strip (nu = 0) clamped at one end, bending under its own weight.
-
-    ``Gamma* = 12 (1 - nu^2) rho g L^3 / (Y h^2)`` sets gravity. Writes ``cantilever.xdmf/.h5``,
-    ``cantilever.png`` (centreline vs elastica), ``cantilever-3d.png``, ``cantilever.npz`` (nodal
-    data) and ``summary.json`` to ``out``.
-
-    Returns:
-        The summary: tip position against the heavy elastica, Newton iterations, timings.
-    """
-    if not (np.isfinite(gamma) and 0 < gamma <= 1e4):
-        raise ValueError(f"--gamma must be in (0, 1e4], got {gamma!r}")
-    if patches < 1:
-        raise ValueError(f"--patches must be >= 1, got {patches!r}")
-    steps = load_steps or max(1, int(np.ceil(2 * np.sqrt(gamma))))
-    model = cantilever_model(gamma, patches, hessian, comm)
-    length, width = CANTILEVER_SIZE
-    with ShellSolver(model, options=options) as solver:
-        report = solver.solve(steps)
-    deformed = model.state_surface()
-    tip = deformed.evaluate(np.array(length), np.array(width / 2)).x
-    ref_w, ref_h, shape = heavy_cantilever(gamma)
-    summary = {
-        "gamma": gamma,
-        "patches": [patches, 1],
-        "dofs": 3 * model.discretization.num_closed,
-        "ranks": comm.size,
-        "hessian": hessian,
-        "tip_W_over_L": float(tip[0] / length),
-        "tip_H_over_L": float(-tip[2] / length),
-        "reference_W_over_L": ref_w,
-        "reference_H_over_L": ref_h,
-        "relative_error_H": float(-tip[2] / length / ref_h - 1),
-        "relative_error_W": float(tip[0] / length / ref_w - 1),
-        "load_steps": report.load_steps,
-        "load_step_cuts": report.cuts,
-        "newton_iterations": report.newton_iterations,
-        "solve_s": report.wall_s,
-    }
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        deformed.save(out / "cantilever.npz")
-        write_surface_xdmf(out / "cantilever.xdmf", deformed, density=4, name="cantilever")
-        _plot_cantilever(out / "cantilever.png", deformed, shape, summary)
-        render_surface_png(out / "cantilever-3d.png", deformed, f"Γ* = {gamma:g}, {patches} patches")
-        (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    return summary
-
-
-def _plot_cantilever(path: Path, surface: S.HermiteSurface, shape: np.ndarray, summary: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    xi = np.linspace(0.0, 1.0, 201)
-    centre = surface.evaluate(xi, np.full_like(xi, 0.05)).x
-    fig, ax = plt.subplots(figsize=(6, 4.5), dpi=120)
-    ax.plot(shape[:, 0], shape[:, 1], "k-", lw=2.5, label="heavy elastica (reference)")
-    ax.plot(centre[:, 0], centre[:, 2], "r--", lw=1.5, label=f"BHEM, {summary['patches'][0]} patches")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x / L")
-    ax.set_ylabel("z / L")
-    ax.set_title(
-        f"Cantilever under self-weight, Γ* = {summary['gamma']:g}: "
-        f"H/L error {100 * summary['relative_error_H']:+.3f} %"
-    )
-    ax.legend(loc="upper right")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
 
 
 def benchmark(
@@ -187,9 +84,9 @@ def scene_benchmark(
     """
     import dataclasses
 
-    from bhem_hpc.dynamics import TimeStepper
     from bhem_hpc.run import SOLVER_PREFIX, build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
+    from bhem_hpc.solver.dynamics import TimeStepper
 
     if steps < 1:
         raise ValueError(f"--steps must be >= 1, got {steps!r}")
@@ -334,3 +231,47 @@ def _write_paper_table(out: Path, rows: list[dict], steps: int, ranks: int) -> N
         )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("\n".join(lines) + "\n")
+
+
+def format_ray_row(row: dict) -> str:
+    """One line of ``bhem-hpc bench --rays``."""
+    return (
+        f"{row['patches']}x{row['patches']} patches, {row['rays']} rays ({row['hits']} hits): midpoint "
+        f"{row['midpoint_rays_per_s']:.0f} rays/s, Newton-guided {row['newton_rays_per_s']:.0f} rays/s "
+        f"({row['speedup']:.1f}x), max |tau difference| {row['max_tau_difference']:.1e}"
+    )
+
+
+def format_scene_row(row: dict) -> str:
+    """One line of ``bhem-hpc bench --scene``."""
+    collision = (
+        f"; collision {row['collision_per_step_s']:.4f} s/step "
+        f"({100 * row['collision_fraction']:.1f} % of the step; detection "
+        f"{row['detection_per_step_s']:.4f} s, {row['projections_per_step']:.1f} projections; "
+        f"{row['sample_points']} sample points, {row['contacts_per_step']:.0f} contacts/step)"
+        if row["sample_points"]
+        else ""
+    )
+    return (
+        f"{row['scene']}: {row['dofs']} DoFs, {row['ranks']} rank(s), {row['hessian']} Hessian, "
+        f"{row['steps']} steps: {row['step_s']:.3f} s/step, {row['newton_per_step']:.2f} Newton "
+        f"iterations/step (assembly {row['assembly_per_step_s']:.3f} s, factorization "
+        f"{row['factor_per_step_s']:.3f} s per step), {row['recoveries']} recoveries" + collision
+    )
+
+
+def format_newton_table(rows: list[dict], hessian: str, repeats: int) -> str:
+    """The table of ``bhem-hpc bench --patches ...``: one row per sheet size."""
+    ranks = MPI.COMM_WORLD.size
+    lines = [
+        f"Newton iteration, {hessian} Hessian, {ranks} rank(s), median of {repeats}",
+        f"{'patches':>8} {'DoFs':>7} {'nnz':>9} {'residual':>9} {'jacobian':>9} {'factor':>8} "
+        f"{'solve':>8} {'total':>8} {'GFlop/s':>8}",
+    ]
+    for r in rows:
+        lines.append(
+            f"{r['patches']:>8} {r['dofs']:>7} {r['nnz']:>9} {r['assemble_residual_s']:>9.4f} "
+            f"{r['assemble_jacobian_s']:>9.4f} {r['factor_s']:>8.4f} {r['solve_s']:>8.4f} "
+            f"{r['newton_iteration_s']:>8.4f} {r['factor_gflops']:>8.2f}"
+        )
+    return "\n".join(lines)

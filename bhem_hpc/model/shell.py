@@ -6,9 +6,6 @@ No PETSc here; :mod:`bhem_hpc.solver` owns every PETSc object.
 
 from __future__ import annotations
 
-import hashlib
-import os
-import platform
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -21,10 +18,11 @@ import ufl
 from mpi4py import MPI
 
 from bhem_hpc import forms
-from bhem_hpc.bcs import EDGES, NodalConstraint, target_surface
 from bhem_hpc.discretization import ConstrainedDofs, Discretization, HermiteDiscretization
-from bhem_hpc.material import Material
-from bhem_hpc.surface import HermiteSurface
+from bhem_hpc.geometry.surface import HermiteSurface
+from bhem_hpc.model.bcs import EDGES, NodalConstraint, target_surface
+from bhem_hpc.model.jit import default_jit_params
+from bhem_hpc.model.material import Material
 
 HessianKind = Literal["exact", "pseudo"]
 GAUSS_POINTS = (2, 3, 4, 5)
@@ -133,38 +131,6 @@ def gauss_measure(mesh: dolfinx.mesh.Mesh, points_per_direction: int) -> ufl.Mea
     if points_per_direction not in GAUSS_POINTS:
         raise ModelError(f"quadrature points per direction = {points_per_direction!r}; expected one of {GAUSS_POINTS}")
     return ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 2 * points_per_direction - 1})
-
-
-# The shell kernels are long chains of products, sums and square roots. Letting the compiler
-# reassociate sums and inline sqrt (no errno) halves the Jacobian kernel's time; unlike
-# -ffast-math this keeps IEEE NaN/Inf semantics, so a NaN still reaches the residual norm.
-JIT_CFLAGS = (
-    "-O3 -march=native -fno-math-errno -fno-trapping-math -fassociative-math -fno-signed-zeros -freciprocal-math -g0"
-)
-
-
-def _cpu_specific_cache() -> str:
-    """A JIT cache folder per CPU model: -march=native code must not meet another CPU, e.g.
-    through a home directory shared by the nodes of a cluster."""
-    signature = platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            lines = [line for line in f if line.startswith(("model name", "flags"))]
-        signature += "".join(sorted(set(lines)))
-    except OSError:
-        pass
-    tag = hashlib.sha1(signature.encode()).hexdigest()[:12]
-    return os.path.join(os.path.expanduser("~/.cache/bhem-hpc"), f"jit-{tag}")
-
-
-def default_jit_params() -> dict:
-    """JIT settings: a generous timeout, since under MPI all ranks wait for one compile;
-    ``BHEM_JIT_CFLAGS`` replaces the compiler flags, ``BHEM_JIT_CACHE`` the cache folder."""
-    return {
-        "timeout": 600,
-        "cache_dir": os.environ.get("BHEM_JIT_CACHE") or _cpu_specific_cache(),
-        "cffi_extra_compile_args": os.environ.get("BHEM_JIT_CFLAGS", JIT_CFLAGS).split(),
-    }
 
 
 class ShellModel:

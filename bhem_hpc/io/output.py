@@ -12,7 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from bhem_hpc.surface import HermiteSurface
+from bhem_hpc.geometry.surface import HermiteSurface
 
 _XDMF = """<?xml version="1.0"?>
 <Xdmf Version="3.0">
@@ -91,7 +91,7 @@ class SurfaceTimeSeries:
     """
 
     def __init__(self, path: str | Path, rest: HermiteSurface, material, density: int = 4):
-        from bhem_hpc.fields import energy_densities, mean_curvature
+        from bhem_hpc.io.fields import energy_densities, mean_curvature
 
         self._energy_densities, self._mean_curvature = energy_densities, mean_curvature
         self.path = Path(path)
@@ -182,7 +182,7 @@ def read_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, 
 
 def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, float]:
     """The surface (exact nodal data) and time of a frame of a :class:`SurfaceTimeSeries`."""
-    from bhem_hpc.surface import ParameterGrid
+    from bhem_hpc.geometry.surface import ParameterGrid
 
     with h5py.File(h5_path, "r") as f:
         count = len(f["frames"]) if "frames" in f else 0

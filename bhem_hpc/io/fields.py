@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bhem_hpc.material import Material
-from bhem_hpc.surface import SurfacePoint
+from bhem_hpc.geometry.surface import SurfacePoint
+from bhem_hpc.model.material import Material
 
 
 def fundamental_forms(point: SurfacePoint) -> tuple[np.ndarray, np.ndarray]:

@@ -32,7 +32,7 @@ import numpy as np
 from bhem_hpc.collision.bezier import _bernstein, control_nets, evaluate_many, subpatch_many
 from bhem_hpc.collision.ccd import point_patch_toi
 from bhem_hpc.collision.ray import BoundReached
-from bhem_hpc.surface import ParameterGrid, point_weights
+from bhem_hpc.geometry.surface import ParameterGrid, point_weights
 
 #: Local-parameter slack when deciding that a projected foot point lies inside a patch.
 INSIDE_EPS = 1e-9

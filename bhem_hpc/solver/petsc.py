@@ -1,0 +1,58 @@
+"""PETSc utilities shared by the solvers: options under a prefix, object lifetimes, reasons, MUMPS status."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from petsc4py import PETSc
+
+SNES_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if k.isupper()}
+KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if k.isupper()}
+
+
+class SolverError(RuntimeError):
+    """A nonlinear or linear solve failed; the message names the solver and the reasons."""
+
+
+def push_options(prefix: str, defaults: Mapping[str, str], overrides: Mapping[str, object]) -> list[str]:
+    """Set ``overrides`` then ``defaults`` under ``prefix`` where the database has no value.
+
+    Returns the names pushed, so the caller can remove them after ``setFromOptions`` and leave
+    the database as the user made it.
+    """
+    opts = PETSc.Options()
+    pushed = []
+    for source in (overrides, defaults):
+        for key, value in source.items():
+            name = prefix + key.lstrip("-")
+            if not opts.hasName(name):
+                opts[name] = "" if value is None else str(value)
+                pushed.append(name)
+    return pushed
+
+
+class PetscOwner:
+    """Owns PETSc objects: an explicit ``close()`` (idempotent), a context manager, a guarded ``__del__``."""
+
+    def close(self) -> None:  # pragma: no cover - every subclass defines it
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown may have torn PETSc down already
+            pass
+
+
+def mumps_infog(ksp: PETSc.KSP | None, entry: int = 1) -> int | None:
+    """MUMPS INFOG(entry) of a KSP's factorization (None if there is none or it is not MUMPS')."""
+    try:
+        return int(ksp.getPC().getFactorMatrix().getMumpsInfog(entry))
+    except (PETSc.Error, AttributeError):
+        return None

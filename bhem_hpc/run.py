@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc import __version__
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
 from bhem_hpc.model.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper
+from bhem_hpc.solver.petsc import library_versions
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
@@ -108,7 +108,8 @@ def build_contact(scene: Scene, model: ShellModel, solver: ShellSolver):
     from bhem_hpc.contact.response import ContactHandler, ContactSettings
 
     c = scene.contact
-    detector = ContactDetector(scene.surface.grid, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)
+    patches = model.discretization.patches
+    detector = ContactDetector(patches, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)
     settings = ContactSettings(c.push_out, metric=c.metric)
     return ContactHandler(model, solver, detector, settings)
 
@@ -124,21 +125,6 @@ def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:
         initial = scene.surface.nodal[nodes[:, 0], nodes[:, 1]][:, list(c.kinds)][:, :, list(c.components)]
         motions.append(PrescribedMotion(c, lambda t, f=sc.motion.values, v0=initial: f(t, v0)))
     return motions
-
-
-def _versions() -> dict[str, str]:
-    import basix
-    import dolfinx
-    import petsc4py
-    import ufl
-
-    return {
-        "bhem_hpc": __version__,
-        "dolfinx": dolfinx.__version__,
-        "basix": basix.__version__,
-        "ufl": ufl.__version__,
-        "petsc4py": petsc4py.__version__,
-    }
 
 
 def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
@@ -162,7 +148,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
         "dofs": 3 * disc.num_closed,
         "nonzeros": solver.matrix_nonzeros(),
         "ranks": comm.size,
-        "versions": _versions(),
+        "versions": library_versions(),
         "static": scene.static,
         "steps": [],
     }

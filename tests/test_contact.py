@@ -41,7 +41,8 @@ def _slide(comm, theta_deg: float, mu: float, steps: int = 40, dt: float = 0.005
     gap = ContactSettings().push_out
     rest = S.flat_rectangle(0.1, 0.1, 3, 3).transformed(rotation, gap * normal)
     model = ShellModel(rest, SHEET, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(dt))
-    detector = ContactDetector(rest.grid, [ColliderEntry(Plane([0.0, 0.0, 0.0], normal), mu)], samples_per_side=3)
+    plane = ColliderEntry(Plane([0.0, 0.0, 0.0], normal), mu)
+    detector = ContactDetector(S.HermitePatches(rest.grid), [plane], samples_per_side=3)
     with ShellSolver(model, prefix="incline_") as solver:
         handler = ContactHandler(model, solver, detector)
         stepper = TimeStepper(model, solver, contact=handler)
@@ -76,7 +77,7 @@ def _drop(comm, material, patches, collider, samples=2, steps=60):
     model = ShellModel(
         rest, material, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005, mass_damping=1.0)
     )
-    detector = ContactDetector(rest.grid, [ColliderEntry(collider, 0.0)], samples_per_side=samples)
+    detector = ContactDetector(S.HermitePatches(rest.grid), [ColliderEntry(collider, 0.0)], samples_per_side=samples)
     u = np.linspace(0.0, 0.4, 8 * patches + 1)
     dense = np.meshgrid(u, u, indexing="ij")
     lowest = []
@@ -270,7 +271,7 @@ def test_bad_contact_settings_are_refused():
         ({"self_collision": True, "self_friction": -0.1}, "self_friction"),
     ]:
         with pytest.raises(ValueError, match=message):
-            ContactDetector(grid, [], **kwargs)
+            ContactDetector(S.HermitePatches(grid), [], **kwargs)
     with pytest.raises(ValueError, match="friction coefficient"):
         ColliderEntry(Plane([0, 0, 0], [0, 0, 1]), -0.2)
 
@@ -285,7 +286,7 @@ def test_detection_split_among_ranks_is_the_serial_detection(rng):
         ColliderEntry(Sphere([0.0, 0.0, -0.1], 0.095)),
         ColliderEntry(Plane([0.0, 0.0, -0.02], [0.1, 0.0, 1.0]), 0.3),
     ]
-    detector = ContactDetector(rest.grid, colliders, samples_per_side=3, self_collision=True)
+    detector = ContactDetector(S.HermitePatches(rest.grid), colliders, samples_per_side=3, self_collision=True)
     serial = detector.detect(start, end, 0.0, 0.01, 1e-4)
     split = Contacts.concatenate([detector.detect(start, end, 0.0, 0.01, 1e-4, rank, 3) for rank in range(3)])
     assert len(serial) > 20
@@ -347,7 +348,8 @@ def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm
     def momentum() -> np.ndarray:
         return np.array([comm.allreduce(fem.assemble_scalar(f)) for f in momentum_forms])
 
-    detector = ContactDetector(grid, [], samples_per_side=2 if patches > 2 else 6, self_collision=True)
+    per_side = 2 if patches > 2 else 6
+    detector = ContactDetector(S.HermitePatches(grid), [], samples_per_side=per_side, self_collision=True)
     u = np.linspace(0.0, 0.95 * arm, 60)
     v = np.linspace(0.0, width, 9)
     before = momentum()
@@ -396,7 +398,7 @@ def test_self_contact_within_one_patch_and_its_neighbours_is_found(patches):
     degrees, gives no contact."""
     gap, dt = 2e-3, 0.01
     grid, start, end = _c_fold(0.12, patches)
-    detector = ContactDetector(grid, [], samples_per_side=4, self_collision=True)
+    detector = ContactDetector(S.HermitePatches(grid), [], samples_per_side=4, self_collision=True)
     contacts = detector.detect(start, end, 0.0, dt, gap)
     samples = detector.samples
     sample_xi = samples.patch // grid.n2 + samples.local[:, 0]
@@ -424,5 +426,5 @@ def test_self_contact_within_one_patch_and_its_neighbours_is_found(patches):
     bent = S.from_callable(
         lambda a, b: np.stack([np.sin(a), b, 1 - np.cos(a)], -1), S.ParameterGrid(1, 1, (0.0, 2.0), (0.0, 0.5))
     ).nodal.reshape(-1, 3)
-    plain = ContactDetector(S.ParameterGrid(1, 1, (0.0, 2.0), (0.0, 0.5)), [], 4, self_collision=True)
+    plain = ContactDetector(S.HermitePatches(S.ParameterGrid(1, 1, (0.0, 2.0), (0.0, 0.5))), [], 4, self_collision=True)
     assert len(plain.detect(bent, bent, 0.0, dt, 0.05)) == 0

@@ -102,7 +102,7 @@ def plane_drop_case(comm):
     plane = Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
 
     def contact(model, solver):
-        return ContactHandler(model, solver, ContactDetector(rest.grid, [ColliderEntry(plane, 0.3)]))
+        return ContactHandler(model, solver, ContactDetector(S.HermitePatches(rest.grid), [ColliderEntry(plane, 0.3)]))
 
     return run_case(model, 40, energy_tolerance=1e-3, contact=contact)
 
@@ -208,7 +208,7 @@ def ball_drop_case(comm, steps: int = 25):
     ball = ColliderEntry(Sphere([0.03, 0.01, -0.1], 0.1), 0.2)
 
     def contact(model, solver):
-        return ContactHandler(model, solver, ContactDetector(rest.grid, [ball]))
+        return ContactHandler(model, solver, ContactDetector(S.HermitePatches(rest.grid), [ball]))
 
     return run_case(model, steps, energy_tolerance=None, contact=contact)
 
@@ -283,7 +283,7 @@ def job_case(job: str, steps: int, comm, imperfection: float = 0.0) -> tuple[flo
             points = model.state_surface().evaluate(*dense).x.reshape(-1, 3)
             for entry in scene.contact.colliders:
                 collider = collider_at(entry.collider, stepper.time)
-                if hasattr(collider, "signed_distance"):
+                if collider.analytic:
                     lowest = min(lowest, float(collider.signed_distance(points)[0].min()))
         if contact is not None:
             contact.close()

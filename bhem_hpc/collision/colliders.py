@@ -10,8 +10,9 @@ patches with :func:`~bhem_hpc.collision.ccd.point_patch_toi`. numpy only; meshes
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import ClassVar, Protocol
 
 import numpy as np
 
@@ -20,6 +21,40 @@ from bhem_hpc.collision.bezier import evaluate
 PATCH_FILE_FORMAT = "bhem-bezier-patches"
 #: Precision of a capsule's sampled-and-bisected time of impact, as a fraction of the step.
 TOI_TOLERANCE = 1e-12
+
+
+class Collider(Protocol):
+    """What contact detection asks of a collider (each moves rigidly at a constant ``velocity``).
+
+    ``analytic`` colliders (plane, sphere, cylinder, capsule) also give :meth:`signed_distance` and
+    :meth:`time_of_impact`, against which the shell's samples are tested; every collider may have
+    points of its own (:meth:`contact_points`) that are tested against the shell's patches.
+    """
+
+    velocity: np.ndarray
+    analytic: ClassVar[bool]
+
+    def translated(self, shift: np.ndarray) -> Collider:
+        """The collider moved by ``shift (3,)``."""
+        ...
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        """Points ``(P, 3)`` tested against the shell's patches and the clearance around each."""
+        ...
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        """A box ``(2, 3)`` holding the collider over a step of ``dt``; None if unbounded."""
+        ...
+
+
+def _no_points() -> tuple[np.ndarray, float]:
+    return np.zeros((0, 3)), 0.0
+
+
+def _swept_box(ends: np.ndarray, velocity: np.ndarray, radius: float, dt: float) -> np.ndarray:
+    """Box ``(2, 3)`` of the points ``ends (k, 3)`` over a step, grown by ``radius``."""
+    ends = np.concatenate([ends, ends + dt * velocity])
+    return np.stack([ends.min(axis=0) - radius, ends.max(axis=0) + radius])
 
 
 class ColliderError(ValueError):
@@ -72,6 +107,16 @@ class Plane:
     point: np.ndarray
     normal: np.ndarray
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    analytic: ClassVar[bool] = True
+
+    def translated(self, shift: np.ndarray) -> Plane:
+        return replace(self, point=self.point + shift)
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        return _no_points()
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        return None
 
     def __post_init__(self) -> None:
         n = _vector("plane normal", self.normal)
@@ -102,6 +147,16 @@ class Sphere:
     center: np.ndarray
     radius: float
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    analytic: ClassVar[bool] = True
+
+    def translated(self, shift: np.ndarray) -> Sphere:
+        return replace(self, center=self.center + shift)
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        return (self.center.reshape(1, 3), float(self.radius))  # the deepest point of each nearby patch
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        return _swept_box(self.center[None], self.velocity, self.radius, dt)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _vector("sphere center", self.center))
@@ -128,6 +183,16 @@ class Cylinder:
     axis: np.ndarray
     radius: float
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    analytic: ClassVar[bool] = True
+
+    def translated(self, shift: np.ndarray) -> Cylinder:
+        return replace(self, point=self.point + shift)
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        return _no_points()
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        return None
 
     def __post_init__(self) -> None:
         axis = _vector("cylinder axis", self.axis)
@@ -161,6 +226,16 @@ class Capsule:
     b: np.ndarray
     radius: float
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    analytic: ClassVar[bool] = True
+
+    def translated(self, shift: np.ndarray) -> Capsule:
+        return replace(self, a=self.a + shift, b=self.b + shift)
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        return (np.stack([self.a, self.b]), float(self.radius))  # its two round tips
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        return _swept_box(np.stack([self.a, self.b]), self.velocity, self.radius, dt)
 
     def __post_init__(self) -> None:
         for name in ("a", "b", "velocity"):
@@ -241,6 +316,16 @@ class TriangleMesh:
     triangles: np.ndarray
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     name: str = "mesh"
+    analytic: ClassVar[bool] = False
+
+    def translated(self, shift: np.ndarray) -> TriangleMesh:
+        return replace(self, vertices=self.vertices + shift)
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        return (self.vertices, 0.0)
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        return None
 
     def __post_init__(self) -> None:
         v = np.asarray(self.vertices, dtype=float)
@@ -284,6 +369,16 @@ class PatchModel:
 
     nets: np.ndarray
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    analytic: ClassVar[bool] = False
+
+    def translated(self, shift: np.ndarray) -> PatchModel:
+        return replace(self, nets=self.nets + shift)
+
+    def contact_points(self) -> tuple[np.ndarray, float]:
+        return (self.samples(), 0.0)
+
+    def swept_bounds(self, dt: float) -> np.ndarray | None:
+        return None
 
     def __post_init__(self) -> None:
         nets = np.asarray(self.nets, dtype=float)

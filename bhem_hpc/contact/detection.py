@@ -25,14 +25,15 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-from bhem_hpc.collision.bezier import _bernstein, control_nets, evaluate_many, subpatch_many
+from bhem_hpc.collision.bezier import _bernstein, evaluate_many, subpatch_many
 from bhem_hpc.collision.ccd import point_patch_toi
+from bhem_hpc.collision.colliders import Collider
 from bhem_hpc.collision.ray import BoundReached
-from bhem_hpc.geometry.surface import ParameterGrid, point_weights
+from bhem_hpc.geometry.surface import ParameterGrid, PatchLayout
 
 #: Local-parameter slack when deciding that a projected foot point lies inside a patch.
 INSIDE_EPS = 1e-9
@@ -134,11 +135,12 @@ class ShellSamples:
     weights: np.ndarray
 
     @staticmethod
-    def build(grid: ParameterGrid, per_side: int) -> ShellSamples:
+    def build(layout: PatchLayout, per_side: int) -> ShellSamples:
         """A uniform lattice of ``n * per_side (+ 1)`` points per direction over the whole surface,
         boundary edges included (an unsampled free edge could swing through a plane)."""
         if not (isinstance(per_side, int) and 1 <= per_side <= 16):
             raise ValueError(f"samples_per_side must be an integer in 1..16, got {per_side!r}")
+        grid = layout.grid
         axes = []
         for n, (lo, hi), periodic in (
             (grid.n1, grid.xi1_range, grid.periodic1),
@@ -148,12 +150,36 @@ class ShellSamples:
             axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
         xi1, xi2 = (a.ravel() for a in np.meshgrid(*axes, indexing="ij"))
         p1, p2, t1, t2 = grid.locate(xi1, xi2)
-        index, weights = point_weights(grid, p1, p2, t1, t2)
+        index, weights = layout.point_entries(p1, p2, t1, t2)
         return ShellSamples(p1 * grid.n2 + p2, np.stack([t1, t2], axis=1), index, weights)
 
     def positions(self, flat_nodal: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Positions ``(len(rows), 3)`` of samples ``rows`` for flat nodal data ``(N, 3)``."""
         return np.einsum("sj,sjc->sc", self.weights[rows], flat_nodal[self.index[rows]])
+
+
+@dataclass(frozen=True)
+class ShellMotion:
+    """The shell's straight-line motion over one step, as detection sees it.
+
+    Attributes:
+        layout: the patches as maps of the entries (:class:`~bhem_hpc.geometry.surface.HermitePatches`).
+        start, end: entries ``(N, 3)`` at the start and the end of the step.
+        nets_start, nets_end: the patches' Bezier nets ``(patches, 4, 4, 3)`` at both ends.
+        dt: the step [s]; gap: the push-out distance (contacts are found within it).
+    """
+
+    layout: PatchLayout
+    start: np.ndarray
+    end: np.ndarray
+    nets_start: np.ndarray
+    nets_end: np.ndarray
+    dt: float
+    gap: float
+
+    @staticmethod
+    def of(layout: PatchLayout, start: np.ndarray, end: np.ndarray, dt: float, gap: float) -> ShellMotion:
+        return ShellMotion(layout, start, end, layout.bezier_nets(start), layout.bezier_nets(end), dt, gap)
 
 
 # -- broad phase ------------------------------------------------------------------------------------
@@ -432,18 +458,6 @@ def _sample_contacts(
     )
 
 
-def _swept_bounds(collider, dt: float) -> np.ndarray | None:
-    """Box ``(2, 3)`` holding a bounded simple collider (sphere, capsule) over the step, or None."""
-    if hasattr(collider, "center"):
-        ends = collider.center[None]
-    elif hasattr(collider, "a") and hasattr(collider, "b"):
-        ends = np.stack([collider.a, collider.b])
-    else:
-        return None  # a plane or an infinite cylinder
-    ends = np.concatenate([ends, ends + dt * collider.velocity])
-    return np.stack([ends.min(axis=0) - collider.radius, ends.max(axis=0) + collider.radius])
-
-
 def simple_collider_contacts(
     collider, source: int, samples: ShellSamples, rows: np.ndarray, positions: tuple[np.ndarray, np.ndarray],
     dt: float, gap: float, friction: float,
@@ -453,7 +467,7 @@ def simple_collider_contacts(
     if not len(rows):
         return Contacts.empty()
     p0, p1 = positions
-    bounds = _swept_bounds(collider, dt)
+    bounds = collider.swept_bounds(dt)
     if bounds is not None:  # only the samples whose swept box comes within gap of the collider's
         near = np.all((np.minimum(p0, p1) <= bounds[1] + gap) & (np.maximum(p0, p1) >= bounds[0] - gap), axis=1)
         rows, p0, p1 = rows[near], p0[near], p1[near]
@@ -478,8 +492,7 @@ def simple_collider_contacts(
 
 def point_contacts(
     points_start: np.ndarray, velocity: np.ndarray, clearance: float, source: int, rows: np.ndarray,
-    grid: ParameterGrid, nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float,
-    patches: np.ndarray | None = None, patch_boxes: np.ndarray | None = None,
+    motion: ShellMotion, friction: float, patches: np.ndarray | None = None, patch_boxes: np.ndarray | None = None,
 ) -> Contacts:  # fmt: skip
     """Collider points ``rows`` (mesh vertices, patch-model samples, needle tips) against shell patches.
 
@@ -487,6 +500,8 @@ def point_contacts(
     touching (a round needle tip). ``patches``: a ``(n1 * n2,)`` mask of the patches to test (None:
     all); ``patch_boxes``: the patches' swept boxes (computed if None).
     """
+    layout, nets_start, nets_end, dt, gap = motion.layout, motion.nets_start, motion.nets_end, motion.dt, motion.gap
+    grid = layout.grid
     if not len(rows):
         return Contacts.empty()
     q0 = points_start[rows]
@@ -532,7 +547,7 @@ def point_contacts(
         normal[radial] = offset[radial] / length[radial, None]
         if not len(point):
             return Contacts.empty()
-    index, weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    index, weights = layout.point_entries(patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
     b_index, b_weights = _empty_b(len(point))
     # the shell point must stay on its side: the normal points from the collider point to the shell
     return Contacts(
@@ -551,14 +566,15 @@ def point_contacts(
 
 
 def self_contacts(
-    samples: ShellSamples, rows: np.ndarray, grid: ParameterGrid, start: np.ndarray, end: np.ndarray,
-    nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float, source: int,
-) -> Contacts:  # fmt: skip
+    samples: ShellSamples, rows: np.ndarray, motion: ShellMotion, friction: float, source: int
+) -> Contacts:
     """Shell samples ``rows`` against the shell's other patches.
 
     Patches sharing a node with the sample's own patch are skipped: a sample is always within
     ``gap`` of them. Folds inside that 3 x 3 neighbourhood are :func:`folded_self_contacts`'s.
     """
+    layout, start, end, dt, gap = motion.layout, motion.start, motion.end, motion.dt, motion.gap
+    nets_start, nets_end, grid = motion.nets_start, motion.nets_end, layout.grid
     if not len(rows):
         return Contacts.empty()
     p0 = samples.positions(start, rows)
@@ -573,7 +589,7 @@ def self_contacts(
     point, patch = iq[found], ip[found]
     first = _nearest_per_point(point, separation)
     point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
-    b_index, b_weights = point_weights(grid, patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    b_index, b_weights = layout.point_entries(patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
     zeros = np.zeros((len(point), 3))
     return _sample_contacts(
         source, samples, rows[point], (b_index, b_weights), side_normal, zeros, zeros, toi, friction
@@ -662,9 +678,8 @@ def _neighbour_offsets(grid: ParameterGrid, a: np.ndarray, b: np.ndarray) -> tup
 
 
 def folded_self_contacts(
-    samples: ShellSamples, rows: np.ndarray, grid: ParameterGrid, start: np.ndarray, end: np.ndarray,
-    nets_start: np.ndarray, nets_end: np.ndarray, dt: float, gap: float, friction: float, source: int,
-) -> Contacts:  # fmt: skip
+    samples: ShellSamples, rows: np.ndarray, motion: ShellMotion, friction: float, source: int
+) -> Contacts:
     """Shell samples ``rows`` against the pieces of their own and neighbouring patches, where the
     shell folds onto itself within that 3 x 3 neighbourhood.
 
@@ -674,6 +689,8 @@ def folded_self_contacts(
     does not lie within one piece width of it in the parameter domain (nearer pieces are the sample's
     own surface, not a fold).
     """
+    layout, start, end, dt, gap = motion.layout, motion.start, motion.end, motion.dt, motion.gap
+    nets_start, nets_end, grid = motion.nets_start, motion.nets_end, layout.grid
     if not len(rows):
         return Contacts.empty()
     normals = [unit_normals(nets) for nets in (nets_start, nets_end)]
@@ -743,7 +760,7 @@ def folded_self_contacts(
     rect, patch = rect[found], patch[found]
     t1 = rect[:, 0] + uv[:, 0] * (rect[:, 1] - rect[:, 0])
     t2 = rect[:, 2] + uv[:, 1] * (rect[:, 3] - rect[:, 2])
-    b_index, b_weights = point_weights(grid, patch // grid.n2, patch % grid.n2, t1, t2)
+    b_index, b_weights = layout.point_entries(patch // grid.n2, patch % grid.n2, t1, t2)
     zeros = np.zeros((len(found), 3))
     return _sample_contacts(
         source, samples, rows[point[found]], (b_index, b_weights), side_normal, zeros, zeros, toi, friction
@@ -754,7 +771,7 @@ def folded_self_contacts(
 class ColliderEntry:
     """A collider with the friction coefficient of its contact with the shell."""
 
-    collider: object
+    collider: Collider
     friction: float = 0.0
 
     def __post_init__(self) -> None:
@@ -766,7 +783,7 @@ class ContactDetector:
     """All contacts of one step's motion, for one rank's share of the samples.
 
     Args:
-        grid: the shell's parameter grid.
+        layout: the shell's patches as maps of its entries (``discretization.patches``).
         colliders: the scene's colliders with their friction coefficients.
         samples_per_side: shell samples per patch side (simple colliders and self-collision).
         self_collision: test the shell against itself; self_friction its coefficient.
@@ -774,7 +791,7 @@ class ContactDetector:
 
     def __init__(
         self,
-        grid: ParameterGrid,
+        layout: PatchLayout,
         colliders: Sequence[ColliderEntry],
         samples_per_side: int = 2,
         self_collision: bool = False,
@@ -782,17 +799,18 @@ class ContactDetector:
     ):
         if not (math.isfinite(self_friction) and self_friction >= 0):
             raise ValueError(f"self_friction must be a finite number >= 0, got {self_friction!r}")
-        self.grid = grid
+        self.layout = layout
+        self.grid = layout.grid
         self.colliders = tuple(colliders)
-        self.samples = ShellSamples.build(grid, samples_per_side)
+        self.samples = ShellSamples.build(layout, samples_per_side)
         self.self_collision = self_collision
         self.self_friction = self_friction
 
     @property
     def num_samples(self) -> int:
         """Sample points tested per step: shell samples (if used) plus collider points."""
-        count = sum(len(collider_points(e.collider)[0]) for e in self.colliders)
-        if self.self_collision or any(_is_simple(e.collider) for e in self.colliders):
+        count = sum(len(e.collider.contact_points()[0]) for e in self.colliders)
+        if self.self_collision or any(e.collider.analytic for e in self.colliders):
             count += len(self.samples.patch)
         return count
 
@@ -813,10 +831,7 @@ class ContactDetector:
         the serial result. ``patches``: a ``(n1 * n2,)`` mask restricting the test against
         colliders to those patches and their samples (None: all; self-collision always tests all).
         """
-        grid = self.grid
-        nodal_shape = (*grid.node_shape, 4, 3)
-        nets_start = control_nets(grid, start.reshape(nodal_shape))
-        nets_end = control_nets(grid, end.reshape(nodal_shape))
+        motion = ShellMotion.of(self.layout, start, end, dt, gap)
         patch_boxes = None  # swept boxes of the patches, shared by every collider's points
         every_row = np.arange(rank, len(self.samples.patch), size)
         shell_rows = every_row if patches is None else every_row[patches[self.samples.patch[every_row]]]
@@ -824,66 +839,39 @@ class ContactDetector:
         parts = []
         for source, entry in enumerate(self.colliders):
             collider = collider_at(entry.collider, time)
-            if _is_simple(collider):
+            if collider.analytic:
                 parts.append(
                     simple_collider_contacts(
                         collider, 2 * source, self.samples, shell_rows, positions, dt, gap, entry.friction
                     )
                 )
-            points, clearance = collider_points(collider)
+            points, clearance = collider.contact_points()
             if len(points):
                 if patch_boxes is None:
-                    patch_boxes = swept_boxes(nets_start, nets_end, 0.0)
+                    patch_boxes = swept_boxes(motion.nets_start, motion.nets_end, 0.0)
                 rows = np.arange(rank, len(points), size)
                 parts.append(
                     point_contacts(
-                        points, collider.velocity, clearance, 2 * source + 1, rows, grid, nets_start, nets_end,
-                        dt, gap, entry.friction, patches, patch_boxes,
+                        points, collider.velocity, clearance, 2 * source + 1, rows, motion, entry.friction,
+                        patches, patch_boxes,
                     )
                 )  # fmt: skip
         if self.self_collision:
             parts.append(
                 self_contacts(
-                    self.samples, every_row, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
-                    2 * len(self.colliders),
+                    self.samples, every_row, motion, self.self_friction, 2 * len(self.colliders),
                 )
             )  # fmt: skip
             parts.append(
                 folded_self_contacts(
-                    self.samples, every_row, grid, start, end, nets_start, nets_end, dt, gap, self.self_friction,
-                    2 * len(self.colliders) + 1,
+                    self.samples, every_row, motion, self.self_friction, 2 * len(self.colliders) + 1,
                 )
             )  # fmt: skip
         return Contacts.concatenate(parts)
 
 
-def _is_simple(collider) -> bool:
-    return hasattr(collider, "time_of_impact")
-
-
-def collider_at(collider, time: float):
+def collider_at(collider: Collider, time: float) -> Collider:
     """The collider translated to where its constant velocity has taken it at ``time``."""
     if time == 0.0 or not np.any(collider.velocity):
         return collider
-    shift = time * collider.velocity
-    moved = {
-        name: getattr(collider, name) + shift
-        for name in ("point", "center", "a", "b", "vertices")
-        if hasattr(collider, name)
-    }
-    if hasattr(collider, "nets"):
-        moved["nets"] = collider.nets + shift
-    return replace(collider, **moved)
-
-
-def collider_points(collider) -> tuple[np.ndarray, float]:
-    """The collider's own sample points ``(P, 3)`` at the start of the step and their clearance."""
-    if hasattr(collider, "radius") and hasattr(collider, "a"):  # capsule: its two round tips
-        return np.stack([collider.a, collider.b]), float(collider.radius)
-    if hasattr(collider, "center"):  # sphere: the deepest point of each nearby patch
-        return collider.center.reshape(1, 3), float(collider.radius)
-    if hasattr(collider, "vertices"):
-        return collider.vertices, 0.0
-    if hasattr(collider, "samples"):
-        return collider.samples(), 0.0
-    return np.zeros((0, 3)), 0.0
+    return collider.translated(time * collider.velocity)

@@ -87,25 +87,16 @@ class ContactProjector(PetscOwner):
         self.smoothing = assemble(0.0, smoothing)  # S alone, added to dt^2 J
         self.bc_rows = solver.bc_rows
         self.bc_local = solver.bc_local
-        # Flat nodal entry (distinct node, kind) -> global closed block and reference-DOF scale.
-        m1, m2 = model.rest_surface.grid.node_shape
-        blocks = disc.owned_closed_open_block
-        node = disc.distinct_node[blocks]
-        key = (node[:, 0] * m2 + node[:, 1]) * 4 + disc.block_kind[blocks]
-        self.owned_flat = key
-        self.flat_block = np.full(m1 * m2 * 4, -1, dtype=np.int64)
+        # Contact rows name entries (the discretization's flat nodal data): their closed DOFs.
+        self.entry_block, self.entry_scale = disc.entry_closed_blocks()
         self._constrained_global = np.zeros(3 * disc.num_closed, dtype=bool)
         for rows in comm.allgather(np.asarray(solver.bc_rows, dtype=np.int64)):
             self._constrained_global[rows] = True
         # Sparse right-hand sides serially only: PETSc 3.18's parallel path stops with MUMPS
         # INFOG(1) = -27 (the sparse RHS pointers do not match); in parallel G^T goes dense.
         self.sparse_rhs = comm.size == 1
-        self.flat_scale = np.zeros(m1 * m2 * 4)
-        for keys, first, scales in comm.allgather((key, disc.closed_offset, disc.block_scale[blocks])):
-            self.flat_block[keys] = first + np.arange(len(keys))
-            self.flat_scale[keys] = scales
         self.n_local, self.n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
-        self.first_owned = 3 * disc.closed_offset
+        self.first_owned = 3 * disc.closed_offset  # first owned closed DOF
         self.options = {
             "ksp_type": "preonly",
             "pc_type": "cholesky",
@@ -149,19 +140,11 @@ class ContactProjector(PetscOwner):
         self._row_direction: list[np.ndarray] = []
         self._schur = np.zeros((0, 0))  # G Z over the cached rows (identical on every rank)
 
-    def _to_closed(self, flat: np.ndarray) -> PETSc.Vec:
-        """Owned closed vector of flat parametric nodal data ``(N, 3)`` (known on every rank)."""
+    def _to_closed(self, entries: np.ndarray) -> PETSc.Vec:
+        """Owned closed vector of entries ``(N, 3)`` (known on every rank)."""
         vec = PETSc.Vec().createMPI((self.n_local, self.n_global), comm=self.model.comm)
-        vec.array[:] = (flat[self.owned_flat] * self.flat_scale[self.owned_flat, None]).ravel()
+        vec.array[:] = self.model.discretization.entries_to_closed(entries)
         return vec
-
-    def _to_flat(self, vec: PETSc.Vec) -> np.ndarray:
-        """Collective: flat parametric nodal data ``(N, 3)`` of a closed vector, on every rank."""
-        out = np.zeros((len(self.flat_block), 3))
-        local = (self.owned_flat, vec.array_r.reshape(-1, 3).copy())
-        for keys, values in self.model.comm.allgather(local):
-            out[keys] = values / self.flat_scale[keys, None]
-        return out
 
     def set_metric(self, jacobian: PETSc.Mat | None = None, time_step: float = 1.0) -> None:
         """Collective: the metric ``W`` of the following projections, factored (once per time step).
@@ -274,8 +257,8 @@ class ContactProjector(PetscOwner):
         """Row ``(K,)`` entries / ``(K, 3)`` coefficients -> global closed indices and values (the
         absent second point of a collider contact has zero weights and is dropped), then the
         positions among this rank's owned closed DOFs and values of the owned ones."""
-        closed = 3 * self.flat_block[index][:, None] + np.arange(3)
-        values = coefficients / self.flat_scale[index][:, None]
+        closed = 3 * self.entry_block[index][:, None] + np.arange(3)
+        values = coefficients / self.entry_scale[index][:, None]
         nonzero = values != 0.0
         closed, values = closed[nonzero], values[nonzero]
         owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
@@ -346,7 +329,7 @@ class ContactProjector(PetscOwner):
             columns[r] = self._scalar_ids[key]
         if fresh:
             rhs = self._right_hand_sides(
-                [(self.flat_block[index[r]], weights[r] / self.flat_scale[index[r]]) for r in fresh], scalar=True
+                [(self.entry_block[index[r]], weights[r] / self.entry_scale[index[r]]) for r in fresh], scalar=True
             )
             solved = self._solve_columns(self.scalar_ksp, rhs, f"{len(fresh)} new contact points")
             self._scalar_z = np.hstack([self._scalar_z, solved])
@@ -359,7 +342,7 @@ class ContactProjector(PetscOwner):
         first, count = self.first_owned // 3, self.n_local // 3
         products = np.zeros((len(index), self._scalar_z.shape[1]))
         for r in range(len(index)):
-            blocks, values = self.flat_block[index[r]] - first, weights[r] / self.flat_scale[index[r]]
+            blocks, values = self.entry_block[index[r]] - first, weights[r] / self.entry_scale[index[r]]
             owned = (blocks >= 0) & (blocks < count)
             products[r] = values[owned] @ self._scalar_z[blocks[owned]]
         return self.model.comm.allreduce(products, op=MPI.SUM)
@@ -456,7 +439,7 @@ class ContactProjector(PetscOwner):
                 every = np.zeros(self._z.shape[1])  # (gathering Z's used columns would copy them)
                 every[used] = multipliers
                 correction.array[:] = self._z @ every
-            return self._to_flat(correction)
+            return self.model.discretization.closed_to_entries(correction.array_r)
         finally:
             correction.destroy()
 

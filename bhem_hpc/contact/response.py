@@ -33,10 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bhem_hpc.collision.bezier import control_nets
 from bhem_hpc.contact.detection import ContactDetector, Contacts
 from bhem_hpc.contact.petsc import ContactProjector
-from bhem_hpc.geometry.surface import HermiteSurface, point_weights
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene import CONTACT_METRICS
 from bhem_hpc.solver import ShellSolver
@@ -127,16 +125,8 @@ class ContactHandler:
         # the last Newton iteration's Jacobian, at (nearly) the step's end
         self.jacobian = solver.jacobian if self.settings.metric == "jacobian" else None
         self.history: list[ContactReport] = []
-        grid = model.rest_surface.grid
-        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(grid.n1), np.arange(grid.n2), indexing="ij"))
-        self._patch_entries = point_weights(grid, p1, p2, 0.0, 0.0)[0]  # (n1 * n2, 16) flat nodal entries
-
-    def _flat(self, open_array: np.ndarray) -> np.ndarray:
-        return self.model.discretization.open_to_surface(open_array).nodal.reshape(-1, 3)
-
-    def _to_open(self, flat: np.ndarray) -> np.ndarray:
-        grid = self.model.rest_surface.grid
-        return self.model.discretization.surface_to_open(HermiteSurface(grid, flat.reshape(*grid.node_shape, 4, 3)))
+        self.layout = model.discretization
+        self._patch_entries = self.layout.patches.patch_entries()  # (n1 * n2, 16) entries of each patch
 
     def _detect(
         self, start: np.ndarray, end: np.ndarray, t: float, dt: float, gap: float, patches: np.ndarray | None = None
@@ -162,8 +152,8 @@ class ContactHandler:
         report = ContactReport()
         projections_before = self.projector.projections
         t0 = time.perf_counter()
-        start = self._flat(x_start)
-        end = self._flat(model.x.x.array)
+        start = self.layout.open_to_entries(x_start)
+        end = self.layout.open_to_entries(model.x.x.array)
         velocity = (end - start) / dt
         gap = settings.push_out
         active = Contacts.empty()
@@ -210,8 +200,8 @@ class ContactHandler:
         if len(active):
             report.min_separation = float((active.separation(end) - active.clearance).min())
             # Corrections are added to the solver's arrays, so a step without contact stays bit-exact.
-            model.velocity.x.array[:] += self._to_open(delta_velocity)
-            model.x.x.array[:] = model.x.x.array + self._to_open(dt * delta_velocity + delta_position)
+            model.velocity.x.array[:] += self.layout.entries_to_open(delta_velocity)
+            model.x.x.array[:] = model.x.x.array + self.layout.entries_to_open(dt * delta_velocity + delta_position)
         self.history.append(report)
         return report
 
@@ -225,11 +215,10 @@ class ContactHandler:
         ``margin = gap / 2`` cannot bring a point it did not have in contact closer than ``gap / 2``:
         only the other patches, and those touched by a contact found so far, are tested again.
         """
-        grid = self.model.rest_surface.grid
-        shift = control_nets(grid, (end - first_end).reshape(*grid.node_shape, 4, 3))
+        shift = self.layout.patches.bezier_nets(end - first_end)
         # (half the margin: round-off and the projections of collider points are not exact)
         again = np.linalg.norm(shift, axis=-1).reshape(len(shift), -1).max(axis=1) >= 0.5 * margin
-        touched = np.zeros(4 * grid.num_nodes, dtype=bool)
+        touched = np.zeros(self.layout.num_entries, dtype=bool)
         touched[found.index_a[found.weights_a != 0]] = True
         touched[found.index_b[found.weights_b != 0]] = True
         return again | touched[self._patch_entries].any(axis=1)
@@ -273,7 +262,7 @@ class ContactHandler:
         Returns:
             ``(d, rows that push)``.
         """
-        base = np.zeros((len(self.projector.flat_block), 3)) if current is None else current
+        base = np.zeros((self.layout.num_entries, 3)) if current is None else current
         value = np.einsum("kj,kjc,kc->k", weights, base[index], directions)
         # rows count as met within round-off of the largest needed change
         tolerance = 1e-9 * max(float(np.abs(lower - value).max(initial=0.0)), 1e-300)

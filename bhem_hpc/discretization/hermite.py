@@ -1,8 +1,5 @@
-"""Discretizations: the link between a parametric surface and finite element DOF vectors.
-
-The solver talks to a discretization only through :class:`Discretization`; the bicubic Hermite
-implementation is :class:`HermiteDiscretization`. (A quadratic B-spline discretization is planned
-and will implement the same interface.)
+"""The bicubic Hermite discretization: :class:`~bhem_hpc.discretization.protocol.Discretization`
+on the element of :mod:`.element`, one cell per patch of the open parameter grid.
 
 Two DOF layouts appear:
 
@@ -27,7 +24,7 @@ from mpi4py import MPI
 
 from bhem_hpc.discretization.element import DOFS_PER_VERTEX, create_hermite_element, hermite_ufl_element
 from bhem_hpc.discretization.protocol import ConstrainedDofs, DiscretizationError
-from bhem_hpc.geometry.surface import KIND_NAMES, HermiteSurface, ParameterGrid
+from bhem_hpc.geometry.surface import KIND_NAMES, HermitePatches, HermiteSurface, ParameterGrid
 
 GDIM = 3
 
@@ -166,10 +163,11 @@ class HermiteDiscretization:
             for c, n in enumerate(vertex_nodes.min(axis=1)[: self.mesh.topology.index_map(2).size_local])
         }
 
-        # Closed numbering: one block per (distinct node, kind); owned where the open block with
-        # the unwrapped node (the seam's first copy) is owned.
+        # Closed numbering: one block per entry (distinct node, kind); owned where the open block
+        # with the unwrapped node (the seam's first copy) is owned.
         m1, m2 = grid.node_shape
-        key = (self.distinct_node[:, 0] * m2 + self.distinct_node[:, 1]) * 4 + self.block_kind
+        self.entry_of_block = (self.distinct_node[:, 0] * m2 + self.distinct_node[:, 1]) * 4 + self.block_kind
+        key = self.entry_of_block
         if not self.is_periodic:
             self.closed_of_open = np.asarray(
                 index_map.local_to_global(np.arange(num_blocks, dtype=np.int32)), dtype=np.int64
@@ -192,6 +190,14 @@ class HermiteDiscretization:
         # Owned closed blocks in closed order: (local open block that represents it).
         order = np.argsort(self.closed_of_open[owned_master])
         self.owned_closed_open_block = owned_master[order]
+        # Every entry's global closed block and scale, on every rank (contact rows name entries).
+        owned = self.owned_closed_open_block
+        self._entry_closed_block = np.full(m1 * m2 * 4, -1, dtype=np.int64)
+        self._entry_scale = np.zeros(m1 * m2 * 4)
+        owned_entries = (self.entry_of_block[owned], self.closed_offset, self.block_scale[owned])
+        for entries, first, scales in self.comm.allgather(owned_entries):
+            self._entry_closed_block[entries] = first + np.arange(len(entries))
+            self._entry_scale[entries] = scales
 
     # -- interface -----------------------------------------------------------------------------
     @property
@@ -250,6 +256,64 @@ class HermiteDiscretization:
         """Inverse of :meth:`gather_raw_dofs`: the open-layout array (owned + ghost blocks)."""
         node, kind = self.distinct_node, self.block_reference_kind
         return np.asarray(raw)[node[:, 0], node[:, 1], kind].ravel()
+
+    def open_to_closed(self, open_array: np.ndarray) -> np.ndarray:
+        """The owned closed array ``(3 * num_owned_closed,)`` of an open-layout array."""
+        return np.asarray(open_array).reshape(-1, 3)[self.owned_closed_open_block].ravel()
+
+    def prolongation_columns(self) -> np.ndarray:
+        """Global closed DOF of each owned open DOF, ``(3 * owned open blocks,)``: the column of the
+        one unit entry in each row of the prolongation ``P`` (open = ``P`` closed)."""
+        blocks = self.open_blocks
+        return (3 * self.closed_of_open[blocks][:, None] + np.arange(3)).ravel()
+
+    # -- flat entries: the surface's nodal data as rows of an (N, 3) array --------------------
+    @property
+    def num_entries(self) -> int:
+        """``N = 4 m1 m2``: entry ``(i1 * m2 + i2) * 4 + kind`` is the nodal datum of that kind."""
+        return 4 * self.grid.num_nodes
+
+    @property
+    def patches(self) -> HermitePatches:
+        """The patches as linear maps of the entries (point weights, Bezier nets)."""
+        return HermitePatches(self.grid)
+
+    def entries_of_surface(self, surface: HermiteSurface) -> np.ndarray:
+        """The surface's entries ``(N, 3)``."""
+        if surface.grid != self.grid:
+            raise DiscretizationError(f"surface grid {surface.grid} differs from the discretization's {self.grid}")
+        return surface.nodal.reshape(-1, 3)
+
+    def surface_of_entries(self, entries: np.ndarray) -> HermiteSurface:
+        """The surface whose entries are ``entries (N, 3)``."""
+        return HermiteSurface(self.grid, np.asarray(entries).reshape(*self.grid.node_shape, 4, 3))
+
+    def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the entries ``(N, 3)`` of an open-layout array, on every rank."""
+        return self.open_to_surface(open_array).nodal.reshape(-1, 3)
+
+    def entries_to_open(self, entries: np.ndarray) -> np.ndarray:
+        """Open-layout array (owned + ghost blocks) of entries ``(N, 3)``."""
+        return (np.asarray(entries)[self.entry_of_block] * self.block_scale[:, None]).ravel()
+
+    def entries_to_closed(self, entries: np.ndarray) -> np.ndarray:
+        """Owned closed-layout array ``(3 * num_owned_closed,)`` of entries ``(N, 3)``."""
+        blocks = self.owned_closed_open_block
+        return (np.asarray(entries)[self.entry_of_block[blocks]] * self.block_scale[blocks, None]).ravel()
+
+    def closed_to_entries(self, closed: np.ndarray) -> np.ndarray:
+        """Collective: the entries ``(N, 3)`` of every rank's owned closed array, on every rank."""
+        blocks = self.owned_closed_open_block
+        out = np.zeros((self.num_entries, 3))
+        local = (self.entry_of_block[blocks], np.asarray(closed).reshape(-1, 3))
+        for entries, values in self.comm.allgather(local):
+            out[entries] = values / self._entry_scale[entries, None]
+        return out
+
+    def entry_closed_blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every entry's global closed block and scale, ``(N,)`` each, on every rank: the closed
+        DOFs ``3 * block + component`` of entry ``e`` hold ``scale[e]`` times its value."""
+        return self._entry_closed_block, self._entry_scale
 
     def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs:
         """Owned closed DOFs of the given distinct nodes ``(k, 2)``, parametric kinds and components."""

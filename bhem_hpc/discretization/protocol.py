@@ -10,7 +10,7 @@ import dolfinx.mesh
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc.geometry.surface import HermiteSurface, ParameterGrid
+from bhem_hpc.geometry.surface import HermiteSurface, ParameterGrid, PatchLayout
 
 
 class DiscretizationError(ValueError):
@@ -34,44 +34,102 @@ class ConstrainedDofs:
 
 
 class Discretization(Protocol):
-    """What the model and the solver need from a discretization (Hermite today, B-splines later).
+    """What the model, solver, contact and output ask of a discretization; it owns every DOF layout.
 
-    Layouts: *open* arrays are dolfinx Function arrays (owned + ghost blocks of 3); *closed* arrays
-    are the owned part of the solver's unknowns; the prolongation from closed to open has one unit
-    entry per owned open block, in column ``closed_of_open[block]``.
+    Four forms of the same state, each converted only here:
+
+    * *surface*: the geometric object (:class:`HermiteSurface`) that scenes, output and studies use;
+    * *entries*: the surface's data as a flat ``(N, 3)`` array - for bicubic Hermite the nodal data
+      ``(i1 * m2 + i2) * 4 + kind`` (value, d/dxi1, d/dxi2, d2/dxi1dxi2 of each distinct node), for a
+      B-spline discretization the control points. Contact rows, Bezier nets and point weights act on
+      entries;
+    * *open*: the dolfinx Function array of :attr:`function_space` (owned + ghost blocks of 3,
+      ``array[3 * block + component]``), where forms are assembled. Hermite blocks are
+      reference-cell derivatives (scaled entries); control points are their own DOFs;
+    * *closed*: the owned part of the solver's unknowns. Without periodic directions it is the open
+      layout itself; on a closed surface each seam entry is kept once and open = ``P`` closed, with the
+      0/1 prolongation ``P`` (one unit entry per owned open DOF, :meth:`prolongation_columns`).
     """
 
     comm: MPI.Comm
+    #: The parameter grid of the patches (Hermite: one patch per cell; B-splines: knot spans).
     grid: ParameterGrid
     mesh: dolfinx.mesh.Mesh
     function_space: dolfinx.fem.FunctionSpace
+    #: Closed blocks (of 3 DOFs) owned by this rank, in all ranks, and the first owned one.
     num_owned_closed: int
     num_closed: int
-    closed_of_open: np.ndarray
-    owned_closed_open_block: np.ndarray
+    closed_offset: int
 
     @property
-    def is_periodic(self) -> bool: ...
+    def is_periodic(self) -> bool:
+        """Whether the closed layout differs from the open one (a seam)."""
+        ...
 
     @property
-    def open_blocks(self) -> np.ndarray: ...
+    def num_entries(self) -> int:
+        """``N``, rows of the entry array (Hermite: 4 per distinct node; B-splines: control points)."""
+        ...
 
+    @property
+    def patches(self) -> PatchLayout:
+        """The patches as linear maps of the entries (point weights, Bezier nets) for contact."""
+        ...
+
+    # surface <-> layouts
     def surface_to_open(self, surface: HermiteSurface) -> np.ndarray: ...
 
     def surface_to_closed(self, surface: HermiteSurface) -> np.ndarray: ...
 
-    def closed_to_surface(self, closed: np.ndarray) -> HermiteSurface: ...
+    def closed_to_surface(self, closed: np.ndarray) -> HermiteSurface:
+        """Collective: the surface of every rank's owned closed arrays."""
+        ...
 
-    def open_to_surface(self, open_array: np.ndarray) -> HermiteSurface: ...
+    def open_to_surface(self, open_array: np.ndarray) -> HermiteSurface:
+        """Collective: the surface of an open array (its owned blocks are read)."""
+        ...
 
-    def select_dofs(
-        self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]
-    ) -> ConstrainedDofs: ...
+    # entries <-> layouts
+    def entries_of_surface(self, surface: HermiteSurface) -> np.ndarray: ...
+
+    def surface_of_entries(self, entries: np.ndarray) -> HermiteSurface: ...
+
+    def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: entries ``(N, 3)`` on every rank."""
+        ...
+
+    def entries_to_open(self, entries: np.ndarray) -> np.ndarray: ...
+
+    def entries_to_closed(self, entries: np.ndarray) -> np.ndarray: ...
+
+    def closed_to_entries(self, closed: np.ndarray) -> np.ndarray:
+        """Collective: entries ``(N, 3)`` on every rank."""
+        ...
+
+    def entry_closed_blocks(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(block, scale)``, ``(N,)`` each: entry ``e`` lives in closed DOFs ``3 * block[e] + c``
+        as ``scale[e]`` times its value (Hermite: the reference-cell factor; control points: 1)."""
+        ...
+
+    # open <-> closed
+    def open_to_closed(self, open_array: np.ndarray) -> np.ndarray: ...
+
+    def prolongation_columns(self) -> np.ndarray: ...
+
+    # constraints, point loads, checkpoints
+    def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs:
+        """Owned closed DOFs of nodes ``(k, 2)``, kinds and components (Hermite: kinds 0..3 of a
+        node; control points: kind 0 is the control point itself, derivative kinds are refused)."""
+        ...
 
     def dof_values(self, surface: HermiteSurface, dofs: ConstrainedDofs) -> np.ndarray: ...
 
-    def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]: ...
+    def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(open blocks, basis values)`` of the cell holding a parameter point, on its owning rank."""
+        ...
 
-    def gather_raw_dofs(self, open_array: np.ndarray) -> np.ndarray: ...
+    def gather_raw_dofs(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the DOF values themselves, without conversion (bit-exact checkpoints)."""
+        ...
 
     def scatter_raw_dofs(self, raw: np.ndarray) -> np.ndarray: ...

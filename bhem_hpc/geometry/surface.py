@@ -21,6 +21,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -362,6 +363,58 @@ def point_weights(
                 weights[..., j] = scale[kind] * b1[..., 2 * c1 + a] * b2[..., 2 * c2 + b]
                 j += 1
     return index, weights
+
+
+class PatchLayout(Protocol):
+    """A surface's patches as linear maps of its flat entries ``(N, 3)`` (what contact detection uses).
+
+    ``grid`` gives the patch topology (``n1 x n2`` patches, periodic directions); a point of patch
+    ``(p1, p2)`` at local coordinates ``(t1, t2)`` is ``sum_j weights[j] entries[index[j]]``.
+    """
+
+    grid: ParameterGrid
+
+    @property
+    def num_entries(self) -> int: ...
+
+    def point_entries(
+        self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def patch_entries(self) -> np.ndarray: ...
+
+    def bezier_nets(self, entries: np.ndarray) -> np.ndarray: ...
+
+
+class HermitePatches:
+    """The patches of a Hermite surface as linear maps of its flat entries ``nodal.reshape(-1, 3)``.
+
+    What contact detection needs of a discretization's patches: the patch grid, the entries and
+    weights of a point, the entries that move each patch, and the exact Bezier nets.
+    """
+
+    def __init__(self, grid: ParameterGrid):
+        self.grid = grid
+
+    @property
+    def num_entries(self) -> int:
+        return 4 * self.grid.num_nodes
+
+    def point_entries(
+        self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(index, weights)``, shape ``S + (16,)`` each, of the points: see :func:`point_weights`."""
+        return point_weights(self.grid, p1, p2, t1, t2)
+
+    def patch_entries(self) -> np.ndarray:
+        """``(n1 * n2, 16)`` the entries that determine each patch (order ``p1 * n2 + p2``)."""
+        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(self.grid.n1), np.arange(self.grid.n2), indexing="ij"))
+        return point_weights(self.grid, p1, p2, 0.0, 0.0)[0]
+
+    def bezier_nets(self, entries: np.ndarray) -> np.ndarray:
+        """Exact Bezier nets ``(n1 * n2, 4, 4, 3)`` of entries ``(N, 3)`` (positions or velocities)."""
+        nodal = np.asarray(entries).reshape(*self.grid.node_shape, 4, 3)
+        return HermiteSurface(self.grid, nodal).bezier_control_points().reshape(-1, 4, 4, 3)
 
 
 def from_callable(

@@ -129,9 +129,8 @@ class ShellSolver(PetscOwner):
                 self.jacobian_blocked = None
             self.prolongation: PETSc.Mat | None = None
             if disc.is_periodic:
-                blocks = disc.open_blocks
-                rows = 3 * blocks.size
-                cols = (3 * disc.closed_of_open[blocks][:, None] + np.arange(3)).ravel().astype(PETSc.IntType)
+                cols = disc.prolongation_columns().astype(PETSc.IntType)
+                rows = cols.size
                 indptr = np.arange(rows + 1, dtype=PETSc.IntType)
                 self.prolongation = PETSc.Mat().createAIJ(
                     ((rows, 3 * disc.function_space.dofmap.index_map.size_global), (n_local, n_global)),
@@ -166,6 +165,7 @@ class ShellSolver(PetscOwner):
             self.snes.setOptionsPrefix(prefix)
             self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
             self.snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
+            self._trial: PETSc.Vec | None = None  # the energy line search's trial state
             if model.potential_form is not None:
                 self._trial = self.x.duplicate()
                 self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
@@ -186,8 +186,7 @@ class ShellSolver(PetscOwner):
 
     def state_to_vector(self, x: PETSc.Vec) -> None:
         """Copy the model's current position into closed DOFs ``x``."""
-        disc = self.model.discretization
-        x.array[:] = self.model.x.x.array.reshape(-1, 3)[disc.owned_closed_open_block].ravel()
+        x.array[:] = self.model.discretization.open_to_closed(self.model.x.x.array)
 
     def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
         """``f = P^T (F_int - F_ext)`` with constrained rows replaced by ``x - x_bc``."""
@@ -596,7 +595,7 @@ class ShellSolver(PetscOwner):
         ]
         if self.jacobian_blocked is not None:
             objects.append(self.jacobian_blocked)
-        if hasattr(self, "_trial"):
+        if self._trial is not None:
             objects.append(self._trial)
         if self.prolongation is not None:
             objects += [self.prolongation, self.jacobian]

@@ -56,3 +56,21 @@ def mumps_infog(ksp: PETSc.KSP | None, entry: int = 1) -> int | None:
         return int(ksp.getPC().getFactorMatrix().getMumpsInfog(entry))
     except (PETSc.Error, AttributeError):
         return None
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of bhem-hpc and the FEniCSx/PETSc stack, for run summaries."""
+    import basix
+    import dolfinx
+    import petsc4py
+    import ufl
+
+    from bhem_hpc import __version__
+
+    return {
+        "bhem_hpc": __version__,
+        "dolfinx": dolfinx.__version__,
+        "basix": basix.__version__,
+        "ufl": ufl.__version__,
+        "petsc4py": petsc4py.__version__,
+    }

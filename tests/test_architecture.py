@@ -1,0 +1,59 @@
+"""The layout's rules: numpy-only geometry and collision, forms on UFL alone, PETSc in PETSc modules."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+from helpers import assert_imports_without
+
+PACKAGE = Path(__file__).resolve().parents[1] / "bhem_hpc"
+#: The only modules that may import petsc4py (as dolfinx keeps PETSc code in petsc.py files).
+PETSC_MODULES = {"solver/newton.py", "solver/petsc.py", "contact/petsc.py"}
+
+
+@pytest.mark.parametrize(
+    ("module", "forbidden"),
+    [
+        ("bhem_hpc.geometry.surface", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.collision", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.contact.detection", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.forms", ("dolfinx", "petsc4py", "mpi4py", "basix")),
+    ],
+)
+def test_geometry_forms_and_collision_import_without_petsc(module, forbidden):
+    assert_imports_without(module, forbidden)
+
+
+def _imported_modules(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    return names
+
+
+def test_petsc_is_imported_only_by_petsc_modules():
+    importers = {
+        str(path.relative_to(PACKAGE))
+        for path in PACKAGE.rglob("*.py")
+        if any(name.split(".")[0] == "petsc4py" or name == "dolfinx.fem.petsc" for name in _imported_modules(path))
+    }
+    importers.discard("cli.py")  # petsc4py.init must see the command line's PETSc options first
+    assert importers <= PETSC_MODULES, sorted(importers - PETSC_MODULES)
+
+
+def test_no_dof_index_is_computed_outside_the_discretization():
+    """Layout internals of the discretization are not read anywhere else."""
+    internals = ("owned_closed_open_block", "closed_of_open", "block_kind", "block_scale", "distinct_node")
+    readers = sorted(
+        f"{path.relative_to(PACKAGE)}: {name}"
+        for path in PACKAGE.rglob("*.py")
+        if path.parent.name != "discretization"
+        for name in internals
+        if f".{name}" in path.read_text()
+    )
+    assert not readers, readers

@@ -157,10 +157,17 @@ HANDLERS = {"study": _study, "run": _run, "cantilever": _cantilever, "bench": _b
 
 def _configure_logging(verbose: bool, rank: int) -> None:
     """Warnings only unless ``--verbose``; the form compiler's command lines only with ``--verbose``."""
+    from bhem_hpc.model.jit import HideCompilerCommands
+
     level = logging.INFO if verbose and rank == 0 else logging.WARNING
     logging.basicConfig(level=level, format=f"[rank {rank}] %(levelname)s %(name)s: %(message)s", force=True)
-    for noisy in ("ffcx", "UFL", "root", "dolfinx"):
-        logging.getLogger(noisy).setLevel(logging.DEBUG if verbose else logging.ERROR)
+    if not verbose:
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(HideCompilerCommands())
+    for noisy in ("ffcx", "UFL"):
+        logging.getLogger(noisy).setLevel(logging.INFO if verbose else logging.ERROR)
+    # the one line that says forms were compiled, and how long it took
+    logging.getLogger("bhem_hpc.jit").setLevel(logging.INFO if rank == 0 else logging.WARNING)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -565,32 +565,41 @@ def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
         raise SceneError(
             f"{path}: key 'effects.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
         )
-    self_collision = effects.get("self_collision", False)
-    self_friction = friction
-    if isinstance(self_collision, dict):
-        st = _Table(path, "effects.self_collision", self_collision)
-        self_friction = st.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0")
-        st.done()
-        self_collision = True
-    elif not isinstance(self_collision, bool):
-        raise SceneError(f"{path}: key 'effects.self_collision' must be a boolean or a table, got {self_collision!r}")
+    self_collision, self_friction = _self_collision(effects.get("self_collision", False), friction, path)
     if not colliders_raw and not self_collision:
         raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
+    colliders = _collider_entries(colliders_raw, friction, path)
+    return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric)
+
+
+def _self_collision(value: Any, friction: float, path: Path) -> tuple[bool, float]:
+    """``effects.self_collision``: a boolean, or a table with its own ``friction``."""
+    if isinstance(value, dict):
+        st = _Table(path, "effects.self_collision", value)
+        self_friction = st.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0")
+        st.done()
+        return True, self_friction
+    if not isinstance(value, bool):
+        raise SceneError(f"{path}: key 'effects.self_collision' must be a boolean or a table, got {value!r}")
+    return value, friction
+
+
+def _collider_entries(items: list, friction: float, path: Path) -> tuple:
+    """The ``[[colliders]]`` list as collider entries (each with its friction coefficient)."""
     from bhem_hpc.collision.colliders import ColliderError
     from bhem_hpc.contact.detection import ColliderEntry
 
-    colliders = []
-    for i, item in enumerate(colliders_raw):
+    entries = []
+    for i, item in enumerate(items):
         t = _Table(path, f"colliders[{i}]", item)
         kind = t.get("type", "a string", check=lambda v: v in COLLIDER_TYPES, expected=f"one of {COLLIDER_TYPES}")
         mu = t.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0 (Coulomb coefficient)")
         try:
-            for collider in _colliders(t, kind, path):
-                colliders.append(ColliderEntry(collider, mu))
+            entries += [ColliderEntry(collider, mu) for collider in _colliders(t, kind, path)]
         except ColliderError as exc:
             raise SceneError(f"{path}: key '{t.name}': {exc}") from exc
         t.done()
-    return SceneContact(tuple(colliders), push_out, samples, self_collision, self_friction, metric)
+    return tuple(entries)
 
 
 def _colliders(t: _Table, kind: str, path: Path) -> list[Any]:
@@ -608,18 +617,32 @@ def _colliders(t: _Table, kind: str, path: Path) -> list[Any]:
     if kind == "capsule":
         radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
         return [C.Capsule(t.get("a", "3 numbers"), t.get("b", "3 numbers"), float(radius), velocity)]
-    if kind == "needles":  # a grid of vertical needles standing on z = base
-        origin = np.asarray(t.get("origin", "3 numbers"), dtype=float)
-        spacing = t.get("spacing", "2 numbers")
-        count = t.get("count", "2 integers")
-        length = t.get("length", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-        out = []
-        for i in range(count[0]):
-            for j in range(count[1]):
-                foot = origin + np.array([i * spacing[0], j * spacing[1], 0.0])
-                out.append(C.Capsule(foot, foot + np.array([0.0, 0.0, length]), float(radius), velocity))
-        return out
+    if kind == "needles":
+        return _needles(t, velocity)
+    return _file_collider(t, kind, path, velocity)
+
+
+def _needles(t: _Table, velocity: list[float]) -> list[Any]:
+    """A grid of vertical needles (capsules) standing on the plane ``z = origin[2]``."""
+    from bhem_hpc.collision import colliders as C
+
+    origin = np.asarray(t.get("origin", "3 numbers"), dtype=float)
+    spacing = t.get("spacing", "2 numbers")
+    count = t.get("count", "2 integers")
+    length = t.get("length", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+    radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
+    out = []
+    for i in range(count[0]):
+        for j in range(count[1]):
+            foot = origin + np.array([i * spacing[0], j * spacing[1], 0.0])
+            out.append(C.Capsule(foot, foot + np.array([0.0, 0.0, length]), float(radius), velocity))
+    return out
+
+
+def _file_collider(t: _Table, kind: str, path: Path, velocity: list[float]) -> list[Any]:
+    """A triangle mesh (``mesh``) or Bezier patch model read from ``file``, scaled and translated."""
+    from bhem_hpc.collision import colliders as C
+
     file = t.get("file", "a string")
     target = (path.parent / file).resolve()
     if not target.exists():

@@ -17,10 +17,9 @@ def inertia_potential(x, x_predicted, x_rest, density, thickness, time_step, dx:
     return density * thickness / (2 * time_step**2) * ufl.dot(increment, increment) * area_density(x_rest) * dx
 
 
-def impulse_metric(
-    trial, test, x_rest, density, thickness, patch_size, mass_weight, smoothing, dx: ufl.Measure
-) -> ufl.Form:
-    """Metric of contact impulses: ``rho h int (m u . w + c sum_a h_a^2 u_,a . w_,a) dOmega_rest``.
+def impulse_metric(trial, test, x_rest, density, thickness, patch_size, weights, dx: ufl.Measure) -> ufl.Form:
+    """Metric of contact impulses: ``rho h int (m u . w + c sum_a h_a^2 u_,a . w_,a) dOmega_rest``,
+    ``weights = (m, c)``.
 
     With ``m = 1, c = 0`` it is the consistent mass matrix. A point impulse through the bare mass
     matrix of C1 Hermite patches gives the L2-smallest velocity change: a spike narrower than a
@@ -31,5 +30,6 @@ def impulse_metric(
     impulses still conserve linear momentum.
     """
     h = patch_size
+    mass_weight, smoothing = weights
     gradient = sum(h[a] ** 2 * ufl.dot(ufl.grad(trial)[:, a], ufl.grad(test)[:, a]) for a in range(2))
     return density * thickness * (mass_weight * ufl.dot(trial, test) + smoothing * gradient) * area_density(x_rest) * dx

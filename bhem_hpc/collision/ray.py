@@ -429,6 +429,47 @@ def _candidate_patches(bvh: PatchBVH, origins: np.ndarray, directions: np.ndarra
     return np.concatenate(pair_rays), np.concatenate(pair_patches)
 
 
+def _nearest_pieces(pool: dict) -> tuple[dict, dict]:
+    """Best first, in batches: each ray's ``BATCH`` nearest pieces (by entry ``tau``) and the rest
+    (a min-heap per ray would take one; a whole level at a time explodes along grazing rays)."""
+    order = np.lexsort((pool["tau"], pool["ray"]))
+    sorted_rays = pool["ray"][order]
+    group_start = np.flatnonzero(np.r_[True, sorted_rays[1:] != sorted_rays[:-1]])
+    rank = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
+    chosen = np.zeros(len(order), dtype=bool)
+    chosen[order[rank < BATCH]] = True
+    return {key: value[chosen] for key, value in pool.items()}, {key: value[~chosen] for key, value in pool.items()}
+
+
+def _incidence_sine(nets: np.ndarray, su: np.ndarray, sv: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """``|sin|`` of the angle between rays ``directions (k, 3)`` and the patches' tangent planes at ``(su, sv)``."""
+    normal = np.cross(evaluate_many(nets, su, sv, du=1), evaluate_many(nets, su, sv, dv=1))
+    return np.abs(np.einsum("kc,kc->k", normal, directions)) / np.maximum(
+        np.linalg.norm(normal, axis=1) * np.linalg.norm(directions, axis=1), 1e-300
+    )
+
+
+def _children(work: dict, item: np.ndarray, local: np.ndarray) -> dict:
+    """Sub-pieces of the pieces ``work[...][item]``, each the local rectangle ``local (k, 4)`` of its
+    parent, as a pool (ray, patch, Bezier net, rectangle in the patch's parameters)."""
+    parent = work["rect"][item]
+    width_u, width_v = parent[:, 1] - parent[:, 0], parent[:, 3] - parent[:, 2]
+    return {
+        "ray": work["ray"][item],
+        "patch": work["patch"][item],
+        "net": subpatch_many(work["net"][item], local[:, 0], local[:, 1], local[:, 2], local[:, 3]),
+        "rect": np.stack(
+            [
+                parent[:, 0] + local[:, 0] * width_u,
+                parent[:, 0] + local[:, 1] * width_u,
+                parent[:, 2] + local[:, 2] * width_v,
+                parent[:, 2] + local[:, 3] * width_v,
+            ],
+            axis=1,
+        ),
+    }
+
+
 def trace_rays(
     bvh: PatchBVH,
     origins: np.ndarray,
@@ -494,16 +535,7 @@ def trace_rays(
             pool = {key: value[alive] for key, value in pool.items()}
             if not len(pool["ray"]):
                 break
-            # Best first, in batches: each ray's BATCH nearest pieces this round (a min-heap per ray
-            # would take one; a whole level at a time explodes along grazing rays).
-            order = np.lexsort((pool["tau"], pool["ray"]))
-            sorted_rays = pool["ray"][order]
-            group_start = np.flatnonzero(np.r_[True, sorted_rays[1:] != sorted_rays[:-1]])
-            rank = np.arange(len(order)) - np.repeat(group_start, np.diff(np.r_[group_start, len(order)]))
-            chosen = np.zeros(len(order), dtype=bool)
-            chosen[order[rank < BATCH]] = True
-            work = {key: value[chosen] for key, value in pool.items()}
-            pool = {key: value[~chosen] for key, value in pool.items()}
+            work, pool = _nearest_pieces(pool)
             np.add.at(pieces_tested, work["ray"], 1)
             over = pieces_tested[work["ray"]] > max_subpatches
             if over.any():
@@ -529,12 +561,7 @@ def trace_rays(
                 )
                 # Discard a neighbourhood of each hit and split the rest (Fig. 10b); a grazing ray
                 # can cross twice close together, so the discarded square shrinks with its angle.
-                normal = np.cross(
-                    evaluate_many(nets[at], su[at], sv[at], du=1), evaluate_many(nets[at], su[at], sv[at], dv=1)
-                )
-                sine = np.abs(np.einsum("kc,kc->k", normal, d[at])) / np.maximum(
-                    np.linalg.norm(normal, axis=1) * np.linalg.norm(d[at], axis=1), 1e-300
-                )
+                sine = _incidence_sine(nets[at], su[at], sv[at], d[at])
                 item, pieces = _pieces_around_many(su[at], sv[at], NEIGHBOURHOOD * np.minimum(1.0, 10.0 * sine) ** 2)
                 new_items.append(at[item])
                 new_rects.append(pieces)
@@ -555,28 +582,10 @@ def trace_rays(
             at = rest[~tiny]
             new_items.append(np.repeat(at, 4))
             new_rects.append(np.tile(_QUARTERS, (len(at), 1)))
-            item, local = np.concatenate(new_items), np.concatenate(new_rects)
-            parent = rect[item]
-            width_u, width_v = parent[:, 1] - parent[:, 0], parent[:, 3] - parent[:, 2]
-            children = {
-                "ray": rays[item],
-                "patch": patches[item],
-                "net": subpatch_many(nets[item], local[:, 0], local[:, 1], local[:, 2], local[:, 3]),
-                "rect": np.stack(
-                    [
-                        parent[:, 0] + local[:, 0] * width_u,
-                        parent[:, 0] + local[:, 1] * width_u,
-                        parent[:, 2] + local[:, 2] * width_v,
-                        parent[:, 2] + local[:, 3] * width_v,
-                    ],
-                    axis=1,
-                ),
-            }
-            children = entered(children)
+            children = entered(_children(work, np.concatenate(new_items), np.concatenate(new_rects)))
             pool = {key: np.concatenate([pool[key], children[key]]) for key in pool}
         else:
-            if len(pool["ray"]):
-                warned.add("rounds")
+            warned.update(["rounds"] if len(pool["ray"]) else [])
     if "subpatches" in warned:
         warnings.warn(
             f"ray-patch search stopped after {max_subpatches} sub-patches for some rays", BoundReached, stacklevel=2

@@ -677,6 +677,23 @@ def _neighbour_offsets(grid: ParameterGrid, a: np.ndarray, b: np.ndarray) -> tup
     return d1, d2
 
 
+def _neighbourhood_pairs(grid: ParameterGrid, own: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(row, patch)``: every patch of the 3 x 3 neighbourhood (wrapped where periodic) of each
+    patch ``own[row]``, ``own (k,)`` in the order ``p1 * n2 + p2``."""
+    pairs_p, pairs_q = [], []
+    for o1 in (-1, 0, 1):
+        for o2 in (-1, 0, 1):
+            q1, q2 = own // grid.n2 + o1, own % grid.n2 + o2
+            if grid.periodic1:
+                q1 %= grid.n1
+            if grid.periodic2:
+                q2 %= grid.n2
+            valid = (q1 >= 0) & (q1 < grid.n1) & (q2 >= 0) & (q2 < grid.n2)
+            pairs_p.append(np.flatnonzero(valid))
+            pairs_q.append((q1 * grid.n2 + q2)[valid])
+    return np.concatenate(pairs_p), np.concatenate(pairs_q)
+
+
 def folded_self_contacts(
     samples: ShellSamples, rows: np.ndarray, motion: ShellMotion, friction: float, source: int
 ) -> Contacts:
@@ -689,24 +706,15 @@ def folded_self_contacts(
     does not lie within one piece width of it in the parameter domain (nearer pieces are the sample's
     own surface, not a fold).
     """
-    layout, start, end, dt, gap = motion.layout, motion.start, motion.end, motion.dt, motion.gap
-    nets_start, nets_end, grid = motion.nets_start, motion.nets_end, layout.grid
+    start, end, nets_start, nets_end, dt, gap = (
+        motion.start, motion.end, motion.nets_start, motion.nets_end, motion.dt, motion.gap
+    )
+    layout, grid = motion.layout, motion.layout.grid
     if not len(rows):
         return Contacts.empty()
     normals = [unit_normals(nets) for nets in (nets_start, nets_end)]
     own = samples.patch[rows]
-    pairs_p, pairs_q = [], []
-    for o1 in (-1, 0, 1):
-        for o2 in (-1, 0, 1):
-            q1, q2 = own // grid.n2 + o1, own % grid.n2 + o2
-            if grid.periodic1:
-                q1 %= grid.n1
-            if grid.periodic2:
-                q2 %= grid.n2
-            valid = (q1 >= 0) & (q1 < grid.n1) & (q2 >= 0) & (q2 < grid.n2)
-            pairs_p.append(np.flatnonzero(valid))
-            pairs_q.append((q1 * grid.n2 + q2)[valid])
-    sample_row, neighbour = np.concatenate(pairs_p), np.concatenate(pairs_q)
+    sample_row, neighbour = _neighbourhood_pairs(grid, own)
     # A pair of patches can fold only if the cones of their normals allow a spread past the limit
     # (a cheap bound); the spread is then computed exactly for those pairs.
     limit = math.radians(FOLD_SPREAD_DEGREES)

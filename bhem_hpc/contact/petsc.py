@@ -71,7 +71,7 @@ class ContactProjector(PetscOwner):
             form = fem.form(
                 forms.impulse_metric(
                     ufl.TrialFunction(space), ufl.TestFunction(space), model.x_rest, model.density, model.thickness,
-                    (grid.h1, grid.h2), mass_weight, smoothing_weight, model.dx,
+                    (grid.h1, grid.h2), (mass_weight, smoothing_weight), model.dx,
                 ),
                 jit_params=default_jit_params(),
             )  # fmt: skip

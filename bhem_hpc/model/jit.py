@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import logging
 import os
 import platform
+import time
+from collections.abc import Iterator
 
 # The shell kernels are long chains of products, sums and square roots. Letting the compiler
 # reassociate sums and inline sqrt (no errno) halves the Jacobian kernel's time; unlike
@@ -36,3 +40,33 @@ def default_jit_params() -> dict:
         "cache_dir": os.environ.get("BHEM_JIT_CACHE") or _cpu_specific_cache(),
         "cffi_extra_compile_args": os.environ.get("BHEM_JIT_CFLAGS", JIT_CFLAGS).split(),
     }
+
+
+log = logging.getLogger("bhem_hpc.jit")
+
+
+@contextlib.contextmanager
+def compilation_report(what: str, cache_dir: str) -> Iterator[None]:
+    """Log one line (logger ``bhem_hpc.jit``, INFO) when the block compiled new kernels, with the time."""
+    before = _cached_kernels(cache_dir)
+    start = time.perf_counter()
+    yield
+    new = _cached_kernels(cache_dir) - before
+    if new:
+        seconds = time.perf_counter() - start
+        log.info("compiled %d new kernels for %s in %.1f s (cache: %s)", new, what, seconds, cache_dir)
+
+
+def _cached_kernels(cache_dir: str) -> int:
+    try:
+        return sum(name.endswith(".so") for name in os.listdir(cache_dir))
+    except OSError:
+        return 0
+
+
+class HideCompilerCommands(logging.Filter):
+    """Drop the INFO records that setuptools writes to the root logger while the JIT builds kernels
+    (``running build_ext``, compiler command lines); ``--verbose`` leaves them in."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.name != "root" or record.levelno >= logging.WARNING

@@ -21,7 +21,7 @@ from bhem_hpc import forms
 from bhem_hpc.discretization import ConstrainedDofs, Discretization, HermiteDiscretization
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.model.bcs import EDGES, NodalConstraint, target_surface
-from bhem_hpc.model.jit import default_jit_params
+from bhem_hpc.model.jit import compilation_report, default_jit_params
 from bhem_hpc.model.material import Material
 
 HessianKind = Literal["exact", "pseudo"]
@@ -166,30 +166,9 @@ class ShellModel:
         point_constraints: Sequence[PointConstraint] = (),
     ):
         loads = loads or Loads()
-        # Validate everything before building anything.
-        loads.validate()
-        if dynamics is not None:
-            dynamics.validate()
-        if hessian not in ("exact", "pseudo"):
-            raise ModelError(f"hessian = {hessian!r}; expected 'exact' or 'pseudo'")
-        if quadrature_points not in GAUSS_POINTS:
-            raise ModelError(f"quadrature points per direction = {quadrature_points!r}; expected one of {GAUSS_POINTS}")
-        rest.check_regular(quadrature_points, name="rest surface")
+        _validate(rest, initial or rest, loads, constraints, hessian, quadrature_points, dynamics,
+                  point_constraints)  # fmt: skip
         initial = initial or rest
-        if initial.grid != rest.grid:
-            raise ModelError("initial and rest surfaces have different grids")
-        for c in constraints:
-            c.validate(rest.grid)
-        for i, pc in enumerate(point_constraints):
-            if not set(pc.components) <= {0, 1, 2} or not pc.components:
-                raise ModelError(
-                    f"point_constraints[{i}].components = {pc.components!r}; expected a subset of (0, 1, 2)"
-                )
-            target = pc.target_at(0.0)
-            if target.shape != (3,) or not np.all(np.isfinite(target)):
-                raise ModelError(f"point_constraints[{i}].target must give 3 finite numbers, got {target!r}")
-            rest.grid.locate(np.array(pc.xi1), np.array(pc.xi2))  # raises if outside the surface
-
         self.comm = comm
         self.material = material
         self.loads = loads
@@ -198,84 +177,105 @@ class ShellModel:
         self.rest_surface = rest
         self.initial_surface = initial
         self.constraints = tuple(constraints)
+        self.dynamics = dynamics
         self.discretization: Discretization = HermiteDiscretization(rest.grid, comm)
-        disc = self.discretization
-        mesh = disc.mesh
-        space = disc.function_space
-
+        space = self.discretization.function_space
         self.x = fem.Function(space, name="position")
         self.x_rest = fem.Function(space, name="rest_position")
-        self.x.x.array[:] = disc.surface_to_open(initial)
-        self.x_rest.x.array[:] = disc.surface_to_open(rest)
+        self.x.x.array[:] = self.discretization.surface_to_open(initial)
+        self.x_rest.x.array[:] = self.discretization.surface_to_open(rest)
+        self.young = self._constant(material.young)
+        self.poisson = self._constant(material.poisson)
+        self.thickness = self._constant(material.thickness)
+        self.density = self._constant(material.density)
+        self.load_factor = self._constant(1.0)
+        self.dx = gauss_measure(self.discretization.mesh, quadrature_points)
+        self._compose_forms()
+        self._build_point_data(loads, point_constraints)
 
-        def constant(value) -> fem.Constant:
-            return fem.Constant(mesh, ScalarType(value))
+    def _constant(self, value) -> fem.Constant:
+        return fem.Constant(self.discretization.mesh, ScalarType(value))
 
-        self.young = constant(material.young)
-        self.poisson = constant(material.poisson)
-        self.thickness = constant(material.thickness)
-        self.density = constant(material.density)
-        self.load_factor = constant(1.0)
-        dx = gauss_measure(mesh, quadrature_points)
-        self.dx = dx
-        x, x_rest, lf = self.x, self.x_rest, self.load_factor
-        test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
+    def _potential_terms(self) -> tuple[dict[str, ufl.Form], list[ufl.Form]]:
+        """The energies reported by :meth:`energies` and the terms whose exact Hessian is used even
+        with ``hessian="pseudo"`` (all but bending), in the order they are summed."""
+        x, x_rest, dx = self.x, self.x_rest, self.dx
         section = (self.thickness, self.young, self.poisson)
-
         energies: dict[str, ufl.Form] = {
             "membrane": forms.membrane_energy(x, x_rest, *section, dx),
             "bending": forms.bending_energy(x, x_rest, *section, dx),
         }
-        # Terms whose exact Hessian is used even with hessian="pseudo" (all but bending).
-        exact_part = energies["membrane"]
-        work_forms: list[ufl.Form] = []  # rank-1 external virtual work: pressure, then line loads
-        line_works: list[ufl.Form] = []
-        if loads.gravity is not None:
-            self.gravity = constant(np.asarray(loads.gravity, dtype=float))
+        exact_terms = [energies["membrane"]]
+        if self.loads.gravity is not None:
+            self.gravity = self._constant(np.asarray(self.loads.gravity, dtype=float))
             energies["gravity"] = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
-            exact_part = exact_part + lf * energies["gravity"]
-        if loads.pressure is not None:
-            self.pressure = constant(loads.pressure)
-            work_forms.append(forms.pressure_work(x, self.pressure, test, dx))
-        if loads.line_loads:
-            ds = self._edge_measure([load.edge for load in loads.line_loads])
-            self.tractions = []
-            for i, load in enumerate(loads.line_loads):
-                traction = constant(np.asarray(load.traction, dtype=float))
-                self.tractions.append(traction)
-                line_works.append(forms.line_load_work(x_rest, traction, test, ds(i + 1)))
-            work_forms.extend(line_works)
-        self.dynamics = dynamics
-        self.reporting_forms: dict[str, ufl.Form] = {}
-        if dynamics is not None:
-            self.time_step = constant(dynamics.time_step)
-            self.x_predicted = fem.Function(space, name="predicted_position")
-            self.x_previous = fem.Function(space, name="previous_position")
-            self.velocity = fem.Function(space, name="velocity")
-            self.x_predicted.x.array[:] = self.x.x.array
-            self.x_previous.x.array[:] = self.x.x.array
-            inertia = forms.inertia_potential(
-                x, self.x_predicted, x_rest, self.density, self.thickness, self.time_step, dx
-            )
-            exact_part = exact_part + inertia
-            if dynamics.mass_damping > 0:
-                self.mass_damping = constant(dynamics.mass_damping)
-                exact_part = exact_part + forms.mass_damping_potential(
+            exact_terms.append(self.load_factor * energies["gravity"])
+        if self.dynamics is not None:
+            exact_terms += self._inertia_terms(section)
+        return energies, exact_terms
+
+    def _inertia_terms(self, section: tuple) -> list[ufl.Form]:
+        """Implicit Euler's inertia and Rayleigh damping potentials; adds the kinetic energy report."""
+        dynamics, space, x, x_rest, dx = self.dynamics, self.discretization.function_space, self.x, self.x_rest, self.dx
+        self.time_step = self._constant(dynamics.time_step)
+        self.x_predicted = fem.Function(space, name="predicted_position")
+        self.x_previous = fem.Function(space, name="previous_position")
+        self.velocity = fem.Function(space, name="velocity")
+        self.x_predicted.x.array[:] = self.x.x.array
+        self.x_previous.x.array[:] = self.x.x.array
+        terms = [
+            forms.inertia_potential(x, self.x_predicted, x_rest, self.density, self.thickness, self.time_step, dx)
+        ]
+        if dynamics.mass_damping > 0:
+            self.mass_damping = self._constant(dynamics.mass_damping)
+            terms.append(
+                forms.mass_damping_potential(
                     x, self.x_previous, x_rest, self.density, self.thickness, self.mass_damping, self.time_step, dx
                 )
-            if dynamics.stiffness_damping > 0:
-                self.stiffness_damping = constant(dynamics.stiffness_damping)
-                internal_previous = forms.membrane_energy(self.x_previous, x_rest, *section, dx) + forms.bending_energy(
-                    self.x_previous, x_rest, *section, dx
-                )
-                exact_part = exact_part + forms.stiffness_damping_potential(
+            )
+        if dynamics.stiffness_damping > 0:
+            self.stiffness_damping = self._constant(dynamics.stiffness_damping)
+            internal_previous = forms.membrane_energy(self.x_previous, x_rest, *section, dx) + forms.bending_energy(
+                self.x_previous, x_rest, *section, dx
+            )
+            terms.append(
+                forms.stiffness_damping_potential(
                     internal_previous, x, self.x_previous, self.stiffness_damping, self.time_step
                 )
-            self.reporting_forms["kinetic"] = forms.kinetic_energy(
-                self.velocity, x_rest, self.density, self.thickness, dx
             )
-        potential = exact_part + energies["bending"]
+        self.reporting_forms["kinetic"] = forms.kinetic_energy(self.velocity, x_rest, self.density, self.thickness, dx)
+        return terms
 
+    def _work_terms(self, test: ufl.Argument) -> tuple[list[ufl.Form], list[ufl.Form]]:
+        """Rank-1 external virtual work (pressure, then line loads) and the line loads alone."""
+        work_forms: list[ufl.Form] = []
+        line_works: list[ufl.Form] = []
+        if self.loads.pressure is not None:
+            self.pressure = self._constant(self.loads.pressure)
+            work_forms.append(forms.pressure_work(self.x, self.pressure, test, self.dx))
+        if self.loads.line_loads:
+            ds = self._edge_measure([load.edge for load in self.loads.line_loads])
+            self.tractions = []
+            for i, load in enumerate(self.loads.line_loads):
+                traction = self._constant(np.asarray(load.traction, dtype=float))
+                self.tractions.append(traction)
+                line_works.append(forms.line_load_work(self.x_rest, traction, test, ds(i + 1)))
+            work_forms.extend(line_works)
+        return work_forms, line_works
+
+    def _compose_forms(self) -> None:
+        """One composition of the terms: potential, residual, exact or pseudo Jacobian, reports."""
+        x, x_rest, lf, dx = self.x, self.x_rest, self.load_factor, self.dx
+        space = self.discretization.function_space
+        test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
+        section = (self.thickness, self.young, self.poisson)
+        self.reporting_forms: dict[str, ufl.Form] = {}
+        energies, exact_terms = self._potential_terms()
+        work_forms, line_works = self._work_terms(test)
+        exact_part = exact_terms[0]
+        for term in exact_terms[1:]:
+            exact_part = exact_part + term
+        potential = exact_part + energies["bending"]
         residual = ufl.derivative(potential, x, test)
         for work in work_forms:
             residual = residual - lf * work
@@ -284,29 +284,32 @@ class ShellModel:
         jit = default_jit_params()
         # Conservative problems (no follower pressure) minimize a total potential; the line search
         # uses it as merit function.
-        self.potential_form = None
-        if loads.pressure is None:
-            total = potential if dead_line_work is None else potential - lf * dead_line_work
-            self.potential_form = fem.form(total, jit_params=jit)
-        if hessian == "exact":
+        total = potential if dead_line_work is None else potential - lf * dead_line_work
+        if self.hessian == "exact":
             jacobian = ufl.derivative(residual, x, trial)
         else:
             jacobian = ufl.derivative(ufl.derivative(exact_part, x, test), x, trial)
             jacobian = jacobian + forms.bending_pseudo_hessian(x, x_rest, *section, dx, test, trial)
             for work in work_forms:
                 jacobian = jacobian - lf * ufl.derivative(work, x, trial)
-        self.symmetric = loads.pressure is None
+        self.symmetric = self.loads.pressure is None
         self.ufl_residual = residual
         self.ufl_jacobian = jacobian
         self.ufl_energies = energies
+        with compilation_report("the shell model", jit["cache_dir"]):
+            self._compile(total, dead_line_work, residual, jacobian, {**energies, **self.reporting_forms}, jit)
 
+    def _compile(self, total, dead_line_work, residual, jacobian, energies: dict, jit: dict) -> None:
+        """The dolfinx forms of the composed UFL forms (JIT-compiled, or loaded from the cache)."""
+        self.potential_form = None if self.loads.pressure is not None else fem.form(total, jit_params=jit)
         self.line_load_work_form = None if dead_line_work is None else fem.form(dead_line_work, jit_params=jit)
         self.residual_form = fem.form(residual, jit_params=jit)
         self.jacobian_form = fem.form(jacobian, jit_params=jit)
-        self.energy_forms = {
-            name: fem.form(e, jit_params=jit) for name, e in {**energies, **self.reporting_forms}.items()
-        }
+        self.energy_forms = {name: fem.form(e, jit_params=jit) for name, e in energies.items()}
 
+    def _build_point_data(self, loads: Loads, point_constraints: Sequence[PointConstraint]) -> None:
+        """Point loads, point constraints' basis values, and the nodal constraints' DOFs and values."""
+        disc = self.discretization
         # Point loads: basis values at the point times the force, on local open DOFs.
         self.point_load_open = np.zeros_like(self.x.x.array)
         for load in loads.point_loads:
@@ -319,10 +322,10 @@ class ShellModel:
         self.point_constraint_basis = [disc.point_basis(pc.xi1, pc.xi2) for pc in self.point_constraints]
 
         # Boundary conditions as owned closed DOFs with initial and target values.
-        target = target_surface(initial, self.constraints)
+        target = target_surface(self.initial_surface, self.constraints)
         selections = [disc.select_dofs(c.nodes, c.kinds, c.components) for c in self.constraints]
         self.constrained = _merge(selections)
-        self.constrained_initial = disc.dof_values(initial, self.constrained)
+        self.constrained_initial = disc.dof_values(self.initial_surface, self.constrained)
         self.constrained_target = disc.dof_values(target, self.constrained)
 
     def _edge_measure(self, edges: Sequence[str]) -> ufl.Measure:
@@ -371,6 +374,35 @@ class ShellModel:
             work += fem.assemble_scalar(self.line_load_work_form)
         values["external_work"] = self.comm.allreduce(work, op=MPI.SUM) - values.get("gravity", 0.0)
         return values
+
+
+def _validate(
+    rest: HermiteSurface, initial: HermiteSurface, loads: Loads,
+    constraints: Sequence[NodalConstraint], hessian: str, quadrature_points: int, dynamics: Dynamics | None,
+    point_constraints: Sequence[PointConstraint],
+) -> None:  # fmt: skip
+    """Every check of a model's definition, before anything is built (raises :class:`ModelError`)."""
+    loads.validate()
+    if dynamics is not None:
+        dynamics.validate()
+    if hessian not in ("exact", "pseudo"):
+        raise ModelError(f"hessian = {hessian!r}; expected 'exact' or 'pseudo'")
+    if quadrature_points not in GAUSS_POINTS:
+        raise ModelError(f"quadrature points per direction = {quadrature_points!r}; expected one of {GAUSS_POINTS}")
+    rest.check_regular(quadrature_points, name="rest surface")
+    if initial.grid != rest.grid:
+        raise ModelError("initial and rest surfaces have different grids")
+    for c in constraints:
+        c.validate(rest.grid)
+    for i, pc in enumerate(point_constraints):
+        if not set(pc.components) <= {0, 1, 2} or not pc.components:
+            raise ModelError(
+                f"point_constraints[{i}].components = {pc.components!r}; expected a subset of (0, 1, 2)"
+            )
+        target = pc.target_at(0.0)
+        if target.shape != (3,) or not np.all(np.isfinite(target)):
+            raise ModelError(f"point_constraints[{i}].target must give 3 finite numbers, got {target!r}")
+        rest.grid.locate(np.array(pc.xi1), np.array(pc.xi2))  # raises if outside the surface
 
 
 def _merge(selections: Sequence[ConstrainedDofs]) -> ConstrainedDofs:

@@ -146,19 +146,7 @@ class ShellSolver(PetscOwner):
             self.bc_values = model.constrained_initial.copy()
             self.report = SolveReport()
             self.regularization = 0.0
-            # Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks.
-            count = len(model.point_constraints)
-            self.alm_multipliers = np.zeros((count, 3))
-            self.alm_mask = np.zeros((count, 3))
-            for k, pc in enumerate(model.point_constraints):
-                self.alm_mask[k, list(pc.components)] = 1.0
-            self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
-            self.alm_penalty = 1e3 * model.material.young * model.material.thickness
-            lo, hi = (
-                model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
-                model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
-            )
-            self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
+            self._init_point_constraints()
 
             PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
             self.snes = PETSc.SNES().create(comm)
@@ -173,6 +161,22 @@ class ShellSolver(PetscOwner):
         finally:
             for name in pushed:
                 opts.delValue(name)
+
+    def _init_point_constraints(self) -> None:
+        """Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks."""
+        model = self.model
+        count = len(model.point_constraints)
+        self.alm_multipliers = np.zeros((count, 3))
+        self.alm_mask = np.zeros((count, 3))
+        for k, pc in enumerate(model.point_constraints):
+            self.alm_mask[k, list(pc.components)] = 1.0
+        self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
+        self.alm_penalty = 1e3 * model.material.young * model.material.thickness
+        lo, hi = (
+            model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
+            model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
+        )
+        self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
 
     # -- assembly --------------------------------------------------------------------------------
     def update_state(self, x: PETSc.Vec) -> None:

@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _render(args: argparse.Namespace) -> None:
     from bhem_hpc.io import read_frame
-    from bhem_hpc.render import render, write_png
+    from bhem_hpc.io.render import render, write_png
 
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))

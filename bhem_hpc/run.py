@@ -23,7 +23,7 @@ from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, 
 from bhem_hpc.model.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper
+from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
 from bhem_hpc.solver.petsc import library_versions
 
 log = logging.getLogger(__name__)
@@ -146,7 +146,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
         "scene": str(options.scene),
         "physics_hash": physics_hash(scene),
         "dofs": 3 * disc.num_closed,
-        "nonzeros": solver.matrix_nonzeros(),
+        "nonzeros": solver.problem.matrix_nonzeros(),
         "ranks": comm.size,
         "versions": library_versions(),
         "static": scene.static,
@@ -230,12 +230,9 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
     if series is not None and checkpoint is None:
         series.write(stepper.time, surface)
     progress = _progress(total, options.progress and comm.rank == 0)
-    assemble0 = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
-    factor0, solve0 = solver.linear_solver_seconds()
-    regularized0 = solver.report.regularized_iterations
     try:
         for _ in range(total):
-            report = stepper.advance()
+            record = stepper.advance()
             t_out = time.perf_counter()
             if stepper.step % scene.output_every == 0 or _ == total - 1:  # the last step always writes
                 surface = model.state_surface()
@@ -243,29 +240,8 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
                     series.write(stepper.time, surface)
                 _checkpoint(options.out / "checkpoint.h5", model, surface, stepper, summary, comm)
             output_s = time.perf_counter() - t_out
-            assemble = solver.report.assemble_residual_s + solver.report.assemble_jacobian_s
-            factor, solve = solver.linear_solver_seconds()
-            summary["steps"].append(
-                {
-                    "step": report.step,
-                    "time": report.time,
-                    "newton_iterations": report.newton_iterations,
-                    "recoveries": report.regularized_retries + report.dt_halvings,
-                    "negative_pivots": solver.report.negative_pivots[-1] if solver.report.negative_pivots else -1,
-                    "regularized_iterations": solver.report.regularized_iterations - regularized0,
-                    "wall_s": report.wall_s + output_s,
-                    "assembly_s": assemble - assemble0,
-                    "factorization_s": factor - factor0,
-                    "linear_solve_s": solve - solve0,
-                    "collision_s": report.collision_s,
-                    "contacts": report.contacts,
-                    "output_s": output_s,
-                    "energies": _energies(model),
-                }
-            )
-            assemble0, factor0, solve0 = assemble, factor, solve
-            regularized0 = solver.report.regularized_iterations
-            progress(report, stepper)
+            summary["steps"].append(_step_summary(record, output_s, _energies(model)))
+            progress(record, stepper)
     except StepFailure as exc:
         raise RunError(str(exc)) from exc
     finally:
@@ -274,6 +250,16 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
             contact.close()
     summary["time"] = stepper.time
     return surface
+
+
+def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float]) -> dict:
+    """A step's row of ``summary.json``."""
+    names = ("step", "time", "newton_iterations", "recoveries", "negative_pivots", "regularized_iterations")
+    row = {name: getattr(record, name) for name in names}
+    row["wall_s"] = record.wall_s + output_s
+    for name in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "contacts"):
+        row[name] = getattr(record, name)
+    return row | {"output_s": output_s, "energies": energies}
 
 
 def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
@@ -309,7 +295,7 @@ def _progress(total: int, enabled: bool):
         if report is None:
             bar.close()
             return
-        recoveries[0] += report.regularized_retries + report.dt_halvings
+        recoveries[0] += report.recoveries
         bar.set_postfix_str(f"t={stepper.time:.4g}s newton={report.newton_iterations} recoveries={recoveries[0]}")
         bar.update(1)
 

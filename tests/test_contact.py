@@ -7,13 +7,10 @@ import pytest
 
 from bhem_hpc.collision import Plane, Sphere
 from bhem_hpc.collision.bezier import evaluate_many
-from bhem_hpc.contact.detection import (
-    ColliderEntry,
-    ContactDetector,
-    Contacts,
-    overlapping_pairs,
-    project_to_patches,
-)
+from bhem_hpc.contact.broad_phase import overlapping_pairs
+from bhem_hpc.contact.closest_points import project_to_patches
+from bhem_hpc.contact.contacts import Contacts
+from bhem_hpc.contact.detection import ColliderEntry, ContactDetector
 from bhem_hpc.contact.petsc import ContactProjector
 from bhem_hpc.contact.response import ContactHandler, ContactSettings
 from bhem_hpc.geometry import surface as S

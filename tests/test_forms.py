@@ -126,9 +126,9 @@ def test_closed_surfaces_rigid_motion_zero_energy_and_closed_residual(comm, rng,
 
     def closed_residual_and_energy(surface):
         model.set_state(surface)
-        solver.state_to_vector(solver.x)
-        solver.update_state(solver.x)
-        solver.assemble_residual(solver.x, solver.f)
+        solver.problem.state_to_vector(solver.x)
+        solver.problem.update_state(solver.x)
+        solver.problem.assemble_residual(solver.x, solver.f)
         return solver.f.norm(), sum(model.energies().values())
 
     with ShellSolver(model) as solver:
@@ -145,7 +145,7 @@ def test_stiffness_spectrum_does_not_depend_on_the_seam(comm):
     for seam in (0.0, 0.37, 2.0):
         _, model = _closed_cylinder_model(comm, seam)
         with ShellSolver(model) as solver:
-            solver.assemble_jacobian(solver.jacobian)
+            solver.problem.assemble_jacobian(solver.jacobian)
             dense = gather_matrix(solver.jacobian)
         assert dense.shape == (3 * 4 * 8 * 4,) * 2  # seam nodes kept once
         spectra.append(np.linalg.eigvalsh(0.5 * (dense + dense.T)))

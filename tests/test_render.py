@@ -8,8 +8,8 @@ from helpers import ray_triangle_distances
 from bhem_hpc.benchmarks import ray_benchmark
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import SurfaceTimeSeries, read_frame
+from bhem_hpc.io.render import camera_rays, render
 from bhem_hpc.model.material import Material
-from bhem_hpc.render import camera_rays, render
 
 
 def _tessellation_coverage(surface, eye, directions, density=24):

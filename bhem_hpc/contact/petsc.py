@@ -86,7 +86,7 @@ class ContactProjector(PetscOwner):
         self.mass = assemble(1.0, smoothing)  # M + S: the metric without a Jacobian
         self.smoothing = assemble(0.0, smoothing)  # S alone, added to dt^2 J
         self.bc_rows = solver.bc_rows
-        self.bc_local = solver.bc_local
+        self.bc_local = solver.problem.bc_local
         # Contact rows name entries (the discretization's flat nodal data): their closed DOFs.
         self.entry_block, self.entry_scale = disc.entry_closed_blocks()
         self._constrained_global = np.zeros(3 * disc.num_closed, dtype=bool)

@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bhem_hpc.contact.detection import ContactDetector, Contacts
+from bhem_hpc.contact.contacts import Contacts
+from bhem_hpc.contact.detection import ContactDetector
 from bhem_hpc.contact.petsc import ContactProjector
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene import CONTACT_METRICS

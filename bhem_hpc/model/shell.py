@@ -1,7 +1,9 @@
-"""The discrete shell problem: state, rest state, energies and loads as compiled dolfinx forms.
+"""The discrete shell model: state, rest state, and its energy and load terms as compiled dolfinx forms.
 
-Builds only what is asked for: a load that is absent adds no UFL term and compiles nothing.
-No PETSc here; :mod:`bhem_hpc.solver` owns every PETSc object.
+The model is a list of :class:`Term` objects (membrane, bending, gravity, inertia, damping, loads),
+each one energy or work form from :mod:`bhem_hpc.forms`; one composition turns them into the total
+potential, the residual and the exact or pseudo Jacobian. Only what a scene asks for is built: an
+absent load adds no term and compiles nothing. The PETSc side lives in :mod:`bhem_hpc.solver`.
 """
 
 from __future__ import annotations
@@ -122,6 +124,37 @@ class Dynamics:
                 raise ModelError(f"dynamics.{name} = {value!r} is invalid: must be a number {expected}")
 
 
+@dataclass(frozen=True)
+class Term:
+    """One term of the model: an energy, a load's virtual work, or a reported quantity.
+
+    Attributes:
+        name: the term's name (the key of :meth:`ShellModel.energies` when reported).
+        form: a potential (rank-0 form in the position ``x``) or, for ``role="work"``, a virtual
+            work (rank-1 form in the test function).
+        role: ``"potential"`` (enters the total potential), ``"work"`` (enters the residual) or
+            ``"report"`` (only reported, e.g. the kinetic energy).
+        load_scaled: multiplied by the load factor (external loads).
+        pseudo_hessian: ``(test, trial) -> form`` that replaces the term's exact Hessian under
+            ``hessian="pseudo"`` (bending); None keeps the exact one.
+        conservative: a work that has a potential, ``-work[x]`` (dead loads; a follower pressure
+            has none, and makes the problem non-symmetric).
+        reported: listed by :meth:`ShellModel.energies`.
+    """
+
+    name: str
+    form: ufl.Form
+    role: Literal["potential", "work", "report"] = "potential"
+    load_scaled: bool = False
+    pseudo_hessian: Callable[[ufl.Argument, ufl.Argument], ufl.Form] | None = None
+    conservative: bool = True
+    reported: bool = False
+
+    def scaled(self, load_factor: fem.Constant) -> ufl.Form:
+        """The term's form with the load factor applied where it scales."""
+        return load_factor * self.form if self.load_scaled else self.form
+
+
 def gauss_measure(mesh: dolfinx.mesh.Mesh, points_per_direction: int) -> ufl.Measure:
     """Cell measure with an explicit tensor Gauss rule (``n x n`` points per patch).
 
@@ -196,26 +229,29 @@ class ShellModel:
     def _constant(self, value) -> fem.Constant:
         return fem.Constant(self.discretization.mesh, ScalarType(value))
 
-    def _potential_terms(self) -> tuple[dict[str, ufl.Form], list[ufl.Form]]:
-        """The energies reported by :meth:`energies` and the terms whose exact Hessian is used even
-        with ``hessian="pseudo"`` (all but bending), in the order they are summed."""
+    def _terms(self, test: ufl.Argument) -> list[Term]:
+        """The model's terms, in the order their forms are summed: only what the model asks for."""
         x, x_rest, dx = self.x, self.x_rest, self.dx
         section = (self.thickness, self.young, self.poisson)
-        energies: dict[str, ufl.Form] = {
-            "membrane": forms.membrane_energy(x, x_rest, *section, dx),
-            "bending": forms.bending_energy(x, x_rest, *section, dx),
-        }
-        exact_terms = [energies["membrane"]]
+        terms = [
+            Term("membrane", forms.membrane_energy(x, x_rest, *section, dx), reported=True),
+            Term(
+                "bending",
+                forms.bending_energy(x, x_rest, *section, dx),
+                pseudo_hessian=lambda v, u: forms.bending_pseudo_hessian(x, x_rest, *section, dx, v, u),
+                reported=True,
+            ),
+        ]
         if self.loads.gravity is not None:
             self.gravity = self._constant(np.asarray(self.loads.gravity, dtype=float))
-            energies["gravity"] = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
-            exact_terms.append(self.load_factor * energies["gravity"])
+            gravity = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
+            terms.append(Term("gravity", gravity, load_scaled=True, reported=True))
         if self.dynamics is not None:
-            exact_terms += self._inertia_terms(section)
-        return energies, exact_terms
+            terms += self._inertia_terms(section)
+        return terms + self._work_terms(test)
 
-    def _inertia_terms(self, section: tuple) -> list[ufl.Form]:
-        """Implicit Euler's inertia and Rayleigh damping potentials; adds the kinetic energy report."""
+    def _inertia_terms(self, section: tuple) -> list[Term]:
+        """Implicit Euler's inertia and Rayleigh damping potentials, and the kinetic energy report."""
         dynamics, space, x, x_rest, dx = self.dynamics, self.discretization.function_space, self.x, self.x_rest, self.dx
         self.time_step = self._constant(dynamics.time_step)
         self.x_predicted = fem.Function(space, name="predicted_position")
@@ -223,85 +259,88 @@ class ShellModel:
         self.velocity = fem.Function(space, name="velocity")
         self.x_predicted.x.array[:] = self.x.x.array
         self.x_previous.x.array[:] = self.x.x.array
-        terms = [
-            forms.inertia_potential(x, self.x_predicted, x_rest, self.density, self.thickness, self.time_step, dx)
-        ]
+        rho_h = (self.density, self.thickness)
+        terms = [Term("inertia", forms.inertia_potential(x, self.x_predicted, x_rest, *rho_h, self.time_step, dx))]
         if dynamics.mass_damping > 0:
             self.mass_damping = self._constant(dynamics.mass_damping)
-            terms.append(
-                forms.mass_damping_potential(
-                    x, self.x_previous, x_rest, self.density, self.thickness, self.mass_damping, self.time_step, dx
-                )
+            damping = forms.mass_damping_potential(
+                x, self.x_previous, x_rest, *rho_h, self.mass_damping, self.time_step, dx
             )
+            terms.append(Term("mass_damping", damping))
         if dynamics.stiffness_damping > 0:
             self.stiffness_damping = self._constant(dynamics.stiffness_damping)
             internal_previous = forms.membrane_energy(self.x_previous, x_rest, *section, dx) + forms.bending_energy(
                 self.x_previous, x_rest, *section, dx
             )
-            terms.append(
-                forms.stiffness_damping_potential(
-                    internal_previous, x, self.x_previous, self.stiffness_damping, self.time_step
-                )
+            damping = forms.stiffness_damping_potential(
+                internal_previous, x, self.x_previous, self.stiffness_damping, self.time_step
             )
-        self.reporting_forms["kinetic"] = forms.kinetic_energy(self.velocity, x_rest, self.density, self.thickness, dx)
-        return terms
+            terms.append(Term("stiffness_damping", damping))
+        kinetic = forms.kinetic_energy(self.velocity, x_rest, *rho_h, dx)
+        return [*terms, Term("kinetic", kinetic, role="report", reported=True)]
 
-    def _work_terms(self, test: ufl.Argument) -> tuple[list[ufl.Form], list[ufl.Form]]:
-        """Rank-1 external virtual work (pressure, then line loads) and the line loads alone."""
-        work_forms: list[ufl.Form] = []
-        line_works: list[ufl.Form] = []
+    def _work_terms(self, test: ufl.Argument) -> list[Term]:
+        """External virtual work: a follower pressure (no potential), then dead line loads."""
+        terms = []
         if self.loads.pressure is not None:
             self.pressure = self._constant(self.loads.pressure)
-            work_forms.append(forms.pressure_work(self.x, self.pressure, test, self.dx))
+            pressure = forms.pressure_work(self.x, self.pressure, test, self.dx)
+            terms.append(Term("pressure", pressure, role="work", load_scaled=True, conservative=False))
         if self.loads.line_loads:
             ds = self._edge_measure([load.edge for load in self.loads.line_loads])
             self.tractions = []
             for i, load in enumerate(self.loads.line_loads):
                 traction = self._constant(np.asarray(load.traction, dtype=float))
                 self.tractions.append(traction)
-                line_works.append(forms.line_load_work(self.x_rest, traction, test, ds(i + 1)))
-            work_forms.extend(line_works)
-        return work_forms, line_works
+                work = forms.line_load_work(self.x_rest, traction, test, ds(i + 1))
+                terms.append(Term(f"line_load_{i}", work, role="work", load_scaled=True))
+        return terms
 
     def _compose_forms(self) -> None:
-        """One composition of the terms: potential, residual, exact or pseudo Jacobian, reports."""
-        x, x_rest, lf, dx = self.x, self.x_rest, self.load_factor, self.dx
+        """One composition of the terms: total potential, residual, exact or pseudo Jacobian, reports."""
+        x, lf = self.x, self.load_factor
         space = self.discretization.function_space
         test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
-        section = (self.thickness, self.young, self.poisson)
-        self.reporting_forms: dict[str, ufl.Form] = {}
-        energies, exact_terms = self._potential_terms()
-        work_forms, line_works = self._work_terms(test)
-        exact_part = exact_terms[0]
-        for term in exact_terms[1:]:
-            exact_part = exact_part + term
-        potential = exact_part + energies["bending"]
+        self.terms = self._terms(test)
+        potentials = [t for t in self.terms if t.role == "potential"]
+        works = [t for t in self.terms if t.role == "work"]
+        # terms whose exact Hessian is kept under hessian="pseudo" come first, in their order
+        exact = [t.scaled(lf) for t in potentials if t.pseudo_hessian is None]
+        exact_part = exact[0]
+        for form in exact[1:]:
+            exact_part = exact_part + form
+        potential = exact_part
+        for term in potentials:
+            if term.pseudo_hessian is not None:
+                potential = potential + term.scaled(lf)
         residual = ufl.derivative(potential, x, test)
-        for work in work_forms:
-            residual = residual - lf * work
-        # Dead line loads have a potential, -work[x]; a follower pressure has none.
-        dead_line_work = sum(ufl.replace(w, {test: x}) for w in line_works) if line_works else None
-        jit = default_jit_params()
-        # Conservative problems (no follower pressure) minimize a total potential; the line search
-        # uses it as merit function.
+        for work in works:
+            residual = residual - lf * work.form
+        # Dead loads have a potential, -work[x]; a follower pressure has none.
+        dead = [ufl.replace(w.form, {test: x}) for w in works if w.conservative]
+        dead_line_work = sum(dead) if dead else None
+        # Conservative problems minimize a total potential; the line search uses it as merit function.
         total = potential if dead_line_work is None else potential - lf * dead_line_work
         if self.hessian == "exact":
             jacobian = ufl.derivative(residual, x, trial)
         else:
             jacobian = ufl.derivative(ufl.derivative(exact_part, x, test), x, trial)
-            jacobian = jacobian + forms.bending_pseudo_hessian(x, x_rest, *section, dx, test, trial)
-            for work in work_forms:
-                jacobian = jacobian - lf * ufl.derivative(work, x, trial)
-        self.symmetric = self.loads.pressure is None
+            for term in potentials:
+                if term.pseudo_hessian is not None:
+                    jacobian = jacobian + term.pseudo_hessian(test, trial)
+            for work in works:
+                jacobian = jacobian - lf * ufl.derivative(work.form, x, trial)
+        self.symmetric = all(w.conservative for w in works)
         self.ufl_residual = residual
         self.ufl_jacobian = jacobian
-        self.ufl_energies = energies
+        reported = {t.name: t.form for t in self.terms if t.reported}
+        jit = default_jit_params()
         with compilation_report("the shell model", jit["cache_dir"]):
-            self._compile(total, dead_line_work, residual, jacobian, {**energies, **self.reporting_forms}, jit)
+            self._compile(total, dead_line_work, residual, jacobian, reported, jit)
 
     def _compile(self, total, dead_line_work, residual, jacobian, energies: dict, jit: dict) -> None:
         """The dolfinx forms of the composed UFL forms (JIT-compiled, or loaded from the cache)."""
-        self.potential_form = None if self.loads.pressure is not None else fem.form(total, jit_params=jit)
+        self.potential_form = fem.form(total, jit_params=jit) if self.symmetric else None
         self.line_load_work_form = None if dead_line_work is None else fem.form(dead_line_work, jit_params=jit)
         self.residual_form = fem.form(residual, jit_params=jit)
         self.jacobian_form = fem.form(jacobian, jit_params=jit)

@@ -33,8 +33,11 @@ class StepFailure(RuntimeError):
 
 
 @dataclass
-class StepReport:
-    """What one time step did."""
+class StepRecord:
+    """Everything one time step did, measured over that step alone (a row of a run's summary).
+
+    Times are seconds of this rank; solver figures cover every attempt and substep of the step.
+    """
 
     step: int
     time: float
@@ -42,13 +45,23 @@ class StepReport:
     substeps: int = 1
     dt_halvings: int = 0
     regularized_retries: int = 0
+    regularized_iterations: int = 0
+    negative_pivots: int = -1  # of the last factorization (-1: unknown, not LDL^T)
     wall_s: float = 0.0
+    assembly_s: float = 0.0
+    factorization_s: float = 0.0
+    linear_solve_s: float = 0.0
     contacts: int = 0
     contact_rounds: int = 0
     earliest_toi: float = float("inf")
     collision_s: float = 0.0
     detection_s: float = 0.0
     projections: int = 0
+
+    @property
+    def recoveries(self) -> int:
+        """Regularized retries and dt halvings."""
+        return self.regularized_retries + self.dt_halvings
 
 
 @dataclass
@@ -72,7 +85,7 @@ class TimeStepper:
     contact: ContactHandler | None = None
     time: float = 0.0
     step: int = 0
-    history: list[StepReport] = field(default_factory=list)
+    history: list[StepRecord] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         if self.model.dynamics is None:
@@ -93,23 +106,27 @@ class TimeStepper:
         target = target_surface(model.initial_surface, [*model.constraints, *moved])
         return model.discretization.dof_values(target, model.constrained)
 
-    def advance(self) -> StepReport:
+    def advance(self) -> StepRecord:
         """One time step of the model's dt (possibly as recovered substeps)."""
         start = time.perf_counter()
-        report = StepReport(step=self.step + 1, time=self.time + self.dt)
-        retries_before = self.solver.report.regularized_retries
+        report = StepRecord(step=self.step + 1, time=self.time + self.dt)
+        before = self.solver.counters()
         try:
             self._advance(self.time, self.dt, 0, report)
         finally:
             self.model.time_step.value = self.dt
         self.step += 1
         self.time += self.dt
-        report.regularized_retries = self.solver.report.regularized_retries - retries_before
+        after = self.solver.counters()
+        counted = ("regularized_retries", "regularized_iterations", "assembly_s", "factorization_s", "linear_solve_s")
+        for name in counted:
+            setattr(report, name, after[name] - before[name])
+        report.negative_pivots = after["negative_pivots"]
         report.wall_s = time.perf_counter() - start
         self.history.append(report)
         return report
 
-    def _advance(self, t_start: float, dt: float, depth: int, report: StepReport) -> None:
+    def _advance(self, t_start: float, dt: float, depth: int, report: StepRecord) -> None:
         model = self.model
         x_n = model.x.x.array.copy()
         v_n = model.velocity.x.array.copy()
@@ -118,7 +135,7 @@ class TimeStepper:
         model.x_predicted.x.array[:] = x_n + dt * v_n
         model.x.x.array[:] = model.x_predicted.x.array  # the inertial prediction is the first guess
         try:
-            self.solver.set_point_targets(t_start + dt)
+            self.solver.problem.set_point_targets(t_start + dt)
             report.newton_iterations += self.solver.solve_step(self.bc_values_at(t_start + dt))
         except SolverError as exc:
             model.x.x.array[:] = x_n

@@ -1,13 +1,11 @@
-"""The Newton driver of the shell problem (PETSc SNES).
+"""The Newton driver of the shell problem (PETSc SNES), apart from the problem (:mod:`.problem`).
 
 :class:`ShellSolver` owns a SNES (Newton + line search) whose linear solves are MUMPS direct
 factorizations (LDL^T by default, LU when the Jacobian is not symmetric). Options live under the
 solver's own prefix; defaults are pushed only where nothing is set yet, so the command line
-(``-bhem_static_snes_rtol 1e-12``, ...) and a scene's ``options`` table override them.
-
-On a surface with periodic directions the solver iterates on the closed DOFs ``x_c`` and
-assembles on the open grid: ``F_c = P^T F(P x_c)``, ``J_c = P^T J P`` (PETSc ``PtAP``, whose
-symbolic product is reused).
+(``-bhem_static_snes_rtol 1e-12``, ...) and a scene's ``options`` table override them. The
+driver adds load stepping with secant predictors and increment cuts, the energy line search, the
+diagonal regularization of indefinite Jacobians and the augmented-Lagrangian multiplier updates.
 """
 
 from __future__ import annotations
@@ -17,13 +15,12 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import dolfinx.fem as fem
-import dolfinx.fem.petsc as fem_petsc
 import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.petsc import KSP_REASONS, SNES_REASONS, PetscOwner, SolverError, push_options
+from bhem_hpc.solver.problem import ShellProblem
 
 log = logging.getLogger(__name__)
 
@@ -52,8 +49,8 @@ def default_options(model: ShellModel) -> dict[str, str]:
 
 
 def _residual_callback(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: ShellSolver) -> None:
-    solver.update_state(x)
-    solver.assemble_residual(x, f)
+    solver.problem.update_state(x)
+    solver.problem.assemble_residual(x, f)
 
 
 def _energy_precheck(x: PETSc.Vec, y: PETSc.Vec, solver: ShellSolver) -> None:
@@ -61,12 +58,10 @@ def _energy_precheck(x: PETSc.Vec, y: PETSc.Vec, solver: ShellSolver) -> None:
 
 
 def _jacobian_callback(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
-    solver.assemble_jacobian(pmat)
+    solver.problem.assemble_jacobian(pmat)
 
 
 @dataclass
-
-
 class SolveReport:
     """What a solve did: per load step Newton iterations and timings."""
 
@@ -103,50 +98,19 @@ class ShellSolver(PetscOwner):
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.x = PETSc.Vec().createMPI((n_local, n_global), comm=comm)
         self.f = self.x.duplicate()
-        self.f_open = fem_petsc.create_vector(model.residual_form)
-        self.point_loads = self.f_open.duplicate()
-        with self.point_loads.localForm() as local:
-            local.array[:] = model.point_load_open
-        self.point_loads.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         opts = PETSc.Options()
         pushed = push_options(prefix, default_options(model), options or {})
         try:  # the pushed defaults are removed again whatever happens
             ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
             mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
-            # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
-            # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
-            # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
+            # MUMPS' LDL^T takes SBAIJ (one triangle) serially; seams (PtAP) and MPI need AIJ.
             serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and not disc.is_periodic
             self.matrix_format = "sbaij" if serial_sbaij else "aij"
-            self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
-            fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
-            self.jacobian_blocked.assemble()
-            self.jacobian_open = PETSc.Mat()
-            self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
-            if serial_sbaij:
-                self.jacobian_open.setOption(PETSc.Mat.Option.IGNORE_LOWER_TRIANGULAR, True)
-                self.jacobian_blocked.destroy()
-                self.jacobian_blocked = None
-            self.prolongation: PETSc.Mat | None = None
-            if disc.is_periodic:
-                cols = disc.prolongation_columns().astype(PETSc.IntType)
-                rows = cols.size
-                indptr = np.arange(rows + 1, dtype=PETSc.IntType)
-                self.prolongation = PETSc.Mat().createAIJ(
-                    ((rows, 3 * disc.function_space.dofmap.index_map.size_global), (n_local, n_global)),
-                    csr=(indptr, cols, np.ones(rows)),
-                    comm=comm,
-                )
-                self.jacobian = self.jacobian_open.PtAP(self.prolongation)
-            else:
-                self.jacobian = self.jacobian_open
-            self.jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, model.symmetric)
-            self.bc_local = model.constrained.local.astype(np.int64)
-            self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
-            self.bc_values = model.constrained_initial.copy()
             self.report = SolveReport()
-            self.regularization = 0.0
-            self._init_point_constraints()
+            self.problem = ShellProblem(model, self.matrix_format, self.report)
+            self.jacobian = self.problem.jacobian
+            self.bc_rows = self.problem.bc_rows
+            self.prolongation = self.problem.prolongation
 
             PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
             self.snes = PETSc.SNES().create(comm)
@@ -162,98 +126,18 @@ class ShellSolver(PetscOwner):
             for name in pushed:
                 opts.delValue(name)
 
-    def _init_point_constraints(self) -> None:
-        """Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks."""
-        model = self.model
-        count = len(model.point_constraints)
-        self.alm_multipliers = np.zeros((count, 3))
-        self.alm_mask = np.zeros((count, 3))
-        for k, pc in enumerate(model.point_constraints):
-            self.alm_mask[k, list(pc.components)] = 1.0
-        self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
-        self.alm_penalty = 1e3 * model.material.young * model.material.thickness
-        lo, hi = (
-            model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
-            model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
-        )
-        self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
-
     # -- assembly --------------------------------------------------------------------------------
-    def update_state(self, x: PETSc.Vec) -> None:
-        """Write closed DOFs ``x`` into the model's position Function (with ghosts)."""
-        target = self.model.x.vector
-        if self.prolongation is not None:
-            self.prolongation.mult(x, target)
-        else:
-            x.copy(target)
-        target.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-
-    def state_to_vector(self, x: PETSc.Vec) -> None:
-        """Copy the model's current position into closed DOFs ``x``."""
-        x.array[:] = self.model.discretization.open_to_closed(self.model.x.x.array)
-
-    def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
-        """``f = P^T (F_int - F_ext)`` with constrained rows replaced by ``x - x_bc``."""
-        t0 = time.perf_counter()
-        with self.f_open.localForm() as local:
-            local.set(0.0)
-        fem_petsc.assemble_vector(self.f_open, self.model.residual_form)
-        if len(self.alm_multipliers):
-            force = (self.alm_multipliers + self.alm_penalty * self.point_constraint_violation()) * self.alm_mask
-            with self.f_open.localForm() as local:
-                blocked = local.array.reshape(-1, 3)
-                for k, (blocks, values) in enumerate(self.model.point_constraint_basis):
-                    blocked[blocks] += values[:, None] * force[k]
-        self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        self.f_open.axpy(-float(self.model.load_factor.value), self.point_loads)
-        if self.prolongation is not None:
-            self.prolongation.multTranspose(self.f_open, f)
-        else:
-            self.f_open.copy(f)
-        if len(self.bc_local):
-            values = f.array
-            values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
-        self.report.assemble_residual_s += time.perf_counter() - t0
-
-    def point_constraint_violation(self) -> np.ndarray:
-        """``x(xi_p) - target`` of every point constraint (constrained components), collective.
-
-        Returns:
-            Array of shape ``(points, 3)``; unconstrained components are 0.
-        """
-        local = np.zeros_like(self.alm_multipliers)
-        positions = self.model.x.x.array.reshape(-1, 3)
-        for k, (blocks, values) in enumerate(self.model.point_constraint_basis):
-            if len(blocks):
-                local[k] = values @ positions[blocks]
-        return (self.model.comm.allreduce(local) - self.alm_targets) * self.alm_mask
-
     def _solve_constrained(self, max_updates: int = 30) -> bool:
         """SNES solve, wrapped in augmented-Lagrangian multiplier updates when points are held."""
         for _ in range(max_updates):
             self.snes.solve(None, self.x)
-            if not self._converged() or not len(self.alm_multipliers):
+            if not self._converged() or not len(self.problem.alm_multipliers):
                 return self._converged()
-            self.update_state(self.x)
-            violation = self.point_constraint_violation()
-            if np.abs(violation).max() <= self.alm_tolerance:
+            self.problem.update_state(self.x)
+            if self.problem.update_multipliers():
                 return True
-            self.alm_multipliers += self.alm_penalty * violation
-            self.report.multiplier_updates += 1
         log.warning("%s: augmented Lagrangian not converged after %d multiplier updates", self.prefix, max_updates)
         return False
-
-    def potential_energy(self) -> float:
-        """Total potential at the model's current state (internal - external work), collective."""
-        local = fem.assemble_scalar(self.model.potential_form)
-        local -= float(self.model.load_factor.value) * float(
-            np.dot(self.point_loads.array_r, self.model.x.vector.array_r)
-        )
-        if len(self.alm_multipliers):
-            c = self.point_constraint_violation()
-            alm = float(np.sum(self.alm_multipliers * c) + 0.5 * self.alm_penalty * np.sum(c * c))
-            local += alm if self.model.comm.rank == 0 else 0.0
-        return self.model.comm.allreduce(local)
 
     def damp_step(self, x: PETSc.Vec, y: PETSc.Vec, max_backtracks: int = 30) -> None:
         """Scale the Newton step ``x -> x - y`` so that the total potential decreases.
@@ -263,8 +147,8 @@ class ShellSolver(PetscOwner):
         itself, the energy cannot judge a step and the full Newton step is taken (the local,
         quadratically convergent regime).
         """
-        self.update_state(x)
-        energy0 = self.potential_energy()
+        self.problem.update_state(x)
+        energy0 = self.problem.potential_energy()
         slope = -self.f.dot(y)  # d/dlambda of the potential along x - lambda y, at lambda = 0
         resolution = 1e-12 * abs(energy0)
         if self.negative_pivots() > 0 or slope > 0:
@@ -274,8 +158,8 @@ class ShellSolver(PetscOwner):
         step = 1.0
         for _ in range(max_backtracks):
             self._trial.waxpy(-step, y, x)
-            self.update_state(self._trial)
-            energy = self.potential_energy()
+            self.problem.update_state(self._trial)
+            energy = self.problem.potential_energy()
             if np.isfinite(energy) and energy <= energy0 + 1e-4 * step * slope + resolution:
                 break
             curvature = energy - energy0 - slope * step
@@ -316,35 +200,6 @@ class ShellSolver(PetscOwner):
         log.info("%s: indefinite Jacobian regularized with r = %.0e", self.prefix, applied)
         return -self.f.dot(y)
 
-    def _assemble_open_jacobian(self) -> None:
-        target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
-        target.zeroEntries()
-        fem_petsc.assemble_matrix(target, self.model.jacobian_form)
-        for blocks, values in self.model.point_constraint_basis:  # rho Phi Phi^T per component
-            block = self.alm_penalty * np.outer(values, values)
-            for comp in range(3):
-                rows = (3 * blocks + comp).astype(PETSc.IntType)
-                target.setValuesLocal(rows, rows, block, addv=PETSc.InsertMode.ADD)
-        target.assemble()
-        if self.jacobian_blocked is not None:
-            self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
-
-    def assemble_jacobian(self, jac: PETSc.Mat) -> None:
-        """``J = P^T J_open P`` with constrained rows and columns replaced by the identity."""
-        t0 = time.perf_counter()
-        self._assemble_open_jacobian()
-        if self.prolongation is not None:
-            self.jacobian_open.PtAP(self.prolongation, result=jac)
-        jac.zeroRowsColumns(self.bc_rows, diag=1.0)
-        if self.regularization > 0:
-            # The paper's diagonal regularizer, scaled per row: J + r |diag J|.
-            diagonal = jac.getDiagonal()
-            diagonal.abs()
-            diagonal.scale(self.regularization)
-            jac.setDiagonal(diagonal, addv=PETSc.InsertMode.ADD)
-            diagonal.destroy()
-        self.report.assemble_jacobian_s += time.perf_counter() - t0
-
     # -- solves ---------------------------------------------------------------------------------
     def solve(self, load_steps: int = 1, max_cuts: int = 10) -> SolveReport:
         """Solve for equilibrium, ramping loads and prescribed values from 0 to 1.
@@ -363,7 +218,7 @@ class ShellSolver(PetscOwner):
         start = time.perf_counter()
         max_increment = 1.0 / load_steps
         increment = max_increment
-        self.state_to_vector(self.x)
+        self.problem.state_to_vector(self.x)
         accepted = self.x.copy()
         history: list[tuple[float, PETSc.Vec]] = []
         factor, cuts = 0.0, 0
@@ -376,10 +231,11 @@ class ShellSolver(PetscOwner):
                 last_factor, last = history[-1]
                 self.x.axpy((trial - factor) / (factor - last_factor), accepted - last)
             model.load_factor.value = trial
-            self.bc_values = model.constrained_initial + trial * (model.constrained_target - model.constrained_initial)
-            self.set_point_targets(trial, ramp=True)
-            if len(self.bc_local):
-                self.x.array[self.bc_local] = self.bc_values
+            initial, target = model.constrained_initial, model.constrained_target
+            self.problem.bc_values = initial + trial * (target - initial)
+            self.problem.set_point_targets(trial, ramp=True)
+            if len(self.problem.bc_local):
+                self.x.array[self.problem.bc_local] = self.problem.bc_values
             if not self._solve_constrained():
                 cuts += 1
                 self.report.cuts += 1
@@ -416,23 +272,9 @@ class ShellSolver(PetscOwner):
         for _, vec in history:
             vec.destroy()
         accepted.destroy()
-        self.update_state(self.x)
+        self.problem.update_state(self.x)
         self.report.wall_s += time.perf_counter() - start
         return self.report
-
-    def set_point_targets(self, t: float, ramp: bool = False) -> None:
-        """Targets of the point constraints at time (or load factor) ``t``.
-
-        With ``ramp`` (static load stepping) a fixed target is approached linearly from the
-        point's initial position, as prescribed nodal values are.
-        """
-        initial = self.model.initial_surface
-        for k, pc in enumerate(self.model.point_constraints):
-            if ramp and not callable(pc.target):
-                start = initial.evaluate(np.array(pc.xi1), np.array(pc.xi2)).x
-                self.alm_targets[k] = start + t * (pc.target_at(t) - start)
-            else:
-                self.alm_targets[k] = pc.target_at(t)
 
     def solve_step(
         self, bc_values: np.ndarray | None = None, regularizations: tuple[float, ...] = (1e-6, 1e-4, 1e-2)
@@ -453,22 +295,22 @@ class ShellSolver(PetscOwner):
         """
         model = self.model
         model.load_factor.value = 1.0
-        self.bc_values = model.constrained_target.copy() if bc_values is None else np.asarray(bc_values, float)
-        self.state_to_vector(self.x)
+        self.problem.bc_values = model.constrained_target.copy() if bc_values is None else np.asarray(bc_values, float)
+        self.problem.state_to_vector(self.x)
         start = self.x.copy()
         try:
             for attempt, regularization in enumerate((0.0, *regularizations)):
-                self.regularization = regularization
+                self.problem.regularization = regularization
                 start.copy(self.x)
-                if len(self.bc_local):
-                    self.x.array[self.bc_local] = self.bc_values
+                if len(self.problem.bc_local):
+                    self.x.array[self.problem.bc_local] = self.problem.bc_values
                 converged = self._solve_constrained()
                 pivots = self.negative_pivots()
                 if converged:
                     # A converged step whose last LDL^T showed negative pivots is a stationary point
                     # of an indefinite incremental potential: recorded, not retried (a regularized
                     # retry converges to the same point).
-                    self.update_state(self.x)
+                    self.problem.update_state(self.x)
                     its = self.snes.getIterationNumber()
                     self.report.newton_iterations.append(its)
                     self.report.negative_pivots.append(pivots)
@@ -486,7 +328,7 @@ class ShellSolver(PetscOwner):
                 )
             self._raise(1.0, f"{len(regularizations)} regularized retries")
         finally:
-            self.regularization = 0.0
+            self.problem.regularization = 0.0
             start.destroy()
         return -1  # unreachable: _raise always raises
 
@@ -537,7 +379,7 @@ class ShellSolver(PetscOwner):
         ksp = self.snes.getKSP()
         pc = ksp.getPC()
         step = self.x.duplicate()
-        self.state_to_vector(self.x)
+        self.problem.state_to_vector(self.x)
 
         def timed(action) -> float:
             comm.Barrier()
@@ -547,12 +389,12 @@ class ShellSolver(PetscOwner):
             return time.perf_counter() - t0
 
         def residual() -> None:
-            self.update_state(self.x)
-            self.assemble_residual(self.x, self.f)
+            self.problem.update_state(self.x)
+            self.problem.assemble_residual(self.x, self.f)
 
         times = {
             "assemble_residual_s": timed(residual),
-            "assemble_jacobian_s": timed(lambda: self.assemble_jacobian(self.jacobian)),
+            "assemble_jacobian_s": timed(lambda: self.problem.assemble_jacobian(self.jacobian)),
         }
         ksp.setOperators(self.jacobian)
         times["factor_s"] = timed(pc.setUp)
@@ -564,6 +406,20 @@ class ShellSolver(PetscOwner):
         step.destroy()
         return times
 
+    def counters(self) -> dict[str, float]:
+        """Cumulative figures of this solver (the PETSc timings: of this process); the difference of
+        two snapshots covers what happened in between, and ``negative_pivots`` is the last one's."""
+        factor, solve = self.linear_solver_seconds()
+        report = self.report
+        return {
+            "assembly_s": report.assemble_residual_s + report.assemble_jacobian_s,
+            "factorization_s": factor,
+            "linear_solve_s": solve,
+            "regularized_retries": report.regularized_retries,
+            "regularized_iterations": report.regularized_iterations,
+            "negative_pivots": report.negative_pivots[-1] if report.negative_pivots else -1,
+        }
+
     @staticmethod
     def linear_solver_seconds() -> tuple[float, float]:
         """Cumulative ``(factorization, triangular solves)`` seconds of this process (PETSc log)."""
@@ -574,34 +430,13 @@ class ShellSolver(PetscOwner):
         factor = seconds("MatCholFctrSym", "MatCholFctrNum", "MatLUFactorSym", "MatLUFactorNum")
         return factor, seconds("MatSolve")
 
-    def matrix_nonzeros(self) -> int:
-        """Nonzeros of the (closed) Jacobian as a full matrix (SBAIJ stores the upper triangle)."""
-        stored = int(self.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
-        if self.jacobian.getType().endswith("sbaij"):
-            bs = self.jacobian.getBlockSize()
-            diagonal_blocks = self.jacobian.getSize()[0] // bs
-            return 2 * stored - bs * bs * diagonal_blocks
-        return stored
-
     # -- lifetime -------------------------------------------------------------------------------
     def close(self) -> None:
-        """Destroy the PETSc objects this solver owns (idempotent)."""
+        """Destroy the PETSc objects this solver owns, its problem's too (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        objects = [
-            self.snes,
-            self.x,
-            self.f,
-            self.f_open,
-            self.point_loads,
-            self.jacobian_open,
-        ]
-        if self.jacobian_blocked is not None:
-            objects.append(self.jacobian_blocked)
-        if self._trial is not None:
-            objects.append(self._trial)
-        if self.prolongation is not None:
-            objects += [self.prolongation, self.jacobian]
-        for obj in objects:
-            obj.destroy()
+        for obj in (self.snes, self.x, self.f, self._trial):
+            if obj is not None:
+                obj.destroy()
+        self.problem.close()

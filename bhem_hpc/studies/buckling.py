@@ -78,7 +78,7 @@ def run_buckling(config: dict, comm: MPI.Comm) -> dict:
     low, high = 0.25 * reference, 4.0 * reference
     wall, iterations = 0.0, 0
     with ShellSolver(planar, prefix="bhem_study_") as planar_solver, ShellSolver(free, prefix="bhem_free_") as solver:
-        nonzeros = solver.matrix_nonzeros()
+        nonzeros = solver.problem.matrix_nonzeros()
         for _ in range(64):
             if high / low - 1 < 1e-3:
                 break

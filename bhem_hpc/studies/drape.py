@@ -71,7 +71,7 @@ def drape_to_rest(patches: int, hessian: str, dt: float, comm: MPI.Comm) -> tupl
             if step >= 10 and speed < 1e-3:
                 break
         wall = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
-        nonzeros = solver.matrix_nonzeros()
+        nonzeros = solver.problem.matrix_nonzeros()
     a, b = np.meshgrid(DRAPE_LATTICE, DRAPE_LATTICE, indexing="ij")
     positions = model.state_surface().evaluate(a, b).x
     iterations = sum(r.newton_iterations for r in stepper.history)

@@ -53,7 +53,7 @@ def timed_solve(model: ShellModel, load_steps: int, options: dict, comm: MPI.Com
         start = time.perf_counter()
         report = solver.solve(load_steps)
         wall = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
-        return wall, solver.matrix_nonzeros(), sum(report.newton_iterations)
+        return wall, solver.problem.matrix_nonzeros(), sum(report.newton_iterations)
 
 
 def study_result(model: ShellModel, value: float, reference: float, measured: tuple[float, int, int]) -> dict:

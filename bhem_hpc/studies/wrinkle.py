@@ -129,7 +129,7 @@ def stretch_to_rest(
         else:
             raise StudyError(f"wrinkle study: the {patches}x{patches} sheet did not come to rest in {max_steps} steps")
         wall = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
-        nonzeros = solver.matrix_nonzeros()
+        nonzeros = solver.problem.matrix_nonzeros()
     iterations = sum(r.newton_iterations for r in stepper.history)
     return model.state_surface(), {
         "wall_s": wall,

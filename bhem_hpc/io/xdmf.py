@@ -1,7 +1,7 @@
-"""Output people look at: a ParaView-readable XDMF/HDF5 of a tessellated surface, and PNG renders.
+"""XDMF/HDF5 files ParaView reads: a tessellated surface, or a time series of frames with per-point fields.
 
-Serial writers: call them on one rank with a gathered surface. The dynamics issue adds the
-time-series writer; this module holds the single-frame form.
+Serial writers: call them on one rank with a gathered surface. Every file is written under a
+temporary name and renamed, so a reader never sees half a file.
 """
 
 from __future__ import annotations
@@ -56,30 +56,6 @@ def write_surface_xdmf(path: str | Path, surface: HermiteSurface, density: int =
     tmp_xdmf.write_text(_XDMF.format(name=name, ncells=len(quads), npoints=len(points), h5=h5_path.name))
     os.replace(tmp_xdmf, path)
     return path
-
-
-def render_surface_png(
-    path: str | Path, surface: HermiteSurface, title: str = "", size: tuple[int, int] = (480, 360)
-) -> Path:
-    """Ray-trace the surface's patches (:func:`bhem_hpc.render.render`) to a PNG with a title line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from bhem_hpc.render import render
-
-    width, height = size
-    image, _ = render(surface, width, height)
-    fig = plt.figure(figsize=(width / 100, height / 100 + 0.3), dpi=100)
-    ax = fig.add_axes((0.0, 0.0, 1.0, height / (height + 30)))
-    ax.imshow(image, interpolation="none")
-    ax.set_axis_off()
-    if title:
-        fig.suptitle(title, fontsize=10, y=0.99)
-    fig.savefig(path)
-    plt.close(fig)
-    return Path(path)
 
 
 class SurfaceTimeSeries:
@@ -160,24 +136,6 @@ class SurfaceTimeSeries:
     def close(self) -> None:
         if self.file:
             self.file.close()
-
-
-def write_checkpoint(path: str | Path, state: dict[str, np.ndarray], attributes: dict[str, object]) -> None:
-    """Write arrays and attributes to ``path`` atomically (temporary file, then rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        for name, array in state.items():
-            f[name] = array
-        for name, value in attributes.items():
-            f.attrs[name] = value
-    os.replace(tmp, path)
-
-
-def read_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, object]]:
-    """Arrays and attributes of a checkpoint written by :func:`write_checkpoint`."""
-    with h5py.File(path, "r") as f:
-        return {name: f[name][()] for name in f}, dict(f.attrs)
 
 
 def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, float]:

@@ -45,18 +45,19 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
     render.add_argument("--size", default="320x240", help="WIDTHxHEIGHT in pixels")
     render.add_argument("--out", type=Path, default=None, help="PNG path (default: DIR/frame_K.png)")
+    summary = sub.add_parser("summary", help="rewrite README.md's generated summary from the docs pages' rows")
+    summary.add_argument("--docs", type=Path, default=Path("docs"), help="the docs directory")
+    summary.add_argument("--readme", type=Path, default=Path("README.md"), help="the README to update")
     bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
     bench.add_argument("--patches", type=int, nargs="+", default=[10, 20, 30])
     bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
     bench.add_argument("--repeats", type=int, default=3)
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
     bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
-    bench.add_argument("--steps", type=int, default=None, help="steps to time (--scene: 20, --paper: 5)")
+    bench.add_argument("--steps", type=int, default=None, help="steps to time (--scene: 20, --docs: 5 per scene)")
     bench.add_argument("--warmup", type=int, default=1, help="with --scene: untimed steps first (e.g. a fall)")
     bench.add_argument("--samples", type=int, default=None, help="with --scene: contact samples per patch side")
-    bench.add_argument(
-        "--paper", type=Path, default=None, help="benchmark the jobs of the paper's Table 2, write this Markdown file"
-    )
+    bench.add_argument("--docs", type=Path, default=None, help="measure everything and write DOCS/performance.md")
     bench.add_argument("--rays", action="store_true", help="ray-patch intersection: midpoint vs Newton-guided")
     return parser
 
@@ -137,10 +138,11 @@ def _bench(args: argparse.Namespace, comm) -> None:
         rows = [benchmarks.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
         for row in rows:
             print(json.dumps(row) if args.json else benchmarks.format_ray_row(row))
-    elif args.paper is not None:
-        benchmarks.paper_comparison(Path(__file__).resolve().parents[1] / "jobs", args.paper, args.steps or 5, comm)
+    elif args.docs is not None:
+        jobs = Path(__file__).resolve().parents[1] / "jobs"
+        path = benchmarks.write_performance(args.docs, jobs, args.steps or 5, comm)
         if comm.rank == 0:
-            print(args.paper.read_text())
+            print(f"wrote {path}")
     elif args.scene is not None:
         row = benchmarks.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples)
         if comm.rank == 0:
@@ -152,7 +154,15 @@ def _bench(args: argparse.Namespace, comm) -> None:
             print("\n".join(json.dumps(row) for row in rows) if args.json else table)
 
 
-HANDLERS = {"study": _study, "run": _run, "cantilever": _cantilever, "bench": _bench}
+def _summary(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.summary import update_readme
+
+    if comm.rank == 0:
+        update_readme(args.readme, args.docs)
+        print(f"updated the summary in {args.readme}")
+
+
+HANDLERS = {"summary": _summary, "study": _study, "run": _run, "cantilever": _cantilever, "bench": _bench}
 
 
 def _configure_logging(verbose: bool, rank: int) -> None:
@@ -195,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                 _render(args)
         else:
             HANDLERS[args.command](args, comm)
-    except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError too
+    except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError, SummaryError
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
         return 2

@@ -6,8 +6,7 @@ set -euo pipefail
 scene="$1"; out="$2"; ranks="${3:-1}"; shift $(( $# < 3 ? $# : 3 ))
 here="$(cd "$(dirname "$0")/.." && pwd)"
 make -s -C "$here" setup
-# One BLAS thread per rank unless told otherwise: ranks x threads beyond the cores only costs
-# (measured here: 2 ranks, 30x30 Newton iteration 0.095 s with 1 thread vs 0.098 s with 2).
+# One BLAS thread per rank unless told otherwise: ranks x threads beyond the cores only costs.
 export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-$([ "$ranks" -gt 1 ] && echo 1 || echo "")}"
 [ -n "$OPENBLAS_NUM_THREADS" ] || unset OPENBLAS_NUM_THREADS
 exec mpirun --allow-run-as-root --oversubscribe -n "$ranks" "$here/.venv/bin/bhem-hpc" run "$scene" --out "$out" "$@"

@@ -43,7 +43,7 @@ class ContactProjector(PetscOwner):
         prefix: PETSc options prefix of the metric's KSP.
         options: PETSc options (without prefix) overriding the defaults.
         regularization: ``eps`` relative to ``max diag(G^T G) / max diag(W)``.
-        smoothing: weight of the second-derivative term of the impulse metric
+        smoothing: weight of the gradient term of the impulse metric
             (:func:`forms.impulse_metric`; 0 = the bare mass matrix).
     """
 

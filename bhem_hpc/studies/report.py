@@ -75,7 +75,7 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
-    rows = _results(rows)
+    rows = results(rows)
     baseline = [r for r in rows if all(r[k] == v for k, v in study.baseline.items())]
     for label in sorted({r[study.series] for r in baseline}, key=str):
         series = sorted((r for r in baseline if r[study.series] == label), key=lambda r: (r["dofs"], r["wall_s"]))
@@ -94,7 +94,7 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
     plt.close(fig)
 
 
-def _results(rows: list[dict]) -> list[dict]:
+def results(rows: list[dict]) -> list[dict]:
     """The rows without a study's own reference row (measured against its finest run: error 0)."""
     return [r for r in rows if r["error"] > 0.0 or r["value"] != r["reference"]]
 
@@ -157,7 +157,7 @@ def _accuracy_cost_markdown(docs: Path) -> str:
             lines += [f"![{name} shapes]({picture.replace('.png', '-shapes.png')})", ""]
         if study.note:
             lines += [study.note, ""]
-        rows = _results([r for n in sorted(by_ranks) for r in by_ranks[n]])
+        rows = results([r for n in sorted(by_ranks) for r in by_ranks[n]])
         lines += [
             f"| {study.problem} | target error | cheapest configuration | ranks | error | solve time [s] | DoFs |",
             "| --- | --- | --- | ---: | ---: | ---: | ---: |",
@@ -175,7 +175,7 @@ def _accuracy_cost_markdown(docs: Path) -> str:
                     f"| {problem} | {tolerance:g} | {knobs} | {row['ranks']} | {row['error']:.2e} | "
                     f"{row['wall_s']:.4f} | {row['dofs']} |"
                 )
-        lines += ["", _knob_effects(study, _results(by_ranks[first])), ""]
+        lines += ["", _knob_effects(study, results(by_ranks[first])), ""]
         if len(by_ranks) > 1:
             lines += [_rank_comparison(study, by_ranks), ""]
         links = ", ".join(

@@ -1,8 +1,14 @@
-"""Shared fixtures. Every test runs serially and under ``mpirun -n 2`` (each rank runs the suite)."""
+"""Shared fixtures. Every test runs serially and under ``mpirun -n 2`` (each rank runs the suite).
+
+Tests marked ``parallel`` compare a run on this process's ranks with a serial one: they can only
+fail on more than one rank, so a serial session does not collect them.
+"""
 
 from __future__ import annotations
 
 import logging
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -38,3 +44,22 @@ def comm() -> MPI.Comm:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20261122)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if MPI.COMM_WORLD.size > 1:
+        return
+    parallel = [item for item in items if item.get_closest_marker("parallel")]
+    if parallel:
+        config.hook.pytest_deselected(items=parallel)
+        items[:] = [item for item in items if not item.get_closest_marker("parallel")]
+
+
+@pytest.fixture
+def shared_tmp_path(comm):
+    """A fresh directory that every rank sees (made on rank 0), removed after the test."""
+    path = Path(comm.bcast(tempfile.mkdtemp(prefix="bhem-test-") if comm.rank == 0 else None))
+    yield path
+    comm.Barrier()
+    if comm.rank == 0:
+        shutil.rmtree(path, ignore_errors=True)

@@ -1,4 +1,5 @@
-"""Assembly helpers for tests (tests may use PETSc directly; the library keeps it in solver.py)."""
+"""Helpers shared by the tests: assembly and gathering (tests may use PETSc directly), random rotations,
+ray-triangle references, import checks, a small scene."""
 
 from __future__ import annotations
 
@@ -101,3 +102,40 @@ def assert_imports_without(module: str, heavy=("dolfinx", "petsc4py", "mpi4py", 
 
     code = f"import sys, {module}\nbad = [m for m in {tuple(heavy)!r} if m in sys.modules]\nassert not bad, bad"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+#: A small dynamic scene (TOML) that scene, run and restart tests edit.
+BASE = """
+[surface]
+kind = "rectangle"
+size = [0.4, 0.3]
+patches = [3, 2]
+
+[material]
+young = 1.0e4
+poisson = 0.3
+thickness = 1.0e-3
+density = 200.0
+
+[time]
+dt = 0.01
+steps = 6
+
+[output]
+every = 2
+density = 2
+
+[effects]
+gravity = [0.0, 0.0, -9.81]
+damping = { mass = 0.5 }
+
+[[constraints]]
+type = "clamp"
+corners = ["min_min"]
+
+[[constraints]]
+type = "fix"
+corners = ["max_min"]
+kinds = ["x"]
+motion = { type = "linear", velocity = [-0.5, 0.0, 0.0] }
+"""

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import tempfile
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import h5py
 import meshio
@@ -16,14 +14,8 @@ from bhem_hpc import cli
 from bhem_hpc.geometry.surface import HermiteSurface
 
 
-@pytest.fixture
-def shared_tmp(comm):
-    path = comm.bcast(tempfile.mkdtemp(prefix="bhem-cli-") if comm.rank == 0 else None)
-    return Path(path)
-
-
-def test_cantilever_job_writes_paraview_png_and_summary(comm, shared_tmp, capsys):
-    out = shared_tmp / "cantilever"
+def test_cantilever_job_writes_paraview_png_and_summary(comm, shared_tmp_path, capsys):
+    out = shared_tmp_path / "cantilever"
     assert cli.main(["cantilever", "--gamma", "2", "--patches", "12", "--out", str(out)]) == 0
     comm.Barrier()
     summary = json.loads((out / "summary.json").read_text())
@@ -65,10 +57,10 @@ def test_bench_json(comm, capsys):
         assert row["dofs"] == 3 * 4 * 25 and row["nnz"] > 0 and row["factor_gflops"] > 0
 
 
-def test_bad_arguments_give_clear_errors(comm, shared_tmp, capsys):
-    assert cli.main(["cantilever", "--gamma", "-1", "--out", str(shared_tmp / "x")]) == 2
+def test_bad_arguments_give_clear_errors(comm, shared_tmp_path, capsys):
+    assert cli.main(["cantilever", "--gamma", "-1", "--out", str(shared_tmp_path / "x")]) == 2
     if comm.rank == 0:
         assert "--gamma must be in (0, 1e4], got -1.0" in capsys.readouterr().err
-    assert not (shared_tmp / "x").exists()
+    assert not (shared_tmp_path / "x").exists()
     with pytest.raises(SystemExit):
         cli.main(["cantilever", "--no-such-flag"])

@@ -12,7 +12,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import h5py
-from test_scene_run import BASE
+from helpers import BASE
 
 from bhem_hpc.io import read_checkpoint
 

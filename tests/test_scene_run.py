@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -13,51 +12,17 @@ import h5py
 import meshio
 import numpy as np
 import pytest
+from helpers import BASE
 
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import read_checkpoint
 from bhem_hpc.run import RunError, RunOptions, build_model, run_scene
 from bhem_hpc.scene import SceneError, load_scene
 
-BASE = """
-[surface]
-kind = "rectangle"
-size = [0.4, 0.3]
-patches = [3, 2]
-
-[material]
-young = 1.0e4
-poisson = 0.3
-thickness = 1.0e-3
-density = 200.0
-
-[time]
-dt = 0.01
-steps = 6
-
-[output]
-every = 2
-density = 2
-
-[effects]
-gravity = [0.0, 0.0, -9.81]
-damping = { mass = 0.5 }
-
-[[constraints]]
-type = "clamp"
-corners = ["min_min"]
-
-[[constraints]]
-type = "fix"
-corners = ["max_min"]
-kinds = ["x"]
-motion = { type = "linear", velocity = [-0.5, 0.0, 0.0] }
-"""
-
 
 @pytest.fixture
-def workdir(comm):
-    return Path(comm.bcast(tempfile.mkdtemp(prefix="bhem-scene-") if comm.rank == 0 else None))
+def workdir(shared_tmp_path):
+    return shared_tmp_path
 
 
 def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:

@@ -191,7 +191,8 @@ class ContactHandler:
             if len(final):
                 report.bound_reached = True
                 log.warning(
-                    "contact: %d contacts still closer than half the push-out distance after %d rounds",
+                    "contact: %d contacts still closer than half the push-out distance after %d rounds "
+                    "(a smaller time step or a larger effects.contact.push_out resolves them)",
                     len(final),
                     settings.max_rounds,
                 )

@@ -144,7 +144,7 @@ class TimeStepper:
                     f"time step {report.step} (t = {report.time:.6g} s) failed after {depth} halvings of dt "
                     f"(dt = {dt:.3e} s): {exc}"
                 ) from exc
-            log.warning("step %d: %s; halving dt to %.3e", report.step, exc, dt / 2)
+            log.info("step %d: %s; halving dt to %.3e", report.step, exc, dt / 2)
             report.dt_halvings += 1
             report.substeps += 1
             self._advance(t_start, dt / 2, depth + 1, report)

@@ -136,7 +136,7 @@ class ShellSolver(PetscOwner):
             self.problem.update_state(self.x)
             if self.problem.update_multipliers():
                 return True
-        log.warning("%s: augmented Lagrangian not converged after %d multiplier updates", self.prefix, max_updates)
+        log.info("%s: augmented Lagrangian not converged after %d multiplier updates", self.prefix, max_updates)
         return False
 
     def damp_step(self, x: PETSc.Vec, y: PETSc.Vec, max_backtracks: int = 30) -> None:
@@ -168,7 +168,7 @@ class ShellSolver(PetscOwner):
         else:
             # No decrease found: take no step rather than accept an energy increase; Newton then
             # stalls and the caller's recovery (regularized retry, smaller increment) takes over.
-            log.warning("%s: energy backtracking found no decrease in %d steps", self.prefix, max_backtracks)
+            log.info("%s: energy backtracking found no decrease in %d steps", self.prefix, max_backtracks)
             step = 0.0
         self.report.backtracks += int(step < 1.0)
         if step < 1.0:
@@ -241,7 +241,7 @@ class ShellSolver(PetscOwner):
                 self.report.cuts += 1
                 if cuts > max_cuts:
                     self._raise(trial, f"{max_cuts} halvings of the load increment")
-                log.warning(
+                log.info(
                     "%s: Newton failed at load factor %.4g (%s); halving the increment to %.3g",
                     self.prefix,
                     trial,
@@ -318,7 +318,7 @@ class ShellSolver(PetscOwner):
                 if attempt == len(regularizations):
                     break
                 self.report.regularized_retries += 1
-                log.warning(
+                log.info(
                     "%s: attempt %d failed (%s, %d negative pivots); retrying with diagonal regularizer %.0e",
                     self.prefix,
                     attempt,

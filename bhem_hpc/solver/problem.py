@@ -89,10 +89,8 @@ class ShellProblem(PetscOwner):
             self.alm_mask[k, list(pc.components)] = 1.0
         self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
         self.alm_penalty = 1e3 * model.material.young * model.material.thickness
-        lo, hi = (
-            model.rest_surface.nodal[..., 0, :].min(axis=(0, 1)),
-            model.rest_surface.nodal[..., 0, :].max(axis=(0, 1)),
-        )
+        nodes = model.rest_surface.evaluate(*model.rest_surface.grid.node_parameters()).x
+        lo, hi = nodes.min(axis=(0, 1)), nodes.max(axis=(0, 1))
         self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
 
     def update_state(self, x: PETSc.Vec) -> None:

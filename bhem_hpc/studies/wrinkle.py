@@ -176,7 +176,8 @@ def plot_wrinkles(path: Path, rows: list[dict]) -> None:
     points = surface.evaluate(a, b).x
     limit = np.abs(points[..., 2]).max() * 1e3
     image = axes[1].pcolormesh(
-        points[..., 0] * 1e3, points[..., 1] * 1e3, points[..., 2] * 1e3, cmap="RdBu_r", vmin=-limit, vmax=limit
+        points[..., 0] * 1e3, points[..., 1] * 1e3, points[..., 2] * 1e3, cmap="RdBu_r", vmin=-limit, vmax=limit,
+        shading="gouraud",  # the wrinkled sheet's x and y are not monotonic: no cell edges to infer
     )
     axes[1].set_aspect("equal")
     axes[1].set_xlabel("x [mm] (pulled)")

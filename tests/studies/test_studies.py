@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import csv
-import tempfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +12,8 @@ from bhem_hpc.studies.study import StudyError
 
 
 @pytest.fixture
-def out(comm):
-    return Path(comm.bcast(tempfile.mkdtemp(prefix="bhem-study-") if comm.rank == 0 else None)) / "plate"
+def out(shared_tmp_path):
+    return shared_tmp_path / "plate"
 
 
 def test_study_writes_csv_table_and_plot(comm, out):

@@ -3,6 +3,8 @@ ray-triangle references, import checks, a small scene."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
 import numpy as np
@@ -10,6 +12,9 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
+
+#: The repository (jobs/, meshes/, docs/ beside tests/).
+REPO = Path(__file__).resolve().parents[1]
 
 
 def total_internal_energy(model: ShellModel) -> float:

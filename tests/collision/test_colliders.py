@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers import REPO
 
 from bhem_hpc.collision import Capsule, ColliderError, Cylinder, PatchModel, Plane, Sphere, TriangleMesh
 
-MESHES = Path(__file__).resolve().parents[1] / "meshes"
+MESHES = REPO / "meshes"
 
 
 def _dense_first_contact(collider, start, end, dt, gap=0.0, samples=20001):

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import assert_imports_without
+from helpers import REPO, assert_imports_without
 
 from bhem_hpc.geometry import hermite
 from bhem_hpc.geometry import surface as S
@@ -162,7 +161,7 @@ def test_bad_surfaces_are_rejected():
 
 
 def test_shipped_nodal_files_load():
-    root = Path(__file__).resolve().parents[1] / "meshes"
+    root = REPO / "meshes"
     zone = S.HermiteSurface.load(root / "hemisphere_zone_8x24.npz")
     assert zone.grid.periodic2 and not zone.grid.periodic1
     np.testing.assert_allclose(np.linalg.norm(zone.nodal[:, :, 0], axis=-1), 0.5, rtol=1e-14)

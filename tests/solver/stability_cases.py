@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import REPO
 
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
@@ -214,13 +215,12 @@ def job_case(job: str, steps: int, comm, imperfection: float = 0.0) -> tuple[flo
     without colliders), the step reports and the final nodal positions ``(m1, m2, 3)``.
     ``imperfection``: seeded random nodal offsets along z of that standard deviation [m] added to
     the initial state."""
-    from pathlib import Path
 
     from bhem_hpc.run import build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
     from bhem_hpc.solver.dynamics import TimeStepper
 
-    scene = load_scene(Path(__file__).resolve().parents[1] / "jobs" / f"{job}.toml")
+    scene = load_scene(REPO / "jobs" / f"{job}.toml")
     model = build_model(scene, comm)
     if imperfection:
         surface = model.state_surface()
@@ -307,7 +307,7 @@ def serial_reference(name: str, cases: str, comm, saved: Path | None, work: Path
     if comm.rank == 0:
         code = (
             "import sys, numpy as np\n"
-            f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+            f"sys.path[:0] = [{str(Path(__file__).parent)!r}, {str(REPO / 'tests')!r}]\n"
             "from mpi4py import MPI\n"
             f"from stability_cases import {cases}\n"
             f"np.save({str(result)!r}, {cases}[{name!r}](MPI.COMM_SELF))\n"

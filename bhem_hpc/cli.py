@@ -62,10 +62,12 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _render(args: argparse.Namespace) -> None:
+def _render(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.io import read_frame
     from bhem_hpc.io.render import render, write_png
 
+    if comm.rank != 0:  # serial: one rank renders
+        return
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))
     except ValueError as exc:
@@ -162,7 +164,15 @@ def _summary(args: argparse.Namespace, comm) -> None:
         print(f"updated the summary in {args.readme}")
 
 
-HANDLERS = {"summary": _summary, "study": _study, "run": _run, "cantilever": _cantilever, "bench": _bench}
+#: One handler per subcommand: ``handler(args, comm)``.
+HANDLERS = {
+    "run": _run,
+    "render": _render,
+    "study": _study,
+    "bench": _bench,
+    "summary": _summary,
+    "cantilever": _cantilever,
+}
 
 
 def _configure_logging(verbose: bool, rank: int) -> None:
@@ -200,11 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     from bhem_hpc.solver import SolverError
 
     try:
-        if args.command == "render":
-            if comm.rank == 0:
-                _render(args)
-        else:
-            HANDLERS[args.command](args, comm)
+        HANDLERS[args.command](args, comm)
     except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError, SummaryError
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)

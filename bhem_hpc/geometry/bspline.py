@@ -1,0 +1,387 @@
+"""Tensor-product B-spline surfaces of degree 2 and 3 on uniform knots, numpy only.
+
+Each parameter direction has ``n`` uniform knot spans over its range (the :class:`ParameterGrid`'s
+patches). An *open* direction has clamped ends (``p + 1`` repeated end knots; ``n + p`` control
+points; the boundary curve depends on the boundary control points alone); a *periodic* direction
+wraps (``n`` control points; span ``k`` uses control points ``k .. k + p`` modulo ``n``).
+
+Every span is a polynomial patch: its basis is ``N(t) = C_k B(t)`` with the Bernstein polynomials
+``B`` of degree ``p`` in the span's local coordinate ``t in [0, 1]`` and the span's *Bezier
+extraction* matrix ``C_k`` ((p+1) x (p+1)). The Bezier control points of a span are therefore
+exact linear maps of the control points, and a biquadratic Bezier patch is raised exactly to the
+bicubic net the collision code and the renderer use (:meth:`BSplineSurface.bezier_nets`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from bhem_hpc.geometry.surface import ParameterGrid, SurfaceError, SurfacePoint
+
+DEGREES = (2, 3)
+FILE_FORMAT = "bhem-bspline-surface"
+FILE_VERSION = 1
+Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _check_degree(degree: object) -> int:
+    if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or int(degree) not in DEGREES:
+        raise SurfaceError(f"B-spline degree must be one of {DEGREES}, got {degree!r}")
+    return int(degree)
+
+
+def control_count(spans: int, degree: int, periodic: bool) -> int:
+    """Control points along a direction of ``spans`` knot spans."""
+    return spans if periodic else spans + degree
+
+
+def _check_spans(grid: ParameterGrid, degree: int) -> None:
+    for name, n, periodic in (("xi1", grid.n1, grid.periodic1), ("xi2", grid.n2, grid.periodic2)):
+        if periodic and n < degree + 1:
+            raise SurfaceError(
+                f"a periodic {name} direction of a degree-{degree} B-spline needs at least {degree + 1} knot spans, "
+                f"got {n}"
+            )
+
+
+def open_knots(spans: int, degree: int) -> np.ndarray:
+    """The clamped uniform knot vector in span units: ``p + 1`` zeros, ``1 .. n - 1``, ``p + 1`` times ``n``."""
+    return np.concatenate([np.zeros(degree), np.arange(spans + 1, dtype=float), np.full(degree, float(spans))])
+
+
+def basis_functions(knots: np.ndarray, degree: int, span: int, x: np.ndarray) -> np.ndarray:
+    """The ``p + 1`` nonzero B-spline basis functions on knot interval ``span`` (Cox-de Boor).
+
+    Args:
+        knots: the knot vector; ``span`` indexes its nonempty interval ``[knots[span], knots[span + 1])``.
+        x: parameters in that interval, shape ``S``.
+
+    Returns:
+        ``S + (p + 1,)``: the basis functions ``span - p .. span`` at ``x``.
+    """
+    x = np.asarray(x, dtype=float)
+    values = np.zeros(x.shape + (degree + 1,))
+    values[..., 0] = 1.0
+    left = np.zeros(x.shape + (degree + 1,))
+    right = np.zeros(x.shape + (degree + 1,))
+    for j in range(1, degree + 1):  # The NURBS Book, algorithm A2.2
+        left[..., j] = x - knots[span + 1 - j]
+        right[..., j] = knots[span + j] - x
+        saved = np.zeros(x.shape)
+        for r in range(j):
+            term = values[..., r] / (right[..., r + 1] + left[..., j - r])
+            values[..., r] = saved + right[..., r + 1] * term
+            saved = left[..., j - r] * term
+        values[..., j] = saved
+    return values
+
+
+def bernstein(t: np.ndarray, degree: int, derivative: int = 0) -> np.ndarray:
+    """Bernstein polynomials of ``degree`` (or a derivative in ``t``) at ``t``: ``t.shape + (p + 1,)``."""
+    t = np.asarray(t, dtype=float)
+    out = np.zeros(t.shape + (degree + 1,))
+    for i in range(degree + 1):
+        # d^k/dt^k of C(p, i) t^i (1 - t)^(p - i), expanded in powers of t
+        coefficients = np.zeros(degree + 1)
+        for m in range(degree - i + 1):
+            coefficients[i + m] = math.comb(degree, i) * math.comb(degree - i, m) * (-1) ** m
+        poly = np.polynomial.polynomial.Polynomial(coefficients)
+        out[..., i] = poly.deriv(derivative)(t) if derivative else poly(t)
+    return out
+
+
+@lru_cache(maxsize=64)
+def _extraction(spans: int, degree: int, periodic: bool) -> np.ndarray:
+    """Bezier extraction matrices ``(spans, p + 1, p + 1)``: ``N_local(t) = C[k] @ B(t)`` on span ``k``."""
+    samples = (np.arange(degree + 1) + 0.5) / (degree + 1)  # interior points: no knot ambiguity
+    inverse = np.linalg.inv(bernstein(samples, degree))  # rows: samples, columns: Bernstein index
+    if periodic:
+        # the cardinal B-spline on a uniform knot vector: every span alike
+        knots = np.arange(-degree, degree + 2, dtype=float)
+        local = basis_functions(knots, degree, degree, samples)  # (samples, p + 1)
+        c = (inverse @ local).T
+        return np.broadcast_to(c, (spans, degree + 1, degree + 1)).copy()
+    knots = open_knots(spans, degree)
+    out = np.empty((spans, degree + 1, degree + 1))
+    for k in range(spans):
+        local = basis_functions(knots, degree, k + degree, k + samples)
+        out[k] = (inverse @ local).T
+    return out
+
+
+def _local_controls(spans: int, degree: int, periodic: bool) -> np.ndarray:
+    """Control indices ``(spans, p + 1)`` of each span's basis functions."""
+    index = np.arange(spans)[:, None] + np.arange(degree + 1)[None, :]
+    return np.mod(index, spans) if periodic else index
+
+
+#: Exact degree elevation of a quadratic Bezier curve to a cubic one: ``Q = ELEVATE @ P``.
+ELEVATE = np.array([[1.0, 0.0, 0.0], [1 / 3, 2 / 3, 0.0], [0.0, 2 / 3, 1 / 3], [0.0, 0.0, 1.0]])
+
+
+class BSplineSurface:
+    """A tensor-product B-spline surface of degree 2 (C1) or 3 (C2) on a uniform knot grid.
+
+    Args:
+        grid: the knot spans (``n1 x n2`` patches) and which directions are periodic.
+        degree: 2 or 3, in both directions.
+        control: control points ``(c1, c2, 3)``, ``c = n + p`` in an open direction, ``n`` in a
+            periodic one.
+    """
+
+    def __init__(self, grid: ParameterGrid, degree: int, control: np.ndarray):
+        self.degree = _check_degree(degree)
+        _check_spans(grid, self.degree)
+        control = np.asarray(control, dtype=float)
+        shape = self.control_shape_of(grid, self.degree)
+        if control.shape != (*shape, 3):
+            raise SurfaceError(f"control points must have shape {(*shape, 3)}, got {control.shape}")
+        if not np.all(np.isfinite(control)):
+            raise SurfaceError("control points contain NaN/Inf")
+        self.grid = grid
+        self.control = control
+
+    @staticmethod
+    def control_shape_of(grid: ParameterGrid, degree: int) -> tuple[int, int]:
+        """Control points ``(c1, c2)`` of a degree-``degree`` surface on ``grid``."""
+        return (
+            control_count(grid.n1, degree, grid.periodic1),
+            control_count(grid.n2, degree, grid.periodic2),
+        )
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def _direction(self, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
+        g = self.grid
+        spans, periodic, h = (g.n1, g.periodic1, g.h1) if axis == 0 else (g.n2, g.periodic2, g.h2)
+        return _extraction(spans, self.degree, periodic), _local_controls(spans, self.degree, periodic), h
+
+    def point_weights(
+        self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray, d1: int = 0, d2: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Linear map from control points to points (or parametric derivatives ``d^(d1+d2) x /
+        dxi1^d1 dxi2^d2``): ``x = sum_j weights[..., j] control.reshape(-1, 3)[index[..., j]]``.
+
+        Args:
+            p1, p2: span indices, shape ``S``; t1, t2: local coordinates in [0, 1], shape ``S``.
+
+        Returns:
+            ``(index, weights)`` of shape ``S + ((p + 1)^2,)``, index ``i1 * c2 + i2``.
+        """
+        p1, p2, t1, t2 = np.broadcast_arrays(
+            np.asarray(p1), np.asarray(p2), np.asarray(t1, float), np.asarray(t2, float)
+        )
+        p = self.degree
+        c1, local1, h1 = self._direction(0)
+        c2, local2, h2 = self._direction(1)
+        n1 = np.einsum("...ij,...j->...i", c1[p1], bernstein(t1, p, d1)) / h1**d1  # S + (p + 1,)
+        n2 = np.einsum("...ij,...j->...i", c2[p2], bernstein(t2, p, d2)) / h2**d2
+        columns = self.control.shape[1]
+        index = local1[p1][..., :, None] * columns + local2[p2][..., None, :]
+        weights = n1[..., :, None] * n2[..., None, :]
+        return index.reshape(p1.shape + (-1,)), weights.reshape(p1.shape + (-1,))
+
+    def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint:
+        """Position and first and second parametric derivatives at parameters of shape ``S``."""
+        p1, p2, t1, t2 = self.grid.locate(xi1, xi2)
+        flat = self.control.reshape(-1, 3)
+
+        def derivative(d1: int, d2: int) -> np.ndarray:
+            index, weights = self.point_weights(p1, p2, t1, t2, d1, d2)
+            return np.einsum("...j,...jc->...c", weights, flat[index])
+
+        return SurfacePoint(
+            x=derivative(0, 0),
+            a1=derivative(1, 0),
+            a2=derivative(0, 1),
+            a11=derivative(2, 0),
+            a12=derivative(1, 1),
+            a22=derivative(0, 2),
+        )
+
+    # -- Bezier form ----------------------------------------------------------------------------
+    def bezier_control_points(self) -> np.ndarray:
+        """Exact Bezier control nets of every span, ``(n1, n2, p + 1, p + 1, 3)`` indexed
+        ``[p1, p2, k1, k2, component]``; the span is ``sum_k1,k2 B_k1(t1) B_k2(t2) P[k1, k2]``."""
+        c1, local1, _ = self._direction(0)
+        c2, local2, _ = self._direction(1)
+        # P[p1, p2] = C1[p1]^T  control[local1[p1]][:, local2[p2]]  C2[p2]
+        patches = self.control[local1[:, None, :, None], local2[None, :, None, :]]  # (n1, n2, p+1, p+1, 3)
+        return np.einsum("aik,abijc,bjl->abklc", c1, patches, c2)
+
+    def bezier_nets(self) -> np.ndarray:
+        """Bicubic Bezier nets ``(n1 * n2, 4, 4, 3)`` (order ``p1 * n2 + p2``), degree-elevated
+        exactly from biquadratic spans: what the collision code and the ray tracer take."""
+        nets = self.bezier_control_points()
+        if self.degree == 2:
+            nets = np.einsum("ki,abijc,lj->abklc", ELEVATE, nets, ELEVATE)
+        return nets.reshape(-1, 4, 4, 3)
+
+    def tessellate(self, density: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Quad mesh sampling every span on a ``(density+1)^2`` grid: ``(points, quads, parameters)``."""
+        g = self.grid
+        m1, m2 = g.n1 * density + 1, g.n2 * density + 1
+        a, b = np.meshgrid(np.linspace(*g.xi1_range, m1), np.linspace(*g.xi2_range, m2), indexing="ij")
+        points = self.evaluate(a, b).x.reshape(-1, 3)
+        ids = np.arange(m1 * m2).reshape(m1, m2)
+        quads = np.stack([ids[:-1, :-1], ids[1:, :-1], ids[1:, 1:], ids[:-1, 1:]], axis=-1).reshape(-1, 4)
+        return points, quads, np.stack([a.ravel(), b.ravel()], axis=1)
+
+    # -- files ----------------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the surface as a ``.npz`` file (format ``bhem-bspline-surface``)."""
+        g = self.grid
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez(
+            tmp,
+            format=np.array(FILE_FORMAT),
+            version=np.array(FILE_VERSION),
+            degree=np.array(self.degree),
+            patches=np.array([g.n1, g.n2]),
+            xi1_range=np.array(g.xi1_range, float),
+            xi2_range=np.array(g.xi2_range, float),
+            periodic=np.array([g.periodic1, g.periodic2]),
+            control=self.control,
+        )
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> BSplineSurface:
+        """Read a file written by :meth:`save`; errors name the file and the key."""
+        path = Path(path)
+        try:
+            data = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise SurfaceError(f"{path}: cannot read B-spline surface file ({exc})") from exc
+        with data:
+            for key in ("format", "version", "degree", "patches", "xi1_range", "xi2_range", "periodic", "control"):
+                if key not in data.files:
+                    raise SurfaceError(f"{path}: missing key {key!r} (has {sorted(data.files)})")
+            if str(data["format"]) != FILE_FORMAT:
+                raise SurfaceError(f"{path}: key 'format' is {str(data['format'])!r}, expected {FILE_FORMAT!r}")
+            if int(data["version"]) != FILE_VERSION:
+                raise SurfaceError(f"{path}: key 'version' is {int(data['version'])}, expected {FILE_VERSION}")
+            try:
+                n1, n2 = (int(v) for v in data["patches"])
+                grid = ParameterGrid(
+                    n1,
+                    n2,
+                    tuple(float(v) for v in data["xi1_range"]),
+                    tuple(float(v) for v in data["xi2_range"]),
+                    *(bool(v) for v in data["periodic"]),
+                )
+                degree = int(data["degree"])
+                return cls(grid, degree, data["control"])
+            except (SurfaceError, ValueError, TypeError) as exc:
+                raise SurfaceError(f"{path}: key 'control' or 'degree': {exc}") from exc
+
+
+# ---------------------------------------------------------------------------------------------
+# Constructors: interpolation at the Greville abscissae
+# ---------------------------------------------------------------------------------------------
+def greville(spans: int, degree: int, periodic: bool, lo: float, hi: float) -> np.ndarray:
+    """Greville abscissae (the averages of each basis function's inner knots), in parameters."""
+    h = (hi - lo) / spans
+    if periodic:  # control i carries the basis on spans i - p .. i: its centre
+        return lo + h * (np.arange(spans) - (degree - 1) / 2.0)
+    knots = open_knots(spans, degree)
+    index = np.arange(spans + degree)[:, None] + np.arange(1, degree + 1)[None, :]
+    return lo + h * knots[index].mean(axis=1)
+
+
+def collocation(spans: int, degree: int, periodic: bool, lo: float, hi: float) -> np.ndarray:
+    """The matrix ``A[i, j] = N_j(greville_i)`` of one direction."""
+    grid = ParameterGrid(spans, 1, (lo, hi), (0.0, 1.0), periodic, False)
+    points = greville(spans, degree, periodic, lo, hi)
+    span, _, t, _ = grid.locate(points, np.zeros_like(points))
+    values = np.einsum("kij,kj->ki", _extraction(spans, degree, periodic)[span], bernstein(t, degree))
+    count = control_count(spans, degree, periodic)
+    matrix = np.zeros((len(points), count))
+    np.add.at(matrix, (np.arange(len(points))[:, None], _local_controls(spans, degree, periodic)[span]), values)
+    return matrix
+
+
+def from_callable(position: Field, grid: ParameterGrid, degree: int) -> BSplineSurface:
+    """The B-spline surface interpolating ``x(xi1, xi2)`` at the tensor Greville points of ``grid``.
+
+    Args:
+        position: vectorized callable mapping two arrays of shape ``S`` to ``S + (3,)``.
+        degree: 2 or 3.
+    """
+    degree = _check_degree(degree)
+    _check_spans(grid, degree)
+    g1 = greville(grid.n1, degree, grid.periodic1, *grid.xi1_range)
+    g2 = greville(grid.n2, degree, grid.periodic2, *grid.xi2_range)
+    a1 = collocation(grid.n1, degree, grid.periodic1, *grid.xi1_range)
+    a2 = collocation(grid.n2, degree, grid.periodic2, *grid.xi2_range)
+    if grid.periodic1:  # a Greville point before the range start wraps
+        g1 = grid.xi1_range[0] + np.mod(g1 - grid.xi1_range[0], grid.xi1_range[1] - grid.xi1_range[0])
+    if grid.periodic2:
+        g2 = grid.xi2_range[0] + np.mod(g2 - grid.xi2_range[0], grid.xi2_range[1] - grid.xi2_range[0])
+    values = np.asarray(position(*np.meshgrid(g1, g2, indexing="ij")), dtype=float)  # (c1, c2, 3)
+    # solve A1 P A2^T = X direction by direction
+    control = np.linalg.solve(a1, values.reshape(len(g1), -1)).reshape(values.shape)
+    control = np.linalg.solve(a2, control.transpose(1, 0, 2).reshape(len(g2), -1))
+    control = control.reshape(len(g2), len(g1), 3).transpose(1, 0, 2)
+    return BSplineSurface(grid, degree, control)
+
+
+def flat_rectangle(
+    length1: float, length2: float, n1: int, n2: int, degree: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+) -> BSplineSurface:
+    """A flat ``length1 x length2`` sheet in the plane z = origin[2]; xi = in-plane coordinates."""
+    o = np.asarray(origin, float)
+    grid = ParameterGrid(n1, n2, (0.0, float(length1)), (0.0, float(length2)))
+    return from_callable(lambda a, b: np.stack([a + o[0], b + o[1], 0 * a + o[2]], axis=-1), grid, degree)
+
+
+def cylinder(radius: float, length: float, n_along: int, n_around: int, degree: int) -> BSplineSurface:
+    """A closed cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle (periodic)."""
+    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (0.0, 2 * math.pi), False, True)
+    r = float(radius)
+    return from_callable(lambda z, p: np.stack([r * np.cos(p), r * np.sin(p), z], axis=-1), grid, degree)
+
+
+def sphere_zone(
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, degree: int
+) -> BSplineSurface:
+    """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth."""
+    if not 0.0 < polar_min < polar_max < math.pi:
+        raise SurfaceError(f"sphere zone needs 0 < polar_min < polar_max < pi, got {polar_min!r}, {polar_max!r}")
+    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
+    r = float(radius)
+    return from_callable(
+        lambda t, p: np.stack([r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t)], axis=-1),
+        grid,
+        degree,
+    )
+
+
+def annulus_sector(
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, degree: int
+) -> BSplineSurface:
+    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle (periodic for a full turn)."""
+    if not (0 < r_inner < r_outer):
+        raise SurfaceError(f"annulus sector needs 0 < r_inner < r_outer, got {r_inner!r}, {r_outer!r}")
+    closed = math.isclose(angle_max - angle_min, 2 * math.pi)
+    grid = ParameterGrid(n_radial, n_angular, (float(r_inner), float(r_outer)), (angle_min, angle_max), False, closed)
+    return from_callable(lambda r, p: np.stack([r * np.cos(p), r * np.sin(p), 0 * r], axis=-1), grid, degree)
+
+
+def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, degree: int) -> BSplineSurface:
+    """Torus about z, closed in both parameters; xi1 = angle around z, xi2 = angle around the tube."""
+    big, small = float(major_radius), float(minor_radius)
+    if not (0 < small < big):
+        raise SurfaceError(f"torus needs 0 < minor_radius < major_radius, got {small!r}, {big!r}")
+    grid = ParameterGrid(n_major, n_minor, (0.0, 2 * math.pi), (0.0, 2 * math.pi), True, True)
+
+    def position(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        ring = big + small * np.cos(v)
+        return np.stack([ring * np.cos(u), ring * np.sin(u), small * np.sin(v)], axis=-1)
+
+    return from_callable(position, grid, degree)

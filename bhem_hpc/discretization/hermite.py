@@ -23,51 +23,11 @@ import numpy as np
 from mpi4py import MPI
 
 from bhem_hpc.discretization.element import DOFS_PER_VERTEX, create_hermite_element, hermite_ufl_element
+from bhem_hpc.discretization.grid_mesh import GridMesh
 from bhem_hpc.discretization.protocol import ConstrainedDofs, DiscretizationError
 from bhem_hpc.geometry.surface import KIND_NAMES, HermitePatches, HermiteSurface, ParameterGrid
 
 GDIM = 3
-
-
-def shared_jacobian(cell_vertices: np.ndarray, patch_size: tuple[float, float], comm: MPI.Comm) -> np.ndarray:
-    """The one Jacobian ``J[b, a] = dxi_b / dX_a`` shared by all cells (collective).
-
-    Args:
-        cell_vertices: ``(cells, 4, 2)`` parameter coordinates of each cell's reference vertices
-            (0,0), (1,0), (0,1), (1,1).
-        patch_size: ``(h1, h2)``, for tolerances.
-
-    Raises:
-        DiscretizationError: a cell is not a parallelogram, cells (on any rank) have different
-            Jacobians, or the Jacobian is not axis aligned.
-    """
-    v = np.asarray(cell_vertices, dtype=float)
-    jac = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=2)  # (cells, b, a)
-    tol = 1e-10 * max(patch_size)
-    skew = np.abs(v[:, 3] - v[:, 1] - v[:, 2] + v[:, 0]).max(axis=1) if len(v) else np.zeros(0)
-    first_skew = comm.allreduce(int(np.argmax(skew)) if np.any(skew > tol) else -1, op=MPI.MAX)
-    if first_skew >= 0:
-        detail = (
-            f"cell {int(np.argmax(skew))} has vertices {v[int(np.argmax(skew))].tolist()}"
-            if np.any(skew > tol)
-            else "on another rank"
-        )
-        raise DiscretizationError(f"a cell is not a parallelogram ({detail}): the grid is not uniform")
-    reference = comm.bcast(jac[0] if len(jac) and comm.rank == 0 else None, root=0)
-    if reference is None:
-        raise DiscretizationError("rank 0 holds no cells: use fewer ranks or more patches")
-    mismatch = np.abs(jac - reference).max(axis=(1, 2)) if len(jac) else np.zeros(0)
-    bad = np.flatnonzero(mismatch > tol)
-    if comm.allreduce(len(bad), op=MPI.SUM):
-        detail = f"cell {bad[0]} has J = {jac[bad[0]].tolist()}" if len(bad) else "a cell on another rank differs"
-        raise DiscretizationError(
-            f"cells do not share one Jacobian ({detail}; cell 0 of rank 0 has {reference.tolist()}): the Hermite "
-            "DOFs are reference-cell derivatives and need a uniform, consistently ordered grid"
-        )
-    axis_aligned = abs(reference[0, 0] * reference[0, 1]) <= tol**2 and abs(reference[1, 0] * reference[1, 1]) <= tol**2
-    if not axis_aligned or abs(np.linalg.det(reference)) < tol**2:
-        raise DiscretizationError(f"cell Jacobian {reference.tolist()} is not axis aligned")
-    return reference
 
 
 class HermiteDiscretization:
@@ -85,32 +45,14 @@ class HermiteDiscretization:
     def __init__(self, grid: ParameterGrid, comm: MPI.Comm = MPI.COMM_WORLD):
         self.comm = comm
         self.grid = grid
-        self.mesh = dolfinx.mesh.create_rectangle(
-            comm,
-            [
-                np.array([grid.xi1_range[0], grid.xi2_range[0]]),
-                np.array([grid.xi1_range[1], grid.xi2_range[1]]),
-            ],
-            [grid.n1, grid.n2],
-            dolfinx.mesh.CellType.quadrilateral,
-        )
+        self.grid_mesh = GridMesh(grid, comm)
+        self.mesh = self.grid_mesh.mesh
         self.element = create_hermite_element()
         self.function_space = dolfinx.fem.FunctionSpace(self.mesh, hermite_ufl_element(GDIM))
-        self.jacobian = self._shared_jacobian()
+        self.jacobian = self.grid_mesh.jacobian
+        self._cell_vertices = self.grid_mesh.cell_vertices
         self._scale = self.reference_scale(self.jacobian)
         self._build_block_maps()
-
-    # -- geometry checks ----------------------------------------------------------------------
-    def _cell_vertex_coordinates(self) -> np.ndarray:
-        """Coordinates of the reference vertices of every local cell, shape ``(cells, 4, 2)``."""
-        geometry = self.mesh.geometry
-        num_cells = self.mesh.topology.index_map(2).size_local + self.mesh.topology.index_map(2).num_ghosts
-        nodes = np.array([geometry.dofmap.links(c) for c in range(num_cells)], dtype=np.int64)
-        return geometry.x[nodes][:, :, :2]
-
-    def _shared_jacobian(self) -> np.ndarray:
-        self._cell_vertices = self._cell_vertex_coordinates()
-        return shared_jacobian(self._cell_vertices, (self.grid.h1, self.grid.h2), self.comm)
 
     @staticmethod
     def reference_scale(jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,10 +100,6 @@ class HermiteDiscretization:
         self.block_scale = self._scale[1][ref_of_block]
         self.distinct_node = np.stack(grid.wrap_node(node_of_block[:, 0], node_of_block[:, 1]), axis=1)
         self._cell_dofs = cell_dofs.reshape(len(cells), 16)
-        self._cell_of_patch = {
-            (int(n[0]), int(n[1])): c
-            for c, n in enumerate(vertex_nodes.min(axis=1)[: self.mesh.topology.index_map(2).size_local])
-        }
 
         # Closed numbering: one block per entry (distinct node, kind); owned where the open block
         # with the unwrapped node (the seam's first copy) is owned.
@@ -261,11 +199,18 @@ class HermiteDiscretization:
         """The owned closed array ``(3 * num_owned_closed,)`` of an open-layout array."""
         return np.asarray(open_array).reshape(-1, 3)[self.owned_closed_open_block].ravel()
 
-    def prolongation_columns(self) -> np.ndarray:
-        """Global closed DOF of each owned open DOF, ``(3 * owned open blocks,)``: the column of the
-        one unit entry in each row of the prolongation ``P`` (open = ``P`` closed)."""
+    @property
+    def closed_is_open(self) -> bool:
+        """Without seams the closed layout is the open one (no prolongation)."""
+        return not self.is_periodic
+
+    def prolongation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The seam prolongation over the owned open blocks as CSR ``(indptr, closed blocks,
+        weights)``: one unit entry per block (None without seams)."""
+        if self.closed_is_open:
+            return None
         blocks = self.open_blocks
-        return (3 * self.closed_of_open[blocks][:, None] + np.arange(3)).ravel()
+        return np.arange(len(blocks) + 1), self.closed_of_open[blocks], np.ones(len(blocks))
 
     # -- flat entries: the surface's nodal data as rows of an (N, 3) array --------------------
     @property
@@ -355,21 +300,7 @@ class HermiteDiscretization:
             ``(blocks, values)`` of shape ``(16,)`` each (local open blocks); empty arrays on
             ranks that do not own the containing cell.
         """
-        p1, p2, _, _ = self.grid.locate(np.array(xi1), np.array(xi2))
-        cell = self._cell_of_patch.get((int(p1), int(p2)))
+        cell, reference = self.grid_mesh.reference_point(xi1, xi2)
         if cell is None:
             return np.zeros(0, dtype=np.int64), np.zeros(0)
-        origin = self._cell_vertices[cell, 0]
-        xi = np.array([float(xi1), float(xi2)])
-        if self.grid.periodic1 or self.grid.periodic2:  # bring a wrapped parameter into this cell
-            period = np.array(
-                [
-                    self.grid.xi1_range[1] - self.grid.xi1_range[0] if self.grid.periodic1 else np.inf,
-                    self.grid.xi2_range[1] - self.grid.xi2_range[0] if self.grid.periodic2 else np.inf,
-                ]
-            )
-            finite = np.isfinite(period)
-            xi[finite] = origin[finite] + np.mod(xi[finite] - origin[finite], period[finite])
-        reference = np.linalg.solve(self.jacobian, xi - origin)
-        values = self.element.tabulate(0, np.clip(reference, 0.0, 1.0).reshape(1, 2))[0, 0, :, 0]
-        return self._cell_dofs[cell], values
+        return self._cell_dofs[cell], self.element.tabulate(0, reference.reshape(1, 2))[0, 0, :, 0]

@@ -46,9 +46,10 @@ class Discretization(Protocol):
     * *open*: the dolfinx Function array of :attr:`function_space` (owned + ghost blocks of 3,
       ``array[3 * block + component]``), where forms are assembled. Hermite blocks are
       reference-cell derivatives (scaled entries); control points are their own DOFs;
-    * *closed*: the owned part of the solver's unknowns. Without periodic directions it is the open
-      layout itself; on a closed surface each seam entry is kept once and open = ``P`` closed, with the
-      0/1 prolongation ``P`` (one unit entry per owned open DOF, :meth:`prolongation_columns`).
+    * *closed*: the owned part of the solver's unknowns, one block of 3 per entry. Hermite without
+      periodic directions: the open layout itself; on a closed Hermite surface each seam entry is
+      kept once and open = ``P`` closed with a 0/1 prolongation; B-splines: the control points, and
+      ``P`` holds the basis values at the open DOF points (:meth:`prolongation`).
     """
 
     comm: MPI.Comm
@@ -112,14 +113,24 @@ class Discretization(Protocol):
         ...
 
     # open <-> closed
-    def open_to_closed(self, open_array: np.ndarray) -> np.ndarray: ...
+    def open_to_closed(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the owned closed array of an open array that the prolongation produced."""
+        ...
 
-    def prolongation_columns(self) -> np.ndarray: ...
+    @property
+    def closed_is_open(self) -> bool:
+        """Whether the closed layout is the open one (no prolongation)."""
+        ...
+
+    def prolongation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``P`` over the owned open blocks as block CSR ``(indptr, closed blocks, weights)`` (one
+        weight per block pair; it acts alike on x, y, z); None where the closed layout is the open one."""
+        ...
 
     # constraints, point loads, checkpoints
     def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs:
-        """Owned closed DOFs of nodes ``(k, 2)``, kinds and components (Hermite: kinds 0..3 of a
-        node; control points: kind 0 is the control point itself, derivative kinds are refused)."""
+        """Owned closed DOFs of nodes ``(k, 2)``, kinds and components (Hermite: distinct nodes,
+        kinds 0..3; B-splines: control points ``(i1, i2)``, kind 0 only - other kinds are refused)."""
         ...
 
     def dof_values(self, surface: HermiteSurface, dofs: ConstrainedDofs) -> np.ndarray: ...

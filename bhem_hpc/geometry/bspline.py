@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bhem_hpc.geometry.surface import ParameterGrid, SurfaceError, SurfacePoint
+from bhem_hpc.geometry.surface import ParameterGrid, SurfaceError, SurfacePoint, check_regular
 
 DEGREES = (2, 3)
 FILE_FORMAT = "bhem-bspline-surface"
@@ -120,6 +120,70 @@ def _local_controls(spans: int, degree: int, periodic: bool) -> np.ndarray:
     return np.mod(index, spans) if periodic else index
 
 
+def _direction(grid: ParameterGrid, degree: int, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Extraction matrices, local control indices and span width of one direction."""
+    spans, periodic, h = (grid.n1, grid.periodic1, grid.h1) if axis == 0 else (grid.n2, grid.periodic2, grid.h2)
+    return _extraction(spans, degree, periodic), _local_controls(spans, degree, periodic), h
+
+
+def point_weights(
+    grid: ParameterGrid,
+    degree: int,
+    p1: np.ndarray,
+    p2: np.ndarray,
+    t1: np.ndarray,
+    t2: np.ndarray,
+    d1: int = 0,
+    d2: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Linear map from control points to points (or parametric derivatives ``d^(d1+d2) x /
+    dxi1^d1 dxi2^d2``): ``x = sum_j weights[..., j] control.reshape(-1, 3)[index[..., j]]``.
+
+    Args:
+        p1, p2: span indices, shape ``S``; t1, t2: local coordinates in [0, 1], shape ``S``.
+
+    Returns:
+        ``(index, weights)`` of shape ``S + ((p + 1)^2,)``, index ``i1 * c2 + i2``.
+    """
+    p1, p2, t1, t2 = np.broadcast_arrays(np.asarray(p1), np.asarray(p2), np.asarray(t1, float), np.asarray(t2, float))
+    c1, local1, h1 = _direction(grid, degree, 0)
+    c2, local2, h2 = _direction(grid, degree, 1)
+    n1 = np.einsum("...ij,...j->...i", c1[p1], bernstein(t1, degree, d1)) / h1**d1  # S + (p + 1,)
+    n2 = np.einsum("...ij,...j->...i", c2[p2], bernstein(t2, degree, d2)) / h2**d2
+    columns = control_count(grid.n2, degree, grid.periodic2)
+    index = local1[p1][..., :, None] * columns + local2[p2][..., None, :]
+    weights = n1[..., :, None] * n2[..., None, :]
+    return index.reshape(p1.shape + (-1,)), weights.reshape(p1.shape + (-1,))
+
+
+class BSplinePatches:
+    """The knot spans of a B-spline surface as linear maps of its control points (contact's patch layout)."""
+
+    def __init__(self, grid: ParameterGrid, degree: int):
+        self.grid = grid
+        self.degree = _check_degree(degree)
+        self.control_shape = BSplineSurface.control_shape_of(grid, self.degree)
+
+    @property
+    def num_entries(self) -> int:
+        return self.control_shape[0] * self.control_shape[1]
+
+    def point_entries(
+        self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(index, weights)``, shape ``S + ((p + 1)^2,)`` each, of the points: :func:`point_weights`."""
+        return point_weights(self.grid, self.degree, p1, p2, t1, t2)
+
+    def patch_entries(self) -> np.ndarray:
+        """``(n1 * n2, (p + 1)^2)`` the control points that determine each span (order ``p1 * n2 + p2``)."""
+        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(self.grid.n1), np.arange(self.grid.n2), indexing="ij"))
+        return point_weights(self.grid, self.degree, p1, p2, 0.5, 0.5)[0]
+
+    def bezier_nets(self, entries: np.ndarray) -> np.ndarray:
+        """Bicubic Bezier nets ``(n1 * n2, 4, 4, 3)`` of control points ``(N, 3)`` (positions or velocities)."""
+        return BSplineSurface(self.grid, self.degree, np.asarray(entries).reshape(*self.control_shape, 3)).bezier_nets()
+
+
 #: Exact degree elevation of a quadratic Bezier curve to a cubic one: ``Q = ELEVATE @ P``.
 ELEVATE = np.array([[1.0, 0.0, 0.0], [1 / 3, 2 / 3, 0.0], [0.0, 2 / 3, 1 / 3], [0.0, 0.0, 1.0]])
 
@@ -154,36 +218,41 @@ class BSplineSurface:
             control_count(grid.n2, degree, grid.periodic2),
         )
 
+    @property
+    def node_shape(self) -> tuple[int, int]:
+        """The nodes that carry data: the control points ``(c1, c2)``."""
+        return self.control_shape_of(self.grid, self.degree)
+
+    #: Kinds of data per node: the control point's position only.
+    kind_count = 1
+
+    @property
+    def nodal(self) -> np.ndarray:
+        """The control points as nodal data ``(c1, c2, 1, 3)`` (kind 0 = the position)."""
+        return self.control[:, :, None, :]
+
+    def with_nodal(self, nodal: np.ndarray) -> BSplineSurface:
+        """The surface with other control points, given as nodal data ``(c1, c2, 1, 3)``."""
+        return BSplineSurface(self.grid, self.degree, np.asarray(nodal)[:, :, 0, :])
+
+    def check_regular(self, quadrature_points: int = 4, name: str = "surface") -> None:
+        """Raise :class:`SurfaceError` if ``|a1 x a2|`` vanishes at a Gauss point of any span."""
+        check_regular(self, quadrature_points, name)
+
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> BSplineSurface:
+        """The surface moved rigidly: ``x -> R x + t`` (control points transform alike)."""
+        rotation = np.asarray(rotation, float)
+        return BSplineSurface(self.grid, self.degree, self.control @ rotation.T + np.asarray(translation, float))
+
     # -- evaluation ---------------------------------------------------------------------------
     def _direction(self, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
-        g = self.grid
-        spans, periodic, h = (g.n1, g.periodic1, g.h1) if axis == 0 else (g.n2, g.periodic2, g.h2)
-        return _extraction(spans, self.degree, periodic), _local_controls(spans, self.degree, periodic), h
+        return _direction(self.grid, self.degree, axis)
 
     def point_weights(
         self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray, d1: int = 0, d2: int = 0
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Linear map from control points to points (or parametric derivatives ``d^(d1+d2) x /
-        dxi1^d1 dxi2^d2``): ``x = sum_j weights[..., j] control.reshape(-1, 3)[index[..., j]]``.
-
-        Args:
-            p1, p2: span indices, shape ``S``; t1, t2: local coordinates in [0, 1], shape ``S``.
-
-        Returns:
-            ``(index, weights)`` of shape ``S + ((p + 1)^2,)``, index ``i1 * c2 + i2``.
-        """
-        p1, p2, t1, t2 = np.broadcast_arrays(
-            np.asarray(p1), np.asarray(p2), np.asarray(t1, float), np.asarray(t2, float)
-        )
-        p = self.degree
-        c1, local1, h1 = self._direction(0)
-        c2, local2, h2 = self._direction(1)
-        n1 = np.einsum("...ij,...j->...i", c1[p1], bernstein(t1, p, d1)) / h1**d1  # S + (p + 1,)
-        n2 = np.einsum("...ij,...j->...i", c2[p2], bernstein(t2, p, d2)) / h2**d2
-        columns = self.control.shape[1]
-        index = local1[p1][..., :, None] * columns + local2[p2][..., None, :]
-        weights = n1[..., :, None] * n2[..., None, :]
-        return index.reshape(p1.shape + (-1,)), weights.reshape(p1.shape + (-1,))
+        """See :func:`point_weights`."""
+        return point_weights(self.grid, self.degree, p1, p2, t1, t2, d1, d2)
 
     def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint:
         """Position and first and second parametric derivatives at parameters of shape ``S``."""

@@ -265,21 +265,19 @@ class HermiteSurface:
     # -- checks --------------------------------------------------------------------------------
     def check_regular(self, quadrature_points: int = 4, name: str = "surface") -> None:
         """Raise :class:`SurfaceError` if ``|a1 x a2|`` vanishes at a Gauss point of any patch."""
-        g = self.grid
-        q, _ = hermite.gauss_legendre(quadrature_points)
-        p1, p2, t1, t2 = np.meshgrid(np.arange(g.n1), np.arange(g.n2), q, q, indexing="ij")
-        xi1 = g.xi1_range[0] + (p1 + t1) * g.h1
-        xi2 = g.xi2_range[0] + (p2 + t2) * g.h2
-        pt = self.evaluate(xi1, xi2)
-        area = np.linalg.norm(np.cross(pt.a1, pt.a2), axis=-1)
-        scale = np.linalg.norm(pt.a1, axis=-1) * np.linalg.norm(pt.a2, axis=-1)
-        bad = ~(area > 1e-10 * np.maximum(scale, np.finfo(float).tiny))
-        if np.any(bad):
-            k = tuple(np.argwhere(bad)[0])
-            raise SurfaceError(
-                f"{name} is degenerate: |a1 x a2| = {area[k]:.3e} at quadrature point "
-                f"(xi1, xi2) = ({xi1[k]:.6g}, {xi2[k]:.6g}) of patch ({k[0]}, {k[1]})"
-            )
+        check_regular(self, quadrature_points, name)
+
+    @property
+    def node_shape(self) -> tuple[int, int]:
+        """The nodes that carry data, ``(m1, m2)`` (distinct nodes)."""
+        return self.grid.node_shape
+
+    #: Kinds of nodal data per node: x, d1, d2, d12.
+    kind_count = 4
+
+    def with_nodal(self, nodal: np.ndarray) -> HermiteSurface:
+        """The surface on the same grid with other nodal data ``(m1, m2, 4, 3)``."""
+        return HermiteSurface(self.grid, nodal)
 
     # -- transformations -----------------------------------------------------------------------
     def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> HermiteSurface:
@@ -341,6 +339,26 @@ class HermiteSurface:
 # Constructors
 # ---------------------------------------------------------------------------------------------
 Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def check_regular(surface, quadrature_points: int = 4, name: str = "surface") -> None:
+    """Raise :class:`SurfaceError` if ``|a1 x a2|`` of ``surface`` (any surface with ``grid`` and
+    ``evaluate``) vanishes at a Gauss point of any patch."""
+    g = surface.grid
+    q, _ = hermite.gauss_legendre(quadrature_points)
+    p1, p2, t1, t2 = np.meshgrid(np.arange(g.n1), np.arange(g.n2), q, q, indexing="ij")
+    xi1 = g.xi1_range[0] + (p1 + t1) * g.h1
+    xi2 = g.xi2_range[0] + (p2 + t2) * g.h2
+    pt = surface.evaluate(xi1, xi2)
+    area = np.linalg.norm(np.cross(pt.a1, pt.a2), axis=-1)
+    scale = np.linalg.norm(pt.a1, axis=-1) * np.linalg.norm(pt.a2, axis=-1)
+    bad = ~(area > 1e-10 * np.maximum(scale, np.finfo(float).tiny))
+    if np.any(bad):
+        k = tuple(np.argwhere(bad)[0])
+        raise SurfaceError(
+            f"{name} is degenerate: |a1 x a2| = {area[k]:.3e} at quadrature point "
+            f"(xi1, xi2) = ({xi1[k]:.6g}, {xi2[k]:.6g}) of patch ({k[0]}, {k[1]})"
+        )
 
 
 def point_weights(

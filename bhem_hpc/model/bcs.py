@@ -39,20 +39,22 @@ class NodalConstraint:
     components: tuple[int, ...] = (0, 1, 2)
     values: np.ndarray | None = field(default=None)
 
-    def validate(self, grid: ParameterGrid) -> None:
+    def validate(self, grid: ParameterGrid, node_shape: tuple[int, int] | None = None, kind_count: int = 4) -> None:
+        """Check against a surface on ``grid`` whose data sit at ``node_shape`` nodes (default: the
+        grid's Hermite nodes; a B-spline's control points) with ``kind_count`` kinds each."""
         nodes = np.asarray(self.nodes)
         if nodes.ndim != 2 or nodes.shape[1] != 2 or len(nodes) == 0:
             raise BoundaryConditionError(f"constraint nodes must be a non-empty (k, 2) array, got shape {nodes.shape}")
-        m1, m2 = grid.node_shape
+        m1, m2 = node_shape or grid.node_shape
         bad = (nodes[:, 0] < 0) | (nodes[:, 0] >= m1) | (nodes[:, 1] < 0) | (nodes[:, 1] >= m2)
         if np.any(bad):
             raise BoundaryConditionError(
                 f"constraint names node {tuple(int(v) for v in nodes[bad][0])}, which does not exist: "
                 f"the grid has nodes (0..{m1 - 1}, 0..{m2 - 1})"
             )
-        if not self.kinds or any(k not in range(4) for k in self.kinds):
+        if not self.kinds or any(k not in range(kind_count) for k in self.kinds):
             raise BoundaryConditionError(
-                f"constraint kinds {self.kinds!r} must be a non-empty subset of 0..3 {KIND_NAMES}"
+                f"constraint kinds {self.kinds!r} must be a non-empty subset of {KIND_NAMES[:kind_count]}"
             )
         if not self.components or any(c not in range(3) for c in self.components):
             raise BoundaryConditionError(
@@ -72,10 +74,11 @@ class NodalConstraint:
 
 
 def target_surface(initial: HermiteSurface, constraints: Sequence[NodalConstraint]) -> HermiteSurface:
-    """The initial surface with every prescribed value written in (parametric units)."""
+    """The initial surface with every prescribed value written in (parametric units); any surface
+    with ``nodal`` data ``(m1, m2, kinds, 3)`` and ``with_nodal`` (Hermite, B-spline)."""
     nodal = initial.nodal.copy()
     for c in constraints:
-        c.validate(initial.grid)
+        c.validate(initial.grid, initial.node_shape, initial.kind_count)
         if c.values is None:
             continue
         nodes = np.asarray(c.nodes)
@@ -83,7 +86,7 @@ def target_surface(initial: HermiteSurface, constraints: Sequence[NodalConstrain
         for a, kind in enumerate(c.kinds):
             for b, comp in enumerate(c.components):
                 nodal[nodes[:, 0], nodes[:, 1], kind, comp] = values[:, a, b]
-    return HermiteSurface(initial.grid, nodal)
+    return initial.with_nodal(nodal)
 
 
 def edge_nodes(grid: ParameterGrid, edge: str) -> np.ndarray:

@@ -20,7 +20,7 @@ import ufl
 from mpi4py import MPI
 
 from bhem_hpc import forms
-from bhem_hpc.discretization import ConstrainedDofs, Discretization, HermiteDiscretization
+from bhem_hpc.discretization import ConstrainedDofs, Discretization, create_discretization
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.model.bcs import EDGES, NodalConstraint, target_surface
 from bhem_hpc.model.jit import compilation_report, default_jit_params
@@ -211,7 +211,7 @@ class ShellModel:
         self.initial_surface = initial
         self.constraints = tuple(constraints)
         self.dynamics = dynamics
-        self.discretization: Discretization = HermiteDiscretization(rest.grid, comm)
+        self.discretization: Discretization = create_discretization(rest, comm)
         space = self.discretization.function_space
         self.x = fem.Function(space, name="position")
         self.x_rest = fem.Function(space, name="rest_position")
@@ -429,10 +429,10 @@ def _validate(
     if quadrature_points not in GAUSS_POINTS:
         raise ModelError(f"quadrature points per direction = {quadrature_points!r}; expected one of {GAUSS_POINTS}")
     rest.check_regular(quadrature_points, name="rest surface")
-    if initial.grid != rest.grid:
-        raise ModelError("initial and rest surfaces have different grids")
+    if initial.grid != rest.grid or type(initial) is not type(rest) or initial.node_shape != rest.node_shape:
+        raise ModelError("initial and rest surfaces have different grids or kinds")
     for c in constraints:
-        c.validate(rest.grid)
+        c.validate(rest.grid, rest.node_shape, rest.kind_count)
     for i, pc in enumerate(point_constraints):
         if not set(pc.components) <= {0, 1, 2} or not pc.components:
             raise ModelError(

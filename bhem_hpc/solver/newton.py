@@ -104,7 +104,7 @@ class ShellSolver(PetscOwner):
             ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
             mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
             # MUMPS' LDL^T takes SBAIJ (one triangle) serially; seams (PtAP) and MPI need AIJ.
-            serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and not disc.is_periodic
+            serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and disc.closed_is_open
             self.matrix_format = "sbaij" if serial_sbaij else "aij"
             self.report = SolveReport()
             self.problem = ShellProblem(model, self.matrix_format, self.report)

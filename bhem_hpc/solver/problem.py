@@ -24,6 +24,26 @@ if TYPE_CHECKING:
     from bhem_hpc.solver.newton import SolveReport
 
 
+def _blocked_aij(
+    csr: tuple[np.ndarray, np.ndarray, np.ndarray], open_size: int, closed_sizes: tuple[int, int], comm
+) -> PETSc.Mat:
+    """The prolongation as an AIJ matrix on 3-component DOFs: block CSR ``(indptr, closed blocks,
+    weights)`` over the owned open blocks, each entry repeated for the components x, y, z."""
+    indptr, blocks, weights = csr
+    counts = np.diff(indptr)
+    components = np.arange(3)
+    row = (3 * np.repeat(np.arange(len(counts)), counts)[:, None] + components).ravel()
+    order = np.argsort(row, kind="stable")  # row 3b + c keeps block b's entries in their order
+    columns = (3 * np.asarray(blocks)[:, None] + components).ravel()[order]
+    values = np.repeat(np.asarray(weights, float), 3)[order]
+    row_pointer = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=3 * len(counts)))])
+    return PETSc.Mat().createAIJ(
+        ((3 * len(counts), open_size), closed_sizes),
+        csr=(row_pointer.astype(PETSc.IntType), columns.astype(PETSc.IntType), values),
+        comm=comm,
+    )
+
+
 class ShellProblem(PetscOwner):
     """Residual, Jacobian, constraint rows and potential of a :class:`ShellModel` on the closed DOFs.
 
@@ -60,15 +80,10 @@ class ShellProblem(PetscOwner):
             self.jacobian_blocked.destroy()
             self.jacobian_blocked = None
         self.prolongation: PETSc.Mat | None = None
-        if disc.is_periodic:
-            cols = disc.prolongation_columns().astype(PETSc.IntType)
-            rows = cols.size
-            indptr = np.arange(rows + 1, dtype=PETSc.IntType)
-            self.prolongation = PETSc.Mat().createAIJ(
-                ((rows, 3 * disc.function_space.dofmap.index_map.size_global), (n_local, n_global)),
-                csr=(indptr, cols, np.ones(rows)),
-                comm=comm,
-            )
+        prolongation = disc.prolongation()
+        if prolongation is not None:
+            open_size = 3 * disc.function_space.dofmap.index_map.size_global
+            self.prolongation = _blocked_aij(prolongation, open_size, (n_local, n_global), comm)
             self.jacobian = self.jacobian_open.PtAP(self.prolongation)
         else:
             self.jacobian = self.jacobian_open

@@ -1,0 +1,107 @@
+"""The dolfinx mesh of a parameter grid: one quadrilateral cell per patch, all sharing one Jacobian."""
+
+from __future__ import annotations
+
+import dolfinx
+import dolfinx.mesh
+import numpy as np
+from mpi4py import MPI
+
+from bhem_hpc.discretization.protocol import DiscretizationError
+from bhem_hpc.geometry.surface import ParameterGrid
+
+
+def shared_jacobian(cell_vertices: np.ndarray, patch_size: tuple[float, float], comm: MPI.Comm) -> np.ndarray:
+    """The one Jacobian ``J[b, a] = dxi_b / dX_a`` shared by all cells (collective).
+
+    Args:
+        cell_vertices: ``(cells, 4, 2)`` parameter coordinates of each cell's reference vertices
+            (0,0), (1,0), (0,1), (1,1).
+        patch_size: ``(h1, h2)``, for tolerances.
+
+    Raises:
+        DiscretizationError: a cell is not a parallelogram, cells (on any rank) have different
+            Jacobians, or the Jacobian is not axis aligned.
+    """
+    v = np.asarray(cell_vertices, dtype=float)
+    jac = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]], axis=2)  # (cells, b, a)
+    tol = 1e-10 * max(patch_size)
+    skew = np.abs(v[:, 3] - v[:, 1] - v[:, 2] + v[:, 0]).max(axis=1) if len(v) else np.zeros(0)
+    first_skew = comm.allreduce(int(np.argmax(skew)) if np.any(skew > tol) else -1, op=MPI.MAX)
+    if first_skew >= 0:
+        detail = (
+            f"cell {int(np.argmax(skew))} has vertices {v[int(np.argmax(skew))].tolist()}"
+            if np.any(skew > tol)
+            else "on another rank"
+        )
+        raise DiscretizationError(f"a cell is not a parallelogram ({detail}): the grid is not uniform")
+    reference = comm.bcast(jac[0] if len(jac) and comm.rank == 0 else None, root=0)
+    if reference is None:
+        raise DiscretizationError("rank 0 holds no cells: use fewer ranks or more patches")
+    mismatch = np.abs(jac - reference).max(axis=(1, 2)) if len(jac) else np.zeros(0)
+    bad = np.flatnonzero(mismatch > tol)
+    if comm.allreduce(len(bad), op=MPI.SUM):
+        detail = f"cell {bad[0]} has J = {jac[bad[0]].tolist()}" if len(bad) else "a cell on another rank differs"
+        raise DiscretizationError(
+            f"cells do not share one Jacobian ({detail}; cell 0 of rank 0 has {reference.tolist()}): the Hermite "
+            "DOFs are reference-cell derivatives and need a uniform, consistently ordered grid"
+        )
+    axis_aligned = abs(reference[0, 0] * reference[0, 1]) <= tol**2 and abs(reference[1, 0] * reference[1, 1]) <= tol**2
+    if not axis_aligned or abs(np.linalg.det(reference)) < tol**2:
+        raise DiscretizationError(f"cell Jacobian {reference.tolist()} is not axis aligned")
+    return reference
+
+
+class GridMesh:
+    """The quadrilateral mesh of ``grid`` (the open grid: seams are not identified here).
+
+    Attributes:
+        mesh: the dolfinx mesh over the parameter domain.
+        cell_vertices: ``(cells, 4, 2)`` parameters of each local cell's reference vertices.
+        jacobian: the one ``J[b, a] = dxi_b / dX_a`` of every cell.
+        cell_of_patch: owned local cell of each patch ``(p1, p2)`` held by this rank.
+    """
+
+    def __init__(self, grid: ParameterGrid, comm: MPI.Comm):
+        self.grid = grid
+        self.mesh = dolfinx.mesh.create_rectangle(
+            comm,
+            [
+                np.array([grid.xi1_range[0], grid.xi2_range[0]]),
+                np.array([grid.xi1_range[1], grid.xi2_range[1]]),
+            ],
+            [grid.n1, grid.n2],
+            dolfinx.mesh.CellType.quadrilateral,
+        )
+        geometry = self.mesh.geometry
+        cells = self.mesh.topology.index_map(2)
+        nodes = np.array(
+            [geometry.dofmap.links(c) for c in range(cells.size_local + cells.num_ghosts)], dtype=np.int64
+        )
+        self.cell_vertices = geometry.x[nodes][:, :, :2]
+        self.jacobian = shared_jacobian(self.cell_vertices, (grid.h1, grid.h2), comm)
+        h = np.array([grid.h1, grid.h2])
+        origin = np.array([grid.xi1_range[0], grid.xi2_range[0]])
+        corner = np.rint((self.cell_vertices.min(axis=1) - origin) / h).astype(np.int64)
+        self.cell_of_patch = {(int(n[0]), int(n[1])): c for c, n in enumerate(corner[: cells.size_local])}
+
+    def reference_point(self, xi1: float, xi2: float) -> tuple[int | None, np.ndarray]:
+        """The owned local cell holding a parameter point and the point's reference coordinates
+        ``(2,)`` in it (clipped to the cell); ``(None, ...)`` on ranks that do not own that cell."""
+        grid = self.grid
+        p1, p2, _, _ = grid.locate(np.array(xi1), np.array(xi2))
+        cell = self.cell_of_patch.get((int(p1), int(p2)))
+        if cell is None:
+            return None, np.zeros(2)
+        origin = self.cell_vertices[cell, 0]
+        xi = np.array([float(xi1), float(xi2)])
+        if grid.periodic1 or grid.periodic2:  # bring a wrapped parameter into this cell
+            period = np.array(
+                [
+                    grid.xi1_range[1] - grid.xi1_range[0] if grid.periodic1 else np.inf,
+                    grid.xi2_range[1] - grid.xi2_range[0] if grid.periodic2 else np.inf,
+                ]
+            )
+            finite = np.isfinite(period)
+            xi[finite] = origin[finite] + np.mod(xi[finite] - origin[finite], period[finite])
+        return cell, np.clip(np.linalg.solve(self.jacobian, xi - origin), 0.0, 1.0)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material, MaterialError
@@ -235,9 +236,14 @@ def load_scene(path: str | Path) -> Scene:
         every = output.get("every", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
         density = output.get("density", "an integer", 4, lambda v: 1 <= v <= 32, "an integer in 1..32")
         output.done()
-    constraints = _constraints(top, surface.grid, path)
+    constraints = _constraints(top, surface, path)
     points = _point_constraints(top, surface, path)
     contact = _contact(top, path, static)
+    if contact is not None and surface.discretization != "hermite":
+        raise SceneError(
+            f"{path}: key 'effects.contact': contact effects need a Hermite surface "
+            f"('surface.discretization' is {surface.discretization!r})"
+        )
     top.done()
     return Scene(
         path=path,
@@ -260,46 +266,61 @@ def load_scene(path: str | Path) -> Scene:
     )
 
 
-def _surface(t: _Table, path: Path) -> S.HermiteSurface:
+def _surface(t: _Table, path: Path) -> S.HermiteSurface | B.BSplineSurface:
     kind = t.get("kind", "a string", check=lambda v: v in SURFACE_KINDS, expected=f"one of {SURFACE_KINDS}")
-    positive = {"check": lambda v: v > 0, "expected": "a number > 0"}
+    discretization = t.get(
+        "discretization", "a string", "hermite", lambda v: v in B.DISCRETIZATIONS, f"one of {B.DISCRETIZATIONS}"
+    )
     try:
-        if kind == "file":
-            file = t.get("path", "a string")
-            target = Path(file) if Path(file).is_absolute() else path.parent / file
-            if not target.exists():
-                target = Path(file)
-            surface = S.HermiteSurface.load(target)
-        else:
-            patches = t.get("patches", "2 integers", check=lambda v: min(v) >= 1, expected="2 integers >= 1")
-            if kind == "rectangle":
-                size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
-                origin = t.get("origin", "3 numbers", [0.0, 0.0, 0.0])
-                surface = S.flat_rectangle(size[0], size[1], patches[0], patches[1], tuple(origin))
-            elif kind == "cylinder":
-                closed = t.get("closed", "a boolean", True)
-                angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
-                surface = S.cylinder(
-                    t.get("radius", "a number", **positive),
-                    t.get("length", "a number", **positive),
-                    patches[0],
-                    patches[1],
-                    closed,
-                    angle if not closed else 2 * math.pi,
-                )
-            elif kind == "sphere_zone":
-                polar = t.get("polar", "2 numbers")
-                surface = S.sphere_zone(t.get("radius", "a number", **positive), polar[0], polar[1], *patches)
-            elif kind == "annulus_sector":
-                radii, angles = t.get("radii", "2 numbers"), t.get("angles", "2 numbers")
-                surface = S.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches)
-            else:
-                radii = t.get("radii", "2 numbers")
-                surface = S.torus(radii[0], radii[1], *patches)
+        surface = _surface_file(t, path, discretization) if kind == "file" else _surface_shape(t, kind, discretization)
     except S.SurfaceError as exc:
         raise SceneError(f"{path}: table 'surface': {exc}") from exc
     t.done()
     return surface
+
+
+def _surface_file(t: _Table, path: Path, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
+    """``kind = "file"``: a Hermite nodal data file, or a B-spline file of the named degree."""
+    file = t.get("path", "a string")
+    target = Path(file) if Path(file).is_absolute() else path.parent / file
+    if not target.exists():
+        target = Path(file)
+    if discretization == "hermite":
+        return S.HermiteSurface.load(target)
+    surface = B.BSplineSurface.load(target)
+    if surface.discretization != discretization:
+        raise SceneError(
+            f"{path}: key 'surface.discretization' is {discretization!r} but {target} holds a {surface.discretization}"
+        )
+    return surface
+
+
+def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
+    """A surface made by a constructor: Hermite nodal data or B-spline control points by interpolation."""
+    positive = {"check": lambda v: v > 0, "expected": "a number > 0"}
+    patches = t.get("patches", "2 integers", check=lambda v: min(v) >= 1, expected="2 integers >= 1")
+    spline = () if discretization == "hermite" else (int(discretization[-1]),)
+    shapes = S if discretization == "hermite" else B
+    if kind == "rectangle":
+        size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
+        origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
+        if spline:
+            return B.flat_rectangle(size[0], size[1], patches[0], patches[1], *spline, origin)
+        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin)
+    if kind == "cylinder":
+        closed = t.get("closed", "a boolean", True)
+        angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
+        radius, length = t.get("radius", "a number", **positive), t.get("length", "a number", **positive)
+        return shapes.cylinder(radius, length, patches[0], patches[1], *spline, closed=closed,
+                               angle=angle if not closed else 2 * math.pi)  # fmt: skip
+    if kind == "sphere_zone":
+        polar = t.get("polar", "2 numbers")
+        return shapes.sphere_zone(t.get("radius", "a number", **positive), polar[0], polar[1], *patches, *spline)
+    if kind == "annulus_sector":
+        radii, angles = t.get("radii", "2 numbers"), t.get("angles", "2 numbers")
+        return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline)
+    radii = t.get("radii", "2 numbers")
+    return shapes.torus(radii[0], radii[1], *patches, *spline)
 
 
 def _material(t: _Table) -> Material:
@@ -355,15 +376,15 @@ def _effects(t: _Table | None, path: Path) -> Effects:
     )
 
 
-def _nodes(t: _Table, grid: S.ParameterGrid) -> np.ndarray:
+def _nodes(t: _Table, surface: S.HermiteSurface | B.BSplineSurface) -> np.ndarray:
     """Nodes of a constraint from exactly one of 'nodes', 'edge', 'corners'."""
     given = [k for k in ("nodes", "edge", "corners") if k in t.data]
     if len(given) != 1:
         raise SceneError(f"{t.path}: table '{t.name}' needs exactly one of 'nodes', 'edge', 'corners'")
-    m1, m2 = grid.node_shape
+    m1, m2 = surface.node_shape
     try:
         if given[0] == "edge":
-            return bcs.edge_nodes(grid, t.get("edge", "a string"))
+            return bcs.edge_nodes(surface.grid, t.get("edge", "a string"), surface.node_shape)
         if given[0] == "corners":
             names = t.get(
                 "corners", "a list", check=lambda v: all(c in CORNERS for c in v), expected=f"names from {CORNERS}"
@@ -381,41 +402,13 @@ def _nodes(t: _Table, grid: S.ParameterGrid) -> np.ndarray:
     return np.array(nodes, dtype=np.int64)
 
 
-def _constraints(top: _Table, grid: S.ParameterGrid, path: Path) -> tuple[SceneConstraint, ...]:
+def _constraints(top: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> tuple[SceneConstraint, ...]:
     out = []
     for i, item in enumerate(top.get("constraints", "a list", [])):
         t = _Table(path, f"constraints[{i}]", item)
-        kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
-        if kind == "simply_supported":
-            edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
-            try:
-                constraint = bcs.simply_supported(grid, edge)
-            except bcs.BoundaryConditionError as exc:
-                raise SceneError(f"{path}: key '{t.key('edge')}': {exc}") from exc
-        else:
-            nodes = _nodes(t, grid)
-            if kind == "clamp":
-                kinds: tuple[int, ...] = (0, 1, 2, 3)
-            elif kind == "pin":
-                kinds = (0,)
-            else:
-                names = t.get(
-                    "kinds",
-                    "a list",
-                    check=lambda v: len(v) > 0 and all(k in S.KIND_NAMES for k in v),
-                    expected=f"a non-empty list of names from {S.KIND_NAMES}",
-                )
-                kinds = tuple(S.KIND_NAMES.index(k) for k in names)
-            components = t.get(
-                "components",
-                "a list",
-                [0, 1, 2],
-                lambda v: len(v) > 0 and all(c in (0, 1, 2) for c in v),
-                "a non-empty subset of [0, 1, 2]",
-            )
-            constraint = bcs.NodalConstraint(nodes, kinds, tuple(components))
+        constraint = _constraint(t, surface, path)
         try:
-            constraint.validate(grid)
+            constraint.validate(surface.grid, surface.node_shape, surface.kind_count)
         except bcs.BoundaryConditionError as exc:
             raise SceneError(f"{path}: table '{t.name}': {exc}") from exc
         motion_table = t.table("motion", None)
@@ -424,6 +417,61 @@ def _constraints(top: _Table, grid: S.ParameterGrid, path: Path) -> tuple[SceneC
         out.append(SceneConstraint(constraint, motion, t.name))
     _check_motion_conflicts(out, path)
     return tuple(out)
+
+
+def _constraint(t: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> bcs.NodalConstraint:
+    """One ``[[constraints]]`` table. On B-splines the nodes are control points: ``clamp`` holds the
+    two outer rows (position and slope), ``simply_supported`` the boundary row (the edge curve)."""
+    kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
+    spline = surface.kind_count == 1
+    if kind == "simply_supported":
+        edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
+        try:
+            if spline:
+                return bcs.NodalConstraint(bcs.edge_nodes(surface.grid, edge, surface.node_shape), (0,))
+            return bcs.simply_supported(surface.grid, edge)
+        except bcs.BoundaryConditionError as exc:
+            raise SceneError(f"{path}: key '{t.key('edge')}': {exc}") from exc
+    nodes = _nodes(t, surface)
+    if kind == "clamp":
+        kinds: tuple[int, ...] = (0,) if spline else (0, 1, 2, 3)
+        if spline:
+            nodes = _clamped_controls(nodes, surface.node_shape, t)
+    elif kind == "pin":
+        kinds = (0,)
+    else:
+        names = t.get(
+            "kinds",
+            "a list",
+            check=lambda v: len(v) > 0 and all(k in S.KIND_NAMES for k in v),
+            expected=f"a non-empty list of names from {S.KIND_NAMES}",
+        )
+        kinds = tuple(S.KIND_NAMES.index(k) for k in names)
+    components = t.get(
+        "components",
+        "a list",
+        [0, 1, 2],
+        lambda v: len(v) > 0 and all(c in (0, 1, 2) for c in v),
+        "a non-empty subset of [0, 1, 2]",
+    )
+    return bcs.NodalConstraint(nodes, kinds, tuple(components))
+
+
+def _clamped_controls(nodes: np.ndarray, shape: tuple[int, int], t: _Table) -> np.ndarray:
+    """Boundary control points with their inward neighbours: the two outer rows hold the slope too."""
+    c1, c2 = shape
+    nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 2)
+    on_boundary = (nodes[:, 0] == 0) | (nodes[:, 0] == c1 - 1) | (nodes[:, 1] == 0) | (nodes[:, 1] == c2 - 1)
+    if not np.all(on_boundary):
+        raise SceneError(
+            f"{t.path}: table '{t.name}': clamp on a B-spline surface needs boundary control points "
+            f"(edge or corners); {tuple(int(v) for v in nodes[~on_boundary][0])} is interior"
+        )
+    inward1 = np.where(nodes[:, 0] == 0, 1, np.where(nodes[:, 0] == c1 - 1, c1 - 2, nodes[:, 0]))
+    inward2 = np.where(nodes[:, 1] == 0, 1, np.where(nodes[:, 1] == c2 - 1, c2 - 2, nodes[:, 1]))
+    both = np.concatenate([nodes, np.stack([inward1, nodes[:, 1]], 1), np.stack([nodes[:, 0], inward2], 1),
+                           np.stack([inward1, inward2], 1)])  # fmt: skip
+    return np.unique(both, axis=0)
 
 
 def _point_constraints(top: _Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:

@@ -227,6 +227,11 @@ class BSplineSurface:
     kind_count = 1
 
     @property
+    def discretization(self) -> str:
+        """The discretization whose DOFs are this surface's control points."""
+        return f"bspline{self.degree}"
+
+    @property
     def nodal(self) -> np.ndarray:
         """The control points as nodal data ``(c1, c2, 1, 3)`` (kind 0 = the position)."""
         return self.control[:, :, None, :]
@@ -409,9 +414,20 @@ def flat_rectangle(
     return from_callable(lambda a, b: np.stack([a + o[0], b + o[1], 0 * a + o[2]], axis=-1), grid, degree)
 
 
-def cylinder(radius: float, length: float, n_along: int, n_around: int, degree: int) -> BSplineSurface:
-    """A closed cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle (periodic)."""
-    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (0.0, 2 * math.pi), False, True)
+def cylinder(
+    radius: float,
+    length: float,
+    n_along: int,
+    n_around: int,
+    degree: int,
+    closed: bool = True,
+    angle: float = 2 * math.pi,
+) -> BSplineSurface:
+    """A cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle in [0, angle]
+    (periodic when ``closed``, which needs a full turn)."""
+    if closed and not math.isclose(angle, 2 * math.pi):
+        raise SurfaceError(f"a closed cylinder needs angle = 2*pi, got {angle!r}")
+    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (0.0, float(angle)), False, closed)
     r = float(radius)
     return from_callable(lambda z, p: np.stack([r * np.cos(p), r * np.sin(p), z], axis=-1), grid, degree)
 
@@ -454,3 +470,18 @@ def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, 
         return np.stack([ring * np.cos(u), ring * np.sin(u), small * np.sin(v)], axis=-1)
 
     return from_callable(position, grid, degree)
+
+
+#: The surface kinds a scene or a file can name, by their discretization.
+DISCRETIZATIONS = ("hermite", "bspline2", "bspline3")
+
+
+def surface_from_nodal(discretization: str, grid: ParameterGrid, nodal: np.ndarray):
+    """The surface of nodal data ``(m1, m2, kinds, 3)`` (``surface.nodal``) for a discretization name."""
+    from bhem_hpc.geometry.surface import HermiteSurface
+
+    if discretization == "hermite":
+        return HermiteSurface(grid, nodal)
+    if discretization in DISCRETIZATIONS:
+        return BSplineSurface(grid, int(discretization[-1]), np.asarray(nodal)[:, :, 0])
+    raise SurfaceError(f"discretization {discretization!r} does not exist; expected one of {DISCRETIZATIONS}")

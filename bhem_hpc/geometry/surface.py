@@ -274,6 +274,12 @@ class HermiteSurface:
 
     #: Kinds of nodal data per node: x, d1, d2, d12.
     kind_count = 4
+    #: The discretization whose DOFs are this surface's data.
+    discretization = "hermite"
+
+    def bezier_nets(self) -> np.ndarray:
+        """Exact bicubic Bezier nets ``(n1 * n2, 4, 4, 3)`` of every patch (order ``p1 * n2 + p2``)."""
+        return self.bezier_control_points().reshape(-1, 4, 4, 3)
 
     def with_nodal(self, nodal: np.ndarray) -> HermiteSurface:
         """The surface on the same grid with other nodal data ``(m1, m2, 4, 3)``."""

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bhem_hpc.collision import PatchBVH, control_nets, trace_rays
+from bhem_hpc.collision import PatchBVH, trace_rays
 from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.geometry.surface import HermiteSurface
 
@@ -42,7 +42,7 @@ def camera_rays(surface: HermiteSurface, width: int, height: int, fov_degrees: f
 
 def render(surface: HermiteSurface, width: int = 160, height: int = 120) -> tuple[np.ndarray, np.ndarray]:
     """Shaded image ``(height, width, 3)`` in [0, 1] and the coverage mask ``(height, width)``."""
-    nets = control_nets(surface.grid, surface.nodal)
+    nets = surface.bezier_nets()
     eye, directions = camera_rays(surface, width, height)
     hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
     mask = hits.patch >= 0

@@ -85,6 +85,7 @@ class SurfaceTimeSeries:
         self.file.attrs["xi1_range"] = grid.xi1_range
         self.file.attrs["xi2_range"] = grid.xi2_range
         self.file.attrs["periodic"] = [grid.periodic1, grid.periodic2]
+        self.file.attrs["discretization"] = rest.discretization
 
     def write(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])
@@ -95,7 +96,7 @@ class SurfaceTimeSeries:
         group["mean_curvature"] = self._mean_curvature(point)
         group["membrane_energy_density"] = membrane
         group["bending_energy_density"] = bending
-        group["nodal"] = surface.nodal  # the exact patches, for the ray tracer
+        group["nodal"] = surface.nodal  # the exact surface (Hermite nodal data or control points), for the ray tracer
         group.attrs["time"] = float(time)
         self.file.flush()
         self.times.append(float(time))
@@ -140,6 +141,7 @@ class SurfaceTimeSeries:
 
 def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, float]:
     """The surface (exact nodal data) and time of a frame of a :class:`SurfaceTimeSeries`."""
+    from bhem_hpc.geometry.bspline import surface_from_nodal
     from bhem_hpc.geometry.surface import ParameterGrid
 
     with h5py.File(h5_path, "r") as f:
@@ -159,4 +161,5 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
             bool(a["periodic"][0]),
             bool(a["periodic"][1]),
         )
-        return HermiteSurface(grid, group["nodal"][()]), float(group.attrs["time"])
+        discretization = str(a.get("discretization", "hermite"))
+        return surface_from_nodal(discretization, grid, group["nodal"][()]), float(group.attrs["time"])

@@ -89,9 +89,10 @@ def target_surface(initial: HermiteSurface, constraints: Sequence[NodalConstrain
     return initial.with_nodal(nodal)
 
 
-def edge_nodes(grid: ParameterGrid, edge: str) -> np.ndarray:
-    """Distinct nodes on a boundary edge of parameter space, shape ``(k, 2)``."""
-    m1, m2 = grid.node_shape
+def edge_nodes(grid: ParameterGrid, edge: str, node_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Nodes on a boundary edge of parameter space, shape ``(k, 2)``: the grid's distinct nodes, or
+    the nodes of ``node_shape`` (a B-spline's control points)."""
+    m1, m2 = node_shape or grid.node_shape
     if edge not in EDGES:
         raise BoundaryConditionError(f"edge {edge!r} does not exist; expected one of {EDGES}")
     if (edge.startswith("xi1") and grid.periodic1) or (edge.startswith("xi2") and grid.periodic2):

@@ -106,7 +106,7 @@ class Scene:
     steps: int
     load_steps: int
     hessian: str
-    quadrature: int
+    quadrature: int | None  # None: the discretization's default
     petsc_options: dict[str, Any] = field(default_factory=dict)
     point_constraints: tuple[ScenePoint, ...] = ()
     output_every: int = 1
@@ -221,10 +221,10 @@ def load_scene(path: str | Path) -> Scene:
         load_steps = 1
     time_table.done()
     solver = top.table("solver", None)
-    hessian, quadrature, options = "exact", 4, {}
+    hessian, quadrature, options = "exact", None, {}
     if solver is not None:
         hessian = solver.get("hessian", "a string", "exact", lambda v: v in ("exact", "pseudo"), "'exact' or 'pseudo'")
-        quadrature = solver.get("quadrature", "an integer", 4, lambda v: v in (2, 3, 4, 5), "2, 3, 4 or 5")
+        quadrature = solver.get("quadrature", "an integer", None, lambda v: v in (2, 3, 4, 5), "2, 3, 4 or 5")
         options = solver.get("options", "a table", {})
         for k, v in options.items():
             if not isinstance(v, str | int | float | bool):

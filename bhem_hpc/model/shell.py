@@ -28,6 +28,9 @@ from bhem_hpc.model.material import Material
 
 HessianKind = Literal["exact", "pseudo"]
 GAUSS_POINTS = (2, 3, 4, 5)
+#: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
+#: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
+DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4}
 ScalarType = np.float64  # the dolfinx build is real, double precision
 
 
@@ -176,7 +179,9 @@ class ShellModel:
         constraints: nodal boundary conditions.
         hessian: ``"exact"`` (UFL derivative of the residual) or ``"pseudo"`` (paper's pseudo
             Hessian: the second derivative of the curvature strain is dropped).
-        quadrature_points: Gauss points per direction and patch (4 = the paper's 4x4 rule).
+        quadrature_points: Gauss points per direction and patch; default: the surface's
+            :data:`DEFAULT_QUADRATURE` (4 x 4 for bicubic Hermite and cubic B-splines, the BHEM
+            paper's rule; 3 x 3 for quadratic B-splines).
         comm: MPI communicator.
         initial: initial state (default: the rest surface).
         point_constraints: material points held at (moving) targets by the augmented Lagrangian
@@ -192,13 +197,15 @@ class ShellModel:
         loads: Loads | None = None,
         constraints: Sequence[NodalConstraint] = (),
         hessian: HessianKind = "exact",
-        quadrature_points: int = 4,
+        quadrature_points: int | None = None,
         comm: MPI.Comm = MPI.COMM_WORLD,
         initial: HermiteSurface | None = None,
         dynamics: Dynamics | None = None,
         point_constraints: Sequence[PointConstraint] = (),
     ):
         loads = loads or Loads()
+        if quadrature_points is None:
+            quadrature_points = DEFAULT_QUADRATURE[rest.discretization]
         _validate(rest, initial or rest, loads, constraints, hessian, quadrature_points, dynamics,
                   point_constraints)  # fmt: skip
         initial = initial or rest

@@ -427,16 +427,17 @@ def _constraint(t: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: P
     if kind == "simply_supported":
         edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
         try:
-            if spline:
-                return bcs.NodalConstraint(bcs.edge_nodes(surface.grid, edge, surface.node_shape), (0,))
-            return bcs.simply_supported(surface.grid, edge)
+            return bcs.support_edge(surface, edge)
         except bcs.BoundaryConditionError as exc:
             raise SceneError(f"{path}: key '{t.key('edge')}': {exc}") from exc
     nodes = _nodes(t, surface)
     if kind == "clamp":
         kinds: tuple[int, ...] = (0,) if spline else (0, 1, 2, 3)
         if spline:
-            nodes = _clamped_controls(nodes, surface.node_shape, t)
+            try:
+                nodes = bcs.with_inner_row(nodes, surface.node_shape)
+            except bcs.BoundaryConditionError as exc:
+                raise SceneError(f"{path}: table '{t.name}': {exc}") from exc
     elif kind == "pin":
         kinds = (0,)
     else:
@@ -455,23 +456,6 @@ def _constraint(t: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: P
         "a non-empty subset of [0, 1, 2]",
     )
     return bcs.NodalConstraint(nodes, kinds, tuple(components))
-
-
-def _clamped_controls(nodes: np.ndarray, shape: tuple[int, int], t: _Table) -> np.ndarray:
-    """Boundary control points with their inward neighbours: the two outer rows hold the slope too."""
-    c1, c2 = shape
-    nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 2)
-    on_boundary = (nodes[:, 0] == 0) | (nodes[:, 0] == c1 - 1) | (nodes[:, 1] == 0) | (nodes[:, 1] == c2 - 1)
-    if not np.all(on_boundary):
-        raise SceneError(
-            f"{t.path}: table '{t.name}': clamp on a B-spline surface needs boundary control points "
-            f"(edge or corners); {tuple(int(v) for v in nodes[~on_boundary][0])} is interior"
-        )
-    inward1 = np.where(nodes[:, 0] == 0, 1, np.where(nodes[:, 0] == c1 - 1, c1 - 2, nodes[:, 0]))
-    inward2 = np.where(nodes[:, 1] == 0, 1, np.where(nodes[:, 1] == c2 - 1, c2 - 2, nodes[:, 1]))
-    both = np.concatenate([nodes, np.stack([inward1, nodes[:, 1]], 1), np.stack([nodes[:, 0], inward2], 1),
-                           np.stack([inward1, inward2], 1)])  # fmt: skip
-    return np.unique(both, axis=0)
 
 
 def _point_constraints(top: _Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:

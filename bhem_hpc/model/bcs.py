@@ -131,3 +131,38 @@ def prescribe(
     except ValueError as exc:
         raise BoundaryConditionError(f"kinds {list(kinds)!r} must be names from {KIND_NAMES}") from exc
     return NodalConstraint(np.asarray(nodes).reshape(-1, 2), kind_ids, tuple(components), np.asarray(values, float))
+
+
+def with_inner_row(nodes: np.ndarray, node_shape: tuple[int, int]) -> np.ndarray:
+    """Boundary control points with their inward neighbours ``(k', 2)``: on a B-spline the two outer
+    rows of control points hold the position and the slope (a clamp)."""
+    c1, c2 = node_shape
+    nodes = np.asarray(nodes, dtype=np.int64).reshape(-1, 2)
+    on_boundary = (nodes[:, 0] == 0) | (nodes[:, 0] == c1 - 1) | (nodes[:, 1] == 0) | (nodes[:, 1] == c2 - 1)
+    if not np.all(on_boundary):
+        raise BoundaryConditionError(
+            "clamp on a B-spline surface needs boundary control points (edge or corners); "
+            f"{tuple(int(v) for v in nodes[~on_boundary][0])} is interior"
+        )
+    inward1 = np.where(nodes[:, 0] == 0, 1, np.where(nodes[:, 0] == c1 - 1, c1 - 2, nodes[:, 0]))
+    inward2 = np.where(nodes[:, 1] == 0, 1, np.where(nodes[:, 1] == c2 - 1, c2 - 2, nodes[:, 1]))
+    neighbours = (np.stack([inward1, nodes[:, 1]], 1), np.stack([nodes[:, 0], inward2], 1))
+    neighbours += (np.stack([inward1, inward2], 1),)
+    return np.unique(np.concatenate([nodes, *neighbours]), axis=0)
+
+
+def clamp_edge(surface, edge: str) -> NodalConstraint:
+    """Clamp a boundary edge of any surface: Hermite nodes with all four nodal vectors, or a
+    B-spline's two outer rows of control points."""
+    nodes = edge_nodes(surface.grid, edge, surface.node_shape)
+    if surface.kind_count == 1:
+        return NodalConstraint(with_inner_row(nodes, surface.node_shape), (0,))
+    return clamp(nodes)
+
+
+def support_edge(surface, edge: str) -> NodalConstraint:
+    """Simply support a boundary edge of any surface: the edge curve held, its rotation free
+    (Hermite: position and the derivative along the edge; B-splines: the boundary control points)."""
+    if surface.kind_count == 1:
+        return NodalConstraint(edge_nodes(surface.grid, edge, surface.node_shape), (0,))
+    return simply_supported(surface.grid, edge)

@@ -17,22 +17,24 @@ from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.studies.references import heavy_cantilever
-from bhem_hpc.studies.study import Study, StudyError, study_result, timed_solve
+from bhem_hpc.studies.study import Study, StudyError, flat_sheet, study_result, timed_solve
 
 CANTILEVER_SIZE = (1.0, 0.1)  # length, width [m]
 
 
-def cantilever_model(gamma: float, patches: int, hessian: str = "exact", comm: MPI.Comm = MPI.COMM_WORLD) -> ShellModel:
+def cantilever_model(
+    gamma: float, patches: int, hessian: str = "exact", comm: MPI.Comm = MPI.COMM_WORLD, discretization: str = "hermite"
+) -> ShellModel:
     """The strip of :func:`cantilever`: nu = 0, clamped at xi1 = 0, gravity set by ``Gamma*``."""
     length, width = CANTILEVER_SIZE
     material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
     gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
-    rest = S.flat_rectangle(length, width, patches, 1)
+    rest = flat_sheet(discretization, length, width, patches, 1)
     return ShellModel(
         rest,
         material,
         Loads(gravity=(0.0, 0.0, -gravity)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))],
+        [bcs.clamp_edge(rest, "xi1_min")],
         hessian=hessian,
         comm=comm,
     )
@@ -122,12 +124,15 @@ def _plot_cantilever(path: Path, surface: S.HermiteSurface, shape: np.ndarray, s
 
 def _cantilever_configurations() -> Iterable[dict]:
     gammas = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)
+    hermite = {"discretization": "hermite", "hessian": "exact", "newton_rtol": 1e-9}
     for patches, gamma in itertools.product((8, 16, 32), gammas):
-        yield {"gamma": gamma, "patches": patches, "hessian": "exact", "newton_rtol": 1e-9}
+        yield {"gamma": gamma, "patches": patches, **hermite}
     for gamma in gammas:
-        yield {"gamma": gamma, "patches": 16, "hessian": "pseudo", "newton_rtol": 1e-9}
+        yield {"gamma": gamma, "patches": 16, **hermite, "hessian": "pseudo"}
     for rtol, gamma in itertools.product((1e-3, 1e-6), (1.0, 30.0, 300.0)):
-        yield {"gamma": gamma, "patches": 16, "hessian": "exact", "newton_rtol": rtol}
+        yield {"gamma": gamma, "patches": 16, **hermite, "newton_rtol": rtol}
+    for discretization, patches, gamma in itertools.product(("bspline2", "bspline3"), (8, 16, 32, 64), gammas):
+        yield {"gamma": gamma, "patches": patches, **hermite, "discretization": discretization}
 
 
 def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
@@ -140,7 +145,7 @@ def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
     rtol = config.get("newton_rtol", 1e-9)
     if not (1e-14 <= rtol <= 0.1):
         raise StudyError(f"knob newton_rtol = {rtol!r} is out of range [1e-14, 0.1]")
-    model = cantilever_model(gamma, patches, config["hessian"], comm)
+    model = cantilever_model(gamma, patches, config["hessian"], comm, config.get("discretization", "hermite"))
     load_steps = max(1, int(np.ceil(2 * np.sqrt(gamma))))
     measured = timed_solve(model, load_steps, {"snes_rtol": rtol}, comm)
     length, width = CANTILEVER_SIZE
@@ -151,10 +156,10 @@ def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
 STUDY = Study(
     "cantilever",
     "heavy cantilever strip, tip drop against the heavy elastica (master curve)",
-    ("gamma", "patches", "hessian", "newton_rtol"),
+    ("gamma", "discretization", "patches", "hessian", "newton_rtol"),
     _cantilever_configurations,
     run_cantilever,
-    "patches",
+    "discretization",
     {"hessian": "exact", "newton_rtol": 1e-9},
     "gamma",
 )

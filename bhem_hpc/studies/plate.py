@@ -8,22 +8,29 @@ from collections.abc import Iterable
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.shell import Loads, ShellModel
+from bhem_hpc.model.shell import DEFAULT_QUADRATURE, Loads, ShellModel
 from bhem_hpc.studies.references import CLAMPED_SQUARE_PLATE, simply_supported_square_plate
-from bhem_hpc.studies.study import Study, StudyError, study_result, timed_solve
+from bhem_hpc.studies.study import Study, StudyError, flat_sheet, study_result, timed_solve
 
 
 def _plate_configurations() -> Iterable[dict]:
+    hermite = {"discretization": "hermite", "hessian": "exact", "factorization": "ldlt"}
     for support, patches in itertools.product(("simply_supported", "clamped"), (2, 4, 8, 16, 24)):
-        yield {"support": support, "patches": patches, "quadrature": 4, "hessian": "exact", "factorization": "ldlt"}
+        yield {"support": support, "patches": patches, "quadrature": 4, **hermite}
     for support, quadrature in itertools.product(("simply_supported", "clamped"), (2, 3, 5)):
-        yield {"support": support, "patches": 8, "quadrature": quadrature, "hessian": "exact", "factorization": "ldlt"}
+        yield {"support": support, "patches": 8, "quadrature": quadrature, **hermite}
     for support in ("simply_supported", "clamped"):
-        yield {"support": support, "patches": 16, "quadrature": 4, "hessian": "pseudo", "factorization": "ldlt"}
-        yield {"support": support, "patches": 16, "quadrature": 4, "hessian": "exact", "factorization": "lu"}
+        yield {"support": support, "patches": 16, "quadrature": 4, **hermite, "hessian": "pseudo"}
+        yield {"support": support, "patches": 16, "quadrature": 4, **hermite, "factorization": "lu"}
+    # the B-spline discretizations on the same knot spans, each with its default Gauss rule
+    for discretization, support, patches in itertools.product(
+        ("bspline2", "bspline3"), ("simply_supported", "clamped"), (4, 8, 16, 24, 32, 48)
+    ):
+        quadrature = DEFAULT_QUADRATURE[discretization]
+        yield {"support": support, "patches": patches, "quadrature": quadrature, "discretization": discretization,
+               "hessian": "exact", "factorization": "ldlt"}  # fmt: skip
 
 
 def run_plate(config: dict, comm: MPI.Comm) -> dict:
@@ -32,13 +39,13 @@ def run_plate(config: dict, comm: MPI.Comm) -> dict:
     n = config["patches"]
     if not (isinstance(n, int) and 1 <= n <= 128):
         raise StudyError(f"knob patches = {n!r} is out of range (1..128)")
-    rest = S.flat_rectangle(1.0, 1.0, n, n)
+    rest = flat_sheet(config.get("discretization", "hermite"), 1.0, 1.0, n, n)
     edges = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
     if config["support"] == "clamped":
-        constraints = [bcs.clamp(bcs.edge_nodes(rest.grid, e)) for e in edges]
+        constraints = [bcs.clamp_edge(rest, e) for e in edges]
         reference = CLAMPED_SQUARE_PLATE
     else:
-        constraints = [bcs.simply_supported(rest.grid, e) for e in edges]
+        constraints = [bcs.support_edge(rest, e) for e in edges]
         reference = simply_supported_square_plate()
     q = 1e-6 * material.bending_stiffness
     model = ShellModel(
@@ -59,10 +66,16 @@ def run_plate(config: dict, comm: MPI.Comm) -> dict:
 STUDY = Study(
     "plate",
     "square plate under uniform load, simply supported and clamped, small deflection",
-    ("support", "patches", "quadrature", "hessian", "factorization"),
+    ("support", "discretization", "patches", "quadrature", "hessian", "factorization"),
     _plate_configurations,
     run_plate,
+    ("support", "discretization"),
+    {"quadrature": DEFAULT_QUADRATURE, "hessian": "exact", "factorization": "ldlt"},
     "support",
-    {"quadrature": 4, "hessian": "exact", "factorization": "ldlt"},
-    "support",
+    note=(
+        "`patches` counts knot spans in each direction for every discretization; the B-splines use their "
+        "default Gauss rule (3 x 3 for degree 2, 4 x 4 for degree 3), Hermite 4 x 4 unless `quadrature` says "
+        "otherwise. On B-splines a clamped edge holds the two outer rows of control points, a simply supported "
+        "one the boundary row."
+    ),
 )

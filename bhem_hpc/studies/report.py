@@ -76,12 +76,12 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
     rows = results(rows)
-    baseline = [r for r in rows if all(r[k] == v for k, v in study.baseline.items())]
-    for label in sorted({r[study.series] for r in baseline}, key=str):
-        series = sorted((r for r in baseline if r[study.series] == label), key=lambda r: (r["dofs"], r["wall_s"]))
+    baseline = [r for r in rows if study.in_baseline(r)]
+    for label in sorted({study.series_label(r) for r in baseline}):
+        series = sorted((r for r in baseline if study.series_label(r) == label), key=lambda r: (r["dofs"], r["wall_s"]))
         errors = [max(r["error"], 1e-16) for r in series]
-        axes[0].loglog([r["wall_s"] for r in series], errors, "o", label=f"{study.series} = {label}")
-        axes[1].loglog([r["dofs"] for r in series], errors, "o", label=f"{study.series} = {label}")
+        axes[0].loglog([r["wall_s"] for r in series], errors, "o-", label=label)
+        axes[1].loglog([r["dofs"] for r in series], errors, "o-", label=label)
     axes[0].set_xlabel("wall time of the solve [s]")
     axes[1].set_xlabel("DoFs")
     for ax in axes:
@@ -158,23 +158,7 @@ def _accuracy_cost_markdown(docs: Path) -> str:
         if study.note:
             lines += [study.note, ""]
         rows = results([r for n in sorted(by_ranks) for r in by_ranks[n]])
-        lines += [
-            f"| {study.problem} | target error | cheapest configuration | ranks | error | solve time [s] | DoFs |",
-            "| --- | --- | --- | ---: | ---: | ---: | ---: |",
-        ]
-        for problem in sorted({r[study.problem] for r in rows}, key=str):
-            subset = [r for r in rows if r[study.problem] == problem]
-            best = min(subset, key=lambda r: r["error"])
-            for tolerance in (1e-2, 1e-3):
-                row = cheapest(subset, tolerance)
-                if row is None:
-                    lines.append(f"| {problem} | {tolerance:g} | not reached; best {best['error']:.2e} | | | | |")
-                    continue
-                knobs = ", ".join(f"{k} = {row[k]}" for k in study.knobs if k != study.problem)
-                lines.append(
-                    f"| {problem} | {tolerance:g} | {knobs} | {row['ranks']} | {row['error']:.2e} | "
-                    f"{row['wall_s']:.4f} | {row['dofs']} |"
-                )
+        lines += _cheapest_table(study, rows)
         lines += ["", _knob_effects(study, results(by_ranks[first])), ""]
         if len(by_ranks) > 1:
             lines += [_rank_comparison(study, by_ranks), ""]
@@ -194,6 +178,32 @@ def _accuracy_cost_markdown(docs: Path) -> str:
         "the one-off JIT compilation.\n\n"
     )
     return header + "\n".join(sections)
+
+
+def _cheapest_table(study: Study, rows: list[dict]) -> list[str]:
+    """Per problem (and per discretization, where that is a knob) and error target: the cheapest
+    configuration that reaches it, with its error, solve time, DoFs and nonzeros."""
+    groups = [study.problem] + (["discretization"] if "discretization" in study.knobs else [])
+    lines = [
+        f"| {' | '.join(groups)} | target error | cheapest configuration | ranks | error | solve time [s] | DoFs "
+        "| nonzeros |",
+        "| " + " | ".join("---" for _ in groups) + " | --- | --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for key in sorted({tuple(r[g] for g in groups) for r in rows}, key=str):
+        subset = [r for r in rows if tuple(r[g] for g in groups) == key]
+        best = min(subset, key=lambda r: r["error"])
+        label = " | ".join(str(v) for v in key)
+        for tolerance in (1e-2, 1e-3):
+            row = cheapest(subset, tolerance)
+            if row is None:
+                lines.append(f"| {label} | {tolerance:g} | not reached; best {best['error']:.2e} | | | | | |")
+                continue
+            knobs = ", ".join(f"{k} = {row[k]}" for k in study.knobs if k not in groups)
+            lines.append(
+                f"| {label} | {tolerance:g} | {knobs} | {row['ranks']} | {row['error']:.2e} | "
+                f"{row['wall_s']:.4f} | {row['dofs']} | {row['nonzeros']} |"
+            )
+    return lines
 
 
 def _rank_comparison(study: Study, by_ranks: dict[int, list[dict]]) -> str:
@@ -234,16 +244,16 @@ def _rank_comparison(study: Study, by_ranks: dict[int, list[dict]]) -> str:
 def _knob_effects(study: Study, rows: list[dict]) -> str:
     """One sentence per knob: how error and time change against the baseline configuration."""
     sentences = []
-    base = [r for r in rows if all(r[k] == v for k, v in study.baseline.items())]
+    base = [r for r in rows if study.in_baseline(r)]
     for knob in study.knobs:
         if knob in study.baseline:
-            others = [r for r in rows if r[knob] != study.baseline[knob]]
+            others = [r for r in rows if r[knob] != study.baseline_value(knob, r)]
             for r in others:
                 twin = next((b for b in base if all(b[k] == r[k] for k in study.knobs if k != knob)), None)
                 if twin is None:
                     continue
                 sentences.append(
-                    f"{knob} = {r[knob]} instead of {study.baseline[knob]} "
+                    f"{knob} = {r[knob]} instead of {study.baseline_value(knob, r)} "
                     f"({', '.join(f'{k} = {r[k]}' for k in study.knobs if k != knob)}): error "
                     f"{twin['error']:.2e} -> {r['error']:.2e}, time {twin['wall_s']:.4f} -> {r['wall_s']:.4f} s."
                 )

@@ -24,7 +24,8 @@ class Study:
     """A named set of knob configurations and how to run one.
 
     ``knobs`` are the configuration keys (CSV/table columns); the plot draws one error curve per
-    value of ``series`` over the configurations whose other knobs equal ``baseline``.
+    value of ``series`` (a knob or a tuple of knobs) over the configurations whose other knobs equal
+    ``baseline`` (a value, or a dict of values by discretization).
     """
 
     name: str
@@ -32,7 +33,7 @@ class Study:
     knobs: tuple[str, ...]
     configurations: Callable[[], Iterable[dict]]
     run: Callable[[dict, MPI.Comm], dict]
-    series: str
+    series: str | tuple[str, ...]
     baseline: dict
     problem: str  # the knob that changes the problem itself (not its discretization)
     extra: tuple[str, ...] = ()  # result columns beyond RESULT_COLUMNS
@@ -42,6 +43,18 @@ class Study:
     @property
     def columns(self) -> tuple[str, ...]:
         return ("study", *self.knobs, *RESULT_COLUMNS, *self.extra)
+
+    def baseline_value(self, knob: str, row: dict) -> object:
+        """The baseline value of ``knob`` for ``row`` (a dict baseline is keyed by the row's discretization)."""
+        value = self.baseline[knob]
+        return value[row.get("discretization", "hermite")] if isinstance(value, dict) else value
+
+    def in_baseline(self, row: dict) -> bool:
+        return all(row[k] == self.baseline_value(k, row) for k in self.baseline)
+
+    def series_label(self, row: dict) -> str:
+        keys = (self.series,) if isinstance(self.series, str) else self.series
+        return ", ".join(f"{k} = {row[k]}" for k in keys)
 
 
 def timed_solve(model: ShellModel, load_steps: int, options: dict, comm: MPI.Comm) -> tuple[float, int, int]:
@@ -67,3 +80,15 @@ def study_result(model: ShellModel, value: float, reference: float, measured: tu
         "wall_s": wall,
         "newton_iterations": iterations,
     }
+
+
+def flat_sheet(discretization: str, length1: float, length2: float, n1: int, n2: int):
+    """A flat sheet of ``n1 x n2`` patches (knot spans) for a discretization name."""
+    from bhem_hpc.geometry import bspline
+    from bhem_hpc.geometry import surface as S
+
+    if discretization == "hermite":
+        return S.flat_rectangle(length1, length2, n1, n2)
+    if discretization not in bspline.DISCRETIZATIONS:
+        raise StudyError(f"knob discretization = {discretization!r}; expected one of {bspline.DISCRETIZATIONS}")
+    return bspline.flat_rectangle(length1, length2, n1, n2, int(discretization[-1]))

@@ -23,7 +23,7 @@ def test_study_writes_csv_table_and_plot(comm, out):
     with open(out / "plate.csv") as f:
         written = list(csv.DictReader(f))
     assert len(written) == 3 and float(written[2]["error"]) < float(written[0]["error"])
-    assert "| simply_supported | 8 | 4 | exact | ldlt |" in (out / "plate.md").read_text()
+    assert "| simply_supported | hermite | 8 | 4 | exact | ldlt |" in (out / "plate.md").read_text()
     assert (out / "plate.png").stat().st_size > 5000
     with pytest.raises(StudyError, match="exists and is not empty"):
         run_study("plate", out, comm, limit=1)

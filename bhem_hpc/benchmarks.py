@@ -12,11 +12,13 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from bhem_hpc.geometry import bspline
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.studies.study import flat_sheet
 
 
 def benchmark(
@@ -25,8 +27,10 @@ def benchmark(
     repeats: int = 3,
     comm: MPI.Comm = MPI.COMM_WORLD,
     options: dict | None = None,
+    discretization: str = "hermite",
 ) -> dict:
-    """Time one Newton iteration on an ``N x N`` sheet in a deformed, stressed state.
+    """Time one Newton iteration on an ``N x N`` sheet (patches or knot spans) in a deformed,
+    stressed state.
 
     The sheet (1 m, Y 1e4 Pa, nu 0.3, h 1 mm, rho 200: the paper's cloth) is stretched 2 % and
     carries a two-wave bump, so membrane, bending and geometric stiffness are all active.
@@ -35,18 +39,21 @@ def benchmark(
     if patches < 1:
         raise ValueError(f"--patches must be >= 1, got {patches!r}")
     material = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
-    rest = S.flat_rectangle(1.0, 1.0, patches, patches)
+    rest = flat_sheet(discretization, 1.0, 1.0, patches, patches)
 
     def position(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         bump = 0.05 * np.sin(2 * np.pi * a) * np.sin(np.pi * b)
         return np.stack([1.02 * a + 0.01 * np.sin(np.pi * b), b, bump], axis=-1)
 
-    state = S.from_callable(position, rest.grid)
+    if discretization == "hermite":
+        state = S.from_callable(position, rest.grid)
+    else:
+        state = bspline.from_callable(position, rest.grid, rest.degree)
     model = ShellModel(
         rest,
         material,
         Loads(gravity=(0.0, 0.0, -9.81)),
-        [bcs.clamp(bcs.edge_nodes(rest.grid, "xi2_min"))],
+        [bcs.clamp_edge(rest, "xi2_min")],
         hessian=hessian,
         comm=comm,
         initial=state,
@@ -58,6 +65,8 @@ def benchmark(
     keys = ("assemble_residual_s", "assemble_jacobian_s", "factor_s", "solve_s", "newton_iteration_s")
     result = {
         "patches": patches,
+        "discretization": discretization,
+        "quadrature_points": model.quadrature_points**2 * patches**2,
         "dofs": 3 * model.discretization.num_closed,
         "nnz": nnz,
         "ranks": comm.size,
@@ -206,6 +215,12 @@ def write_performance(docs: Path, jobs_dir: Path, steps: int = 5, comm: MPI.Comm
     rows = {
         "ranks": comm.size,
         "newton": [benchmark(n, comm=comm) for n in (10, 20, 30)],
+        # at (nearly) equal DoFs: N Hermite patches carry 12 (N + 1)^2, M degree-p spans 3 (M + p)^2
+        "discretizations": [
+            benchmark(spans, comm=comm, discretization=name)
+            for n in (10, 20)
+            for name, spans in (("hermite", n), ("bspline2", 2 * n), ("bspline3", 2 * n - 1))
+        ],
         "rays": [ray_benchmark(n) for n in (10, 30)] if comm.rank == 0 else [],
         "scenes": paper_comparison(jobs_dir, steps, comm),
         "steps": steps,
@@ -236,12 +251,36 @@ def performance_markdown(rows: dict) -> str:
         "",
     ]
     lines[-2] = "```\n" + lines[-2] + "\n```"
+    lines += _discretization_table(rows.get("discretizations", []))
     if rows["rays"]:
         lines += ["## Ray-patch intersection (`bhem-hpc bench --rays`)", ""]
         lines += [f"- {format_ray_row(r)}" for r in rows["rays"]]
         lines += [""]
     lines += _scene_table(rows["scenes"], rows["steps"])
     return "\n".join(lines) + "\n"
+
+
+def _discretization_table(rows: list[dict]) -> list[str]:
+    """Hermite and B-splines on the same sheet at (nearly) equal DoFs: cost of a Newton iteration."""
+    if not rows:
+        return []
+    lines = [
+        "## Hermite and B-splines at equal DoFs (`bhem-hpc bench --patches N --discretization D`)",
+        "",
+        "The same sheet and state; N Hermite patches against 2N quadratic and 2N - 1 cubic knot spans, each with "
+        "its default Gauss rule.",
+        "",
+        "| discretization | patches / spans | DoFs | nonzeros | nonzeros / DoF | quadrature points | Jacobian [s] "
+        "| factor [s] | Newton iteration [s] |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['discretization']} | {r['patches']} | {r['dofs']} | {r['nnz']} | {r['nnz'] / r['dofs']:.0f} | "
+            f"{r['quadrature_points']} | {r['assemble_jacobian_s']:.4f} | {r['factor_s']:.4f} | "
+            f"{r['newton_iteration_s']:.4f} |"
+        )
+    return [*lines, ""]
 
 
 def _scene_table(rows: list[dict], steps: int) -> list[str]:

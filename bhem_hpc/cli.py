@@ -51,6 +51,9 @@ def _parser() -> argparse.ArgumentParser:
     bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
     bench.add_argument("--patches", type=int, nargs="+", default=[10, 20, 30])
     bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
+    bench.add_argument(
+        "--discretization", choices=("hermite", "bspline2", "bspline3"), default="hermite", help="with --patches"
+    )
     bench.add_argument("--repeats", type=int, default=3)
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
     bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
@@ -150,7 +153,10 @@ def _bench(args: argparse.Namespace, comm) -> None:
         if comm.rank == 0:
             print(json.dumps(row) if args.json else benchmarks.format_scene_row(row))
     else:
-        rows = [benchmarks.benchmark(n, args.hessian, args.repeats, comm) for n in args.patches]
+        rows = [
+            benchmarks.benchmark(n, args.hessian, args.repeats, comm, discretization=args.discretization)
+            for n in args.patches
+        ]
         if comm.rank == 0:
             table = benchmarks.format_newton_table(rows, args.hessian, args.repeats)
             print("\n".join(json.dumps(row) for row in rows) if args.json else table)
@@ -177,17 +183,13 @@ HANDLERS = {
 
 def _configure_logging(verbose: bool, rank: int) -> None:
     """Warnings only unless ``--verbose``; the form compiler's command lines only with ``--verbose``."""
-    from bhem_hpc.model.jit import HideCompilerCommands
-
     level = logging.INFO if verbose and rank == 0 else logging.WARNING
     logging.basicConfig(level=level, format=f"[rank {rank}] %(levelname)s %(name)s: %(message)s", force=True)
-    if not verbose:
-        for handler in logging.getLogger().handlers:
-            handler.addFilter(HideCompilerCommands())
     for noisy in ("ffcx", "UFL"):
         logging.getLogger(noisy).setLevel(logging.INFO if verbose else logging.ERROR)
-    # the one line that says forms were compiled, and how long it took
-    logging.getLogger("bhem_hpc.jit").setLevel(logging.INFO if rank == 0 else logging.WARNING)
+    # the one line that says forms were compiled, and how long it took (with --verbose, the compiler's too)
+    jit_level = (logging.DEBUG if verbose else logging.INFO) if rank == 0 else logging.WARNING
+    logging.getLogger("bhem_hpc.jit").setLevel(jit_level)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,7 +21,7 @@ class SummaryError(ValueError):
 
 def _study_lines(docs: Path) -> list[str]:
     from bhem_hpc.studies.registry import STUDIES
-    from bhem_hpc.studies.report import cheapest, read_rows, results
+    from bhem_hpc.studies.report import read_rows, results
 
     lines = []
     for name, study in STUDIES.items():
@@ -29,15 +29,25 @@ def _study_lines(docs: Path) -> list[str]:
         if not path.exists():
             raise SummaryError(f"{path} does not exist: run `bhem-hpc study --docs {docs}` first")
         rows = results(read_rows(path))
-        best = min(rows, key=lambda r: r["error"])
-        row = cheapest(rows, 1e-2)
-        reached = (
-            f"1 % error in {row['wall_s']:.3g} s ({row['dofs']} DoFs); best {best['error']:.1e}"
-            if row is not None
-            else f"best error {best['error']:.1e} ({best['dofs']} DoFs, {best['wall_s']:.3g} s)"
-        )
-        lines.append(f"- `{name}` - {study.description}: {reached}.")
+        groups = sorted({r.get("discretization", "hermite") for r in rows})
+        parts = []
+        for discretization in groups:
+            subset = [r for r in rows if r.get("discretization", "hermite") == discretization]
+            reached = _reached(subset)
+            parts.append(f"{discretization}: {reached}" if len(groups) > 1 else reached)
+        lines.append(f"- `{name}` - {study.description}: {'; '.join(parts)}.")
     return lines
+
+
+def _reached(rows: list[dict]) -> str:
+    """The cheapest row within 1 % and the best error, in words."""
+    from bhem_hpc.studies.report import cheapest
+
+    best = min(rows, key=lambda r: r["error"])
+    row = cheapest(rows, 1e-2)
+    if row is None:
+        return f"best error {best['error']:.1e} ({best['dofs']} DoFs, {best['wall_s']:.3g} s)"
+    return f"1 % error in {row['wall_s']:.3g} s ({row['dofs']} DoFs); best {best['error']:.1e}"
 
 
 def _performance_lines(docs: Path) -> list[str]:

@@ -12,7 +12,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from bhem_hpc import forms
-from bhem_hpc.model.jit import default_jit_params
+from bhem_hpc.model.jit import compilation_report, default_jit_params
 from bhem_hpc.solver.newton import ShellSolver
 from bhem_hpc.solver.petsc import PetscOwner, SolverError, mumps_infog, push_options
 
@@ -68,13 +68,15 @@ class ContactProjector(PetscOwner):
         space = model.discretization.function_space
 
         def assemble(mass_weight: float, smoothing_weight: float) -> PETSc.Mat:
-            form = fem.form(
-                forms.impulse_metric(
-                    ufl.TrialFunction(space), ufl.TestFunction(space), model.x_rest, model.density, model.thickness,
-                    (grid.h1, grid.h2), (mass_weight, smoothing_weight), model.dx,
-                ),
-                jit_params=default_jit_params(),
-            )  # fmt: skip
+            jit = default_jit_params()
+            with compilation_report("the contact metric", jit["cache_dir"]):
+                form = fem.form(
+                    forms.impulse_metric(
+                        ufl.TrialFunction(space), ufl.TestFunction(space), model.x_rest, model.density, model.thickness,
+                        (grid.h1, grid.h2), (mass_weight, smoothing_weight), model.dx,
+                    ),
+                    jit_params=jit,
+                )  # fmt: skip
             matrix = fem_petsc.assemble_matrix(form)
             matrix.assemble()
             if solver.prolongation is None:

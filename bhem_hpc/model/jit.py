@@ -47,10 +47,21 @@ log = logging.getLogger("bhem_hpc.jit")
 
 @contextlib.contextmanager
 def compilation_report(what: str, cache_dir: str) -> Iterator[None]:
-    """Log one line (logger ``bhem_hpc.jit``, INFO) when the block compiled new kernels, with the time."""
+    """Log one line (logger ``bhem_hpc.jit``, INFO) when the block compiled new kernels, with the time.
+
+    The compiler's own command lines (setuptools logs them on the root logger) are dropped unless
+    ``bhem_hpc.jit`` is enabled for DEBUG (``bhem-hpc --verbose``).
+    """
     before = _cached_kernels(cache_dir)
     start = time.perf_counter()
-    yield
+    quiet = not log.isEnabledFor(logging.DEBUG)
+    hide = HideCompilerCommands()
+    if quiet:
+        logging.getLogger().addFilter(hide)
+    try:
+        yield
+    finally:
+        logging.getLogger().removeFilter(hide)
     new = _cached_kernels(cache_dir) - before
     if new:
         seconds = time.perf_counter() - start

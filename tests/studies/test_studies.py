@@ -40,6 +40,7 @@ def test_plate_study_converges(comm, out):
             r
             for r in rows
             if r["support"] == support
+            and r["discretization"] == "hermite"
             and r["quadrature"] == 4
             and r["hessian"] == "exact"
             and r["factorization"] == "ldlt"
@@ -51,15 +52,32 @@ def test_plate_study_converges(comm, out):
         assert errors[-1] < final
     # the knobs that must not change the answer: pseudo Hessian and LU reproduce the exact LDL^T value
     for support in ("simply_supported", "clamped"):
-        same = [r["value"] for r in rows if r["support"] == support and r["patches"] == 16 and r["quadrature"] == 4]
+        hermite = [r for r in rows if r["discretization"] == "hermite"]
+        same = [r["value"] for r in hermite if r["support"] == support and r["patches"] == 16 and r["quadrature"] == 4]
         assert np.ptp(same) < 1e-9 * np.mean(same)
+    # B-splines: the centre deflection converges at 2 (p - 1) until the tabulated clamped value's
+    # six digits (a few 1e-6) are reached
+    for degree in (2, 3):
+        for support in ("simply_supported", "clamped"):
+            series = [r for r in rows if r["discretization"] == f"bspline{degree}" and r["support"] == support]
+            spans = np.array([r["patches"] for r in series], dtype=float)
+            errors = np.array([r["error"] for r in series])
+            rates = np.log(errors[:-1] / errors[1:]) / np.log(spans[1:] / spans[:-1])
+            resolved = errors[1:] > 2e-5
+            assert np.all(rates[resolved] >= 0.9 * 2 * (degree - 1)), (degree, support, rates)
+            assert errors[-1] < (2e-3 if degree == 2 else 2e-6), (degree, support, errors)
 
 
 @pytest.mark.study
 def test_cantilever_study_tracks_the_master_curve(comm, out):
-    rows = run_study("cantilever", out.parent / "cantilever", comm)
+    all_rows = run_study("cantilever", out.parent / "cantilever", comm)
+    rows = [r for r in all_rows if r["discretization"] == "hermite"]
     finest = [r for r in rows if r["patches"] == 32 and r["hessian"] == "exact"]
     assert len(finest) == 8 and max(r["error"] for r in finest) < 0.005  # all Gamma* within 0.5 %
+    # the B-spline strips track the master curve within 1 % at 32 spans (every Gamma*)
+    for degree in (2, 3):
+        splines = [r for r in all_rows if r["discretization"] == f"bspline{degree}" and r["patches"] == 32]
+        assert len(splines) == 8 and max(r["error"] for r in splines) < 0.01, degree
     exact = [r for r in rows if r["hessian"] == "exact" and r["newton_rtol"] == 1e-9]
     for gamma in {r["gamma"] for r in rows}:
         by_patches = {r["patches"]: r["error"] for r in exact if r["gamma"] == gamma}

@@ -159,6 +159,8 @@ def _accuracy_cost_markdown(docs: Path) -> str:
             lines += [study.note, ""]
         rows = results([r for n in sorted(by_ranks) for r in by_ranks[n]])
         lines += _cheapest_table(study, rows)
+        if "discretization" in study.knobs:
+            lines += ["", _head_to_head(study, rows)]
         lines += ["", _knob_effects(study, results(by_ranks[first])), ""]
         if len(by_ranks) > 1:
             lines += [_rank_comparison(study, by_ranks), ""]
@@ -204,6 +206,31 @@ def _cheapest_table(study: Study, rows: list[dict]) -> list[str]:
                 f"{row['wall_s']:.4f} | {row['dofs']} | {row['nonzeros']} |"
             )
     return lines
+
+
+def _head_to_head(study: Study, rows: list[dict]) -> str:
+    """Measured, per problem: which discretization reaches 1 % and 0.1 % first, against the B-spline
+    paper's claim that quadratic B-splines are cheaper than bicubic Hermite elements at equal accuracy."""
+    sentences = []
+    for problem in sorted({r[study.problem] for r in rows}, key=str):
+        for tolerance in (1e-2, 1e-3):
+            subset = [r for r in rows if r[study.problem] == problem]
+            reached = {
+                name: cheapest([r for r in subset if r["discretization"] == name], tolerance)
+                for name in ("hermite", "bspline2", "bspline3")
+            }
+            words = ", ".join(
+                f"{name} {row['wall_s']:.3g} s ({row['dofs']} DoFs)" if row else f"{name} not reached"
+                for name, row in reached.items()
+            )
+            hermite, quadratic = reached["hermite"], reached["bspline2"]
+            holds = quadratic is not None and (hermite is None or quadratic["wall_s"] < hermite["wall_s"])
+            sentences.append(
+                f"{study.problem} = {problem}, error {tolerance:g}: {words}; "
+                f"quadratic B-splines cheaper than Hermite: {'yes' if holds else 'no'}."
+            )
+    head = "Head-to-head (the cheapest solve time that reaches each error; B-splines with full Gauss quadrature):"
+    return head + "\n\n" + "\n".join(f"- {s}" for s in sentences)
 
 
 def _rank_comparison(study: Study, by_ranks: dict[int, list[dict]]) -> str:

@@ -21,7 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from bhem_hpc.geometry.surface import ParameterGrid, SurfaceError, SurfacePoint, check_regular
+from bhem_hpc.geometry.surface import (
+    ParameterGrid,
+    SurfaceError,
+    SurfacePoint,
+    check_regular,
+    load_surface_file,
+    save_surface_file,
+)
 
 DEGREES = (2, 3)
 FILE_FORMAT = "bhem-bspline-surface"
@@ -268,14 +275,7 @@ class BSplineSurface:
             index, weights = self.point_weights(p1, p2, t1, t2, d1, d2)
             return np.einsum("...j,...jc->...c", weights, flat[index])
 
-        return SurfacePoint(
-            x=derivative(0, 0),
-            a1=derivative(1, 0),
-            a2=derivative(0, 1),
-            a11=derivative(2, 0),
-            a12=derivative(1, 1),
-            a22=derivative(0, 2),
-        )
+        return SurfacePoint.of(derivative)
 
     # -- Bezier form ----------------------------------------------------------------------------
     def bezier_control_points(self) -> np.ndarray:
@@ -308,51 +308,19 @@ class BSplineSurface:
     # -- files ----------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write the surface as a ``.npz`` file (format ``bhem-bspline-surface``)."""
-        g = self.grid
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(
-            tmp,
-            format=np.array(FILE_FORMAT),
-            version=np.array(FILE_VERSION),
-            degree=np.array(self.degree),
-            patches=np.array([g.n1, g.n2]),
-            xi1_range=np.array(g.xi1_range, float),
-            xi2_range=np.array(g.xi2_range, float),
-            periodic=np.array([g.periodic1, g.periodic2]),
-            control=self.control,
+        save_surface_file(
+            path, FILE_FORMAT, FILE_VERSION, self.grid, degree=np.array(self.degree), control=self.control
         )
-        tmp.replace(path)
 
     @classmethod
     def load(cls, path: str | Path) -> BSplineSurface:
         """Read a file written by :meth:`save`; errors name the file and the key."""
-        path = Path(path)
+        keys = ("degree", "control")
+        grid, arrays = load_surface_file(path, FILE_FORMAT, FILE_VERSION, keys, "B-spline surface file")
         try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise SurfaceError(f"{path}: cannot read B-spline surface file ({exc})") from exc
-        with data:
-            for key in ("format", "version", "degree", "patches", "xi1_range", "xi2_range", "periodic", "control"):
-                if key not in data.files:
-                    raise SurfaceError(f"{path}: missing key {key!r} (has {sorted(data.files)})")
-            if str(data["format"]) != FILE_FORMAT:
-                raise SurfaceError(f"{path}: key 'format' is {str(data['format'])!r}, expected {FILE_FORMAT!r}")
-            if int(data["version"]) != FILE_VERSION:
-                raise SurfaceError(f"{path}: key 'version' is {int(data['version'])}, expected {FILE_VERSION}")
-            try:
-                n1, n2 = (int(v) for v in data["patches"])
-                grid = ParameterGrid(
-                    n1,
-                    n2,
-                    tuple(float(v) for v in data["xi1_range"]),
-                    tuple(float(v) for v in data["xi2_range"]),
-                    *(bool(v) for v in data["periodic"]),
-                )
-                degree = int(data["degree"])
-                return cls(grid, degree, data["control"])
-            except (SurfaceError, ValueError, TypeError) as exc:
-                raise SurfaceError(f"{path}: key 'control' or 'degree': {exc}") from exc
+            return cls(grid, int(arrays["degree"]), arrays["control"])
+        except (SurfaceError, ValueError, TypeError) as exc:
+            raise SurfaceError(f"{path}: key 'control' or 'degree': {exc}") from exc
 
 
 # ---------------------------------------------------------------------------------------------

@@ -136,6 +136,18 @@ class SurfacePoint:
     a12: np.ndarray
     a22: np.ndarray
 
+    @staticmethod
+    def of(derivative: Callable[[int, int], np.ndarray]) -> SurfacePoint:
+        """The point from ``derivative(d1, d2)``, the parametric derivative ``d^(d1+d2) x / dxi1^d1 dxi2^d2``."""
+        return SurfacePoint(
+            x=derivative(0, 0),
+            a1=derivative(1, 0),
+            a2=derivative(0, 1),
+            a11=derivative(2, 0),
+            a12=derivative(1, 1),
+            a22=derivative(0, 2),
+        )
+
     @property
     def normal(self) -> np.ndarray:
         n = np.cross(self.a1, self.a2)
@@ -198,14 +210,7 @@ class HermiteSurface:
         def contract(d1: int, d2: int) -> np.ndarray:
             return np.einsum("...a,...b,...abc->...c", b1[d1], b2[d2], coeffs)
 
-        return SurfacePoint(
-            x=contract(0, 0),
-            a1=contract(1, 0),
-            a2=contract(0, 1),
-            a11=contract(2, 0),
-            a12=contract(1, 1),
-            a22=contract(0, 2),
-        )
+        return SurfacePoint.of(contract)
 
     def point_weights(
         self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray
@@ -295,56 +300,72 @@ class HermiteSurface:
     # -- files ---------------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         """Write the surface as a ``.npz`` nodal data file (format in README.md)."""
-        g = self.grid
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        np.savez(
-            tmp,
-            format=np.array(FILE_FORMAT),
-            version=np.array(FILE_VERSION),
-            patches=np.array([g.n1, g.n2]),
-            xi1_range=np.array(g.xi1_range, float),
-            xi2_range=np.array(g.xi2_range, float),
-            periodic=np.array([g.periodic1, g.periodic2]),
-            nodal=self.nodal,
-        )
-        tmp.replace(path)
+        save_surface_file(path, FILE_FORMAT, FILE_VERSION, self.grid, nodal=self.nodal)
 
     @classmethod
     def load(cls, path: str | Path) -> HermiteSurface:
         """Read a nodal data file written by :meth:`save`; errors name the file and key."""
-        path = Path(path)
+        grid, arrays = load_surface_file(path, FILE_FORMAT, FILE_VERSION, ("nodal",), "nodal data file")
         try:
-            data = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise SurfaceError(f"{path}: cannot read nodal data file ({exc})") from exc
-        with data:
-            required = ("format", "version", "patches", "xi1_range", "xi2_range", "periodic", "nodal")
-            for key in required:
-                if key not in data.files:
-                    raise SurfaceError(f"{path}: missing key {key!r} (has {sorted(data.files)})")
-            if str(data["format"]) != FILE_FORMAT:
-                raise SurfaceError(f"{path}: key 'format' is {str(data['format'])!r}, expected {FILE_FORMAT!r}")
-            if int(data["version"]) != FILE_VERSION:
-                raise SurfaceError(f"{path}: key 'version' is {int(data['version'])}, expected {FILE_VERSION}")
-            try:
-                n1, n2 = (int(v) for v in data["patches"])
-                grid = ParameterGrid(
-                    n1,
-                    n2,
-                    tuple(float(v) for v in data["xi1_range"]),
-                    tuple(float(v) for v in data["xi2_range"]),
-                    *(bool(v) for v in data["periodic"]),
-                )
-                return cls(grid, data["nodal"])
-            except (SurfaceError, ValueError, TypeError) as exc:
-                raise SurfaceError(f"{path}: {exc}") from exc
+            return cls(grid, arrays["nodal"])
+        except (SurfaceError, ValueError, TypeError) as exc:
+            raise SurfaceError(f"{path}: {exc}") from exc
 
 
 # ---------------------------------------------------------------------------------------------
 # Constructors
 # ---------------------------------------------------------------------------------------------
 Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def save_surface_file(
+    path: str | Path, file_format: str, version: int, grid: ParameterGrid, **arrays: np.ndarray
+) -> None:
+    """Write a surface file: ``format``, ``version``, the grid's keys and ``arrays``; atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(
+        tmp,
+        format=np.array(file_format),
+        version=np.array(version),
+        patches=np.array([grid.n1, grid.n2]),
+        xi1_range=np.array(grid.xi1_range, float),
+        xi2_range=np.array(grid.xi2_range, float),
+        periodic=np.array([grid.periodic1, grid.periodic2]),
+        **arrays,
+    )
+    tmp.replace(path)
+
+
+def load_surface_file(
+    path: str | Path, file_format: str, version: int, keys: tuple[str, ...], what: str
+) -> tuple[ParameterGrid, dict[str, np.ndarray]]:
+    """Read a file of :func:`save_surface_file`: its grid and the arrays ``keys``; errors name the file and key."""
+    path = Path(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise SurfaceError(f"{path}: cannot read {what} ({exc})") from exc
+    with data:
+        for key in ("format", "version", "patches", "xi1_range", "xi2_range", "periodic", *keys):
+            if key not in data.files:
+                raise SurfaceError(f"{path}: missing key {key!r} (has {sorted(data.files)})")
+        if str(data["format"]) != file_format:
+            raise SurfaceError(f"{path}: key 'format' is {str(data['format'])!r}, expected {file_format!r}")
+        if int(data["version"]) != version:
+            raise SurfaceError(f"{path}: key 'version' is {int(data['version'])}, expected {version}")
+        try:
+            n1, n2 = (int(v) for v in data["patches"])
+            grid = ParameterGrid(
+                n1,
+                n2,
+                tuple(float(v) for v in data["xi1_range"]),
+                tuple(float(v) for v in data["xi2_range"]),
+                *(bool(v) for v in data["periodic"]),
+            )
+        except (SurfaceError, ValueError, TypeError) as exc:
+            raise SurfaceError(f"{path}: {exc}") from exc
+        return grid, {key: data[key][()] for key in keys}
 
 
 def check_regular(surface, quadrature_points: int = 4, name: str = "surface") -> None:

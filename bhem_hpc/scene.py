@@ -239,11 +239,6 @@ def load_scene(path: str | Path) -> Scene:
     constraints = _constraints(top, surface, path)
     points = _point_constraints(top, surface, path)
     contact = _contact(top, path, static)
-    if contact is not None and surface.discretization != "hermite":
-        raise SceneError(
-            f"{path}: key 'effects.contact': contact effects need a Hermite surface "
-            f"('surface.discretization' is {surface.discretization!r})"
-        )
     top.done()
     return Scene(
         path=path,

@@ -60,8 +60,6 @@ def test_spline_scene_runs_writes_frames_and_restarts_exactly(comm, shared_tmp_p
          r"table 'constraints\[0\]': clamp on a B-spline surface needs boundary control points"),
         (lambda s: s.replace('patches = [3, 2]', 'patches = [3, 2]\ncorner = 1'),
          r"unknown key 'surface.corner'"),
-        (lambda s: s.replace("damping = { mass = 0.5 }", "contact = true\nself_collision = true"),
-         r"key 'effects.contact': contact effects need a Hermite surface"),
     ],
 )  # fmt: skip
 def test_bad_spline_scenes_name_the_key(comm, shared_tmp_path, edit, message):

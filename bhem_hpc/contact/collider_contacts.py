@@ -36,7 +36,7 @@ def simple_collider_contacts(
     contact_point = p0[hit] + toi[hit, None] * (p1[hit] - p0[hit])
     _, normal = collider.signed_distance(contact_point - (toi[hit] * dt)[:, None] * collider.velocity, 0.0)
     foot = p1[hit] - d1[:, None] * normal1
-    b_index, b_weights = no_second_point(len(hit))
+    b_index, b_weights = no_second_point(len(hit), samples.index.shape[1])
     return sample_contacts(
         source, samples, rows[hit], (b_index, b_weights), normal, foot,
         np.broadcast_to(collider.velocity, (len(hit), 3)).copy(), toi[hit], friction,
@@ -101,7 +101,7 @@ def point_contacts(
         if not len(point):
             return Contacts.empty()
     index, weights = layout.point_entries(patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
-    b_index, b_weights = no_second_point(len(point))
+    b_index, b_weights = no_second_point(len(point), index.shape[1])
     # the shell point must stay on its side: the normal points from the collider point to the shell
     return Contacts(
         key=source * 2**40 + rows[point] * grid.n1 * grid.n2 + patch,

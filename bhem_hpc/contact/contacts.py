@@ -12,12 +12,14 @@ from bhem_hpc.contact.samples import ShellSamples
 
 @dataclass(frozen=True)
 class Contacts:
-    """``k`` contacts, each a linear function of the shell's flat nodal data ``(m1 * m2 * 4, 3)``.
+    """``k`` contacts, each a linear function of the shell's entries ``(N, 3)`` (Hermite nodal data or
+    B-spline control points).
 
     Attributes:
         key: ``(k,)`` deterministic order (source, sample) so every rank builds the same rows.
-        index_a, weights_a: ``(k, 16)`` the shell point ``a`` (see ``surface.point_weights``).
-        index_b, weights_b: ``(k, 16)`` a second shell point (self-contact), weights 0 otherwise.
+        index_a, weights_a: ``(k, K)`` the shell point ``a`` (``K`` entries per point: 16 for Hermite
+            patches, ``(p + 1)^2`` for B-splines; see the patch layout's ``point_entries``).
+        index_b, weights_b: ``(k, K)`` a second shell point (self-contact), weights 0 otherwise.
         normal: ``(k, 3)`` unit normal along which ``a`` separates from the obstacle.
         obstacle_point: ``(k, 3)`` a point of the obstacle's tangent plane at the end of the step.
         obstacle_velocity: ``(k, 3)`` the obstacle's velocity there (0 for self-contact).
@@ -77,8 +79,9 @@ class Contacts:
         return a - b - self.obstacle_velocity
 
 
-def no_second_point(count: int) -> tuple[np.ndarray, np.ndarray]:
-    return np.zeros((count, 16), np.int64), np.zeros((count, 16))
+def no_second_point(count: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index and weights ``(count, width)`` of an absent second point (zero weights)."""
+    return np.zeros((count, width), np.int64), np.zeros((count, width))
 
 
 def nearest_per_point(point: np.ndarray, separation: np.ndarray) -> np.ndarray:

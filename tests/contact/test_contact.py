@@ -20,6 +20,7 @@ from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import Dynamics, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import TimeStepper
+from bhem_hpc.studies.study import flat_sheet
 
 SHEET = Material(young=1e6, poisson=0.3, thickness=1e-3, density=500.0)
 G = 9.81
@@ -67,14 +68,16 @@ def test_sheet_on_an_incline_sticks_below_atan_mu_and_slides_above(comm, theta, 
     assert lift < 1e-9  # it neither sinks into nor lifts off the plane
 
 
-def _drop(comm, material, patches, collider, samples=2, steps=60):
+def _drop(comm, material, patches, collider, samples=2, steps=60, discretization="hermite"):
     """A 0.4 m sheet released 2 cm above z = 0 onto ``collider``: the stepper, the lowest signed
     distance of (8 * patches + 1)^2 dense points after each step, and the final surface."""
-    rest = S.flat_rectangle(0.4, 0.4, patches, patches).transformed(np.eye(3), np.array([-0.2, -0.2, 0.02]))
+    sheet = flat_sheet(discretization, 0.4, 0.4, patches, patches)
+    rest = sheet.transformed(np.eye(3), np.array([-0.2, -0.2, 0.02]))
     model = ShellModel(
         rest, material, Loads(gravity=(0.0, 0.0, -G)), comm=comm, dynamics=Dynamics(0.005, mass_damping=1.0)
     )
-    detector = ContactDetector(S.HermitePatches(rest.grid), [ColliderEntry(collider, 0.0)], samples_per_side=samples)
+    patch_layout = model.discretization.patches
+    detector = ContactDetector(patch_layout, [ColliderEntry(collider, 0.0)], samples_per_side=samples)
     u = np.linspace(0.0, 0.4, 8 * patches + 1)
     dense = np.meshgrid(u, u, indexing="ij")
     lowest = []
@@ -100,6 +103,16 @@ def test_sheet_dropped_on_a_plane_never_penetrates_and_rests_at_the_push_out_dis
     contacts = [r.contacts for r in stepper.history]
     assert contacts[0] == 0 and contacts[-1] > 0  # it fell, then touched
     assert min(lowest) >= -tolerance  # dense samples, not only the contact samples
+    assert lowest[-1] == pytest.approx(ContactSettings().push_out, rel=1e-3)
+
+
+@pytest.mark.parametrize("discretization", ["bspline2", "bspline3"])
+def test_b_spline_sheet_dropped_on_a_plane_never_penetrates(comm, discretization):
+    """The same corner-first drop with control points as the unknowns (contact rows act on them)."""
+    _, normal = _incline(np.radians(10.0))
+    stepper, lowest, final = _drop(comm, SHEET, 6, Plane([0.0, 0.0, -0.03], normal), 2, 150, discretization)
+    assert stepper.history[0].contacts == 0 and stepper.history[-1].contacts > 0
+    assert min(lowest) >= -1e-3
     assert lowest[-1] == pytest.approx(ContactSettings().push_out, rel=1e-3)
 
 

@@ -338,8 +338,8 @@ def format_scene_row(row: dict) -> str:
 
 
 def format_newton_table(rows: list[dict], hessian: str, repeats: int) -> str:
-    """The table of ``bhem-hpc bench --patches ...``: one row per sheet size."""
-    ranks = MPI.COMM_WORLD.size
+    """The table of ``bhem-hpc bench --patches ...``: one row per sheet size (all on one rank count)."""
+    ranks = rows[0]["ranks"] if rows else MPI.COMM_WORLD.size
     lines = [
         f"Newton iteration, {hessian} Hessian, {ranks} rank(s), median of {repeats}",
         f"{'patches':>8} {'DoFs':>7} {'nnz':>9} {'residual':>9} {'jacobian':>9} {'factor':>8} "

@@ -63,7 +63,6 @@ class ContactDetector:
         if not (math.isfinite(self_friction) and self_friction >= 0):
             raise ValueError(f"self_friction must be a finite number >= 0, got {self_friction!r}")
         self.layout = layout
-        self.grid = layout.grid
         self.colliders = tuple(colliders)
         self.samples = ShellSamples.build(layout, samples_per_side)
         self.self_collision = self_collision

@@ -23,7 +23,13 @@ from mpi4py import MPI
 
 from bhem_hpc.discretization.grid_mesh import GridMesh
 from bhem_hpc.discretization.protocol import ConstrainedDofs, DiscretizationError
-from bhem_hpc.geometry.bspline import BSplinePatches, BSplineSurface, collocation, greville
+from bhem_hpc.geometry.bspline import (
+    BSplinePatches,
+    BSplineSurface,
+    collocation,
+    greville,
+    interpolate_at_greville,
+)
 from bhem_hpc.geometry.surface import ParameterGrid
 
 GDIM = 3
@@ -84,8 +90,6 @@ class BSplineDiscretization:
             (self.block_points[: self.num_owned_blocks, 1], grid.xi2_range, grid.n2, grid.periodic2, grid.h2),
         ):
             g = greville(n, p, periodic, lo, hi)
-            if periodic:
-                g = lo + np.mod(g - lo, hi - lo)
             distance = np.abs(points[:, None] - g[None, :])
             index = np.argmin(distance, axis=1)
             axes.append(np.where(distance[np.arange(len(points)), index] <= 1e-9 * h, index, -1))
@@ -165,10 +169,7 @@ class BSplineDiscretization:
         at_points = np.zeros((*self.control_shape, 3))
         for nodes, part in self.comm.allgather((self._greville_nodes, values)):
             at_points[nodes[:, 0], nodes[:, 1]] = part
-        a1, a2 = self._collocation
-        control = np.linalg.solve(a1, at_points.reshape(len(a1), -1)).reshape(at_points.shape)
-        control = np.linalg.solve(a2, control.transpose(1, 0, 2).reshape(len(a2), -1))
-        return control.reshape(len(a2), len(a1), 3).transpose(1, 0, 2).reshape(-1, 3)
+        return interpolate_at_greville(*self._collocation, at_points).reshape(-1, 3)
 
     def entry_closed_blocks(self) -> tuple[np.ndarray, np.ndarray]:
         """Every control point is its own closed block, unscaled."""

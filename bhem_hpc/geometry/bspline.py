@@ -25,9 +25,14 @@ from bhem_hpc.geometry.surface import (
     ParameterGrid,
     SurfaceError,
     SurfacePoint,
+    annulus_sector_shape,
     check_regular,
+    cylinder_shape,
     load_surface_file,
+    rectangle_shape,
     save_surface_file,
+    sphere_zone_shape,
+    torus_shape,
 )
 
 DEGREES = (2, 3)
@@ -329,8 +334,8 @@ class BSplineSurface:
 def greville(spans: int, degree: int, periodic: bool, lo: float, hi: float) -> np.ndarray:
     """Greville abscissae (the averages of each basis function's inner knots), in parameters."""
     h = (hi - lo) / spans
-    if periodic:  # control i carries the basis on spans i - p .. i: its centre
-        return lo + h * (np.arange(spans) - (degree - 1) / 2.0)
+    if periodic:  # control i carries the basis on spans i - p .. i: its centre, wrapped into [lo, hi)
+        return lo + np.mod(h * (np.arange(spans) - (degree - 1) / 2.0), hi - lo)
     knots = open_knots(spans, degree)
     index = np.arange(spans + degree)[:, None] + np.arange(1, degree + 1)[None, :]
     return lo + h * knots[index].mean(axis=1)
@@ -361,25 +366,24 @@ def from_callable(position: Field, grid: ParameterGrid, degree: int) -> BSplineS
     g2 = greville(grid.n2, degree, grid.periodic2, *grid.xi2_range)
     a1 = collocation(grid.n1, degree, grid.periodic1, *grid.xi1_range)
     a2 = collocation(grid.n2, degree, grid.periodic2, *grid.xi2_range)
-    if grid.periodic1:  # a Greville point before the range start wraps
-        g1 = grid.xi1_range[0] + np.mod(g1 - grid.xi1_range[0], grid.xi1_range[1] - grid.xi1_range[0])
-    if grid.periodic2:
-        g2 = grid.xi2_range[0] + np.mod(g2 - grid.xi2_range[0], grid.xi2_range[1] - grid.xi2_range[0])
     values = np.asarray(position(*np.meshgrid(g1, g2, indexing="ij")), dtype=float)  # (c1, c2, 3)
-    # solve A1 P A2^T = X direction by direction
-    control = np.linalg.solve(a1, values.reshape(len(g1), -1)).reshape(values.shape)
-    control = np.linalg.solve(a2, control.transpose(1, 0, 2).reshape(len(g2), -1))
-    control = control.reshape(len(g2), len(g1), 3).transpose(1, 0, 2)
-    return BSplineSurface(grid, degree, control)
+    return BSplineSurface(grid, degree, interpolate_at_greville(a1, a2, values))
+
+
+def interpolate_at_greville(a1: np.ndarray, a2: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Control points ``(c1, c2, 3)`` whose spline takes ``values (c1, c2, 3)`` at the tensor
+    Greville points: ``A1 P A2^T = X`` with the 1-D collocation matrices, direction by direction."""
+    control = np.linalg.solve(a1, values.reshape(len(a1), -1)).reshape(values.shape)
+    control = np.linalg.solve(a2, control.transpose(1, 0, 2).reshape(len(a2), -1))
+    return control.reshape(len(a2), len(a1), 3).transpose(1, 0, 2)
 
 
 def flat_rectangle(
     length1: float, length2: float, n1: int, n2: int, degree: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> BSplineSurface:
-    """A flat ``length1 x length2`` sheet in the plane z = origin[2]; xi = in-plane coordinates."""
-    o = np.asarray(origin, float)
-    grid = ParameterGrid(n1, n2, (0.0, float(length1)), (0.0, float(length2)))
-    return from_callable(lambda a, b: np.stack([a + o[0], b + o[1], 0 * a + o[2]], axis=-1), grid, degree)
+    """A flat ``length1 x length2`` sheet (:func:`~bhem_hpc.geometry.surface.rectangle_shape`)."""
+    grid, position = rectangle_shape(length1, length2, n1, n2, origin)
+    return from_callable(position, grid, degree)
 
 
 def cylinder(
@@ -391,52 +395,30 @@ def cylinder(
     closed: bool = True,
     angle: float = 2 * math.pi,
 ) -> BSplineSurface:
-    """A cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle in [0, angle]
-    (periodic when ``closed``, which needs a full turn)."""
-    if closed and not math.isclose(angle, 2 * math.pi):
-        raise SurfaceError(f"a closed cylinder needs angle = 2*pi, got {angle!r}")
-    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (0.0, float(angle)), False, closed)
-    r = float(radius)
-    return from_callable(lambda z, p: np.stack([r * np.cos(p), r * np.sin(p), z], axis=-1), grid, degree)
+    """A cylinder about the z axis (:func:`~bhem_hpc.geometry.surface.cylinder_shape`), periodic when ``closed``."""
+    grid, position = cylinder_shape(radius, length, n_along, n_around, closed, angle)
+    return from_callable(position, grid, degree)
 
 
 def sphere_zone(
     radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, degree: int
 ) -> BSplineSurface:
-    """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth."""
-    if not 0.0 < polar_min < polar_max < math.pi:
-        raise SurfaceError(f"sphere zone needs 0 < polar_min < polar_max < pi, got {polar_min!r}, {polar_max!r}")
-    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
-    r = float(radius)
-    return from_callable(
-        lambda t, p: np.stack([r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t)], axis=-1),
-        grid,
-        degree,
-    )
+    """Zone of a sphere (:func:`~bhem_hpc.geometry.surface.sphere_zone_shape`), closed in the azimuth."""
+    grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth)
+    return from_callable(position, grid, degree)
 
 
 def annulus_sector(
     r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, degree: int
 ) -> BSplineSurface:
-    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle (periodic for a full turn)."""
-    if not (0 < r_inner < r_outer):
-        raise SurfaceError(f"annulus sector needs 0 < r_inner < r_outer, got {r_inner!r}, {r_outer!r}")
-    closed = math.isclose(angle_max - angle_min, 2 * math.pi)
-    grid = ParameterGrid(n_radial, n_angular, (float(r_inner), float(r_outer)), (angle_min, angle_max), False, closed)
-    return from_callable(lambda r, p: np.stack([r * np.cos(p), r * np.sin(p), 0 * r], axis=-1), grid, degree)
+    """Flat annulus sector (:func:`~bhem_hpc.geometry.surface.annulus_sector_shape`)."""
+    grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular)
+    return from_callable(position, grid, degree)
 
 
 def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, degree: int) -> BSplineSurface:
-    """Torus about z, closed in both parameters; xi1 = angle around z, xi2 = angle around the tube."""
-    big, small = float(major_radius), float(minor_radius)
-    if not (0 < small < big):
-        raise SurfaceError(f"torus needs 0 < minor_radius < major_radius, got {small!r}, {big!r}")
-    grid = ParameterGrid(n_major, n_minor, (0.0, 2 * math.pi), (0.0, 2 * math.pi), True, True)
-
-    def position(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        ring = big + small * np.cos(v)
-        return np.stack([ring * np.cos(u), ring * np.sin(u), small * np.sin(v)], axis=-1)
-
+    """Torus about z, closed in both parameters (:func:`~bhem_hpc.geometry.surface.torus_shape`)."""
+    grid, position = torus_shape(major_radius, minor_radius, n_major, n_minor)
     return from_callable(position, grid, degree)
 
 

@@ -549,16 +549,83 @@ def _stack(*components: np.ndarray) -> np.ndarray:
     return np.stack([np.broadcast_to(c, shape) for c in components], axis=-1)
 
 
-def flat_rectangle(
+# The shapes: each a parameter grid and its map x(xi1, xi2); the Hermite constructors below and the
+# B-spline ones (:mod:`bhem_hpc.geometry.bspline`) build their surfaces from the same definitions.
+Shape = tuple[ParameterGrid, Field]
+
+
+def rectangle_shape(
     length1: float, length2: float, n1: int, n2: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-) -> HermiteSurface:
+) -> Shape:
     """A flat ``length1 x length2`` sheet in the plane z = origin[2]; xi = in-plane coordinates."""
     grid = ParameterGrid(n1, n2, (0.0, float(length1)), (0.0, float(length2)))
     o = np.asarray(origin, float)
     zero = np.zeros(())
+    return grid, lambda a, b: _stack(a + o[0], b + o[1], zero * a + o[2])
+
+
+def cylinder_shape(
+    radius: float, length: float, n_along: int, n_around: int, closed: bool, angle: float, seam_angle: float = 0.0
+) -> Shape:
+    """Cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle from ``seam_angle``
+    (periodic when ``closed``, which needs ``angle == 2*pi``)."""
+    if closed and not math.isclose(angle, 2 * math.pi):
+        raise SurfaceError(f"a closed cylinder needs angle = 2*pi, got {angle!r}")
+    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (seam_angle, seam_angle + angle), False, closed)
+    r = float(radius)
+    return grid, lambda z, p: _stack(r * np.cos(p), r * np.sin(p), z)
+
+
+def sphere_zone_shape(radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int) -> Shape:
+    """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth.
+
+    xi1 = polar angle, xi2 = azimuth in [0, 2*pi). A zone touching a pole is degenerate
+    (a1 x a2 = 0 there) and is rejected; use e.g. ``polar_min = 0.1`` for a hemisphere with a hole.
+    """
+    if not 0.0 < polar_min < polar_max < math.pi:
+        raise SurfaceError(
+            f"sphere zone needs 0 < polar_min < polar_max < pi (a pole is a degenerate parameter point), "
+            f"got polar_min={polar_min!r}, polar_max={polar_max!r}"
+        )
+    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
+    r = float(radius)
+    return grid, lambda t, p: _stack(r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t))
+
+
+def annulus_sector_shape(
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int
+) -> Shape:
+    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle (periodic for a full turn)."""
+    closed = math.isclose(angle_max - angle_min, 2 * math.pi)
+    if not (0 < r_inner < r_outer):
+        raise SurfaceError(f"annulus sector needs 0 < r_inner < r_outer, got {r_inner!r}, {r_outer!r}")
+    grid = ParameterGrid(n_radial, n_angular, (float(r_inner), float(r_outer)), (angle_min, angle_max), False, closed)
+    return grid, lambda r, p: _stack(r * np.cos(p), r * np.sin(p), 0 * r)
+
+
+def torus_shape(major_radius: float, minor_radius: float, n_major: int, n_minor: int) -> Shape:
+    """Torus about z, closed in both parameters; xi1 = angle around z, xi2 = angle around the tube."""
+    big, small = float(major_radius), float(minor_radius)
+    if not (0 < small < big):
+        raise SurfaceError(f"torus needs 0 < minor_radius < major_radius, got {small!r}, {big!r}")
+    grid = ParameterGrid(n_major, n_minor, (0.0, 2 * math.pi), (0.0, 2 * math.pi), True, True)
+
+    def position(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        ring = big + small * np.cos(v)
+        return _stack(ring * np.cos(u), ring * np.sin(u), small * np.sin(v))
+
+    return grid, position
+
+
+def flat_rectangle(
+    length1: float, length2: float, n1: int, n2: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+) -> HermiteSurface:
+    """A flat ``length1 x length2`` sheet in the plane z = origin[2]; xi = in-plane coordinates."""
+    grid, position = rectangle_shape(length1, length2, n1, n2, origin)
+    zero = np.zeros(())
     one = np.ones(())
     return from_callable(
-        lambda a, b: _stack(a + o[0], b + o[1], zero * a + o[2]),
+        position,
         grid,
         (
             lambda a, b: _stack(one + 0 * a, zero * a, zero * a),
@@ -577,17 +644,12 @@ def cylinder(
     angle: float = 2 * math.pi,
     seam_angle: float = 0.0,
 ) -> HermiteSurface:
-    """Cylinder about the z axis; xi1 = z in [0, length], xi2 = polar angle from ``seam_angle``.
-
-    ``closed=True`` (requires ``angle == 2*pi``) makes xi2 periodic with identified seam DOFs.
-    """
-    if closed and not math.isclose(angle, 2 * math.pi):
-        raise SurfaceError(f"a closed cylinder needs angle = 2*pi, got {angle!r}")
-    grid = ParameterGrid(n_along, n_around, (0.0, float(length)), (seam_angle, seam_angle + angle), False, closed)
+    """Cylinder about the z axis (:func:`cylinder_shape`): seam DOFs identified when ``closed``."""
+    grid, position = cylinder_shape(radius, length, n_along, n_around, closed, angle, seam_angle)
     r = float(radius)
     zero = np.zeros(())
     return from_callable(
-        lambda z, p: _stack(r * np.cos(p), r * np.sin(p), z),
+        position,
         grid,
         (
             lambda z, p: _stack(zero * z, zero * z, 1.0 + 0 * z),
@@ -598,20 +660,11 @@ def cylinder(
 
 
 def sphere_zone(radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int) -> HermiteSurface:
-    """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth.
-
-    xi1 = polar angle, xi2 = azimuth in [0, 2*pi). A zone touching a pole is degenerate
-    (a1 x a2 = 0 there) and is rejected; use e.g. ``polar_min = 0.1`` for a hemisphere with a hole.
-    """
-    if not 0.0 < polar_min < polar_max < math.pi:
-        raise SurfaceError(
-            f"sphere zone needs 0 < polar_min < polar_max < pi (a pole is a degenerate parameter point), "
-            f"got polar_min={polar_min!r}, polar_max={polar_max!r}"
-        )
-    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
+    """Zone of a sphere (:func:`sphere_zone_shape`), checked to be regular."""
+    grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth)
     r = float(radius)
     surface = from_callable(
-        lambda t, p: _stack(r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t)),
+        position,
         grid,
         (
             lambda t, p: _stack(r * np.cos(t) * np.cos(p), r * np.cos(t) * np.sin(p), -r * np.sin(t)),
@@ -626,16 +679,10 @@ def sphere_zone(radius: float, polar_min: float, polar_max: float, n_polar: int,
 def annulus_sector(
     r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int
 ) -> HermiteSurface:
-    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle.
-
-    A full turn (``angle_max - angle_min == 2*pi``) gives a closed annulus (periodic in xi2).
-    """
-    closed = math.isclose(angle_max - angle_min, 2 * math.pi)
-    if not (0 < r_inner < r_outer):
-        raise SurfaceError(f"annulus sector needs 0 < r_inner < r_outer, got {r_inner!r}, {r_outer!r}")
-    grid = ParameterGrid(n_radial, n_angular, (float(r_inner), float(r_outer)), (angle_min, angle_max), False, closed)
+    """Flat annulus sector (:func:`annulus_sector_shape`); a full turn is closed (periodic in xi2)."""
+    grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular)
     return from_callable(
-        lambda r, p: _stack(r * np.cos(p), r * np.sin(p), 0 * r),
+        position,
         grid,
         (
             lambda r, p: _stack(np.cos(p) + 0 * r, np.sin(p) + 0 * r, 0 * r),
@@ -646,14 +693,6 @@ def annulus_sector(
 
 
 def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int) -> HermiteSurface:
-    """Torus about z, closed in both parameters; xi1 = angle around z, xi2 = angle around the tube."""
-    big, small = float(major_radius), float(minor_radius)
-    if not (0 < small < big):
-        raise SurfaceError(f"torus needs 0 < minor_radius < major_radius, got {small!r}, {big!r}")
-    grid = ParameterGrid(n_major, n_minor, (0.0, 2 * math.pi), (0.0, 2 * math.pi), True, True)
-
-    def position(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        ring = big + small * np.cos(v)
-        return _stack(ring * np.cos(u), ring * np.sin(u), small * np.sin(v))
-
+    """Torus about z (:func:`torus_shape`), derivatives from the map."""
+    grid, position = torus_shape(major_radius, minor_radius, n_major, n_minor)
     return from_callable(position, grid)

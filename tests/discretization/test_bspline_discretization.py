@@ -204,29 +204,3 @@ def test_point_load_anywhere_matches_beam_theory(comm, degree, bound):
     tip = model.state_surface().evaluate(np.array(length), np.array(width / 2)).x[2]
     expected = -force * a**2 * (3 * length - a) / (6 * ei)
     assert abs(tip / expected - 1) < bound, tip / expected - 1
-
-
-def test_a_material_point_follows_a_moving_target(comm):
-    """A point inside a span held by the augmented Lagrangian while the sheet falls around it."""
-    from bhem_hpc.model.shell import PointConstraint
-
-    rest = B.flat_rectangle(1.0, 1.0, 6, 6, 2)
-    start = rest.evaluate(np.array(0.37), np.array(0.61)).x
-    c1, c2 = rest.node_shape
-
-    def target(t):
-        return start + np.array([0.0, 0.0, 0.5 * t])
-
-    cloth = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
-    corners = [NodalConstraint(np.array([[0, 0], [c1 - 1, c2 - 1]]), (0,))]
-    held = [PointConstraint(0.37, 0.61, target)]
-    model = ShellModel(rest, cloth, Loads(gravity=(0.0, 0.0, -9.81)), corners, comm=comm, dynamics=Dynamics(0.01),
-                       point_constraints=held)  # fmt: skip
-    with ShellSolver(model, prefix="bsalm_") as solver:
-        stepper = TimeStepper(model, solver)
-        for _ in range(5):
-            stepper.advance()
-            point = model.state_surface().evaluate(np.array(0.37), np.array(0.61)).x
-            assert np.linalg.norm(point - target(stepper.time)) < 1e-8 * np.linalg.norm(target(stepper.time))
-        assert solver.report.multiplier_updates > 0
-    assert model.state_surface().evaluate(np.array(1.0), np.array(0.0)).x[2] < -1e-3  # the free corner fell

@@ -28,6 +28,7 @@ def benchmark(
     comm: MPI.Comm = MPI.COMM_WORLD,
     options: dict | None = None,
     discretization: str = "hermite",
+    quadrature: int | str | None = None,
 ) -> dict:
     """Time one Newton iteration on an ``N x N`` sheet (patches or knot spans) in a deformed,
     stressed state.
@@ -35,6 +36,7 @@ def benchmark(
     The sheet (1 m, Y 1e4 Pa, nu 0.3, h 1 mm, rho 200: the paper's cloth) is stretched 2 % and
     carries a two-wave bump, so membrane, bending and geometric stiffness are all active.
     Reports the median of ``repeats`` iterations after one warm-up (JIT, symbolic analysis).
+    ``quadrature``: Gauss points per direction or ``"reduced"``; None: the discretization's default.
     """
     if patches < 1:
         raise ValueError(f"--patches must be >= 1, got {patches!r}")
@@ -55,6 +57,7 @@ def benchmark(
         Loads(gravity=(0.0, 0.0, -9.81)),
         [bcs.clamp_edge(rest, "xi2_min")],
         hessian=hessian,
+        quadrature_points=quadrature,
         comm=comm,
         initial=state,
     )
@@ -66,7 +69,9 @@ def benchmark(
     result = {
         "patches": patches,
         "discretization": discretization,
-        "quadrature_points": model.quadrature_points**2 * patches**2,
+        "quadrature": model.quadrature_points,
+        "membrane_points": model.quadrature.membrane_points,
+        "bending_points": model.quadrature.bending_points,
         "dofs": 3 * model.discretization.num_closed,
         "nnz": nnz,
         "ranks": comm.size,
@@ -78,6 +83,35 @@ def benchmark(
     result["factor_gflops"] = result["factor_gflop"] / result["factor_s"]
     result["host"] = platform.node()
     return result
+
+
+def sheet_step_benchmark(
+    patches: int,
+    discretization: str = "hermite",
+    quadrature: int | str | None = None,
+    steps: int = 5,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+) -> dict:
+    """Time implicit Euler steps (dt 10 ms) of the cloth sheet of :func:`benchmark`, clamped along
+    one edge and falling from flat under gravity: the mean of ``steps`` steps after one untimed."""
+    from bhem_hpc.model.shell import Dynamics
+    from bhem_hpc.solver.dynamics import TimeStepper
+
+    material = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
+    rest = flat_sheet(discretization, 1.0, 1.0, patches, patches)
+    model = ShellModel(
+        rest, material, Loads(gravity=(0.0, 0.0, -9.81)), [bcs.clamp_edge(rest, "xi2_min")],
+        quadrature_points=quadrature, comm=comm, dynamics=Dynamics(0.01),
+    )  # fmt: skip
+    with ShellSolver(model, prefix="bhem_bench_") as solver:
+        stepper = TimeStepper(model, solver)
+        stepper.advance()
+        reports = [stepper.advance() for _ in range(steps)]
+    wall = float(np.mean([r.wall_s for r in reports]))
+    return {
+        "step_s": comm.allreduce(wall, op=MPI.MAX),
+        "newton_per_step": float(np.mean([r.newton_iterations for r in reports])),
+    }
 
 
 def scene_benchmark(
@@ -217,10 +251,19 @@ def write_performance(docs: Path, jobs_dir: Path, steps: int = 5, comm: MPI.Comm
         "newton": [benchmark(n, comm=comm) for n in (10, 20, 30)],
         # at (nearly) equal DoFs: N Hermite patches carry 12 (N + 1)^2, M degree-p spans 3 (M + p)^2
         "discretizations": [
-            benchmark(spans, comm=comm, discretization=name)
+            {
+                **benchmark(spans, comm=comm, discretization=name, quadrature=quadrature),
+                **sheet_step_benchmark(spans, name, quadrature, comm=comm),
+            }
             for n in (10, 20)
-            for name, spans in (("hermite", n), ("bspline2", 2 * n), ("bspline3", 2 * n - 1))
-        ],
+            for name, spans, quadrature in (
+                ("hermite", n, None),
+                ("bspline2", 2 * n, None),
+                ("bspline2", 2 * n, "reduced"),
+                ("bspline3", 2 * n - 1, None),
+            )
+        ],  # fmt: skip
+        "equal_accuracy": equal_accuracy_benchmarks(docs, comm),
         "rays": [ray_benchmark(n) for n in (10, 30)] if comm.rank == 0 else [],
         "scenes": paper_comparison(jobs_dir, steps, comm),
         "steps": steps,
@@ -232,6 +275,43 @@ def write_performance(docs: Path, jobs_dir: Path, steps: int = 5, comm: MPI.Comm
         out.write_text(performance_markdown(rows))
     comm.Barrier()
     return out
+
+
+#: The accuracy target of the equal-accuracy benchmark, on the clamped plate of the plate study.
+EQUAL_ACCURACY_TARGET = 1e-3
+METHODS = (("hermite", None), ("bspline2", None), ("bspline2", "reduced"), ("bspline3", None))
+
+
+def method_name(discretization: str, quadrature: object) -> str:
+    """``hermite``, ``bspline2``, ``bspline2 reduced`` or ``bspline3``."""
+    return f"{discretization} reduced" if quadrature == "reduced" else discretization
+
+
+def equal_accuracy_benchmarks(docs: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
+    """Each method at the fewest knot spans (patches) that reach :data:`EQUAL_ACCURACY_TARGET` on
+    the clamped plate of the serial plate study in ``docs/studies`` (run first by ``make docs``),
+    timed on the cloth sheet of :func:`benchmark` and :func:`sheet_step_benchmark`."""
+    from bhem_hpc.studies.report import read_rows
+
+    path = docs / "studies" / "ranks-1" / "plate" / "plate.csv"
+    if not path.exists():
+        return []
+    plate = [r for r in read_rows(path) if r["support"] == "clamped" and r["hessian"] == "exact"]
+    rows = []
+    for discretization, quadrature in METHODS:
+        default = {"hermite": 4, "bspline2": 3, "bspline3": 4}[discretization]
+        candidates = [
+            r for r in plate
+            if r["discretization"] == discretization and r["quadrature"] == (quadrature or default)
+            and r["factorization"] == "ldlt" and r["error"] <= EQUAL_ACCURACY_TARGET
+        ]  # fmt: skip
+        if not candidates:
+            continue
+        spans = min(r["patches"] for r in candidates)
+        error = next(r["error"] for r in candidates if r["patches"] == spans)
+        row = benchmark(spans, comm=comm, discretization=discretization, quadrature=quadrature)
+        rows.append({**row, **sheet_step_benchmark(spans, discretization, quadrature, comm=comm), "plate_error": error})
+    return rows
 
 
 def performance_markdown(rows: dict) -> str:
@@ -251,7 +331,7 @@ def performance_markdown(rows: dict) -> str:
         "",
     ]
     lines[-2] = "```\n" + lines[-2] + "\n```"
-    lines += _discretization_table(rows.get("discretizations", []))
+    lines += _discretization_table(rows.get("discretizations", []), rows.get("equal_accuracy", []))
     if rows["rays"]:
         lines += ["## Ray-patch intersection (`bhem-hpc bench --rays`)", ""]
         lines += [f"- {format_ray_row(r)}" for r in rows["rays"]]
@@ -260,27 +340,49 @@ def performance_markdown(rows: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _discretization_table(rows: list[dict]) -> list[str]:
-    """Hermite and B-splines on the same sheet at (nearly) equal DoFs: cost of a Newton iteration."""
+def _discretization_table(rows: list[dict], equal_accuracy: list[dict]) -> list[str]:
+    """Hermite and B-splines on the same sheet at (nearly) equal DoFs and at equal accuracy."""
     if not rows:
         return []
+    header = [
+        "| method | patches / spans | DoFs | nonzeros / DoF | membrane / bending points | Jacobian [s] "
+        "| factor [s] | Newton iteration [s] | time step [s] | Newton / step |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+
+    def line(r: dict, extra: str = "") -> str:
+        return (
+            f"| {method_name(r['discretization'], r['quadrature'])} | {r['patches']} | {r['dofs']} | "
+            f"{r['nnz'] / r['dofs']:.0f} | {r['membrane_points']} / {r['bending_points']} | "
+            f"{r['assemble_jacobian_s']:.4f} | {r['factor_s']:.4f} | {r['newton_iteration_s']:.4f} | "
+            f"{r['step_s']:.4f} | {r['newton_per_step']:.1f} |{extra}"
+        )
+
     lines = [
         "## Hermite and B-splines at equal DoFs (`bhem-hpc bench --patches N --discretization D`)",
         "",
         "The same sheet and state; N Hermite patches against 2N quadratic and 2N - 1 cubic knot spans, each with "
-        "its default Gauss rule.",
+        "its default Gauss rule, and the quadratic splines with the B-spline paper's reduced rule "
+        "(`--quadrature reduced`). Time step: the sheet clamped along one edge falls from flat "
+        "(implicit Euler, dt 10 ms), mean of 5 steps after one.",
         "",
-        "| discretization | patches / spans | DoFs | nonzeros | nonzeros / DoF | quadrature points | Jacobian [s] "
-        "| factor [s] | Newton iteration [s] |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        *header,
+        *(line(r) for r in rows),
+        "",
     ]
-    for r in rows:
-        lines.append(
-            f"| {r['discretization']} | {r['patches']} | {r['dofs']} | {r['nnz']} | {r['nnz'] / r['dofs']:.0f} | "
-            f"{r['quadrature_points']} | {r['assemble_jacobian_s']:.4f} | {r['factor_s']:.4f} | "
-            f"{r['newton_iteration_s']:.4f} |"
-        )
-    return [*lines, ""]
+    if equal_accuracy:
+        lines += [
+            "## Hermite and B-splines at equal accuracy",
+            "",
+            f"Each method at the fewest patches / spans whose clamped-plate deflection (the plate study, serial) is "
+            f"within {EQUAL_ACCURACY_TARGET:g} of the tabulated value, timed on the sheet above.",
+            "",
+            header[0] + " plate error |",
+            header[1] + " ---: |",
+            *(line(r, f" {r['plate_error']:.2e} |") for r in equal_accuracy),
+            "",
+        ]
+    return lines
 
 
 def _scene_table(rows: list[dict], steps: int) -> list[str]:

@@ -54,6 +54,10 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument(
         "--discretization", choices=("hermite", "bspline2", "bspline3"), default="hermite", help="with --patches"
     )
+    bench.add_argument(
+        "--quadrature", type=_quadrature, default=None,
+        help="with --patches: Gauss points per direction (2-5) or 'reduced' (bspline2); default: the discretization's",
+    )  # fmt: skip
     bench.add_argument("--repeats", type=int, default=3)
     bench.add_argument("--json", action="store_true", help="print one JSON object per size")
     bench.add_argument("--scene", type=Path, default=None, help="time steps of this scene instead of one iteration")
@@ -136,6 +140,11 @@ def _cantilever(args: argparse.Namespace, comm) -> None:
         )
 
 
+def _quadrature(text: str) -> int | str:
+    """``--quadrature``: an integer number of Gauss points per direction, or ``reduced``."""
+    return text if text == "reduced" else int(text)
+
+
 def _bench(args: argparse.Namespace, comm) -> None:
     from bhem_hpc import benchmarks
 
@@ -154,7 +163,9 @@ def _bench(args: argparse.Namespace, comm) -> None:
             print(json.dumps(row) if args.json else benchmarks.format_scene_row(row))
     else:
         rows = [
-            benchmarks.benchmark(n, args.hessian, args.repeats, comm, discretization=args.discretization)
+            benchmarks.benchmark(
+                n, args.hessian, args.repeats, comm, discretization=args.discretization, quadrature=args.quadrature
+            )
             for n in args.patches
         ]
         if comm.rank == 0:

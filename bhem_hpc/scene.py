@@ -106,7 +106,7 @@ class Scene:
     steps: int
     load_steps: int
     hessian: str
-    quadrature: int | None  # None: the discretization's default
+    quadrature: int | str | None  # Gauss points per direction, 'reduced', None: the default
     petsc_options: dict[str, Any] = field(default_factory=dict)
     point_constraints: tuple[ScenePoint, ...] = ()
     output_every: int = 1
@@ -181,6 +181,7 @@ _KINDS: dict[str, Callable[[Any], bool]] = {
     "a number": _is_number,
     "an integer": _is_int,
     "a string": lambda v: isinstance(v, str),
+    "an integer or a string": lambda v: _is_int(v) or isinstance(v, str),
     "a boolean": lambda v: isinstance(v, bool),
     "3 numbers": _vector(3),
     "2 numbers": _vector(2),
@@ -224,7 +225,13 @@ def load_scene(path: str | Path) -> Scene:
     hessian, quadrature, options = "exact", None, {}
     if solver is not None:
         hessian = solver.get("hessian", "a string", "exact", lambda v: v in ("exact", "pseudo"), "'exact' or 'pseudo'")
-        quadrature = solver.get("quadrature", "an integer", None, lambda v: v in (2, 3, 4, 5), "2, 3, 4 or 5")
+        quadrature = solver.get(
+            "quadrature", "an integer or a string", None, lambda v: v in (2, 3, 4, 5, "reduced"),
+            "2, 3, 4, 5 (Gauss points per direction) or 'reduced' (quadratic B-splines)",
+        )  # fmt: skip
+        if quadrature == "reduced" and surface.discretization != "bspline2":
+            solver.fail("quadrature", f"2, 3, 4 or 5: 'reduced' needs surface.discretization = 'bspline2', "
+                        f"not {surface.discretization!r}", quadrature)  # fmt: skip
         options = solver.get("options", "a table", {})
         for k, v in options.items():
             if not isinstance(v, str | int | float | bool):

@@ -60,12 +60,36 @@ def test_spline_scene_runs_writes_frames_and_restarts_exactly(comm, shared_tmp_p
          r"table 'constraints\[0\]': clamp on a B-spline surface needs boundary control points"),
         (lambda s: s.replace('patches = [3, 2]', 'patches = [3, 2]\ncorner = 1'),
          r"unknown key 'surface.corner'"),
+        (lambda s: reduced(s.replace('discretization = "bspline2"', 'discretization = "bspline3"')),
+         r"key 'solver.quadrature' must be 2, 3, 4 or 5: 'reduced' needs surface.discretization = 'bspline2', "
+         r"not 'bspline3', got 'reduced'"),
+        (lambda s: s.replace("[output]", '[solver]\nquadrature = "half"\n\n[output]'),
+         r"key 'solver.quadrature' must be 2, 3, 4, 5 \(Gauss points per direction\) or 'reduced'"),
     ],
 )  # fmt: skip
 def test_bad_spline_scenes_name_the_key(comm, shared_tmp_path, edit, message):
     scene = write(comm, shared_tmp_path / "bad.toml", spline_scene(2, edit))
     with pytest.raises(SceneError, match=message):
         load_scene(scene)
+
+
+def reduced(text: str) -> str:
+    return text.replace("[output]", '[solver]\nquadrature = "reduced"\n\n[output]')
+
+
+def test_a_scene_selects_the_reduced_rule(comm, shared_tmp_path):
+    """The same falling sheet with the reduced rule and with 3 x 3 Gauss: the control points
+    differ by less than 2 % of the largest displacement."""
+    scene = write(comm, shared_tmp_path / "reduced.toml", reduced(spline_scene(2)))
+    assert load_scene(scene).quadrature == "reduced"
+    full_scene = write(comm, shared_tmp_path / "full.toml", spline_scene(2))
+    positions = []
+    for path, out in ((scene, "reduced"), (full_scene, "full")):
+        run_scene(RunOptions(path, shared_tmp_path / out, steps=3, progress=False), comm)
+        positions.append(read_checkpoint(shared_tmp_path / out / "checkpoint.h5")[0]["position_nodal"])
+    rest = load_scene(full_scene).surface.nodal
+    moved = np.abs(positions[1] - rest).max()
+    assert moved > 1e-3 and np.abs(positions[0] - positions[1]).max() < 0.02 * moved
 
 
 def test_a_periodic_spline_direction_needs_enough_spans(comm, shared_tmp_path):

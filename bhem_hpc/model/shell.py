@@ -25,9 +25,9 @@ from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.model.bcs import EDGES, NodalConstraint, target_surface
 from bhem_hpc.model.jit import compilation_report, default_jit_params
 from bhem_hpc.model.material import Material
+from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, shell_quadrature
 
 HessianKind = Literal["exact", "pseudo"]
-GAUSS_POINTS = (2, 3, 4, 5)
 #: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
 #: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
 DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4}
@@ -158,17 +158,6 @@ class Term:
         return load_factor * self.form if self.load_scaled else self.form
 
 
-def gauss_measure(mesh: dolfinx.mesh.Mesh, points_per_direction: int) -> ufl.Measure:
-    """Cell measure with an explicit tensor Gauss rule (``n x n`` points per patch).
-
-    UFL's own degree estimate for the shell energy is in the hundreds and makes Newton diverge;
-    never rely on it.
-    """
-    if points_per_direction not in GAUSS_POINTS:
-        raise ModelError(f"quadrature points per direction = {points_per_direction!r}; expected one of {GAUSS_POINTS}")
-    return ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 2 * points_per_direction - 1})
-
-
 class ShellModel:
     """A Kirchhoff-Love shell discretized by bicubic Hermite patches.
 
@@ -179,9 +168,11 @@ class ShellModel:
         constraints: nodal boundary conditions.
         hessian: ``"exact"`` (UFL derivative of the residual) or ``"pseudo"`` (paper's pseudo
             Hessian: the second derivative of the curvature strain is dropped).
-        quadrature_points: Gauss points per direction and patch; default: the surface's
-            :data:`DEFAULT_QUADRATURE` (4 x 4 for bicubic Hermite and cubic B-splines, the BHEM
-            paper's rule; 3 x 3 for quadratic B-splines).
+        quadrature_points: Gauss points per direction and patch, or ``"reduced"`` (quadratic
+            B-splines: the B-spline paper's reduced rule for membrane and bending, see
+            :mod:`bhem_hpc.model.quadrature`; mass and loads keep 3 x 3 Gauss); default: the
+            surface's :data:`DEFAULT_QUADRATURE` (4 x 4 for bicubic Hermite and cubic B-splines, the
+            BHEM paper's rule; 3 x 3 for quadratic B-splines).
         comm: MPI communicator.
         initial: initial state (default: the rest surface).
         point_constraints: material points held at (moving) targets by the augmented Lagrangian
@@ -197,7 +188,7 @@ class ShellModel:
         loads: Loads | None = None,
         constraints: Sequence[NodalConstraint] = (),
         hessian: HessianKind = "exact",
-        quadrature_points: int | None = None,
+        quadrature_points: Quadrature | None = None,
         comm: MPI.Comm = MPI.COMM_WORLD,
         initial: HermiteSurface | None = None,
         dynamics: Dynamics | None = None,
@@ -229,7 +220,8 @@ class ShellModel:
         self.thickness = self._constant(material.thickness)
         self.density = self._constant(material.density)
         self.load_factor = self._constant(1.0)
-        self.dx = gauss_measure(self.discretization.mesh, quadrature_points)
+        self.quadrature = shell_quadrature(self.discretization.grid_mesh, quadrature_points)
+        self.dx = self.quadrature.mass
         self._compose_forms()
         self._build_point_data(loads, point_constraints)
 
@@ -239,13 +231,14 @@ class ShellModel:
     def _terms(self, test: ufl.Argument) -> list[Term]:
         """The model's terms, in the order their forms are summed: only what the model asks for."""
         x, x_rest, dx = self.x, self.x_rest, self.dx
+        dx_membrane, dx_bending = self.quadrature.membrane, self.quadrature.bending
         section = (self.thickness, self.young, self.poisson)
         terms = [
-            Term("membrane", forms.membrane_energy(x, x_rest, *section, dx), reported=True),
+            Term("membrane", forms.membrane_energy(x, x_rest, *section, dx_membrane), reported=True),
             Term(
                 "bending",
-                forms.bending_energy(x, x_rest, *section, dx),
-                pseudo_hessian=lambda v, u: forms.bending_pseudo_hessian(x, x_rest, *section, dx, v, u),
+                forms.bending_energy(x, x_rest, *section, dx_bending),
+                pseudo_hessian=lambda v, u: forms.bending_pseudo_hessian(x, x_rest, *section, dx_bending, v, u),
                 reported=True,
             ),
         ]
@@ -276,9 +269,9 @@ class ShellModel:
             terms.append(Term("mass_damping", damping))
         if dynamics.stiffness_damping > 0:
             self.stiffness_damping = self._constant(dynamics.stiffness_damping)
-            internal_previous = forms.membrane_energy(self.x_previous, x_rest, *section, dx) + forms.bending_energy(
-                self.x_previous, x_rest, *section, dx
-            )
+            internal_previous = forms.membrane_energy(
+                self.x_previous, x_rest, *section, self.quadrature.membrane
+            ) + forms.bending_energy(self.x_previous, x_rest, *section, self.quadrature.bending)
             damping = forms.stiffness_damping_potential(
                 internal_previous, x, self.x_previous, self.stiffness_damping, self.time_step
             )
@@ -424,7 +417,7 @@ class ShellModel:
 
 def _validate(
     rest: HermiteSurface, initial: HermiteSurface, loads: Loads,
-    constraints: Sequence[NodalConstraint], hessian: str, quadrature_points: int, dynamics: Dynamics | None,
+    constraints: Sequence[NodalConstraint], hessian: str, quadrature_points: Quadrature, dynamics: Dynamics | None,
     point_constraints: Sequence[PointConstraint],
 ) -> None:  # fmt: skip
     """Every check of a model's definition, before anything is built (raises :class:`ModelError`)."""
@@ -433,18 +426,18 @@ def _validate(
         dynamics.validate()
     if hessian not in ("exact", "pseudo"):
         raise ModelError(f"hessian = {hessian!r}; expected 'exact' or 'pseudo'")
-    if quadrature_points not in GAUSS_POINTS:
-        raise ModelError(f"quadrature points per direction = {quadrature_points!r}; expected one of {GAUSS_POINTS}")
-    rest.check_regular(quadrature_points, name="rest surface")
+    try:
+        check_quadrature(quadrature_points, rest.discretization)
+    except QuadratureError as error:
+        raise ModelError(str(error)) from None
+    rest.check_regular(3 if quadrature_points == "reduced" else quadrature_points, name="rest surface")
     if initial.grid != rest.grid or type(initial) is not type(rest) or initial.node_shape != rest.node_shape:
         raise ModelError("initial and rest surfaces have different grids or kinds")
     for c in constraints:
         c.validate(rest.grid, rest.node_shape, rest.kind_count)
     for i, pc in enumerate(point_constraints):
         if not set(pc.components) <= {0, 1, 2} or not pc.components:
-            raise ModelError(
-                f"point_constraints[{i}].components = {pc.components!r}; expected a subset of (0, 1, 2)"
-            )
+            raise ModelError(f"point_constraints[{i}].components = {pc.components!r}; expected a subset of (0, 1, 2)")
         target = pc.target_at(0.0)
         if target.shape != (3,) or not np.all(np.isfinite(target)):
             raise ModelError(f"point_constraints[{i}].target must give 3 finite numbers, got {target!r}")

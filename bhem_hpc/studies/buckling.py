@@ -10,19 +10,22 @@ from collections.abc import Iterable
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.shell import Loads, ShellModel
+from bhem_hpc.model.shell import DEFAULT_QUADRATURE, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.studies.study import Study, StudyError, study_result
+from bhem_hpc.studies.study import Study, StudyError, flat_sheet, spline_variants, study_result
 
 
 def _buckling_configurations() -> Iterable[dict]:
     # nu = 0: a strip's out-of-plane bending stiffness is then Y h^3 w / 12 whether its section bends
     # anticlastically (beam) or is held (plate); for nu > 0 the reference would have to choose.
-    for aspect, patches in itertools.product((0.02, 0.05, 0.1, 0.2), (10, 20, 40)):
-        yield {"aspect": aspect, "patches_per_m": patches, "poisson": 0.0}
+    aspects = (0.02, 0.05, 0.1, 0.2)
+    for aspect, patches in itertools.product(aspects, (10, 20, 40)):
+        yield {"aspect": aspect, "discretization": "hermite", "quadrature": 4, "patches_per_m": patches, "poisson": 0.0}
+    for aspect, spline in itertools.product(aspects, spline_variants((10, 20, 40))):
+        yield {"aspect": aspect, "discretization": spline["discretization"], "quadrature": spline["quadrature"],
+               "patches_per_m": spline["size"], "poisson": 0.0}  # fmt: skip
 
 
 def _buckling_gravity(gamma: float, material: Material) -> float:
@@ -31,7 +34,13 @@ def _buckling_gravity(gamma: float, material: Material) -> float:
 
 
 def buckling_model(
-    aspect: float, patches_per_m: int, poisson: float, comm: MPI.Comm, planar: bool = False
+    aspect: float,
+    patches_per_m: int,
+    poisson: float,
+    comm: MPI.Comm,
+    planar: bool = False,
+    discretization: str = "hermite",
+    quadrature: int | str | None = None,
 ) -> ShellModel:
     """A 1 m plate hanging on edge from a clamp: width ``aspect`` m vertical (in the x-z plane),
     thickness ``aspect / 50``, gravity along -z at the beam-theory threshold (the solver's force
@@ -48,17 +57,17 @@ def buckling_model(
     material = Material(young=1e6, poisson=poisson, thickness=aspect / 50, density=1000.0)
     across = max(1, round(patches_per_m * aspect))
     upright = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # the width along z
-    rest = S.flat_rectangle(1.0, aspect, patches_per_m, across).transformed(upright, np.zeros(3))
-    constraints = [bcs.clamp(bcs.edge_nodes(rest.grid, "xi1_min"))]
-    if planar:
-        others = np.argwhere(np.ones(rest.grid.node_shape, dtype=bool))
-        others = others[others[:, 0] > 0]  # the clamp holds the first column already
-        constraints.append(bcs.NodalConstraint(others, (0, 1, 2, 3), (1,), None))
+    rest = flat_sheet(discretization, 1.0, aspect, patches_per_m, across).transformed(upright, np.zeros(3))
+    constraints = [bcs.clamp_edge(rest, "xi1_min")]
+    if planar:  # every nodal vector (control point) keeps y = 0; the clamp's own rows are merged
+        others = np.argwhere(np.ones(rest.node_shape, dtype=bool))
+        constraints.append(bcs.NodalConstraint(others, tuple(range(rest.kind_count)), (1,), None))
     return ShellModel(
         rest,
         material,
         Loads(gravity=(0.0, 0.0, -_buckling_gravity(lateral_buckling_gamma(poisson), material))),
         constraints,
+        quadrature_points=quadrature,
         comm=comm,
     )
 
@@ -72,7 +81,8 @@ def run_buckling(config: dict, comm: MPI.Comm) -> dict:
     from bhem_hpc.studies.references import lateral_buckling_gamma
 
     knobs = (config["aspect"], config["patches_per_m"], config["poisson"], comm)
-    planar, free = buckling_model(*knobs, planar=True), buckling_model(*knobs)
+    method = {"discretization": config.get("discretization", "hermite"), "quadrature": config.get("quadrature")}
+    planar, free = buckling_model(*knobs, planar=True, **method), buckling_model(*knobs, **method)
     material = free.material
     reference = lateral_buckling_gamma(material.poisson)
     low, high = 0.25 * reference, 4.0 * reference
@@ -98,11 +108,11 @@ def run_buckling(config: dict, comm: MPI.Comm) -> dict:
 STUDY = Study(
     "buckling",
     "plate hanging on edge from a clamp, Gamma* of lateral buckling against Michell-Prandtl beam theory",
-    ("aspect", "patches_per_m", "poisson"),
+    ("aspect", "discretization", "quadrature", "patches_per_m", "poisson"),
     _buckling_configurations,
     run_buckling,
-    "aspect",
-    {"poisson": 0.0},
+    ("aspect", "discretization"),
+    {"quadrature": DEFAULT_QUADRATURE, "poisson": 0.0},
     "aspect",
     note=(
         "The reference is beam theory, exact only as w/L -> 0: the errors at a given w/L are mostly the plate's "

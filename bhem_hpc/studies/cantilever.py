@@ -14,16 +14,21 @@ from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import render_surface_png, write_surface_xdmf
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.shell import Loads, ShellModel
+from bhem_hpc.model.shell import DEFAULT_QUADRATURE, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.studies.references import heavy_cantilever
-from bhem_hpc.studies.study import Study, StudyError, flat_sheet, study_result, timed_solve
+from bhem_hpc.studies.study import Study, StudyError, flat_sheet, spline_variants, study_result, timed_solve
 
 CANTILEVER_SIZE = (1.0, 0.1)  # length, width [m]
 
 
 def cantilever_model(
-    gamma: float, patches: int, hessian: str = "exact", comm: MPI.Comm = MPI.COMM_WORLD, discretization: str = "hermite"
+    gamma: float,
+    patches: int,
+    hessian: str = "exact",
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    discretization: str = "hermite",
+    quadrature: int | str | None = None,
 ) -> ShellModel:
     """The strip of :func:`cantilever`: nu = 0, clamped at xi1 = 0, gravity set by ``Gamma*``."""
     length, width = CANTILEVER_SIZE
@@ -36,6 +41,7 @@ def cantilever_model(
         Loads(gravity=(0.0, 0.0, -gravity)),
         [bcs.clamp_edge(rest, "xi1_min")],
         hessian=hessian,
+        quadrature_points=quadrature,
         comm=comm,
     )
 
@@ -124,15 +130,16 @@ def _plot_cantilever(path: Path, surface: S.HermiteSurface, shape: np.ndarray, s
 
 def _cantilever_configurations() -> Iterable[dict]:
     gammas = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0)
-    hermite = {"discretization": "hermite", "hessian": "exact", "newton_rtol": 1e-9}
+    hermite = {"discretization": "hermite", "quadrature": 4, "hessian": "exact", "newton_rtol": 1e-9}
     for patches, gamma in itertools.product((8, 16, 32), gammas):
         yield {"gamma": gamma, "patches": patches, **hermite}
     for gamma in gammas:
         yield {"gamma": gamma, "patches": 16, **hermite, "hessian": "pseudo"}
     for rtol, gamma in itertools.product((1e-3, 1e-6), (1.0, 30.0, 300.0)):
         yield {"gamma": gamma, "patches": 16, **hermite, "newton_rtol": rtol}
-    for discretization, patches, gamma in itertools.product(("bspline2", "bspline3"), (8, 16, 32, 64), gammas):
-        yield {"gamma": gamma, "patches": patches, **hermite, "discretization": discretization}
+    for spline, gamma in itertools.product(spline_variants((8, 16, 32, 64)), gammas):
+        yield {"gamma": gamma, "patches": spline["size"], **hermite, "discretization": spline["discretization"],
+               "quadrature": spline["quadrature"]}  # fmt: skip
 
 
 def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
@@ -145,7 +152,9 @@ def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
     rtol = config.get("newton_rtol", 1e-9)
     if not (1e-14 <= rtol <= 0.1):
         raise StudyError(f"knob newton_rtol = {rtol!r} is out of range [1e-14, 0.1]")
-    model = cantilever_model(gamma, patches, config["hessian"], comm, config.get("discretization", "hermite"))
+    model = cantilever_model(
+        gamma, patches, config["hessian"], comm, config.get("discretization", "hermite"), config.get("quadrature")
+    )
     load_steps = max(1, int(np.ceil(2 * np.sqrt(gamma))))
     measured = timed_solve(model, load_steps, {"snes_rtol": rtol}, comm)
     length, width = CANTILEVER_SIZE
@@ -156,10 +165,10 @@ def run_cantilever(config: dict, comm: MPI.Comm) -> dict:
 STUDY = Study(
     "cantilever",
     "heavy cantilever strip, tip drop against the heavy elastica (master curve)",
-    ("gamma", "discretization", "patches", "hessian", "newton_rtol"),
+    ("gamma", "discretization", "patches", "quadrature", "hessian", "newton_rtol"),
     _cantilever_configurations,
     run_cantilever,
     "discretization",
-    {"hessian": "exact", "newton_rtol": 1e-9},
+    {"quadrature": DEFAULT_QUADRATURE, "hessian": "exact", "newton_rtol": 1e-9},
     "gamma",
 )

@@ -76,7 +76,7 @@ def _plot(path: Path, study: Study, rows: list[dict]) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
     rows = results(rows)
-    baseline = [r for r in rows if study.in_baseline(r)]
+    baseline = [r for r in rows if study.in_plot(r)]
     for label in sorted({study.series_label(r) for r in baseline}):
         series = sorted((r for r in baseline if study.series_label(r) == label), key=lambda r: (r["dofs"], r["wall_s"]))
         errors = [max(r["error"], 1e-16) for r in series]

@@ -52,9 +52,16 @@ class Study:
     def in_baseline(self, row: dict) -> bool:
         return all(row[k] == self.baseline_value(k, row) for k in self.baseline)
 
+    def in_plot(self, row: dict) -> bool:
+        """Baseline rows, and rows of the reduced quadrature rule that are baseline otherwise."""
+        if row.get("quadrature") == "reduced":
+            return all(row[k] == self.baseline_value(k, row) for k in self.baseline if k != "quadrature")
+        return self.in_baseline(row)
+
     def series_label(self, row: dict) -> str:
         keys = (self.series,) if isinstance(self.series, str) else self.series
-        return ", ".join(f"{k} = {row[k]}" for k in keys)
+        label = ", ".join(f"{k} = {row[k]}" for k in keys)
+        return f"{label} (reduced)" if row.get("quadrature") == "reduced" else label
 
 
 def timed_solve(model: ShellModel, load_steps: int, options: dict, comm: MPI.Comm) -> tuple[float, int, int]:
@@ -80,6 +87,15 @@ def study_result(model: ShellModel, value: float, reference: float, measured: tu
         "wall_s": wall,
         "newton_iterations": iterations,
     }
+
+
+def spline_variants(sizes: tuple[int, ...], cubic_sizes: tuple[int, ...] | None = None) -> Iterable[dict]:
+    """The B-spline methods of a head-to-head, each with its sizes: quadratic splines with 3 x 3
+    Gauss and with the reduced rule, cubic splines with 4 x 4 Gauss (on ``cubic_sizes``, default
+    ``sizes``)."""
+    for discretization, quadrature in (("bspline2", 3), ("bspline2", "reduced"), ("bspline3", 4)):
+        for size in cubic_sizes or sizes if discretization == "bspline3" else sizes:
+            yield {"discretization": discretization, "quadrature": quadrature, "size": size}
 
 
 def flat_sheet(discretization: str, length1: float, length2: float, n1: int, n2: int):

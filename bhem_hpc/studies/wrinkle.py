@@ -12,9 +12,9 @@ from mpi4py import MPI
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.shell import Loads, ShellModel
+from bhem_hpc.model.shell import DEFAULT_QUADRATURE, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.studies.study import Study, StudyError
+from bhem_hpc.studies.study import Study, StudyError, flat_sheet, spline_variants
 
 WRINKLE_SIZE = (0.25, 0.1)  # m, pulled along the first side (paper Fig. 13, 17; Cerda & Mahadevan's sheet)
 WRINKLE_STRAIN = 0.1  # nominal strain of the pull
@@ -23,15 +23,39 @@ WRINKLE_RAMP = 0.2  # s, the pull's duration (smooth start and stop)
 
 
 def _wrinkle_configurations() -> Iterable[dict]:
+    hermite = {"discretization": "hermite"}
     for patches in (5, 10, 15, 20, 30, 40):
-        yield {"patches": patches, "quadrature": 4, "hessian": "exact", "dt": 0.01}
+        yield {**hermite, "patches": patches, "quadrature": 4, "hessian": "exact", "dt": 0.01}
     for patches in (20, 30):
-        yield {"patches": patches, "quadrature": 3, "hessian": "exact", "dt": 0.01}
-    yield {"patches": 20, "quadrature": 4, "hessian": "pseudo", "dt": 0.01}
-    yield {"patches": 20, "quadrature": 4, "hessian": "exact", "dt": 0.02}
+        yield {**hermite, "patches": patches, "quadrature": 3, "hessian": "exact", "dt": 0.01}
+    yield {**hermite, "patches": 20, "quadrature": 4, "hessian": "pseudo", "dt": 0.01}
+    yield {**hermite, "patches": 20, "quadrature": 4, "hessian": "exact", "dt": 0.02}
+    for spline in spline_variants((20, 40), (20, 30)):
+        yield {"discretization": spline["discretization"], "patches": spline["size"],
+               "quadrature": spline["quadrature"], "hessian": "exact", "dt": 0.01}  # fmt: skip
 
 
-def wrinkle_model(patches: int, quadrature: int, hessian: str, dt: float, comm: MPI.Comm) -> tuple[ShellModel, object]:
+def _grips(rest) -> list[bcs.NodalConstraint]:
+    """Both short ends in grips: the end line held, and its out-of-plane slope.
+
+    Hermite: the end line (x, d2, all components) and the out-of-plane slope (d1, d12 along z);
+    the in-plane d1, d12 stay free so the sheet's stretch is not forced to 0 there. B-splines: the
+    outer row of control points, and the second row's z. The moving grip's end line comes third.
+    """
+    grips = []
+    for edge in ("xi1_min", "xi1_max"):
+        nodes = bcs.edge_nodes(rest.grid, edge, rest.node_shape)
+        if rest.kind_count == 1:
+            inner = nodes + np.array([1 if edge == "xi1_min" else -1, 0])
+            grips += [bcs.NodalConstraint(nodes, (0,), (0, 1, 2)), bcs.NodalConstraint(inner, (0,), (2,))]
+        else:
+            grips += [bcs.NodalConstraint(nodes, (0, 2), (0, 1, 2)), bcs.NodalConstraint(nodes, (1, 3), (2,))]
+    return grips
+
+
+def wrinkle_model(
+    patches: int, quadrature: int | str, hessian: str, dt: float, comm: MPI.Comm, discretization: str = "hermite"
+) -> tuple[ShellModel, object]:
     """The stretched sheet (paper Fig. 13): 0.25 m x 0.1 m, h 0.1 mm, nu 0.5, Y 1 MPa, rho 930 kg/m^3,
     ``patches x patches``, no gravity. Both short ends are held in grips: position, the derivative
     along the end and the out-of-plane slope across it; the grip at xi1 = L moves by
@@ -48,19 +72,17 @@ def wrinkle_model(patches: int, quadrature: int, hessian: str, dt: float, comm: 
 
     if not (isinstance(patches, int) and 2 <= patches <= 80):
         raise StudyError(f"knob patches = {patches!r} is out of range (2..80)")
-    if quadrature not in (2, 3, 4, 5) or hessian not in ("exact", "pseudo"):
-        raise StudyError(f"knobs quadrature = {quadrature!r} (2..5) and hessian = {hessian!r} (exact|pseudo) invalid")
+    if quadrature not in (2, 3, 4, 5, "reduced") or hessian not in ("exact", "pseudo"):
+        raise StudyError(
+            f"knobs quadrature = {quadrature!r} (2..5, reduced) and hessian = {hessian!r} (exact|pseudo) invalid"
+        )
     if not (0.001 <= dt <= 0.05):
         raise StudyError(f"knob dt = {dt!r} is out of range [0.001, 0.05] s")
     length, width = WRINKLE_SIZE
-    rest = S.flat_rectangle(length, width, patches, patches)
-    grips = []
-    for edge in ("xi1_min", "xi1_max"):
-        nodes = bcs.edge_nodes(rest.grid, edge)
-        # the grip holds the end line (x, d2, all components) and its out-of-plane slope (d1, d12
-        # along z); the in-plane d1, d12 stay free so the sheet's stretch is not forced to 0 there
-        grips += [bcs.NodalConstraint(nodes, (0, 2), (0, 1, 2)), bcs.NodalConstraint(nodes, (1, 3), (2,))]
-    held = rest.nodal[-1, :, :, :][:, [0, 2], :]
+    rest = flat_sheet(discretization, length, width, patches, patches)
+    grips = _grips(rest)
+    moving = grips[2]  # the end line at xi1 = L
+    held = rest.nodal[moving.nodes[:, 0], moving.nodes[:, 1]][:, list(moving.kinds), :]
 
     def grip_values(t: float) -> np.ndarray:
         s = min(1.0, t / WRINKLE_RAMP)
@@ -69,14 +91,15 @@ def wrinkle_model(patches: int, quadrature: int, hessian: str, dt: float, comm: 
         return values
 
     nodal = rest.nodal.copy()
-    imperfection = np.random.default_rng(2019).standard_normal(nodal[1:-1, :, 0, 2].shape)
-    nodal[1:-1, :, 0, 2] = 1e-6 * imperfection
+    free = slice(1, -1) if rest.kind_count > 1 else slice(2, -2)  # the nodes (control points) no grip holds
+    imperfection = np.random.default_rng(2019).standard_normal(nodal[free, :, 0, 2].shape)
+    nodal[free, :, 0, 2] = 1e-6 * imperfection
     model = ShellModel(
         rest,
         Material(young=1e6, poisson=0.5, thickness=1e-4, density=930.0),
         Loads(),
         grips,
-        initial=S.HermiteSurface(rest.grid, nodal),
+        initial=rest.with_nodal(nodal),
         hessian=hessian,
         quadrature_points=quadrature,
         comm=comm,
@@ -102,8 +125,9 @@ WRINKLE_REST_DT = 2.0  # s, the largest time step of the relaxation after the pu
 
 
 def stretch_to_rest(
-    patches: int, quadrature: int, hessian: str, dt: float, comm: MPI.Comm, max_steps: int = 200
-) -> tuple[S.HermiteSurface, dict]:
+    patches: int, quadrature: int | str, hessian: str, dt: float, comm: MPI.Comm, max_steps: int = 200,
+    discretization: str = "hermite",
+) -> tuple[S.HermiteSurface, dict]:  # fmt: skip
     """Pull the sheet of :func:`wrinkle_model` (time step ``dt``), then relax it to equilibrium:
     after the pull the time step doubles every step up to ``WRINKLE_REST_DT`` (implicit Euler with
     a large step is a proximal step on the energy: it settles slow wrinkle rearrangements that
@@ -116,7 +140,7 @@ def stretch_to_rest(
     """
     from bhem_hpc.solver.dynamics import TimeStepper
 
-    model, grip = wrinkle_model(patches, quadrature, hessian, dt, comm)
+    model, grip = wrinkle_model(patches, quadrature, hessian, dt, comm, discretization)
     with ShellSolver(model, prefix="bhem_study_") as solver:
         stepper = TimeStepper(model, solver, motions=[grip])
         start = time.perf_counter()
@@ -155,7 +179,8 @@ def plot_wrinkles(path: Path, rows: list[dict]) -> None:
     series = [
         r
         for r in rows
-        if (r["quadrature"], r["hessian"], r["dt"]) == (4, "exact", 0.01) and tuple(_config(r)) in _WRINKLE_SHAPES
+        if (r["discretization"], r["quadrature"], r["hessian"], r["dt"]) == ("hermite", 4, "exact", 0.01)
+        and tuple(_config(r)) in _WRINKLE_SHAPES
     ]
     if not series:
         return
@@ -191,12 +216,15 @@ def plot_wrinkles(path: Path, rows: list[dict]) -> None:
 
 def _config(row: dict) -> list[tuple]:
     """A wrinkle row's configuration items, in the configurations' key order."""
-    return [(k, row[k]) for k in ("patches", "quadrature", "hessian", "dt")]
+    return [(k, row[k]) for k in ("discretization", "patches", "quadrature", "hessian", "dt")]
 
 
 def run_wrinkle(config: dict, comm: MPI.Comm) -> dict:
     """Stretched-sheet wrinkles (paper Fig. 13, 17): peak amplitude against the measured 0.35 mm."""
-    surface, run = stretch_to_rest(config["patches"], config["quadrature"], config["hessian"], config["dt"], comm)
+    surface, run = stretch_to_rest(
+        config["patches"], config["quadrature"], config["hessian"], config["dt"], comm,
+        discretization=config.get("discretization", "hermite"),
+    )  # fmt: skip
     peak, count = wrinkle_profile(surface)
     _WRINKLE_SHAPES[tuple(config.items())] = surface
     return {
@@ -215,11 +243,11 @@ def run_wrinkle(config: dict, comm: MPI.Comm) -> dict:
 STUDY = Study(
     "wrinkle",
     "sheet stretched 10 % between grips: peak wrinkle amplitude against the measured 0.35 mm",
-    ("patches", "quadrature", "hessian", "dt"),
+    ("discretization", "patches", "quadrature", "hessian", "dt"),
     _wrinkle_configurations,
     run_wrinkle,
-    "hessian",
-    {"quadrature": 4, "dt": 0.01},
+    ("discretization", "hessian"),
+    {"quadrature": DEFAULT_QUADRATURE, "dt": 0.01},
     "hessian",
     ("wrinkles", "steps"),
     figure=plot_wrinkles,

@@ -89,6 +89,20 @@ def study_result(model: ShellModel, value: float, reference: float, measured: tu
     }
 
 
+#: The C1 methods of the head-to-head: a discretization and, for quadratic splines, the quadrature rule.
+METHODS = ("hermite", "bspline2", "bspline2 reduced", "bspline3")
+
+
+def method_name(discretization: str, quadrature: object) -> str:
+    """``hermite``, ``bspline2``, ``bspline2 reduced`` or ``bspline3``."""
+    return f"{discretization} reduced" if quadrature == "reduced" else discretization
+
+
+def row_method(row: dict) -> str:
+    """The method of a study row (rows of studies without a discretization knob are Hermite)."""
+    return method_name(row.get("discretization", "hermite"), row.get("quadrature"))
+
+
 def spline_variants(sizes: tuple[int, ...], cubic_sizes: tuple[int, ...] | None = None) -> Iterable[dict]:
     """The B-spline methods of a head-to-head, each with its sizes: quadratic splines with 3 x 3
     Gauss and with the reduced rule, cubic splines with 4 x 4 Gauss (on ``cubic_sizes``, default

@@ -331,25 +331,41 @@ def _hairpin(arm: float, radius: float):
     return position, (along, across, twist), 2 * arm + bend
 
 
-@pytest.mark.parametrize("patches", [24, 2])
-def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm, patches):
+@pytest.mark.parametrize(("discretization", "patches"), [("hermite", 24), ("hermite", 2), ("bspline2", 24),
+                                                       ("bspline3", 24)])  # fmt: skip
+def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm, discretization, patches):
     """The two arms of a folded strip fly at each other (1 m/s each, plus a common drift). With 24
-    patches along the strip the arms are far apart in the patch grid; with 2 the fold lies inside
-    two neighbouring patches (the folded-patch search)."""
+    patches (knot spans) along the strip the arms are far apart in the patch grid; with 2 the fold
+    lies inside two neighbouring patches (the folded-patch search). On B-splines the contact rows
+    act on control points, each given the velocity of its Greville point."""
     import dolfinx.fem as fem
 
     from bhem_hpc.forms.kinematics import area_density
+    from bhem_hpc.geometry import bspline as B
 
     arm, radius, width = 0.25, 0.015, 0.08
     position, derivatives, length = _hairpin(arm, radius)
     grid = S.ParameterGrid(patches, 3, (0.0, length), (0.0, width))
-    rest = S.from_callable(position, grid, derivatives)
+
+    def arm_velocity(xi1: np.ndarray) -> np.ndarray:
+        velocity = np.zeros(np.shape(xi1) + (3,))
+        velocity[..., 2] = np.where(xi1 < arm, -1.0, np.where(xi1 > length - arm, 1.0, 0.0))
+        velocity[..., 0] = 0.3
+        return velocity
+
+    if discretization == "hermite":
+        rest, layout = S.from_callable(position, grid, derivatives), S.HermitePatches(grid)
+        velocity = np.zeros_like(rest.nodal)
+        velocity[..., 0, :] = arm_velocity(grid.node_parameters()[0])
+        velocity_surface = S.HermiteSurface(grid, velocity)
+    else:
+        degree = int(discretization[-1])
+        rest, layout = B.from_callable(position, grid, degree), B.BSplinePatches(grid, degree)
+        xi1 = B.greville(grid.n1, degree, False, *grid.xi1_range)
+        control = np.broadcast_to(arm_velocity(xi1)[:, None, :], rest.control.shape)
+        velocity_surface = B.BSplineSurface(grid, degree, control.copy())
     model = ShellModel(rest, Material(1e5, 0.3, 1e-3, 200.0), comm=comm, dynamics=Dynamics(0.002))
-    xi1, _ = grid.node_parameters()
-    velocity = np.zeros_like(rest.nodal)
-    velocity[..., 0, 2] = np.where(xi1 < arm, -1.0, np.where(xi1 > length - arm, 1.0, 0.0))
-    velocity[..., 0, 0] = 0.3
-    model.velocity.x.array[:] = model.discretization.surface_to_open(S.HermiteSurface(grid, velocity))
+    model.velocity.x.array[:] = model.discretization.surface_to_open(velocity_surface)
     momentum_forms = [
         fem.form(model.density * model.thickness * model.velocity[i] * area_density(model.x_rest) * model.dx)
         for i in range(3)
@@ -359,7 +375,7 @@ def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm
         return np.array([comm.allreduce(fem.assemble_scalar(f)) for f in momentum_forms])
 
     per_side = 2 if patches > 2 else 6
-    detector = ContactDetector(S.HermitePatches(grid), [], samples_per_side=per_side, self_collision=True)
+    detector = ContactDetector(layout, [], samples_per_side=per_side, self_collision=True)
     u = np.linspace(0.0, 0.95 * arm, 60)
     v = np.linspace(0.0, width, 9)
     before = momentum()

@@ -59,13 +59,25 @@ def test_plate_study_converges(comm, out):
     # six digits (a few 1e-6) are reached
     for degree in (2, 3):
         for support in ("simply_supported", "clamped"):
-            series = [r for r in rows if r["discretization"] == f"bspline{degree}" and r["support"] == support]
+            method = (f"bspline{degree}", support, 3 if degree == 2 else 4)
+            series = [r for r in rows if (r["discretization"], r["support"], r["quadrature"]) == method]
             spans = np.array([r["patches"] for r in series], dtype=float)
             errors = np.array([r["error"] for r in series])
             rates = np.log(errors[:-1] / errors[1:]) / np.log(spans[1:] / spans[:-1])
             resolved = errors[1:] > 2e-5
             assert np.all(rates[resolved] >= 0.9 * 2 * (degree - 1)), (degree, support, rates)
             assert errors[-1] < (2e-3 if degree == 2 else 2e-6), (degree, support, errors)
+    # the reduced rule: the clamped plate converges at close to rate 2 on the finer spans, and
+    # both plates stay within 3.5 x of the 3 x 3 Gauss error at 48 spans
+    for support in ("simply_supported", "clamped"):
+        reduced = {r["patches"]: r["error"] for r in rows if r["quadrature"] == "reduced" and r["support"] == support}
+        full = {
+            r["patches"]: r["error"] for r in rows
+            if r["discretization"] == "bspline2" and r["quadrature"] == 3 and r["support"] == support
+        }  # fmt: skip
+        assert reduced[48] < 3.5 * full[48], (support, reduced, full)
+        if support == "clamped":
+            assert np.log(reduced[24] / reduced[48]) / np.log(2) > 1.7, reduced
 
 
 @pytest.mark.study
@@ -77,7 +89,9 @@ def test_cantilever_study_tracks_the_master_curve(comm, out):
     # the B-spline strips track the master curve within 1 % at 32 spans (every Gamma*)
     for degree in (2, 3):
         splines = [r for r in all_rows if r["discretization"] == f"bspline{degree}" and r["patches"] == 32]
-        assert len(splines) == 8 and max(r["error"] for r in splines) < 0.01, degree
+        for rule in {r["quadrature"] for r in splines}:  # 3 x 3 Gauss and reduced for degree 2
+            same = [r for r in splines if r["quadrature"] == rule]
+            assert len(same) == 8 and max(r["error"] for r in same) < 0.01, (degree, rule)
     exact = [r for r in rows if r["hessian"] == "exact" and r["newton_rtol"] == 1e-9]
     for gamma in {r["gamma"] for r in rows}:
         by_patches = {r["patches"]: r["error"] for r in exact if r["gamma"] == gamma}
@@ -117,7 +131,7 @@ def test_buckling_threshold_of_a_narrow_plate(comm):
 @pytest.mark.study
 def test_buckling_study_approaches_beam_theory(comm, out):
     rows = run_study("buckling", out.parent / "buckling", comm)
-    nu0 = [r for r in rows if r["poisson"] == 0.0]
+    nu0 = [r for r in rows if r["poisson"] == 0.0 and r["discretization"] == "hermite"]
     narrow = {r["patches_per_m"]: r for r in nu0 if r["aspect"] == 0.02}
     assert narrow[40]["error"] < 0.02
     # the plate's threshold grows linearly with w / L; extrapolated to w / L -> 0 it is the beam's
@@ -130,11 +144,19 @@ def test_buckling_study_approaches_beam_theory(comm, out):
     # wider plates are stiffer near the clamp: the threshold rises with the aspect ratio
     finest = sorted((r["aspect"], r["value"]) for r in nu0 if r["patches_per_m"] == 40)
     assert all(b[1] >= a[1] * (1 - 2e-3) for a, b in zip(finest, finest[1:], strict=False))
+    # the splines at 40 spans per metre find the Hermite threshold: cubic within 0.5 %, quadratic
+    # with 3 x 3 Gauss within 3 %
+    hermite = dict(finest)
+    for method, bound in ((("bspline3", 4), 5e-3), (("bspline2", 3), 3e-2)):
+        for r in rows:
+            if (r["discretization"], r["quadrature"]) == method and r["patches_per_m"] == 40:
+                assert abs(r["value"] / hermite[r["aspect"]] - 1) < bound, (method, r)
 
 
 @pytest.mark.study
 def test_drape_study_converges_to_the_finest_rest_shape(comm, out):
-    rows = run_study("drape", out.parent / "drape", comm)
+    all_rows = run_study("drape", out.parent / "drape", comm)
+    rows = [r for r in all_rows if r["discretization"] == "hermite"]
     exact = {r["patches"]: r for r in rows if r["hessian"] == "exact" and r["dt"] == 0.01}
     errors = [exact[n]["error"] for n in (4, 8, 12, 16)]
     assert all(b < a for a, b in zip(errors, errors[1:], strict=False)), errors
@@ -145,11 +167,17 @@ def test_drape_study_converges_to_the_finest_rest_shape(comm, out):
         if r["hessian"] == "pseudo" or r["dt"] != 0.01:
             twin = exact[r["patches"]]
             assert abs(r["value"] / twin["value"] - 1) < 5e-3, (r, twin["value"])
+    # every spline method at 24 spans drapes within 2 % of the side of the Hermite reference
+    splines = [r for r in all_rows if r["discretization"] != "hermite" and r["patches"] == 24]
+    assert len(splines) == 3 and max(r["error"] for r in splines) < 2e-2, splines
 
 
 @pytest.mark.study
 def test_wrinkle_study_converges_to_the_measured_amplitude(comm, out):
-    rows = run_study("wrinkle", out.parent / "wrinkle", comm)
+    from bhem_hpc.studies.wrinkle import WRINKLE_MEASURED
+
+    all_rows = run_study("wrinkle", out.parent / "wrinkle", comm)
+    rows = [r for r in all_rows if r["discretization"] == "hermite"]
     exact = {r["patches"]: r for r in rows if r["hessian"] == "exact" and r["quadrature"] == 4 and r["dt"] == 0.01}
     # the paper's Fig. 17: the amplitude grows with the resolution and settles near the measured
     # 0.35 mm from 30 x 30 patches on
@@ -166,6 +194,10 @@ def test_wrinkle_study_converges_to_the_measured_amplitude(comm, out):
     # 3 x 3 Gauss under-integrates the bicubic energy: its amplitude differs, less so on the finer mesh
     reduced = {r["patches"]: r for r in rows if r["quadrature"] == 3}
     assert abs(reduced[30]["value"] / exact[30]["value"] - 1) < abs(reduced[20]["value"] / exact[20]["value"] - 1)
+    # the splines wrinkle too, their amplitude rising with the spans
+    for method in (("bspline2", 3), ("bspline2", "reduced"), ("bspline3", 4)):
+        by = sorted((r["patches"], r["value"]) for r in all_rows if (r["discretization"], r["quadrature"]) == method)
+        assert by[0][1] > 0.2 * WRINKLE_MEASURED and by[-1][1] > by[0][1], (method, by)
 
 
 def test_stretched_sheet_wrinkles_at_10_patches(comm, out):

@@ -19,6 +19,10 @@ spans (second derivatives of a quadratic spline jump across knots, so the bendin
 mean of its four one-sided limits rather than one value), and the sparsity pattern stays that of
 whole spans (PETSc stores the couplings a reduced rule leaves zero). The paper's boundary point
 counts are not given in its text; the ones above are this module's choice.
+
+Like every reduced rule it can leave zero-energy modes: with a single knot span across a direction
+(every span a boundary span, bending sampled only at span centres) the stiffness of a flat strip
+has an exact null vector that the full rule does not have; two spans remove it.
 """
 
 from __future__ import annotations

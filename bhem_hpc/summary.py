@@ -22,6 +22,7 @@ class SummaryError(ValueError):
 def _study_lines(docs: Path) -> list[str]:
     from bhem_hpc.studies.registry import STUDIES
     from bhem_hpc.studies.report import read_rows, results
+    from bhem_hpc.studies.study import METHODS, row_method
 
     lines = []
     for name, study in STUDIES.items():
@@ -29,12 +30,11 @@ def _study_lines(docs: Path) -> list[str]:
         if not path.exists():
             raise SummaryError(f"{path} does not exist: run `bhem-hpc study --docs {docs}` first")
         rows = results(read_rows(path))
-        groups = sorted({r.get("discretization", "hermite") for r in rows})
+        groups = [m for m in METHODS if any(row_method(r) == m for r in rows)]
         parts = []
-        for discretization in groups:
-            subset = [r for r in rows if r.get("discretization", "hermite") == discretization]
-            reached = _reached(subset)
-            parts.append(f"{discretization}: {reached}" if len(groups) > 1 else reached)
+        for method in groups:
+            reached = _reached([r for r in rows if row_method(r) == method])
+            parts.append(f"{method}: {reached}" if len(groups) > 1 else reached)
         lines.append(f"- `{name}` - {study.description}: {'; '.join(parts)}.")
     return lines
 

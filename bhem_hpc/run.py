@@ -10,7 +10,6 @@ import hashlib
 import json
 import logging
 import os
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from mpi4py import MPI
 
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
+from bhem_hpc.io.run_directory import OutputDirectoryError, check_output_directory, start_output_directory
 from bhem_hpc.model.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
@@ -54,23 +54,20 @@ def physics_hash(scene: Scene) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
 
 
-def _check_output(options: RunOptions, comm: MPI.Comm) -> None:
+def _check_output(options: RunOptions, continuing: bool, comm: MPI.Comm) -> None:
     error = None
     if comm.rank == 0:
-        out = options.out
         try:
-            if out.exists() and any(out.iterdir()) and not options.force:
-                error = f"output directory {out} exists and is not empty: pass --force to overwrite it"
-            else:
-                out.mkdir(parents=True, exist_ok=True)
-                probe = out / ".write-test"
-                probe.write_text("")
-                probe.unlink()
-        except OSError as exc:
-            error = f"output directory {out} cannot be written: {exc.strerror}"
+            check_output_directory(options.out, options.force, continuing)
+        except OutputDirectoryError as exc:
+            error = str(exc)
     error = comm.bcast(error)
     if error:
         raise RunError(error)
+
+
+def _is_same_directory(a: Path, b: Path) -> bool:
+    return a.exists() and b.exists() and os.path.samefile(a, b)
 
 
 def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
@@ -128,50 +125,143 @@ def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:
 
 
 def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
-    """Run a scene; returns the summary written to ``out/summary.json``."""
-    scene = load_scene(options.scene)
-    if options.steps is not None and options.steps < 1:
-        raise RunError(f"--steps must be >= 1, got {options.steps}")
-    checkpoint = None
-    if options.restart is not None:
-        checkpoint = _read_restart(options.restart, scene)
-    _check_output(options, comm)
-    if comm.rank == 0:
-        shutil.copyfile(options.scene, options.out / "scene.toml")
+    """Run a scene; returns the summary written to ``out/summary.json``.
+
+    Everything is checked before the output directory is touched; a run that fails after it started
+    writing leaves ``summary.json`` with ``status: "failed"``, the error and the last completed
+    step. A restart whose ``--out`` is its ``--restart`` directory continues that run's series and
+    step records; a restart into another directory starts its series with the restart frame.
+    """
+    scene, checkpoint, continuing = _prepare(options, comm)
+    steps = _steps_to_run(scene, options, checkpoint)
+    scene_text = options.scene.read_bytes()  # before the output directory (which may hold it) is replaced
 
     model = build_model(scene, comm)
     disc = model.discretization
     solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options)
     summary: dict = {
         "scene": str(options.scene),
+        "status": "running",
         "physics_hash": physics_hash(scene),
         "dofs": 3 * disc.num_closed,
         "nonzeros": solver.problem.matrix_nonzeros(),
         "ranks": comm.size,
         "versions": library_versions(),
         "static": scene.static,
-        "steps": [],
+        "steps": _previous_steps(options.out, checkpoint) if continuing else [],
     }
-    series = (
-        SurfaceTimeSeries(options.out / "surface.xdmf", scene.surface, scene.material, scene.output_density)
-        if comm.rank == 0
-        else None
-    )
+    series = None
     try:
+        series = _start_output(options, scene, scene_text, summary, checkpoint if continuing else None, comm)
         if scene.static:
-            final = _run_static(scene, model, solver, series, summary, comm)
+            final = _run_static(scene, options, model, solver, series, summary, comm)
         else:
-            final = _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm)
+            final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm)
+        title = f"{options.scene.name}, t = {summary.get('time', 0):.4g} s"
+        _on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
+    except Exception as exc:
+        summary.update(status="failed", error=str(exc))
+        if comm.rank == 0 and options.out.is_dir():
+            try:
+                _write_summary(options.out, summary)
+            except OSError:
+                log.error("could not record the failure in %s/summary.json", options.out)
+        raise
     finally:
         if series is not None:
             series.close()
         solver.close()
-    if comm.rank == 0:
-        render_surface_png(options.out / "last.png", final, f"{options.scene.name}, t = {summary.get('time', 0):.4g} s")
-        tmp = options.out / "summary.json.tmp"
-        tmp.write_text(json.dumps(summary, indent=1) + "\n")
-        os.replace(tmp, options.out / "summary.json")
+    summary["status"] = "completed"
+    _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
     return summary
+
+
+def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, bool]:
+    """Every check before anything is built: the scene, ``--steps``, the restart and the output
+    directory. Returns the scene, the restart checkpoint (or None) and whether the restart
+    continues the run in its own directory."""
+    scene = load_scene(options.scene)
+    if options.steps is not None and options.steps < 1:
+        raise RunError(f"--steps must be >= 1, got {options.steps}")
+    checkpoint = None
+    continuing = False
+    if options.restart is not None:
+        if scene.static:
+            raise RunError(f"--restart {options.restart}: a static scene has no time steps to continue")
+        checkpoint = _read_restart(options.restart, scene)
+        continuing = _is_same_directory(options.restart, options.out)
+    _check_output(options, continuing, comm)
+    return scene, checkpoint, continuing
+
+
+def _start_output(
+    options: RunOptions, scene: Scene, scene_text: bytes, summary: dict, continued: dict | None, comm: MPI.Comm
+) -> SurfaceTimeSeries | None:
+    """Rank 0: a fresh output directory (or the continued one), the scene, a running summary and the
+    time series (continuing ``continued``'s checkpoint time, if given); None on other ranks."""
+    opened = []
+
+    def start() -> None:
+        if continued is None:
+            start_output_directory(options.out)
+        _write_replacing(options.out / "scene.toml", scene_text)
+        _write_summary(options.out, summary)
+        opened.append(SurfaceTimeSeries(
+            options.out / "surface.xdmf", scene.surface, scene.material, scene.output_density,
+            continue_at=None if continued is None else float(continued["attrs"]["time"]),
+        ))  # fmt: skip
+
+    _on_rank0(comm, start, f"the output directory {options.out}")
+    return opened[0] if opened else None
+
+
+def _on_rank0(comm: MPI.Comm, action, what: str) -> None:
+    """Run a file operation on rank 0 and raise :class:`RunError` on every rank if it fails (so no
+    rank waits for a collective that rank 0 never reaches)."""
+    error = None
+    if comm.rank == 0:
+        try:
+            action()
+        except (OSError, ValueError) as exc:
+            detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            error = f"cannot write {what}: {detail}"
+    error = comm.bcast(error)
+    if error:
+        raise RunError(error)
+
+
+def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: dict | None) -> int:
+    """``--steps``, or the steps left to the scene's end (all of them without a restart)."""
+    if options.steps is not None or checkpoint is None:
+        return options.steps if options.steps is not None else scene.steps
+    done = int(checkpoint["attrs"]["step"])
+    if done >= scene.steps:
+        raise RunError(
+            f"--restart {options.restart}: the checkpoint is at step {done}, the scene's last "
+            f"({scene.steps} steps): pass --steps to continue past it"
+        )
+    return scene.steps - done
+
+
+def _previous_steps(out: Path, checkpoint: dict) -> list[dict]:
+    """The step records of the run being continued, up to its checkpoint."""
+    try:
+        previous = json.loads((out / "summary.json").read_text())["steps"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    last = int(checkpoint["attrs"]["step"])
+    return [row for row in previous if isinstance(row, dict) and row.get("step", last + 1) <= last]
+
+
+def _write_replacing(path: Path, data: bytes) -> None:
+    """Write ``path`` by rename (never through a symbolic link, never half-written)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _write_summary(out: Path, summary: dict) -> None:
+    _write_replacing(out / "summary.json", (json.dumps(summary, indent=1) + "\n").encode())
 
 
 def _read_restart(directory: Path, scene: Scene) -> dict:
@@ -192,13 +282,12 @@ def _energies(model: ShellModel) -> dict[str, float]:
     return {k: float(v) for k, v in e.items()}
 
 
-def _run_static(scene, model, solver, series, summary, comm) -> HermiteSurface:
-    """Solve a static scene; returns the final surface (gathered on every rank)."""
+def _run_static(scene, options, model, solver, series, summary, comm) -> HermiteSurface:
+    """Solve a static scene, writing its frame and checkpoint; returns the final surface (gathered
+    on every rank)."""
     start = time.perf_counter()
     report = solver.solve(scene.load_steps)
-    surface = model.state_surface()
-    if series is not None:
-        series.write(1.0, surface)
+    surface = _write_state(options.out, series, model, 1.0, 1, summary, comm)
     summary["time"] = 1.0
     summary["steps"].append(
         {
@@ -212,7 +301,7 @@ def _run_static(scene, model, solver, series, summary, comm) -> HermiteSurface:
     return surface
 
 
-def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
+def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
     """Step a dynamic scene, writing frames and checkpoints; returns the final surface."""
     contact = build_contact(scene, model, solver)
     if contact is not None:
@@ -225,20 +314,16 @@ def _run_dynamic(scene, options, model, solver, series, summary, checkpoint, com
         arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
         _restore(model, arrays)
         stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
-    total = options.steps if options.steps is not None else scene.steps
     surface = model.state_surface()
-    if series is not None and checkpoint is None:
-        series.write(stepper.time, surface)
-    progress = _progress(total, options.progress and comm.rank == 0)
+    if comm.bcast(series is not None and not series.times):  # a continued series has its restart frame
+        _on_rank0(comm, lambda: series.write(stepper.time, surface), "a frame")
+    progress = _progress(steps, options.progress and comm.rank == 0)
     try:
-        for _ in range(total):
+        for k in range(steps):
             record = stepper.advance()
             t_out = time.perf_counter()
-            if stepper.step % scene.output_every == 0 or _ == total - 1:  # the last step always writes
-                surface = model.state_surface()
-                if series is not None:
-                    series.write(stepper.time, surface)
-                _checkpoint(options.out / "checkpoint.h5", model, surface, stepper, summary, comm)
+            if stepper.step % scene.output_every == 0 or k == steps - 1:  # the last step always writes
+                surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm)
             output_s = time.perf_counter() - t_out
             summary["steps"].append(_step_summary(record, output_s, _energies(model)))
             progress(record, stepper)
@@ -269,17 +354,30 @@ def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
     model.velocity.x.array[:] = disc.scatter_raw_dofs(arrays["velocity_dofs"])
 
 
+def _write_state(
+    out: Path, series, model: ShellModel, time_value: float, step: int, summary: dict, comm: MPI.Comm
+) -> HermiteSurface:
+    """Write the current state as a frame and a checkpoint; returns it as a surface (every rank)."""
+    surface = model.state_surface()
+    _on_rank0(comm, lambda: series.write(time_value, surface), "a frame of surface.h5")
+    _checkpoint(out / "checkpoint.h5", model, surface, time_value, step, summary, comm)
+    return surface
+
+
 def _checkpoint(
-    path: Path, model: ShellModel, surface: HermiteSurface, stepper: TimeStepper, summary: dict, comm: MPI.Comm
-) -> None:
+    path: Path, model: ShellModel, surface: HermiteSurface, time_value: float, step: int, summary: dict,
+    comm: MPI.Comm,
+) -> None:  # fmt: skip
+    """Write the state at ``time_value`` (a static run: load factor 1, zero velocity)."""
     position = model.discretization.gather_raw_dofs(model.x.x.array)
-    velocity = model.discretization.gather_raw_dofs(model.velocity.x.array)
-    if comm.rank == 0:
-        write_checkpoint(
+    velocity_array = model.velocity.x.array if model.dynamics is not None else np.zeros_like(model.x.x.array)
+    velocity = model.discretization.gather_raw_dofs(velocity_array)
+    _on_rank0(comm, lambda: write_checkpoint(
             path,
             {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal},
-            {"time": stepper.time, "step": stepper.step, "physics_hash": summary["physics_hash"]},
-        )
+            {"time": time_value, "step": step, "physics_hash": summary["physics_hash"],
+             "static": model.dynamics is None},
+        ), path.name)  # fmt: skip
 
 
 def _progress(total: int, enabled: bool):

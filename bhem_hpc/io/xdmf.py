@@ -66,7 +66,11 @@ class SurfaceTimeSeries:
     completed frame. Serial: call on one rank with gathered surfaces.
     """
 
-    def __init__(self, path: str | Path, rest: HermiteSurface, material, density: int = 4):
+    def __init__(
+        self, path: str | Path, rest: HermiteSurface, material, density: int = 4, continue_at: float | None = None
+    ):
+        """Start a series at ``path``, or with ``continue_at`` continue the one there: its frames up to
+        that time are kept (later ones, written after the checkpoint being continued, are dropped)."""
         from bhem_hpc.io.fields import energy_densities, mean_curvature
 
         self._energy_densities, self._mean_curvature = energy_densities, mean_curvature
@@ -77,6 +81,9 @@ class SurfaceTimeSeries:
         _, self.quads, self.params = rest.tessellate(density)
         self.rest_point = rest.evaluate(self.params[:, 0], self.params[:, 1])
         self.times: list[float] = []
+        if continue_at is not None:
+            self._continue(continue_at)
+            return
         self.file = h5py.File(self.h5_path, "w")
         self.file["topology"] = self.quads.astype(np.int64)
         self.file["parameters"] = self.params
@@ -86,6 +93,25 @@ class SurfaceTimeSeries:
         self.file.attrs["xi2_range"] = grid.xi2_range
         self.file.attrs["periodic"] = [grid.periodic1, grid.periodic2]
         self.file.attrs["discretization"] = rest.discretization
+
+    def _continue(self, until: float) -> None:
+        if not self.h5_path.is_file():
+            raise ValueError(f"{self.h5_path} does not exist: there is no series to continue")
+        self.file = h5py.File(self.h5_path, "a")
+        if self.file.get("topology") is None or self.file["topology"].shape != self.quads.shape:
+            self.file.close()
+            raise ValueError(f"{self.h5_path} holds another grid or output density: it cannot be continued")
+        frames = self.file.get("frames")
+        count = len(frames) if frames is not None else 0
+        tolerance = 1e-9 * max(abs(until), 1e-300)
+        for k in range(count):
+            t = float(frames[str(k)].attrs["time"])
+            if t > until + tolerance or len(self.times) < k:
+                del frames[str(k)]  # written after the checkpoint (or after a gap): not part of this run
+            else:
+                self.times.append(t)
+        self.file.flush()
+        self._write_xml()
 
     def write(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])

@@ -1,0 +1,122 @@
+"""Output that is never lost or mixed: --force replaces a directory only when the new run writes,
+never through links; failed runs say so; restarts continue the same series to the scene's end."""
+
+from __future__ import annotations
+
+import json
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from helpers import BASE
+
+from bhem_hpc.io import read_checkpoint
+from bhem_hpc.run import RunError, RunOptions, run_scene
+
+
+def write(comm, path: Path, text: str) -> Path:
+    if comm.rank == 0:
+        path.write_text(text)
+    comm.Barrier()
+    return path
+
+
+def frame_times(directory: Path) -> list[float]:
+    root = ET.parse(directory / "surface.xdmf").getroot()
+    listed = [float(g.find("Time").get("Value")) for g in root.findall(".//Grid[@GridType='Uniform']")]
+    with h5py.File(directory / "surface.h5", "r") as f:
+        stored = [float(f[f"frames/{k}"].attrs["time"]) for k in range(len(f["frames"]))]
+    assert listed == stored  # the XDMF lists exactly the frames the HDF5 file holds
+    return listed
+
+
+def run(scene: Path, out: Path, comm, **options) -> dict:
+    return run_scene(RunOptions(scene, out, progress=False, **options), comm)
+
+
+def test_a_restart_in_its_own_directory_continues_the_series_to_the_scenes_end(comm, shared_tmp_path):
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE)
+    full = run(scene, shared_tmp_path / "full", comm)
+    out = shared_tmp_path / "run"
+    run(scene, out, comm, steps=3)
+    assert frame_times(out) == pytest.approx([0.0, 0.02, 0.03])
+    continued = run(scene, out, comm, restart=out)  # no --steps: the 3 steps left to the scene's end
+    assert continued["status"] == "completed"
+    assert [row["step"] for row in continued["steps"]] == [1, 2, 3, 4, 5, 6]
+    assert frame_times(out) == pytest.approx([0.0, 0.02, 0.03, 0.04, 0.06])
+    ours, attrs = read_checkpoint(out / "checkpoint.h5")
+    reference, _ = read_checkpoint(shared_tmp_path / "full" / "checkpoint.h5")
+    assert attrs["step"] == 6 and full["time"] == pytest.approx(0.06)
+    scale = np.abs(reference["position_dofs"]).max()
+    assert np.abs(ours["position_dofs"] - reference["position_dofs"]).max() <= 1e-12 * scale
+    with pytest.raises(RunError, match="the checkpoint is at step 6, the scene's last .*pass --steps"):
+        run(scene, out, comm, restart=out)
+    # into another directory: the series starts with the restart frame
+    run(scene, shared_tmp_path / "more", comm, restart=out, steps=2)
+    assert frame_times(shared_tmp_path / "more") == pytest.approx([0.06, 0.08])
+
+
+def test_a_force_rerun_that_fails_before_writing_leaves_the_old_result(comm, shared_tmp_path):
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE)
+    out = shared_tmp_path / "out"
+    run(scene, out, comm, steps=2)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    bad = write(comm, shared_tmp_path / "bad.toml", BASE + '\n[solver]\noptions = { snes_type = "nosuch" }\n')
+    with pytest.raises(Exception, match="nosuch|SNES|86"):
+        run(bad, out, comm, steps=2, force=True)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_static_run_replacing_a_dynamic_one_leaves_only_its_own_files(comm, shared_tmp_path):
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE)
+    static = (
+        BASE.replace("dt = 0.01\nsteps = 6", "static = true")
+        .replace("damping = { mass = 0.5 }\n", "")
+        .replace('corners = ["min_min"]', 'edge = "xi1_min"')
+        .split('[[constraints]]\ntype = "fix"')[0]
+    )
+    static_scene = write(comm, shared_tmp_path / "static.toml", static)
+    out = shared_tmp_path / "out"
+    run(scene, out, comm, steps=2)
+    summary = run(static_scene, out, comm, force=True)
+    assert summary["status"] == "completed" and summary["static"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["scene.toml", "surface.xdmf", "surface.h5", "checkpoint.h5", "summary.json", "last.png"]
+    )
+    _, attrs = read_checkpoint(out / "checkpoint.h5")
+    assert attrs["static"] and attrs["step"] == 1  # the static run's own checkpoint
+    assert frame_times(out) == [1.0]
+    assert (out / "scene.toml").read_text() == static
+
+
+def test_force_never_writes_through_a_symbolic_link(comm, shared_tmp_path):
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE)
+    out = shared_tmp_path / "out"
+    run(scene, out, comm, steps=1)
+    target = shared_tmp_path / "precious.h5"
+    if comm.rank == 0:
+        target.write_bytes(b"keep")
+        (out / "surface.h5").unlink()
+        os.symlink(target, out / "surface.h5")
+    comm.Barrier()
+    with pytest.raises(RunError, match=r"surface.h5 is a symbolic link"):
+        run(scene, out, comm, restart=out, steps=1)  # continuing in place refuses links
+    run(scene, out, comm, steps=1, force=True)
+    assert target.read_bytes() == b"keep"
+    assert not (out / "surface.h5").is_symlink()
+    assert not list(shared_tmp_path.glob(".out.replaced-*"))  # the old directory is gone
+
+
+def test_a_run_that_fails_while_stepping_says_so(comm, shared_tmp_path):
+    failing = BASE + "\n[solver]\noptions = { snes_max_it = 1, snes_rtol = 1e-14, snes_atol = 1e-300 }\n"
+    scene = write(comm, shared_tmp_path / "failing.toml", failing)
+    out = shared_tmp_path / "out"
+    with pytest.raises(RunError):
+        run(scene, out, comm)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "failed" and summary["error"]
+    assert summary["steps"] == []  # no step completed
+    assert frame_times(out) == [0.0]

@@ -14,21 +14,26 @@ import numpy as np
 
 from bhem_hpc.geometry.surface import HermiteSurface
 
+_FLOAT64 = 'NumberType="Float" Precision="8"'
+_INT64 = 'NumberType="Int" Precision="8"'
 _XDMF = """<?xml version="1.0"?>
 <Xdmf Version="3.0">
   <Domain>
     <Grid Name="{name}" GridType="Uniform">
       <Topology TopologyType="Quadrilateral" NumberOfElements="{ncells}">
-        <DataItem Dimensions="{ncells} 4" NumberType="Int" Format="HDF">{h5}:/topology</DataItem>
+        <DataItem Dimensions="{ncells} 4" NumberType="Int" Precision="8" Format="HDF">{h5}:/topology</DataItem>
       </Topology>
       <Geometry GeometryType="XYZ">
-        <DataItem Dimensions="{npoints} 3" Format="HDF">{h5}:/geometry</DataItem>
+        <DataItem Dimensions="{npoints} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/geometry</DataItem>
       </Geometry>
       <Attribute Name="normal" AttributeType="Vector" Center="Node">
-        <DataItem Dimensions="{npoints} 3" Format="HDF">{h5}:/normal</DataItem>
+        <DataItem Dimensions="{npoints} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/normal</DataItem>
       </Attribute>
-      <Attribute Name="parameters" AttributeType="Vector" Center="Node">
-        <DataItem Dimensions="{npoints} 2" Format="HDF">{h5}:/parameters</DataItem>
+      <Attribute Name="xi1" AttributeType="Scalar" Center="Node">
+        <DataItem Dimensions="{npoints}" NumberType="Float" Precision="8" Format="HDF">{h5}:/xi1</DataItem>
+      </Attribute>
+      <Attribute Name="xi2" AttributeType="Scalar" Center="Node">
+        <DataItem Dimensions="{npoints}" NumberType="Float" Precision="8" Format="HDF">{h5}:/xi2</DataItem>
       </Attribute>
     </Grid>
   </Domain>
@@ -51,6 +56,7 @@ def write_surface_xdmf(path: str | Path, surface: HermiteSurface, density: int =
         f["topology"] = quads.astype(np.int64)
         f["normal"] = normals
         f["parameters"] = params
+        f["xi1"], f["xi2"] = params[:, 0], params[:, 1]  # scalars: a 2-component Vector reads ambiguously
     os.replace(tmp_h5, h5_path)
     tmp_xdmf = path.with_name(path.name + ".tmp")
     tmp_xdmf.write_text(_XDMF.format(name=name, ncells=len(quads), npoints=len(points), h5=h5_path.name))
@@ -135,7 +141,8 @@ class SurfaceTimeSeries:
         for k, t in enumerate(self.times):
             attributes = "".join(
                 f'<Attribute Name="{name}" AttributeType="{kind}" Center="Node">'
-                f'<DataItem Dimensions="{npoints}{dims}" Format="HDF">{h5}:/frames/{k}/{name}</DataItem></Attribute>'
+                f'<DataItem Dimensions="{npoints}{dims}" {_FLOAT64} Format="HDF">{h5}:/frames/{k}/{name}</DataItem>'
+                "</Attribute>"
                 for name, kind, dims in (
                     ("normal", "Vector", " 3"),
                     ("mean_curvature", "Scalar", ""),
@@ -146,8 +153,8 @@ class SurfaceTimeSeries:
             grids.append(
                 f'      <Grid Name="frame_{k}" GridType="Uniform"><Time Value="{t!r}"/>'
                 f'<Topology TopologyType="Quadrilateral" NumberOfElements="{ncells}">'
-                f'<DataItem Dimensions="{ncells} 4" NumberType="Int" Format="HDF">{h5}:/topology</DataItem></Topology>'
-                f'<Geometry GeometryType="XYZ"><DataItem Dimensions="{npoints} 3" Format="HDF">'
+                f'<DataItem Dimensions="{ncells} 4" {_INT64} Format="HDF">{h5}:/topology</DataItem></Topology>'
+                f'<Geometry GeometryType="XYZ"><DataItem Dimensions="{npoints} 3" {_FLOAT64} Format="HDF">'
                 f"{h5}:/frames/{k}/geometry</DataItem></Geometry>{attributes}</Grid>"
             )
         xml = (

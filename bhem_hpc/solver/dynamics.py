@@ -91,11 +91,24 @@ class TimeStepper:
         if self.model.dynamics is None:
             raise ValueError("TimeStepper needs a ShellModel built with dynamics=Dynamics(...)")
         self.dt = self.model.dynamics.time_step
+        self._clock = (self.time, self.step, self.dt)  # (time, step, dt) after the last advance
+        self._origin = (self.time, self.step)  # where the clock was last set
         constrained = {tuple(c.nodes.ravel()) + c.kinds + c.components for c in self.model.constraints}
         for motion in self.motions:
             key = tuple(motion.constraint.nodes.ravel()) + motion.constraint.kinds + motion.constraint.components
             if key not in constrained:
                 raise ValueError("a prescribed motion must be one of the model's constraints (same nodes/kinds)")
+
+    def _tick(self) -> None:
+        """Advance step and time. The time is ``t0 + (step - step0) dt`` from the last time the
+        clock was set (start, restart, a change of dt), rounded to 15 significant digits: exact
+        decimal step times (0.3, not 0.30000000000000004) that do not drift over long runs."""
+        if (self.time, self.step, self.dt) != self._clock:  # set from outside (restart, new dt)
+            self._origin = (self.time, self.step)
+        self.step += 1
+        origin_time, origin_step = self._origin
+        self.time = float(f"{origin_time + (self.step - origin_step) * self.dt:.15g}")
+        self._clock = (self.time, self.step, self.dt)
 
     def bc_values_at(self, t: float) -> np.ndarray:
         """Reference-DOF values of all constrained DOFs at time ``t``."""
@@ -115,8 +128,8 @@ class TimeStepper:
             self._advance(self.time, self.dt, 0, report)
         finally:
             self.model.time_step.value = self.dt
-        self.step += 1
-        self.time += self.dt
+        self._tick()
+        report.time = self.time
         after = self.solver.counters()
         counted = ("regularized_retries", "regularized_iterations", "assembly_s", "factorization_s", "linear_solve_s")
         for name in counted:

@@ -284,9 +284,7 @@ def _surface(t: _Table, path: Path) -> S.HermiteSurface | B.BSplineSurface:
 def _surface_file(t: _Table, path: Path, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
     """``kind = "file"``: a Hermite nodal data file, or a B-spline file of the named degree."""
     file = t.get("path", "a string")
-    target = Path(file) if Path(file).is_absolute() else path.parent / file
-    if not target.exists():
-        target = Path(file)
+    target = _regular_file(t, "path", file, path)
     if discretization == "hermite":
         return S.HermiteSurface.load(target)
     surface = B.BSplineSurface.load(target)
@@ -295,6 +293,16 @@ def _surface_file(t: _Table, path: Path, discretization: str) -> S.HermiteSurfac
             f"{path}: key 'surface.discretization' is {discretization!r} but {target} holds a {surface.discretization}"
         )
     return surface
+
+
+def _regular_file(t: _Table, key: str, file: str, scene: Path) -> Path:
+    """``file`` relative to the scene's folder (or absolute): an existing regular file, never a
+    FIFO or device that would block or stream forever."""
+    target = (scene.parent / file).resolve()
+    if not target.is_file():
+        what = "not a regular file" if target.exists() else "missing"
+        t.fail(key, f"an existing regular file, relative to the scene ({target} is {what})", file)
+    return target
 
 
 def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
@@ -678,9 +686,7 @@ def _file_collider(t: _Table, kind: str, path: Path, velocity: list[float]) -> l
     from bhem_hpc.collision import colliders as C
 
     file = t.get("file", "a string")
-    target = (path.parent / file).resolve()
-    if not target.exists():
-        t.fail("file", "an existing file (relative to the scene)", file)
+    target = _regular_file(t, "file", file, path)
     scale = t.get("scale", "a number", 1.0, lambda v: v > 0, "a number > 0")
     translate = np.asarray(t.get("translate", "3 numbers", [0.0, 0.0, 0.0]), dtype=float)
     if kind == "mesh":

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from mpi4py import MPI
@@ -117,3 +119,29 @@ def test_surface_from_another_grid_is_rejected(comm):
     disc = HermiteDiscretization(S.ParameterGrid(2, 2, (0.0, 1.0), (0.0, 1.0)), comm)
     with pytest.raises(DiscretizationError, match="differs"):
         disc.surface_to_open(S.flat_rectangle(1.0, 1.0, 3, 2))
+
+
+def test_scene_files_are_regular_files_beside_the_scene(comm, shared_tmp_path, monkeypatch):
+    """A surface file is found relative to the scene's folder, not the working directory, and a
+    FIFO (which would block the reader forever) is refused before it is opened."""
+    from helpers import BASE
+
+    from bhem_hpc.scene import SceneError, load_scene
+
+    folder = shared_tmp_path / "scenes"
+    elsewhere = shared_tmp_path / "cwd"
+    if comm.rank == 0:
+        folder.mkdir()
+        elsewhere.mkdir()
+        S.flat_rectangle(0.4, 0.3, 3, 2).save(elsewhere / "sheet.npz")  # only in the working directory
+        os.mkfifo(folder / "pipe.npz")
+    comm.Barrier()
+    monkeypatch.chdir(elsewhere)
+    shape = 'kind = "rectangle"\nsize = [0.4, 0.3]\npatches = [3, 2]'
+    for name, state in (("sheet.npz", "missing"), ("pipe.npz", "not a regular file")):
+        scene = folder / f"{name}.toml"
+        if comm.rank == 0:
+            scene.write_text(BASE.replace(shape, f'kind = "file"\npath = "{name}"'))
+        comm.Barrier()
+        with pytest.raises(SceneError, match=rf"key 'surface.path' must be an existing regular file, .*is {state}"):
+            load_scene(scene)

@@ -34,6 +34,17 @@ CONTACT_METRICS = ("mass", "jacobian")
 COLLIDER_TYPES = ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
 
 
+#: Bounds checked before anything is allocated: time steps of one run, needles of one grid.
+MAX_STEPS = 10_000_000
+MAX_NEEDLES = 100_000
+
+
+def _whole_steps(duration: float, dt: float) -> bool:
+    """``duration`` is a whole number of steps ``dt`` (to 1e-6 of a step), at least one, bounded."""
+    steps = duration / dt
+    return bool(np.isfinite(steps)) and 1 <= round(steps) <= MAX_STEPS and abs(steps - round(steps)) <= 1e-6
+
+
 class SceneError(ValueError):
     """A scene file is malformed; the message names the file, the key and the expectation."""
 
@@ -215,10 +226,13 @@ def load_scene(path: str | Path) -> Scene:
         if has_steps == has_duration:
             raise SceneError(f"{path}: table 'time' needs exactly one of 'steps' and 'duration'")
         if has_steps:
-            steps = time_table.get("steps", "an integer", check=lambda v: v >= 1, expected="an integer >= 1")
+            steps = time_table.get(
+                "steps", "an integer", check=lambda v: 1 <= v <= MAX_STEPS, expected=f"an integer in 1..{MAX_STEPS}"
+            )
         else:
-            duration = time_table.get("duration", "a number", check=lambda v: v > 0, expected="a number > 0 [s]")
-            steps = max(1, round(duration / dt))
+            whole = f"a number > 0 [s], a whole number (1..{MAX_STEPS}) of time steps dt = {dt!r}"
+            duration = time_table.get("duration", "a number", check=lambda v: _whole_steps(v, dt), expected=whole)
+            steps = round(duration / dt)
         load_steps = 1
     time_table.done()
     solver = top.table("solver", None)
@@ -670,7 +684,10 @@ def _needles(t: _Table, velocity: list[float]) -> list[Any]:
 
     origin = np.asarray(t.get("origin", "3 numbers"), dtype=float)
     spacing = t.get("spacing", "2 numbers")
-    count = t.get("count", "2 integers")
+    count = t.get(
+        "count", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_NEEDLES,
+        expected=f"2 integers >= 1, at most {MAX_NEEDLES} needles in all",
+    )  # fmt: skip
     length = t.get("length", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
     radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
     out = []

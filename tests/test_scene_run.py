@@ -45,6 +45,23 @@ def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
             r"key 'time.dt' must be a number > 0 \(time step \[s\]\), got 0.0",
         ),
         (lambda s: s.replace("steps = 6", "steps = 6\nduration = 1.0"), "exactly one of 'steps' and 'duration'"),
+        (
+            lambda s: s.replace("steps = 6", "duration = 1e-9"),
+            r"key 'time.duration' must be a number > 0 \[s\], a whole number \(1..10000000\) of time steps "
+            r"dt = 0.01, got 1e-09",
+        ),
+        (lambda s: s.replace("steps = 6", "duration = 0.055"), r"time steps dt = 0.01, got 0.055"),
+        (
+            lambda s: s.replace("steps = 6", f"steps = {2**63 - 1}"),
+            r"key 'time.steps' must be an integer in 1..10000000",
+        ),
+        (
+            lambda s: s.replace("damping = { mass = 0.5 }", "contact = true") + (
+                "\n[[colliders]]\ntype = 'needles'\norigin = [0, 0, 0]\nspacing = [0.1, 0.1]\n"
+                "count = [-1, 5]\nlength = 0.1\nradius = 0.01\n"
+            ),
+            r"key 'colliders\[0\].count' must be 2 integers >= 1, at most 100000 needles in all, got \[-1, 5\]",
+        ),
         (lambda s: s.replace("patches = [3, 2]", "patches = [3, 2]\ncolour = 1"), r"unknown key 'surface.colour'"),
         (lambda s: s.replace("[material]\n", "[material]\nyoungs = 1\n"), r"unknown key 'material.youngs'"),
         (lambda s: s.replace("poisson = 0.3", ""), r"missing key 'material.poisson'"),
@@ -68,7 +85,7 @@ def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
         (
             lambda s: s.replace("damping = { mass = 0.5 }", "contact = true")
             + "\n[[colliders]]\ntype = 'mesh'\nfile = 'missing.obj'\n",
-            r"key 'colliders\[0\].file' must be an existing file",
+            r"key 'colliders\[0\].file' must be an existing regular file",
         ),
         (
             lambda s: s.replace("damping = { mass = 0.5 }", "contact = true")

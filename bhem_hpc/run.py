@@ -138,6 +138,13 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
 
     model = build_model(scene, comm)
     disc = model.discretization
+    if checkpoint is not None:  # the DOF layout of this model (rank count for B-splines) must match
+        expected = disc.gather_raw_dofs(model.x.x.array).shape
+        if checkpoint["arrays"]["position_dofs"].shape != expected:
+            raise RunError(
+                f"{checkpoint['path']}: its DOFs have shape {checkpoint['arrays']['position_dofs'].shape}, "
+                f"this run's {expected}"
+            )
     solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options)
     summary: dict = {
         "scene": str(options.scene),
@@ -265,16 +272,49 @@ def _write_summary(out: Path, summary: dict) -> None:
 
 
 def _read_restart(directory: Path, scene: Scene) -> dict:
+    """The checkpoint in ``directory``, checked to be whole, finite and of this scene's physics."""
     path = directory / "checkpoint.h5"
-    if not path.exists():
+    if not path.is_file():
         raise RunError(f"--restart {directory}: no checkpoint.h5 there")
-    arrays, attrs = read_checkpoint(path)
+    try:
+        arrays, attrs = read_checkpoint(path)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise RunError(f"{path}: not a readable checkpoint ({exc})") from None
     if attrs.get("physics_hash") != physics_hash(scene):
         raise RunError(
             f"--restart {directory}: the checkpoint is from a different scene or resolution "
             f"(physics hash {attrs.get('physics_hash')} != {physics_hash(scene)})"
         )
-    return {"arrays": arrays, "attrs": attrs}
+    problem = _checkpoint_problem(arrays, attrs, scene)
+    if problem:
+        raise RunError(f"{path}: {problem}")
+    return {"arrays": arrays, "attrs": attrs, "path": path}
+
+
+def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
+    """What is wrong with a checkpoint's contents, or None."""
+    names = ("position_dofs", "velocity_dofs", "position_nodal")
+    missing = [name for name in names if name not in arrays]
+    if missing:
+        return f"dataset {missing[0]!r} is missing"
+    position, velocity, nodal = (np.asarray(arrays[name]) for name in names)
+    if position.shape != velocity.shape or position.ndim < 2 or position.shape[-1] != 3:
+        return f"position and velocity DOFs have shapes {position.shape} and {velocity.shape}"
+    if nodal.shape != scene.surface.nodal.shape:
+        return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
+    if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
+        return "it holds non-finite or non-numeric values"
+    return _clock_problem(attrs)
+
+
+def _clock_problem(attrs: dict) -> str | None:
+    try:
+        time_value, step = float(attrs["time"]), int(attrs["step"])
+    except (KeyError, TypeError, ValueError):
+        return "its 'time' and 'step' attributes are missing or not numbers"
+    if not (np.isfinite(time_value) and time_value >= 0 and step >= 0):
+        return f"time {time_value!r} and step {step!r} are not a valid point of a run"
+    return None
 
 
 def _energies(model: ShellModel) -> dict[str, float]:

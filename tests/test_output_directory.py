@@ -120,3 +120,50 @@ def test_a_run_that_fails_while_stepping_says_so(comm, shared_tmp_path):
     assert summary["status"] == "failed" and summary["error"]
     assert summary["steps"] == []  # no step completed
     assert frame_times(out) == [0.0]
+
+
+def _forge(path: Path, how: str) -> None:
+    """Damage a checkpoint the ways a user or a full disk would."""
+    if how == "truncated":
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+    elif how == "garbage":
+        path.write_bytes(b"\x89not hdf5 at all" * 10)
+    else:
+        with h5py.File(path, "r+") as f:
+            if how == "foreign":  # another program's HDF5 file
+                for name in list(f):
+                    del f[name]
+                f.attrs.clear()
+                f["data"] = np.arange(3)
+            elif how == "nan":
+                f["velocity_dofs"][0, ...] = np.nan
+            elif how == "shape":
+                del f["position_dofs"]
+                f["position_dofs"] = np.zeros((2, 3))
+            elif how == "clock":
+                f.attrs["step"] = "many"
+
+
+@pytest.mark.parametrize(
+    ("how", "message"),
+    [
+        ("truncated", "not a readable checkpoint"),
+        ("garbage", "not a readable checkpoint"),
+        ("foreign", "different scene or resolution"),
+        ("nan", "non-finite"),
+        ("shape", "position and velocity DOFs have shapes"),
+        ("clock", "'time' and 'step' attributes"),
+    ],
+)
+def test_a_damaged_checkpoint_is_refused_before_anything_is_written(comm, shared_tmp_path, how, message):
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE)
+    first = shared_tmp_path / "first"
+    run(scene, first, comm, steps=2)
+    if comm.rank == 0:
+        _forge(first / "checkpoint.h5", how)
+    comm.Barrier()
+    with pytest.raises(RunError, match=message) as error:
+        run(scene, shared_tmp_path / "second", comm, restart=first)
+    assert str(first) in str(error.value)
+    assert not (shared_tmp_path / "second").exists()

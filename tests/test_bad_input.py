@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -145,3 +146,30 @@ def test_scene_files_are_regular_files_beside_the_scene(comm, shared_tmp_path, m
         comm.Barrier()
         with pytest.raises(SceneError, match=rf"key 'surface.path' must be an existing regular file, .*is {state}"):
             load_scene(scene)
+
+
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        ('snes_type = "nosuch"', r"PETSc rejected its options \(error code 86: an unknown type name"),
+        ('snes_rtol = "abc"', r"PETSc rejected its options \(error code 63"),
+        ('pc_factor_mat_solver_type = "nosolver"', r"stopped the solve with error code 92 \(no such factorization"),
+    ],
+)
+def test_bad_petsc_options_end_in_one_line_without_retries(comm, shared_tmp_path, capsys, option, message):
+    """A PETSc option PETSc refuses, at setup or at the first factorization: exit code 2, one line
+    naming the solver; no time-step halvings (a smaller step cannot fix an option)."""
+    from helpers import BASE
+
+    from bhem_hpc import cli
+
+    scene = shared_tmp_path / "bad.toml"
+    if comm.rank == 0:
+        scene.write_text(BASE + f"\n[solver]\noptions = {{ {option} }}\n")
+    comm.Barrier()
+    code = cli.main(["run", str(scene), "--out", str(shared_tmp_path / "out"), "--no-progress", "--steps", "1"])
+    assert code == 2
+    if comm.rank == 0:
+        lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("bhem-hpc: error:")]
+        assert len(lines) == 1 and "SNES solver 'bhem_'" in lines[0] and "halvings" not in lines[0]
+        assert re.search(message, lines[0]), lines[0]

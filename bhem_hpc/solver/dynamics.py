@@ -20,7 +20,7 @@ import numpy as np
 from bhem_hpc.model.bcs import NodalConstraint, target_surface
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.newton import ShellSolver
-from bhem_hpc.solver.petsc import SolverError
+from bhem_hpc.solver.petsc import SolverError, SolverSetupError
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
     from bhem_hpc.contact.response import ContactHandler
@@ -150,6 +150,9 @@ class TimeStepper:
         try:
             self.solver.problem.set_point_targets(t_start + dt)
             report.newton_iterations += self.solver.solve_step(self.bc_values_at(t_start + dt))
+        except SolverSetupError:
+            model.x.x.array[:] = x_n
+            raise
         except SolverError as exc:
             model.x.x.array[:] = x_n
             if depth >= self.max_halvings:

@@ -19,7 +19,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.solver.petsc import KSP_REASONS, SNES_REASONS, PetscOwner, SolverError, push_options
+from bhem_hpc.solver.petsc import KSP_REASONS, SNES_REASONS, PetscOwner, SolverError, SolverSetupError, push_options
 from bhem_hpc.solver.problem import ShellProblem
 
 log = logging.getLogger(__name__)
@@ -79,6 +79,17 @@ class SolveReport:
     wall_s: float = 0.0
 
 
+#: PETSc error codes a bad option gives, in words.
+PETSC_ERRORS = {
+    56: "a type or option this PETSc build does not support",
+    62: "an argument out of range",
+    63: "an argument out of range",
+    73: "an object in the wrong state",
+    86: "an unknown type name: check the spelling",
+    92: "no such factorization package: check the solver type's spelling",
+}
+
+
 class ShellSolver(PetscOwner):
     """Newton solver for a :class:`ShellModel`: static equilibria (:meth:`solve`, with load stepping)
     and single time steps (:meth:`solve_step`, driven by :class:`~bhem_hpc.solver.dynamics.TimeStepper`).
@@ -121,7 +132,16 @@ class ShellSolver(PetscOwner):
             if model.potential_form is not None:
                 self._trial = self.x.duplicate()
                 self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
-            self.snes.setFromOptions()
+            try:
+                self.snes.setFromOptions()
+            except PETSc.Error as exc:
+                given = {k: v for k, v in opts.getAll().items() if k.startswith(prefix)}
+                self.close()
+                raise SolverSetupError(
+                    f"SNES solver '{prefix}': PETSc rejected its options (error code {exc.ierr}: "
+                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')}); options under the "
+                    f"prefix: {dict(sorted(given.items()))}"
+                ) from None
         finally:
             for name in pushed:
                 opts.delValue(name)
@@ -130,7 +150,13 @@ class ShellSolver(PetscOwner):
     def _solve_constrained(self, max_updates: int = 30) -> bool:
         """SNES solve, wrapped in augmented-Lagrangian multiplier updates when points are held."""
         for _ in range(max_updates):
-            self.snes.solve(None, self.x)
+            try:
+                self.snes.solve(None, self.x)
+            except PETSc.Error as exc:  # not a divergence: PETSc refused to go on (e.g. a bad option)
+                raise SolverSetupError(
+                    f"SNES solver '{self.prefix}': PETSc stopped the solve with error code {exc.ierr} "
+                    f"({PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
+                ) from None
             if not self._converged() or not len(self.problem.alm_multipliers):
                 return self._converged()
             self.problem.update_state(self.x)

@@ -14,6 +14,10 @@ class SolverError(RuntimeError):
     """A nonlinear or linear solve failed; the message names the solver and the reasons."""
 
 
+class SolverSetupError(SolverError):
+    """PETSc refused the solver's configuration (a bad option): no retry with a smaller step helps."""
+
+
 def push_options(prefix: str, defaults: Mapping[str, str], overrides: Mapping[str, object]) -> list[str]:
     """Set ``overrides`` then ``defaults`` under ``prefix`` where the database has no value.
 

@@ -37,6 +37,8 @@ COLLIDER_TYPES = ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "
 #: Bounds checked before anything is allocated: time steps of one run, needles of one grid.
 MAX_STEPS = 10_000_000
 MAX_NEEDLES = 100_000
+MIN_DT, MAX_DT = 1e-12, 1e3  # s
+MAX_PATCHES = 1_000_000  # patches (knot spans) of one surface: about 12 million Hermite DoFs
 
 
 def _whole_steps(duration: float, dt: float) -> bool:
@@ -202,15 +204,26 @@ _KINDS: dict[str, Callable[[Any], bool]] = {
 }
 
 
+def _read_toml(path: Path) -> dict:
+    """The TOML document of a scene file (a regular UTF-8 text file)."""
+    if path.exists() and not path.is_file():
+        raise SceneError(f"{path}: not a regular file")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read scene file ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not a text (UTF-8) file: byte {exc.start} cannot be decoded") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML ({exc})") from exc
+    except RecursionError:
+        raise SceneError(f"{path}: nested too deeply to be a scene") from None
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file. Raises :class:`SceneError` on any problem."""
     path = Path(path)
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise SceneError(f"{path}: cannot read scene file ({exc.strerror})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML ({exc})") from exc
+    raw = _read_toml(path)
     top = _Table(path, "", raw)
     surface = _surface(top.table("surface"), path)
     material = _material(top.table("material"))
@@ -221,7 +234,8 @@ def load_scene(path: str | Path) -> Scene:
         load_steps = time_table.get("load_steps", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
         dt, steps = 0.0, 0
     else:
-        dt = time_table.get("dt", "a number", check=lambda v: v > 0, expected="a number > 0 (time step [s])")
+        expected_dt = f"a number in [{MIN_DT:g}, {MAX_DT:g}] (time step [s])"
+        dt = time_table.get("dt", "a number", check=lambda v: MIN_DT <= v <= MAX_DT, expected=expected_dt)
         has_steps, has_duration = "steps" in time_table.data, "duration" in time_table.data
         if has_steps == has_duration:
             raise SceneError(f"{path}: table 'time' needs exactly one of 'steps' and 'duration'")
@@ -322,7 +336,10 @@ def _regular_file(t: _Table, key: str, file: str, scene: Path) -> Path:
 def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
     """A surface made by a constructor: Hermite nodal data or B-spline control points by interpolation."""
     positive = {"check": lambda v: v > 0, "expected": "a number > 0"}
-    patches = t.get("patches", "2 integers", check=lambda v: min(v) >= 1, expected="2 integers >= 1")
+    patches = t.get(
+        "patches", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_PATCHES,
+        expected=f"2 integers >= 1, at most {MAX_PATCHES} patches in all",
+    )  # fmt: skip
     spline = () if discretization == "hermite" else (int(discretization[-1]),)
     shapes = S if discretization == "hermite" else B
     if kind == "rectangle":

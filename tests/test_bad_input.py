@@ -22,10 +22,11 @@ GOOD = {"young": 1e6, "poisson": 0.3, "thickness": 0.01, "density": 1.0}
 @pytest.mark.parametrize(
     ("field", "value", "message"),
     [
-        ("young", 0.0, r"material.young = 0.0 is invalid: must be > 0"),
+        ("young", 0.0, r"material.young = 0.0 is invalid: must be in \(0, 1e15\] Pa"),
         ("young", -5.0, r"material.young = -5.0 is invalid"),
-        ("thickness", 0.0, r"material.thickness = 0.0 is invalid: must be > 0"),
-        ("density", -1.0, r"material.density = -1.0 is invalid: must be >= 0"),
+        ("thickness", 0.0, r"material.thickness = 0.0 is invalid: must be in \(0, 1e3\] m"),
+        ("thickness", 1e200, r"material.thickness = 1e\+200 is invalid"),
+        ("density", -1.0, r"material.density = -1.0 is invalid: must be in \[0, 1e6\]"),
         ("poisson", 0.51, r"material.poisson = 0.51 is invalid: must be in \(-1, 0.5\]"),
         ("poisson", -1.0, r"material.poisson = -1.0 is invalid"),
         ("young", float("nan"), r"material.young = nan is invalid"),

@@ -42,7 +42,19 @@ def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
         ),
         (
             lambda s: s.replace("dt = 0.01", "dt = 0.0"),
-            r"key 'time.dt' must be a number > 0 \(time step \[s\]\), got 0.0",
+            r"key 'time.dt' must be a number in \[1e-12, 1000\] \(time step \[s\]\), got 0.0",
+        ),
+        (
+            lambda s: s.replace("dt = 0.01", "dt = 1e-320"),
+            r"key 'time.dt' must be a number in \[1e-12, 1000\] \(time step \[s\]\), got 1e-320",
+        ),
+        (
+            lambda s: s.replace("steps = 6", "duration = 1e308"),
+            r"key 'time.duration' must be a number > 0 \[s\], a whole number .*got 1e\+308",
+        ),
+        (
+            lambda s: s.replace("patches = [3, 2]", "patches = [100000, 100000]"),
+            r"key 'surface.patches' must be 2 integers >= 1, at most 1000000 patches in all",
         ),
         (lambda s: s.replace("steps = 6", "steps = 6\nduration = 1.0"), "exactly one of 'steps' and 'duration'"),
         (
@@ -266,3 +278,19 @@ edge = "xi1_min"
         tip_drop = -f["frames/0/geometry"][:, 2].min()
     ei = 1e6 * 0.1 * 0.01**3 / 12
     assert abs(tip_drop / (1e-5 * 0.1 / (3 * ei)) - 1) < 1e-4  # P L^3 / (3 EI)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"\x00\xff\xfe binary \x89PNG", r"not a text \(UTF-8\) file: byte 1 cannot be decoded"),
+        (b"a = " + b"[" * 100_000 + b"]" * 100_000, r"nested too deeply to be a scene|not valid TOML"),
+    ],
+)
+def test_hostile_scene_files_get_an_error_naming_the_file(comm, workdir, content, message):
+    path = workdir / "hostile.toml"
+    if comm.rank == 0:
+        path.write_bytes(content)
+    comm.Barrier()
+    with pytest.raises(SceneError, match=rf"{path}: ({message})"):
+        load_scene(path)

@@ -17,8 +17,8 @@ class Material:
     Attributes:
         young: Young's modulus Y [Pa], > 0.
         poisson: Poisson's ratio nu in (-1, 0.5].
-        thickness: shell thickness h [m], > 0.
-        density: mass density rho [kg/m^3], >= 0.
+        thickness: shell thickness h [m], in (0, 1e3].
+        density: mass density rho [kg/m^3], in [0, 1e6].
     """
 
     young: float
@@ -28,10 +28,11 @@ class Material:
 
     def __post_init__(self) -> None:
         checks = (
-            ("young", self.young, lambda v: v > 0, "> 0"),
+            # bounds far beyond any shell's, so that Y h^3 and rho h dt^-2 stay finite doubles
+            ("young", self.young, lambda v: 0 < v <= 1e15, "in (0, 1e15] Pa"),
             ("poisson", self.poisson, lambda v: -1 < v <= 0.5, "in (-1, 0.5]"),
-            ("thickness", self.thickness, lambda v: v > 0, "> 0"),
-            ("density", self.density, lambda v: v >= 0, ">= 0"),
+            ("thickness", self.thickness, lambda v: 0 < v <= 1e3, "in (0, 1e3] m"),
+            ("density", self.density, lambda v: 0 <= v <= 1e6, "in [0, 1e6] kg/m^3"),
         )
         for name, value, ok, expected in checks:
             if isinstance(value, bool) or not isinstance(value, int | float):

@@ -82,9 +82,14 @@ def _render(args: argparse.Namespace, comm) -> None:
     if not (1 <= width <= 4096 and 1 <= height <= 4096):
         raise ValueError(f"--size must be between 1x1 and 4096x4096, got {args.size!r}")
     h5 = args.directory / "surface.h5"
-    if not h5.exists():
+    if not h5.is_file():
         raise ValueError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
-    surface, time = read_frame(h5, args.frame)
+    if args.out is not None and not args.out.parent.is_dir():
+        raise ValueError(f"--out {args.out}: the folder {args.out.parent} does not exist")
+    try:
+        surface, time = read_frame(h5, args.frame)
+    except (OSError, KeyError, TypeError) as exc:
+        raise ValueError(f"{h5}: not a readable surface series ({exc})") from None
     image, mask = render(surface, width, height)
     out = args.out or args.directory / f"frame_{args.frame if args.frame >= 0 else 'last'}.png"
     write_png(out, image)
@@ -205,6 +210,13 @@ def _configure_logging(verbose: bool, rank: int) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    for arg in argv:  # bytes that are not UTF-8 arrive as surrogates, which MPI and PETSc cannot take
+        try:
+            arg.encode("utf-8")
+        except UnicodeEncodeError:
+            shown = arg.encode("utf-8", "replace").decode()
+            print(f"bhem-hpc: error: argument {shown!r} is not UTF-8 text", file=sys.stderr)
+            return 2
     args, petsc_args = _parser().parse_known_args(argv)
     bad = [a for a in petsc_args if a.startswith("--")]
     if bad:

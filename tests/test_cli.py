@@ -73,3 +73,20 @@ def test_bad_arguments_give_clear_errors(comm, shared_tmp_path, capsys):
     assert not (shared_tmp_path / "x").exists()
     with pytest.raises(SystemExit):
         cli.main(["cantilever", "--no-such-flag"])
+
+
+def test_hostile_arguments_get_one_line_and_exit_code_2(comm, shared_tmp_path, capsys):
+    """A non-UTF-8 byte in an argument (as the shell hands it to Python) and a render into a
+    folder that does not exist."""
+    assert cli.main(["run", "scene\udcff.toml", "--out", str(shared_tmp_path / "x")]) == 2
+    assert "is not UTF-8 text" in capsys.readouterr().err
+    directory = shared_tmp_path / "series"
+    if comm.rank == 0:
+        directory.mkdir()
+        (directory / "surface.h5").write_bytes(b"not hdf5")
+    comm.Barrier()
+    if comm.rank == 0:  # render is serial
+        assert cli.main(["render", str(directory), "--out", str(shared_tmp_path / "missing" / "a.png")]) == 2
+        assert "the folder" in capsys.readouterr().err
+        assert cli.main(["render", str(directory)]) == 2
+        assert "not a readable surface series" in capsys.readouterr().err

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -239,8 +240,23 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError, SummaryError
         if comm.rank == 0:
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
+        _exit_past_failed_hdf5_files(comm)
         return 2
     return 0
+
+
+def _exit_past_failed_hdf5_files(comm) -> None:
+    """After a failed HDF5 write (disk full): end the process without freeing that file, which
+    would crash HDF5; MPI is finalized first, so mpirun sees an ordinary exit with code 2."""
+    from bhem_hpc.io.xdmf import abandoned_files
+
+    if abandoned_files():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        from mpi4py import MPI
+
+        MPI.Finalize()
+        os._exit(2)
 
 
 if __name__ == "__main__":

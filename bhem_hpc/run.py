@@ -229,7 +229,7 @@ def _on_rank0(comm: MPI.Comm, action, what: str) -> None:
     if comm.rank == 0:
         try:
             action()
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, RuntimeError) as exc:  # h5py reports failed writes as RuntimeError
             detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             error = f"cannot write {what}: {detail}"
     error = comm.bcast(error)

@@ -13,12 +13,16 @@ def write_checkpoint(path: str | Path, state: dict[str, np.ndarray], attributes:
     """Write arrays and attributes to ``path`` atomically (temporary file, then rename)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        for name, array in state.items():
-            f[name] = array
-        for name, value in attributes.items():
-            f.attrs[name] = value
-    os.replace(tmp, path)
+    try:
+        with h5py.File(tmp, "w") as f:
+            for name, array in state.items():
+                f[name] = array
+            for name, value in attributes.items():
+                f.attrs[name] = value
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # the previous checkpoint stays as it was
+        raise
 
 
 def read_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, object]]:

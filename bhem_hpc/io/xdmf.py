@@ -14,6 +14,15 @@ import numpy as np
 
 from bhem_hpc.geometry.surface import HermiteSurface
 
+_ABANDONED: list = []  # HDF5 files whose writes failed: kept open, never freed, until the process ends
+
+
+def abandoned_files() -> int:
+    """How many HDF5 files a failed write left open. HDF5 crashes when such a file is freed at
+    interpreter exit: a process with any should end through ``os._exit`` (after MPI_Finalize)."""
+    return len(_ABANDONED)
+
+
 _FLOAT64 = 'NumberType="Float" Precision="8"'
 _INT64 = 'NumberType="Int" Precision="8"'
 _XDMF = """<?xml version="1.0"?>
@@ -87,6 +96,7 @@ class SurfaceTimeSeries:
         _, self.quads, self.params = rest.tessellate(density)
         self.rest_point = rest.evaluate(self.params[:, 0], self.params[:, 1])
         self.times: list[float] = []
+        self._failed = False
         if continue_at is not None:
             self._continue(continue_at)
             return
@@ -120,6 +130,25 @@ class SurfaceTimeSeries:
         self._write_xml()
 
     def write(self, time: float, surface: HermiteSurface) -> None:
+        """Append a frame; the XDMF lists it only once its data are flushed.
+
+        Raises:
+            OSError: the frame could not be written (disk full, I/O error); the frames before it
+                stay readable and listed.
+        """
+        if self._failed:
+            raise OSError(f"{self.h5_path}: an earlier frame failed to write")
+        try:
+            self._write_frame(time, surface)
+        except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
+            self._failed = True
+            _ABANDONED.append(self.file)  # closing (or freeing) a file HDF5 failed to flush can crash it
+            error = " ".join(str(exc).split())
+            raise OSError(f"{self.h5_path}: frame at t = {time:.6g} s not written ({error})") from None
+        self.times.append(float(time))
+        self._write_xml()
+
+    def _write_frame(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])
         membrane, bending = self._energy_densities(self.rest_point, point, self.material)
         group = self.file.create_group(f"frames/{len(self.times)}")
@@ -131,8 +160,6 @@ class SurfaceTimeSeries:
         group["nodal"] = surface.nodal  # the exact surface (Hermite nodal data or control points), for the ray tracer
         group.attrs["time"] = float(time)
         self.file.flush()
-        self.times.append(float(time))
-        self._write_xml()
 
     def _write_xml(self) -> None:
         npoints, ncells = len(self.params), len(self.quads)
@@ -168,12 +195,18 @@ class SurfaceTimeSeries:
         os.replace(tmp, self.path)
 
     def close(self) -> None:
-        if self.file:
+        """Close the HDF5 file; after a failed write that may fail too, and is then left as it is."""
+        if self.file and not self._failed:
             self.file.close()
+        self.file = None
 
 
 def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, float]:
-    """The surface (exact nodal data) and time of a frame of a :class:`SurfaceTimeSeries`."""
+    """The surface (exact nodal data) and time of a frame of a :class:`SurfaceTimeSeries`.
+
+    ``frame = -1`` is the last complete frame: one that a failed write (disk full) left behind
+    half-written is skipped.
+    """
     from bhem_hpc.geometry.bspline import surface_from_nodal
     from bhem_hpc.geometry.surface import ParameterGrid
 
@@ -184,7 +217,15 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
         index = frame if frame >= 0 else count + frame
         if not 0 <= index < count:
             raise ValueError(f"{h5_path}: frame {frame} does not exist (0..{count - 1})")
-        group = f[f"frames/{index}"]
+        candidates = range(index, -1, -1) if frame == -1 else (index,)
+        for k in candidates:
+            try:
+                nodal, time = f[f"frames/{k}/nodal"][()], float(f[f"frames/{k}"].attrs["time"])
+                break
+            except (KeyError, OSError, RuntimeError):
+                continue
+        else:
+            raise ValueError(f"{h5_path}: frame {frame} is incomplete (its write failed)")
         a = f.attrs
         grid = ParameterGrid(
             int(a["patches"][0]),
@@ -195,4 +236,4 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
             bool(a["periodic"][1]),
         )
         discretization = str(a.get("discretization", "hermite"))
-        return surface_from_nodal(discretization, grid, group["nodal"][()]), float(group.attrs["time"])
+        return surface_from_nodal(discretization, grid, nodal), time

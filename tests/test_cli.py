@@ -32,6 +32,7 @@ def test_cantilever_job_writes_paraview_png_and_summary(comm, shared_tmp_path, c
     assert int(topology.get("NumberOfElements")) == len(quads) == 12 * 4 * 4
     mesh = meshio.read(out / "cantilever.xdmf")
     np.testing.assert_allclose(mesh.points, points)
+    assert {"displacement", "membrane_energy_density", "bending_energy_density"} <= set(mesh.point_data)
     tip = points[np.argmax(-points[:, 2])]
     assert abs(-tip[2] - summary["tip_H_over_L"]) < 0.01
     if comm.rank == 0:

@@ -167,3 +167,14 @@ def test_a_damaged_checkpoint_is_refused_before_anything_is_written(comm, shared
         run(scene, shared_tmp_path / "second", comm, restart=first)
     assert str(first) in str(error.value)
     assert not (shared_tmp_path / "second").exists()
+
+
+def test_force_into_the_scenes_own_folder_keeps_the_scene(comm, shared_tmp_path):
+    """The folder holding the scene file is replaced; the scene is read first and written back."""
+    folder = shared_tmp_path / "job"
+    if comm.rank == 0:
+        folder.mkdir()
+    scene = write(comm, folder / "scene.toml", BASE)
+    summary = run(scene, folder, comm, steps=1, force=True)
+    assert summary["status"] == "completed"
+    assert (folder / "scene.toml").read_text() == BASE

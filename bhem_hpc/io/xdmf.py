@@ -25,52 +25,75 @@ def abandoned_files() -> int:
 
 _FLOAT64 = 'NumberType="Float" Precision="8"'
 _INT64 = 'NumberType="Int" Precision="8"'
-_XDMF = """<?xml version="1.0"?>
-<Xdmf Version="3.0">
-  <Domain>
-    <Grid Name="{name}" GridType="Uniform">
-      <Topology TopologyType="Quadrilateral" NumberOfElements="{ncells}">
-        <DataItem Dimensions="{ncells} 4" NumberType="Int" Precision="8" Format="HDF">{h5}:/topology</DataItem>
-      </Topology>
-      <Geometry GeometryType="XYZ">
-        <DataItem Dimensions="{npoints} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/geometry</DataItem>
-      </Geometry>
-      <Attribute Name="normal" AttributeType="Vector" Center="Node">
-        <DataItem Dimensions="{npoints} 3" NumberType="Float" Precision="8" Format="HDF">{h5}:/normal</DataItem>
-      </Attribute>
-      <Attribute Name="xi1" AttributeType="Scalar" Center="Node">
-        <DataItem Dimensions="{npoints}" NumberType="Float" Precision="8" Format="HDF">{h5}:/xi1</DataItem>
-      </Attribute>
-      <Attribute Name="xi2" AttributeType="Scalar" Center="Node">
-        <DataItem Dimensions="{npoints}" NumberType="Float" Precision="8" Format="HDF">{h5}:/xi2</DataItem>
-      </Attribute>
-    </Grid>
-  </Domain>
-</Xdmf>
-"""
 
 
-def write_surface_xdmf(path: str | Path, surface: HermiteSurface, density: int = 4, name: str = "surface") -> Path:
-    """Write ``path`` (.xdmf) and its ``.h5`` with the surface tessellated at ``density``.
+def _attribute(name: str, npoints: int, vector: bool, location: str) -> str:
+    """A node-centred Attribute: a Scalar per point ``(n,)`` or a 3-Vector ``(n, 3)``."""
+    kind, dims = ("Vector", f"{npoints} 3") if vector else ("Scalar", f"{npoints}")
+    return (
+        f'<Attribute Name="{name}" AttributeType="{kind}" Center="Node"><DataItem Dimensions="{dims}" '
+        f'{_FLOAT64} Format="HDF">{location}</DataItem></Attribute>'
+    )
+
+
+def _grid(name: str, h5: str, geometry: str, npoints: int, ncells: int, attributes: str, time: str = "") -> str:
+    return (
+        f'<Grid Name="{name}" GridType="Uniform">{time}'
+        f'<Topology TopologyType="Quadrilateral" NumberOfElements="{ncells}">'
+        f'<DataItem Dimensions="{ncells} 4" {_INT64} Format="HDF">{h5}:/topology</DataItem></Topology>'
+        f'<Geometry GeometryType="XYZ"><DataItem Dimensions="{npoints} 3" {_FLOAT64} Format="HDF">'
+        f"{h5}:{geometry}</DataItem></Geometry>{attributes}</Grid>"
+    )
+
+
+def _document(grids: str) -> str:
+    return f'<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n{grids}\n  </Domain>\n</Xdmf>\n'
+
+
+def write_surface_xdmf(
+    path: str | Path, surface: HermiteSurface, density: int = 4, name: str = "surface",
+    rest: HermiteSurface | None = None, material=None,
+) -> Path:  # fmt: skip
+    """Write ``path`` (.xdmf) and its ``.h5`` with the surface tessellated at ``density``: normals,
+    mean curvature and the parameters ``xi1``, ``xi2`` per point; with ``rest`` the displacement,
+    and with ``material`` too the membrane and bending energy densities.
 
     Both files are written to temporary names and renamed, so a reader never sees half a file.
     """
+    from bhem_hpc.io.fields import energy_densities, mean_curvature
+
     path = Path(path)
     h5_path = path.with_suffix(".h5")
     points, quads, params = surface.tessellate(density)
-    normals = surface.evaluate(params[:, 0], params[:, 1]).normal
+    point = surface.evaluate(params[:, 0], params[:, 1])
+    fields = {"normal": point.normal, "mean_curvature": mean_curvature(point), "xi1": params[:, 0], "xi2": params[:, 1]}
+    if rest is not None:
+        rest_point = rest.evaluate(params[:, 0], params[:, 1])
+        fields["displacement"] = point.x - rest_point.x
+        if material is not None:
+            fields["membrane_energy_density"], fields["bending_energy_density"] = energy_densities(
+                rest_point, point, material
+            )
     tmp_h5 = h5_path.with_name(h5_path.name + ".tmp")
     with h5py.File(tmp_h5, "w") as f:
         f["geometry"] = points
         f["topology"] = quads.astype(np.int64)
-        f["normal"] = normals
-        f["parameters"] = params
-        f["xi1"], f["xi2"] = params[:, 0], params[:, 1]  # scalars: a 2-component Vector reads ambiguously
+        f["parameters"] = params  # (n, 2), for programs; ParaView gets the scalars xi1, xi2
+        for key, array in fields.items():
+            f[key] = array
     os.replace(tmp_h5, h5_path)
+    attributes = "".join(
+        _attribute(key, len(points), array.ndim == 2, f"{h5_path.name}:/{key}") for key, array in fields.items()
+    )
+    xml = _document("    " + _grid(name, h5_path.name, "/geometry", len(points), len(quads), attributes))
     tmp_xdmf = path.with_name(path.name + ".tmp")
-    tmp_xdmf.write_text(_XDMF.format(name=name, ncells=len(quads), npoints=len(points), h5=h5_path.name))
+    tmp_xdmf.write_text(xml)
     os.replace(tmp_xdmf, path)
     return path
+
+
+#: The per-point fields of every frame of a series.
+SERIES_FIELDS = ("normal", "mean_curvature", "membrane_energy_density", "bending_energy_density")
 
 
 class SurfaceTimeSeries:
@@ -167,28 +190,17 @@ class SurfaceTimeSeries:
         grids = []
         for k, t in enumerate(self.times):
             attributes = "".join(
-                f'<Attribute Name="{name}" AttributeType="{kind}" Center="Node">'
-                f'<DataItem Dimensions="{npoints}{dims}" {_FLOAT64} Format="HDF">{h5}:/frames/{k}/{name}</DataItem>'
-                "</Attribute>"
-                for name, kind, dims in (
-                    ("normal", "Vector", " 3"),
-                    ("mean_curvature", "Scalar", ""),
-                    ("membrane_energy_density", "Scalar", ""),
-                    ("bending_energy_density", "Scalar", ""),
-                )
+                _attribute(name, npoints, name == "normal", f"{h5}:/frames/{k}/{name}")
+                for name in SERIES_FIELDS
             )
             grids.append(
-                f'      <Grid Name="frame_{k}" GridType="Uniform"><Time Value="{t!r}"/>'
-                f'<Topology TopologyType="Quadrilateral" NumberOfElements="{ncells}">'
-                f'<DataItem Dimensions="{ncells} 4" {_INT64} Format="HDF">{h5}:/topology</DataItem></Topology>'
-                f'<Geometry GeometryType="XYZ"><DataItem Dimensions="{npoints} 3" {_FLOAT64} Format="HDF">'
-                f"{h5}:/frames/{k}/geometry</DataItem></Geometry>{attributes}</Grid>"
-            )
-        xml = (
-            '<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n'
+                "      " + _grid(f"frame_{k}", h5, f"/frames/{k}/geometry", npoints, ncells, attributes,
+                                 f'<Time Value="{t!r}"/>')
+            )  # fmt: skip
+        xml = _document(
             '    <Grid Name="surface" GridType="Collection" CollectionType="Temporal">\n'
             + "\n".join(grids)
-            + "\n    </Grid>\n  </Domain>\n</Xdmf>\n"
+            + "\n    </Grid>"
         )
         tmp = self.path.with_name(self.path.name + ".tmp")
         tmp.write_text(xml)

@@ -96,7 +96,7 @@ def cantilever(
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         deformed.save(out / "cantilever.npz")
-        write_surface_xdmf(out / "cantilever.xdmf", deformed, density=4, name="cantilever")
+        write_surface_xdmf(out / "cantilever.xdmf", deformed, 4, "cantilever", model.rest_surface, model.material)
         _plot_cantilever(out / "cantilever.png", deformed, shape, summary)
         render_surface_png(out / "cantilever-3d.png", deformed, f"Γ* = {gamma:g}, {patches} patches")
         (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

@@ -35,10 +35,19 @@ def check_data_items(xdmf: Path) -> int:
     return count
 
 
-def test_a_surface_file_declares_its_arrays(tmp_path):
-    surface = S.from_callable(lambda a, b: np.stack([a, b, a * b], -1), S.ParameterGrid(3, 2, (0, 1), (0, 1)))
+def test_a_surface_file_declares_its_arrays_and_physical_fields(tmp_path):
+    from bhem_hpc.model.material import Material
+
+    grid = S.ParameterGrid(3, 2, (0, 1), (0, 1))
+    rest = S.flat_rectangle(1.0, 1.0, 3, 2)
+    surface = S.from_callable(lambda a, b: np.stack([a, b, 0.1 * a * b], -1), grid)
     path = write_surface_xdmf(tmp_path / "s.xdmf", surface, density=2)
-    assert check_data_items(path) == 5
+    assert check_data_items(path) == 6  # topology, geometry, normal, mean curvature, xi1, xi2
+    path = write_surface_xdmf(tmp_path / "t.xdmf", surface, 2, "t", rest, Material(1e6, 0.3, 1e-3, 100.0))
+    assert check_data_items(path) == 9  # and displacement, membrane and bending energy densities
+    with h5py.File(tmp_path / "t.h5", "r") as f:
+        np.testing.assert_allclose(f["displacement"][:, 2], 0.1 * f["xi1"][:] * f["xi2"][:], atol=1e-14)
+        assert f["bending_energy_density"][:].max() > 0
 
 
 def test_a_time_series_declares_its_arrays_and_exact_times(comm, shared_tmp_path):

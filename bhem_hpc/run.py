@@ -177,10 +177,20 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     finally:
         if series is not None:
             series.close()
+        _report_unused_options(solver, summary)
         solver.close()
     summary["status"] = "completed"
     _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
     return summary
+
+
+def _report_unused_options(solver: ShellSolver, summary: dict) -> None:
+    """Options under the run's prefix that PETSc never read (a misspelling, or an option that does
+    not apply): a warning and ``summary.json``'s ``unused_petsc_options``."""
+    unused = solver.unused_options()
+    summary["unused_petsc_options"] = unused
+    if unused:
+        log.warning("PETSc options never used (misspelled or not applicable): %s", ", ".join(unused))
 
 
 def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, bool]:

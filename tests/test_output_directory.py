@@ -178,3 +178,15 @@ def test_force_into_the_scenes_own_folder_keeps_the_scene(comm, shared_tmp_path)
     summary = run(scene, folder, comm, steps=1, force=True)
     assert summary["status"] == "completed"
     assert (folder / "scene.toml").read_text() == BASE
+
+
+def test_misspelled_petsc_options_are_reported(comm, shared_tmp_path):
+    """PETSc's "options left": a misspelled scene option is named in summary.json; options PETSc
+    reads only at the first factorization (MUMPS' ICNTL) count as used."""
+    options = '\n[solver]\noptions = { snes_rtoll = 1e-3, snes_rtol = 1e-8, mat_mumps_icntl_14 = 50 }\n'
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE + options)
+    summary = run(scene, shared_tmp_path / "out", comm, steps=1)
+    assert summary["unused_petsc_options"] == ["bhem_snes_rtoll"]
+    assert json.loads((shared_tmp_path / "out" / "summary.json").read_text())["unused_petsc_options"] == [
+        "bhem_snes_rtoll"
+    ]

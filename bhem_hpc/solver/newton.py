@@ -19,7 +19,15 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.solver.petsc import KSP_REASONS, SNES_REASONS, PetscOwner, SolverError, SolverSetupError, push_options
+from bhem_hpc.solver.petsc import (
+    KSP_REASONS,
+    SNES_REASONS,
+    PetscOwner,
+    SolverError,
+    SolverSetupError,
+    push_options,
+    unused_options,
+)
 from bhem_hpc.solver.problem import ShellProblem
 
 log = logging.getLogger(__name__)
@@ -110,7 +118,10 @@ class ShellSolver(PetscOwner):
         self.x = PETSc.Vec().createMPI((n_local, n_global), comm=comm)
         self.f = self.x.duplicate()
         opts = PETSc.Options()
-        pushed = push_options(prefix, default_options(model), options or {})
+        # the caller's options stay in the database for the solver's life (some are read only at
+        # the first factorization) and are removed by close(); the defaults only for setup
+        self._overrides = push_options(prefix, {}, options or {})
+        pushed = push_options(prefix, default_options(model), {})
         try:  # the pushed defaults are removed again whatever happens
             ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
             mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
@@ -457,11 +468,19 @@ class ShellSolver(PetscOwner):
         return factor, seconds("MatSolve")
 
     # -- lifetime -------------------------------------------------------------------------------
+    def unused_options(self) -> list[str]:
+        """Options under this solver's prefix (command line or caller's) that PETSc never read:
+        misspelled or not applicable. Ask after the solves, before :meth:`close`."""
+        return unused_options(self.prefix)
+
     def close(self) -> None:
         """Destroy the PETSc objects this solver owns, its problem's too (idempotent)."""
         if self._closed:
             return
         self._closed = True
+        opts = PETSc.Options()
+        for name in self._overrides:
+            opts.delValue(name)
         for obj in (self.snes, self.x, self.f, self._trial):
             if obj is not None:
                 obj.destroy()

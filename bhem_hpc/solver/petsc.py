@@ -35,6 +35,20 @@ def push_options(prefix: str, defaults: Mapping[str, str], overrides: Mapping[st
     return pushed
 
 
+def unused_options(prefix: str) -> list[str]:
+    """Names in the options database under ``prefix`` that no PETSc object has read (PETSc's
+    "options left", asked through ``PetscOptionsUsed``, which petsc4py does not wrap)."""
+    import ctypes
+
+    query = ctypes.CDLL(PETSc.__file__).PetscOptionsUsed  # libpetsc, linked by petsc4py's module
+    used = ctypes.c_int(0)
+    unused = []
+    for name in sorted(PETSc.Options().getAll()):
+        if name.startswith(prefix) and query(None, name.encode(), ctypes.byref(used)) == 0 and not used.value:
+            unused.append(name)
+    return unused
+
+
 class PetscOwner:
     """Owns PETSc objects: an explicit ``close()`` (idempotent), a context manager, a guarded ``__del__``."""
 

@@ -28,6 +28,7 @@ from bhem_hpc.solver.petsc import library_versions
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
+SUMMARY_EVERY_S = 30.0  # wall seconds between rewrites of a running summary.json (at checkpoints)
 
 
 class RunError(RuntimeError):
@@ -177,19 +178,19 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     finally:
         if series is not None:
             series.close()
-        _report_unused_options(solver, summary)
+        _report_unused_options(solver, summary, comm)
         solver.close()
     summary["status"] = "completed"
     _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
     return summary
 
 
-def _report_unused_options(solver: ShellSolver, summary: dict) -> None:
+def _report_unused_options(solver: ShellSolver, summary: dict, comm: MPI.Comm) -> None:
     """Options under the run's prefix that PETSc never read (a misspelling, or an option that does
     not apply): a warning and ``summary.json``'s ``unused_petsc_options``."""
     unused = solver.unused_options()
     summary["unused_petsc_options"] = unused
-    if unused:
+    if unused and comm.rank == 0:
         log.warning("PETSc options never used (misspelled or not applicable): %s", ", ".join(unused))
 
 
@@ -368,14 +369,21 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
     if comm.bcast(series is not None and not series.times):  # a continued series has its restart frame
         _on_rank0(comm, lambda: series.write(stepper.time, surface), "a frame")
     progress = _progress(steps, options.progress and comm.rank == 0)
+    last_summary = time.perf_counter()
     try:
         for k in range(steps):
             record = stepper.advance()
             t_out = time.perf_counter()
-            if stepper.step % scene.output_every == 0 or k == steps - 1:  # the last step always writes
+            wrote = stepper.step % scene.output_every == 0 or k == steps - 1  # the last step always writes
+            if wrote:
                 surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm)
             output_s = time.perf_counter() - t_out
             summary["steps"].append(_step_summary(record, output_s, _energies(model)))
+            # the step records up to a checkpoint, at most every SUMMARY_EVERY_S: a killed or
+            # requeued job's continuation keeps them
+            if wrote and comm.bcast(time.perf_counter() - last_summary >= SUMMARY_EVERY_S):
+                _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
+                last_summary = time.perf_counter()
             progress(record, stepper)
     except StepFailure as exc:
         raise RunError(str(exc)) from exc

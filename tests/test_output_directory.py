@@ -190,3 +190,23 @@ def test_misspelled_petsc_options_are_reported(comm, shared_tmp_path):
     assert json.loads((shared_tmp_path / "out" / "summary.json").read_text())["unused_petsc_options"] == [
         "bhem_snes_rtoll"
     ]
+
+
+def test_a_running_summary_keeps_the_step_records_up_to_each_checkpoint(comm, shared_tmp_path, monkeypatch):
+    """With the rewrite interval at 0 s, summary.json is rewritten at every checkpoint (every 2
+    steps here) with the records so far, so a killed job's continuation keeps them."""
+    import bhem_hpc.run as R
+
+    monkeypatch.setattr(R, "SUMMARY_EVERY_S", 0.0)
+    written = []
+    original = R._write_summary
+
+    def spy(out: Path, summary: dict) -> None:
+        written.append((summary["status"], len(summary["steps"])))
+        original(out, summary)
+
+    monkeypatch.setattr(R, "_write_summary", spy)
+    scene = write(comm, shared_tmp_path / "scene.toml", BASE)
+    run(scene, shared_tmp_path / "out", comm)
+    if comm.rank == 0:
+        assert written == [("running", 0), ("running", 2), ("running", 4), ("running", 6), ("completed", 6)]

@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import sys
+import traceback
 from pathlib import Path
 
 
@@ -23,6 +24,7 @@ def _parser() -> argparse.ArgumentParser:
         "Unrecognized -options are passed to PETSc (e.g. -bhem_static_snes_monitor).",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="log solver progress")
+    parser.add_argument("--debug", action="store_true", help="on an error, show the traceback too")
     sub = parser.add_subparsers(dest="command", required=True)
     cant = sub.add_parser("cantilever", help="static cantilever under self-weight vs the heavy elastica")
     cant.add_argument("--gamma", type=float, default=20.0, help="Gamma* = 12 (1-nu^2) rho g L^3 / (Y h^2)")
@@ -239,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
         HANDLERS[args.command](args, comm)
     except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError, SummaryError
         if comm.rank == 0:
+            if args.debug:
+                traceback.print_exc()
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
         _exit_past_failed_hdf5_files(comm)
         return 2

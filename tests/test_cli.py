@@ -91,3 +91,14 @@ def test_hostile_arguments_get_one_line_and_exit_code_2(comm, shared_tmp_path, c
         assert "the folder" in capsys.readouterr().err
         assert cli.main(["render", str(directory)]) == 2
         assert "not a readable surface series" in capsys.readouterr().err
+
+
+def test_debug_shows_the_traceback_behind_the_error_line(comm, shared_tmp_path, capsys):
+    missing = str(shared_tmp_path / "missing.toml")
+    assert cli.main(["run", missing, "--out", str(shared_tmp_path / "o")]) == 2
+    plain = capsys.readouterr().err
+    assert cli.main(["--debug", "run", missing, "--out", str(shared_tmp_path / "o")]) == 2
+    debug = capsys.readouterr().err
+    if comm.rank == 0:
+        assert "Traceback" not in plain and "bhem-hpc: error:" in plain
+        assert "Traceback" in debug and "SceneError" in debug and "bhem-hpc: error:" in debug

@@ -230,18 +230,26 @@ class BSplineDiscretization:
             return np.zeros(0, dtype=np.int64), np.zeros(0)
         return self._cell_dofs[cell], self.element.tabulate(0, reference.reshape(1, 2))[0, 0, :, 0]
 
+    def _lattice_index(self) -> np.ndarray:
+        """Each local block's place ``k1 * (n2 p + 1) + k2`` on the lattice of its DOF point: an
+        order that does not depend on how the mesh was partitioned."""
+        grid, p = self.grid, self.degree
+        origin = np.array([grid.xi1_range[0], grid.xi2_range[0]])
+        step = np.array([grid.h1, grid.h2]) / p
+        k = np.rint((self.block_points - origin) / step).astype(np.int64)
+        return k[:, 0] * (grid.n2 * p + 1) + k[:, 1]
+
     def gather_raw_dofs(self, open_array: np.ndarray) -> np.ndarray:
-        """Collective: the open DOF values in global block order ``(blocks, 3)``, on every rank (bit-exact)."""
-        index_map = self.function_space.dofmap.index_map
-        first = index_map.local_range[0]
+        """Collective: the open DOF values ``(blocks, 3)`` in lattice order (the same for every rank
+        count, so a checkpoint restarts on any), on every rank (bit-exact)."""
+        p, grid = self.degree, self.grid
         owned = np.asarray(open_array).reshape(-1, 3)[: self.num_owned_blocks]
-        out = np.zeros((index_map.size_global, 3))
-        for start, values in self.comm.allgather((first, owned)):
-            out[start : start + len(values)] = values
+        index = self._lattice_index()[: self.num_owned_blocks]
+        out = np.zeros(((grid.n1 * p + 1) * (grid.n2 * p + 1), 3))
+        for where, values in self.comm.allgather((index, owned)):
+            out[where] = values
         return out
 
     def scatter_raw_dofs(self, raw: np.ndarray) -> np.ndarray:
         """Inverse of :meth:`gather_raw_dofs`: the open array (owned + ghost blocks)."""
-        index_map = self.function_space.dofmap.index_map
-        blocks = np.arange(index_map.size_local + index_map.num_ghosts, dtype=np.int32)
-        return np.asarray(raw)[index_map.local_to_global(blocks)].ravel()
+        return np.asarray(raw)[self._lattice_index()].ravel()

@@ -226,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         _parser().error(f"unrecognized arguments: {' '.join(bad)}")
     import petsc4py
 
-    petsc4py.init([sys.argv[0], *petsc_args])
+    if "petsc4py.PETSc" not in sys.modules:  # a second init (main called in-process) would unbalance PETSc's finalize
+        petsc4py.init([sys.argv[0], *petsc_args])
     from mpi4py import MPI
 
     comm = MPI.COMM_WORLD

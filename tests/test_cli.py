@@ -86,11 +86,13 @@ def test_hostile_arguments_get_one_line_and_exit_code_2(comm, shared_tmp_path, c
         directory.mkdir()
         (directory / "surface.h5").write_bytes(b"not hdf5")
     comm.Barrier()
-    if comm.rank == 0:  # render is serial
-        assert cli.main(["render", str(directory), "--out", str(shared_tmp_path / "missing" / "a.png")]) == 2
-        assert "the folder" in capsys.readouterr().err
-        assert cli.main(["render", str(directory)]) == 2
-        assert "not a readable surface series" in capsys.readouterr().err
+    # every rank calls the CLI, as under mpirun; rank 0 renders
+    code = cli.main(["render", str(directory), "--out", str(shared_tmp_path / "missing" / "a.png")])
+    if comm.rank == 0:
+        assert code == 2 and "the folder" in capsys.readouterr().err
+    code = cli.main(["render", str(directory)])
+    if comm.rank == 0:
+        assert code == 2 and "not a readable surface series" in capsys.readouterr().err
 
 
 def test_debug_shows_the_traceback_behind_the_error_line(comm, shared_tmp_path, capsys):

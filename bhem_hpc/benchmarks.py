@@ -18,7 +18,7 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import DEFAULT_QUADRATURE, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.studies.study import flat_sheet, method_name
+from bhem_hpc.studies.study import METHOD_RULES, flat_sheet, method_name
 
 
 def benchmark(
@@ -279,7 +279,6 @@ def write_performance(docs: Path, jobs_dir: Path, steps: int = 5, comm: MPI.Comm
 
 #: The accuracy targets of the equal-accuracy benchmark, on the clamped plate of the plate study.
 EQUAL_ACCURACY_TARGETS = (1e-2, 1e-3)
-METHODS = (("hermite", None), ("bspline2", None), ("bspline2", "reduced"), ("bspline3", None))
 
 
 def equal_accuracy_benchmarks(docs: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
@@ -296,7 +295,7 @@ def equal_accuracy_benchmarks(docs: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> li
     plate = [r for r in read_rows(path) if r["support"] == "clamped" and r["hessian"] == "exact"]
     rows = []
     for target in EQUAL_ACCURACY_TARGETS:
-        for discretization, quadrature in METHODS:
+        for discretization, quadrature in METHOD_RULES:
             rule = quadrature or DEFAULT_QUADRATURE[discretization]
             reached = [
                 r for r in plate

@@ -245,12 +245,12 @@ def main(argv: list[str] | None = None) -> int:
             if args.debug:
                 traceback.print_exc()
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
-        _exit_past_failed_hdf5_files(comm)
+        _exit_past_failed_hdf5_files()
         return 2
     return 0
 
 
-def _exit_past_failed_hdf5_files(comm) -> None:
+def _exit_past_failed_hdf5_files() -> None:
     """After a failed HDF5 write (disk full): end the process without freeing that file, which
     would crash HDF5; MPI is finalized first, so mpirun sees an ordinary exit with code 2."""
     from bhem_hpc.io.xdmf import abandoned_files

@@ -19,7 +19,12 @@ from mpi4py import MPI
 
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
-from bhem_hpc.io.run_directory import OutputDirectoryError, check_output_directory, start_output_directory
+from bhem_hpc.io.run_directory import (
+    OutputDirectoryError,
+    check_output_directory,
+    start_output_directory,
+    write_replacing,
+)
 from bhem_hpc.model.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
@@ -217,35 +222,35 @@ def _start_output(
 ) -> SurfaceTimeSeries | None:
     """Rank 0: a fresh output directory (or the continued one), the scene, a running summary and the
     time series (continuing ``continued``'s checkpoint time, if given); None on other ranks."""
-    opened = []
 
-    def start() -> None:
+    def start() -> SurfaceTimeSeries:
         if continued is None:
             start_output_directory(options.out)
-        _write_replacing(options.out / "scene.toml", scene_text)
+        write_replacing(options.out / "scene.toml", scene_text)
         _write_summary(options.out, summary)
-        opened.append(SurfaceTimeSeries(
+        return SurfaceTimeSeries(
             options.out / "surface.xdmf", scene.surface, scene.material, scene.output_density,
             continue_at=None if continued is None else float(continued["attrs"]["time"]),
-        ))  # fmt: skip
+        )  # fmt: skip
 
-    _on_rank0(comm, start, f"the output directory {options.out}")
-    return opened[0] if opened else None
+    return _on_rank0(comm, start, f"the output directory {options.out}")
 
 
-def _on_rank0(comm: MPI.Comm, action, what: str) -> None:
+def _on_rank0(comm: MPI.Comm, action, what: str):
     """Run a file operation on rank 0 and raise :class:`RunError` on every rank if it fails (so no
-    rank waits for a collective that rank 0 never reaches)."""
-    error = None
+    rank waits for a collective that rank 0 never reaches). Returns the action's result on rank 0,
+    None elsewhere."""
+    error = result = None
     if comm.rank == 0:
         try:
-            action()
+            result = action()
         except (OSError, ValueError, RuntimeError) as exc:  # h5py reports failed writes as RuntimeError
             detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             error = f"cannot write {what}: {detail}"
     error = comm.bcast(error)
     if error:
         raise RunError(error)
+    return result
 
 
 def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: dict | None) -> int:
@@ -271,15 +276,8 @@ def _previous_steps(out: Path, checkpoint: dict) -> list[dict]:
     return [row for row in previous if isinstance(row, dict) and row.get("step", last + 1) <= last]
 
 
-def _write_replacing(path: Path, data: bytes) -> None:
-    """Write ``path`` by rename (never through a symbolic link, never half-written)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _write_summary(out: Path, summary: dict) -> None:
-    _write_replacing(out / "summary.json", (json.dumps(summary, indent=1) + "\n").encode())
+    write_replacing(out / "summary.json", (json.dumps(summary, indent=1) + "\n").encode())
 
 
 def _read_restart(directory: Path, scene: Scene) -> dict:

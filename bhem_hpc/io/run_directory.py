@@ -60,6 +60,17 @@ def _probe(directory: Path) -> None:
         raise OutputDirectoryError(f"output directory {directory} cannot be written: {exc.strerror}") from None
 
 
+def write_replacing(path: Path, data: str | bytes) -> None:
+    """Write ``path`` under a temporary name, then rename it: never half-written, never through a
+    symbolic link."""
+    tmp = path.with_name(path.name + ".tmp")
+    if isinstance(data, str):
+        tmp.write_text(data)
+    else:
+        tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
 def start_output_directory(out: Path) -> None:
     """Make ``out`` a fresh, empty directory: an existing one is renamed aside, then deleted."""
     if out.exists():

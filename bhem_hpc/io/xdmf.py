@@ -13,6 +13,7 @@ import h5py
 import numpy as np
 
 from bhem_hpc.geometry.surface import HermiteSurface
+from bhem_hpc.io.run_directory import write_replacing
 
 _ABANDONED: list = []  # HDF5 files whose writes failed: kept open, never freed, until the process ends
 
@@ -50,6 +51,18 @@ def _document(grids: str) -> str:
     return f'<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n{grids}\n  </Domain>\n</Xdmf>\n'
 
 
+def _point_fields(point, rest_point=None, material=None) -> dict[str, np.ndarray]:
+    """Per-point fields of a surface for ParaView: normal ``(n, 3)``, mean curvature ``(n,)`` and,
+    given the rest surface's points and the material, membrane and bending energy densities."""
+    from bhem_hpc.io.fields import energy_densities, mean_curvature
+
+    fields = {"normal": point.normal, "mean_curvature": mean_curvature(point)}
+    if rest_point is not None and material is not None:
+        membrane, bending = energy_densities(rest_point, point, material)
+        fields |= {"membrane_energy_density": membrane, "bending_energy_density": bending}
+    return fields
+
+
 def write_surface_xdmf(
     path: str | Path, surface: HermiteSurface, density: int = 4, name: str = "surface",
     rest: HermiteSurface | None = None, material=None,
@@ -60,20 +73,14 @@ def write_surface_xdmf(
 
     Both files are written to temporary names and renamed, so a reader never sees half a file.
     """
-    from bhem_hpc.io.fields import energy_densities, mean_curvature
-
     path = Path(path)
     h5_path = path.with_suffix(".h5")
     points, quads, params = surface.tessellate(density)
     point = surface.evaluate(params[:, 0], params[:, 1])
-    fields = {"normal": point.normal, "mean_curvature": mean_curvature(point), "xi1": params[:, 0], "xi2": params[:, 1]}
-    if rest is not None:
-        rest_point = rest.evaluate(params[:, 0], params[:, 1])
+    rest_point = None if rest is None else rest.evaluate(params[:, 0], params[:, 1])
+    fields = {**_point_fields(point, rest_point, material), "xi1": params[:, 0], "xi2": params[:, 1]}
+    if rest_point is not None:
         fields["displacement"] = point.x - rest_point.x
-        if material is not None:
-            fields["membrane_energy_density"], fields["bending_energy_density"] = energy_densities(
-                rest_point, point, material
-            )
     tmp_h5 = h5_path.with_name(h5_path.name + ".tmp")
     with h5py.File(tmp_h5, "w") as f:
         f["geometry"] = points
@@ -86,9 +93,7 @@ def write_surface_xdmf(
         _attribute(key, len(points), array.ndim == 2, f"{h5_path.name}:/{key}") for key, array in fields.items()
     )
     xml = _document("    " + _grid(name, h5_path.name, "/geometry", len(points), len(quads), attributes))
-    tmp_xdmf = path.with_name(path.name + ".tmp")
-    tmp_xdmf.write_text(xml)
-    os.replace(tmp_xdmf, path)
+    write_replacing(path, xml)
     return path
 
 
@@ -109,9 +114,6 @@ class SurfaceTimeSeries:
     ):
         """Start a series at ``path``, or with ``continue_at`` continue the one there: its frames up to
         that time are kept (later ones, written after the checkpoint being continued, are dropped)."""
-        from bhem_hpc.io.fields import energy_densities, mean_curvature
-
-        self._energy_densities, self._mean_curvature = energy_densities, mean_curvature
         self.path = Path(path)
         self.h5_path = self.path.with_suffix(".h5")
         self.material = material
@@ -173,13 +175,11 @@ class SurfaceTimeSeries:
 
     def _write_frame(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])
-        membrane, bending = self._energy_densities(self.rest_point, point, self.material)
+        fields = _point_fields(point, self.rest_point, self.material)
         group = self.file.create_group(f"frames/{len(self.times)}")
         group["geometry"] = point.x
-        group["normal"] = point.normal
-        group["mean_curvature"] = self._mean_curvature(point)
-        group["membrane_energy_density"] = membrane
-        group["bending_energy_density"] = bending
+        for name in SERIES_FIELDS:
+            group[name] = fields[name]
         group["nodal"] = surface.nodal  # the exact surface (Hermite nodal data or control points), for the ray tracer
         group.attrs["time"] = float(time)
         self.file.flush()
@@ -202,9 +202,7 @@ class SurfaceTimeSeries:
             + "\n".join(grids)
             + "\n    </Grid>"
         )
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        tmp.write_text(xml)
-        os.replace(tmp, self.path)
+        write_replacing(self.path, xml)
 
     def close(self) -> None:
         """Close the HDF5 file; after a failed write that may fail too, and is then left as it is."""

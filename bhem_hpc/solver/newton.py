@@ -21,6 +21,7 @@ from petsc4py import PETSc
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.petsc import (
     KSP_REASONS,
+    PETSC_ERRORS,
     SNES_REASONS,
     PetscOwner,
     SolverError,
@@ -85,17 +86,6 @@ class SolveReport:
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
-
-
-#: PETSc error codes a bad option gives, in words.
-PETSC_ERRORS = {
-    56: "a type or option this PETSc build does not support",
-    62: "an argument out of range",
-    63: "an argument out of range",
-    73: "an object in the wrong state",
-    86: "an unknown type name: check the spelling",
-    92: "no such factorization package: check the solver type's spelling",
-}
 
 
 class ShellSolver(PetscOwner):

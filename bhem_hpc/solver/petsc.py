@@ -8,6 +8,15 @@ from petsc4py import PETSc
 
 SNES_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if k.isupper()}
 KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if k.isupper()}
+#: PETSc error codes a bad option gives, in words.
+PETSC_ERRORS = {
+    56: "a type or option this PETSc build does not support",
+    62: "an argument out of range",
+    63: "an argument out of range",
+    73: "an object in the wrong state",
+    86: "an unknown type name: check the spelling",
+    92: "no such factorization package: check the solver type's spelling",
+}
 
 
 class SolverError(RuntimeError):

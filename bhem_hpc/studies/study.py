@@ -9,7 +9,7 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.model.shell import DEFAULT_QUADRATURE, ShellModel
 from bhem_hpc.solver import ShellSolver
 
 RESULT_COLUMNS = ("ranks", "dofs", "nonzeros", "value", "reference", "error", "wall_s", "newton_iterations")
@@ -89,13 +89,18 @@ def study_result(model: ShellModel, value: float, reference: float, measured: tu
     }
 
 
-#: The C1 methods of the head-to-head: a discretization and, for quadratic splines, the quadrature rule.
-METHODS = ("hermite", "bspline2", "bspline2 reduced", "bspline3")
+#: The C1 methods of the head-to-head: a discretization and its quadrature rule (None: the
+#: discretization's default Gauss rule, :data:`DEFAULT_QUADRATURE`).
+METHOD_RULES = (("hermite", None), ("bspline2", None), ("bspline2", "reduced"), ("bspline3", None))
 
 
 def method_name(discretization: str, quadrature: object) -> str:
     """``hermite``, ``bspline2``, ``bspline2 reduced`` or ``bspline3``."""
     return f"{discretization} reduced" if quadrature == "reduced" else discretization
+
+
+#: The methods' names, in the order of :data:`METHOD_RULES`.
+METHODS = tuple(method_name(d, q) for d, q in METHOD_RULES)
 
 
 def row_method(row: dict) -> str:
@@ -107,7 +112,10 @@ def spline_variants(sizes: tuple[int, ...], cubic_sizes: tuple[int, ...] | None 
     """The B-spline methods of a head-to-head, each with its sizes: quadratic splines with 3 x 3
     Gauss and with the reduced rule, cubic splines with 4 x 4 Gauss (on ``cubic_sizes``, default
     ``sizes``)."""
-    for discretization, quadrature in (("bspline2", 3), ("bspline2", "reduced"), ("bspline3", 4)):
+    for discretization, rule in METHOD_RULES:
+        if discretization == "hermite":
+            continue
+        quadrature = rule or DEFAULT_QUADRATURE[discretization]
         for size in cubic_sizes or sizes if discretization == "bspline3" else sizes:
             yield {"discretization": discretization, "quadrature": quadrature, "size": size}
 

@@ -125,7 +125,7 @@ def _run(args: argparse.Namespace, comm) -> None:
             f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
             f"{comm.size} rank(s), {sum(s['newton_iterations'] for s in steps)} Newton iterations, "
             f"{sum(s.get('recoveries', 0) for s in steps)} recoveries\n"
-            f"  output: {args.out}/surface.xdmf (ParaView), last.png, summary.json, checkpoint.h5"
+            f"  output: {args.out}/surface.xdmf and surface.pvd (ParaView), last.png, summary.json, checkpoint.h5"
         )
 
 

@@ -30,7 +30,17 @@ def frame_times(directory: Path) -> list[float]:
     with h5py.File(directory / "surface.h5", "r") as f:
         stored = [float(f[f"frames/{k}"].attrs["time"]) for k in range(len(f["frames"]))]
     assert listed == stored  # the XDMF lists exactly the frames the HDF5 file holds
+    pvd = ET.parse(directory / "surface.pvd").getroot().findall(".//DataSet")
+    assert [float(d.get("timestep")) for d in pvd] == listed  # and so does the VTK collection,
+    assert sorted(p.name for p in (directory / "surface_frames").iterdir()) == [  # with no stale frame
+        Path(d.get("file")).name for d in pvd
+    ]
     return listed
+
+
+def files(directory: Path) -> dict[str, bytes]:
+    """Every file under ``directory``, by relative path."""
+    return {str(p.relative_to(directory)): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
 
 
 def run(scene: Path, out: Path, comm, **options) -> dict:
@@ -63,11 +73,11 @@ def test_a_force_rerun_that_fails_before_writing_leaves_the_old_result(comm, sha
     scene = write(comm, shared_tmp_path / "scene.toml", BASE)
     out = shared_tmp_path / "out"
     run(scene, out, comm, steps=2)
-    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    before = files(out)
     bad = write(comm, shared_tmp_path / "bad.toml", BASE + '\n[solver]\noptions = { snes_type = "nosuch" }\n')
     with pytest.raises(Exception, match="nosuch|SNES|86"):
         run(bad, out, comm, steps=2, force=True)
-    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert files(out) == before
 
 
 def test_a_static_run_replacing_a_dynamic_one_leaves_only_its_own_files(comm, shared_tmp_path):
@@ -84,7 +94,8 @@ def test_a_static_run_replacing_a_dynamic_one_leaves_only_its_own_files(comm, sh
     summary = run(static_scene, out, comm, force=True)
     assert summary["status"] == "completed" and summary["static"]
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["scene.toml", "surface.xdmf", "surface.h5", "checkpoint.h5", "summary.json", "last.png"]
+        ["scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
+         "last.png"]
     )
     _, attrs = read_checkpoint(out / "checkpoint.h5")
     assert attrs["static"] and attrs["step"] == 1  # the static run's own checkpoint

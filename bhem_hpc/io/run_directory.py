@@ -15,7 +15,10 @@ import shutil
 from pathlib import Path
 
 #: The files a run writes; a restart in place refuses to continue through a symbolic link among them.
-RUN_FILES = ("scene.toml", "surface.xdmf", "surface.h5", "checkpoint.h5", "summary.json", "last.png")
+RUN_FILES = (
+    "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
+    "last.png",
+)  # fmt: skip
 
 
 class OutputDirectoryError(ValueError):
@@ -64,11 +67,15 @@ def write_replacing(path: Path, data: str | bytes) -> None:
     """Write ``path`` under a temporary name, then rename it: never half-written, never through a
     symbolic link."""
     tmp = path.with_name(path.name + ".tmp")
-    if isinstance(data, str):
-        tmp.write_text(data)
-    else:
-        tmp.write_bytes(data)
-    os.replace(tmp, path)
+    try:
+        if isinstance(data, str):
+            tmp.write_text(data)
+        else:
+            tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # a full disk leaves no partial file behind
+        raise
 
 
 def start_output_directory(out: Path) -> None:

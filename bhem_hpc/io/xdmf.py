@@ -1,7 +1,9 @@
 """XDMF/HDF5 files ParaView reads: a tessellated surface, or a time series of frames with per-point fields.
 
-Serial writers: call them on one rank with a gathered surface. Every file is written under a
-temporary name and renamed, so a reader never sees half a file.
+Each is accompanied by VTK XML files of the same data (:mod:`.vtu`: ``.vtu``, and ``.pvd`` for a
+series), which declare the normals so that ParaView shades with them; XDMF cannot. Serial writers:
+call them on one rank with a gathered surface. Every file is written under a temporary name and
+renamed, so a reader never sees half a file.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io.run_directory import write_replacing
+from bhem_hpc.io.vtu import write_pvd, write_vtu
 
 _ABANDONED: list = []  # HDF5 files whose writes failed: kept open, never freed, until the process ends
 
@@ -69,9 +72,10 @@ def write_surface_xdmf(
 ) -> Path:  # fmt: skip
     """Write ``path`` (.xdmf) and its ``.h5`` with the surface tessellated at ``density``: normals,
     mean curvature and the parameters ``xi1``, ``xi2`` per point; with ``rest`` the displacement,
-    and with ``material`` too the membrane and bending energy densities.
+    and with ``material`` too the membrane and bending energy densities. The same data go to a
+    ``.vtu`` beside it, with the normals declared.
 
-    Both files are written to temporary names and renamed, so a reader never sees half a file.
+    All files are written to temporary names and renamed, so a reader never sees half a file.
     """
     path = Path(path)
     h5_path = path.with_suffix(".h5")
@@ -94,6 +98,7 @@ def write_surface_xdmf(
     )
     xml = _document("    " + _grid(name, h5_path.name, "/geometry", len(points), len(quads), attributes))
     write_replacing(path, xml)
+    write_vtu(path.with_suffix(".vtu"), points, quads, fields)
     return path
 
 
@@ -106,7 +111,9 @@ class SurfaceTimeSeries:
 
     Heavy data go to ``<name>.h5`` (appended and flushed per frame); the ``.xdmf`` is rewritten
     atomically after every frame, so a run killed mid-way leaves a readable file listing every
-    completed frame. Serial: call on one rank with gathered surfaces.
+    completed frame. The same frames go to ``<name>_frames/frame_<k>.vtu``, listed by ``<name>.pvd``
+    (rewritten likewise), which declare the normals for shading. Serial: call on one rank with
+    gathered surfaces.
     """
 
     def __init__(
@@ -116,6 +123,8 @@ class SurfaceTimeSeries:
         that time are kept (later ones, written after the checkpoint being continued, are dropped)."""
         self.path = Path(path)
         self.h5_path = self.path.with_suffix(".h5")
+        self.pvd_path = self.path.with_suffix(".pvd")
+        self.vtu_folder = self.path.with_name(self.path.stem + "_frames")
         self.material = material
         self.density = density
         _, self.quads, self.params = rest.tessellate(density)
@@ -125,6 +134,7 @@ class SurfaceTimeSeries:
         if continue_at is not None:
             self._continue(continue_at)
             return
+        self.vtu_folder.mkdir(exist_ok=True)
         self.file = h5py.File(self.h5_path, "w")
         self.file["topology"] = self.quads.astype(np.int64)
         self.file["parameters"] = self.params
@@ -152,6 +162,11 @@ class SurfaceTimeSeries:
             else:
                 self.times.append(t)
         self.file.flush()
+        self.vtu_folder.mkdir(exist_ok=True)
+        for stale in self.vtu_folder.glob("frame_*.vtu"):
+            index = stale.stem.removeprefix("frame_")
+            if index.isdigit() and int(index) >= len(self.times):
+                stale.unlink()
         self._write_xml()
 
     def write(self, time: float, surface: HermiteSurface) -> None:
@@ -183,6 +198,10 @@ class SurfaceTimeSeries:
         group["nodal"] = surface.nodal  # the exact surface (Hermite nodal data or control points), for the ray tracer
         group.attrs["time"] = float(time)
         self.file.flush()
+        write_vtu(self._vtu_path(len(self.times)), point.x, self.quads, {name: fields[name] for name in SERIES_FIELDS})
+
+    def _vtu_path(self, frame: int) -> Path:
+        return self.vtu_folder / f"frame_{frame:06d}.vtu"
 
     def _write_xml(self) -> None:
         npoints, ncells = len(self.params), len(self.quads)
@@ -203,6 +222,8 @@ class SurfaceTimeSeries:
             + "\n    </Grid>"
         )
         write_replacing(self.path, xml)
+        folder = self.vtu_folder.name
+        write_pvd(self.pvd_path, [(t, f"{folder}/{self._vtu_path(k).name}") for k, t in enumerate(self.times)])
 
     def close(self) -> None:
         """Close the HDF5 file; after a failed write that may fail too, and is then left as it is."""

@@ -1,0 +1,89 @@
+"""VTK XML files ParaView reads natively: a quadrilateral surface as ``.vtu`` and a time series as
+``.pvd``, at float64, with the normals declared as the active normals.
+
+XDMF has no attribute type for normals, and VTK's XDMF readers mark only scalars, vectors, tensors
+and global ids active, so ParaView shades an XDMF surface flat. These files say ``Normals="normal"``
+in their ``PointData``, which makes ParaView (and any VTK pipeline) shade with the surface's exact
+normals. Serial writers: call them on one rank with gathered data. Every file is written under a
+temporary name and renamed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bhem_hpc.io.run_directory import write_replacing
+
+_VTK_QUAD = 9
+_TYPE_NAMES = {np.dtype(np.float64): "Float64", np.dtype(np.int64): "Int64", np.dtype(np.uint8): "UInt8"}
+
+
+def _data_array(name: str, array: np.ndarray, offset: int) -> str:
+    components = 1 if array.ndim == 1 else array.shape[1]
+    return (
+        f'<DataArray type="{_TYPE_NAMES[array.dtype]}" Name="{name}" NumberOfComponents="{components}" '
+        f'format="appended" offset="{offset}"/>'
+    )
+
+
+def vtu_bytes(points: np.ndarray, quads: np.ndarray, fields: dict[str, np.ndarray], normals: str = "normal") -> bytes:
+    """A VTK XML unstructured grid of quadrilaterals with raw appended float64 data.
+
+    Args:
+        points: ``(n, 3)`` point coordinates.
+        quads: ``(m, 4)`` point indices of each quadrilateral, counter-clockwise.
+        fields: per-point arrays, ``(n,)`` scalars or ``(n, k)`` vectors, by name.
+        normals: the field declared as the active normals (must be in ``fields``, ``(n, 3)``).
+    """
+    if normals not in fields or fields[normals].shape != points.shape:
+        raise ValueError(f"normals field {normals!r} must be one of the fields, shaped like the points")
+    blocks: list[np.ndarray] = []
+    offset = 0
+
+    def add(name: str, array: np.ndarray, dtype) -> str:
+        nonlocal offset
+        data = np.ascontiguousarray(array, dtype=dtype)
+        xml = _data_array(name, data, offset)
+        blocks.append(data)
+        offset += 8 + data.nbytes  # a UInt64 byte count precedes each block
+        return xml
+
+    point_data = "".join(add(name, array, np.float64) for name, array in fields.items())
+    geometry = add("Points", points, np.float64)
+    connectivity = add("connectivity", quads.reshape(-1), np.int64)
+    offsets = add("offsets", 4 * np.arange(1, len(quads) + 1), np.int64)
+    types = add("types", np.full(len(quads), _VTK_QUAD), np.uint8)
+    header = (
+        '<?xml version="1.0"?>\n'
+        '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n'
+        f'<UnstructuredGrid><Piece NumberOfPoints="{len(points)}" NumberOfCells="{len(quads)}">\n'
+        f'<PointData Normals="{normals}">{point_data}</PointData>\n'
+        f"<Points>{geometry}</Points>\n"
+        f"<Cells>{connectivity}{offsets}{types}</Cells>\n"
+        "</Piece></UnstructuredGrid>\n"
+        '<AppendedData encoding="raw">\n_'
+    )
+    body = b"".join(np.uint64(b.nbytes).astype("<u8").tobytes() + b.astype(b.dtype.newbyteorder("<")).tobytes()
+                    for b in blocks)  # fmt: skip
+    return header.encode() + body + b"\n</AppendedData>\n</VTKFile>\n"
+
+
+def write_vtu(path: str | Path, points, quads, fields: dict[str, np.ndarray], normals: str = "normal") -> Path:
+    """Write :func:`vtu_bytes` to ``path`` by rename."""
+    path = Path(path)
+    write_replacing(path, vtu_bytes(points, quads, fields, normals))
+    return path
+
+
+def write_pvd(path: str | Path, frames: list[tuple[float, str]]) -> Path:
+    """Write a ParaView collection ``path`` (.pvd) listing ``(time, file relative to path)`` frames."""
+    path = Path(path)
+    entries = "".join(f'    <DataSet timestep="{time!r}" part="0" file="{file}"/>\n' for time, file in frames)
+    xml = (
+        '<?xml version="1.0"?>\n<VTKFile type="Collection" version="1.0" byte_order="LittleEndian">\n'
+        f"  <Collection>\n{entries}  </Collection>\n</VTKFile>\n"
+    )
+    write_replacing(path, xml)
+    return path

@@ -1,0 +1,83 @@
+"""ParaView's own readers (Debian's python3-paraview, in a separate process) read every file a run
+and the surface writer produce: float64 points bit for bit, exact times, attribute widths as declared,
+the physical fields, and the normals active in the VTK XML files."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+from helpers import BASE
+
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.io import write_surface_xdmf
+from bhem_hpc.model.material import Material
+from bhem_hpc.run import RunOptions, run_scene
+
+READER = Path(__file__).with_name("paraview_reader.py")
+WIDTHS = {"normal": 3, "mean_curvature": 1, "membrane_energy_density": 1, "bending_energy_density": 1}
+
+
+def paraview_read(*paths: Path) -> dict:
+    """What ParaView's readers give for ``paths`` (see ``paraview_reader.py``)."""
+    done = subprocess.run(
+        [sys.executable, str(READER), *map(str, paths)], capture_output=True, text=True, timeout=300, check=False
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout)
+
+
+def _check_arrays(frame: dict, widths: dict[str, int], normals_active: bool) -> None:
+    assert frame["point_type"] == "double"
+    for name, width in widths.items():
+        array = frame["arrays"][name]
+        assert (array["type"], array["components"]) == ("double", width), name
+    assert frame["arrays"]["normal"]["normals"] is normals_active
+
+
+def test_paraview_reads_a_run_at_full_precision_with_exact_times(comm, shared_tmp_path):
+    scene = shared_tmp_path / "scene.toml"
+    if comm.rank == 0:
+        scene.write_text(BASE.replace("every = 2", "every = 1").replace("dt = 0.01", "dt = 0.1"))
+    comm.Barrier()
+    out = shared_tmp_path / "out"
+    run_scene(RunOptions(scene, out, progress=False), comm)
+    if comm.rank != 0:
+        return
+    read = paraview_read(out / "surface.xdmf", out / "surface.pvd")
+    with h5py.File(out / "surface.h5", "r") as f:
+        count, cells = len(f["frames"]), len(f["topology"])
+        geometry = [f[f"frames/{k}/geometry"][0] for k in range(count)]
+        normal = [f[f"frames/{k}/normal"][0] for k in range(count)]
+        times = [float(f[f"frames/{k}"].attrs["time"]) for k in range(count)]
+    assert times == [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6]
+    readers = {**read[str(out / "surface.xdmf")], **read[str(out / "surface.pvd")]}
+    assert set(readers) == {"XDMFReader", "Xdmf3ReaderS", "Xdmf3ReaderT", ".pvd"}
+    for name, result in readers.items():
+        assert result["times"] == times, name
+        for k, frame in enumerate(result["frames"].values()):
+            assert frame["cells"] == cells and frame["connectivity_type"] in ("long long", "long"), name
+            assert frame["first_point"] == list(geometry[k]), (name, k)  # float64 bit for bit
+            assert frame["arrays"]["normal"]["first"] == list(normal[k]), (name, k)
+            _check_arrays(frame, WIDTHS, normals_active=name == ".pvd")
+
+
+def test_paraview_reads_a_surface_file_with_its_physical_fields(tmp_path):
+    grid = S.ParameterGrid(3, 2, (0, 1), (0, 1))
+    rest = S.flat_rectangle(1.0, 1.0, 3, 2)
+    surface = S.from_callable(lambda a, b: np.stack([a, b, 0.1 * a * b], -1), grid)
+    path = write_surface_xdmf(tmp_path / "t.xdmf", surface, 2, "t", rest, Material(1e6, 0.3, 1e-3, 100.0))
+    read = paraview_read(path, path.with_suffix(".vtu"))
+    widths = WIDTHS | {"displacement": 3, "xi1": 1, "xi2": 1}
+    readers = {**read[str(path)], **read[str(path.with_suffix(".vtu"))]}
+    with h5py.File(path.with_suffix(".h5"), "r") as f:
+        first_displacement = list(f["displacement"][0])
+    for name, result in readers.items():
+        (frame,) = result["frames"].values()
+        assert (frame["points"], frame["cells"]) == ((3 * 2 + 1) * (2 * 2 + 1), 3 * 2 * 4), name
+        _check_arrays(frame, widths, normals_active=name == ".vtu")
+        assert frame["arrays"]["displacement"]["first"] == first_displacement, name

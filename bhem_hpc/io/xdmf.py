@@ -8,7 +8,11 @@ renamed, so a reader never sees half a file.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import re
+import sys
 from pathlib import Path
 
 import h5py
@@ -19,6 +23,43 @@ from bhem_hpc.io.run_directory import write_replacing
 from bhem_hpc.io.vtu import write_pvd, write_vtu
 
 _ABANDONED: list = []  # HDF5 files whose writes failed: kept open, never freed, until the process ends
+log = logging.getLogger("bhem_hpc.io")
+
+
+def _is_h5py_deallocation(origin: object, tb) -> bool:
+    """An error h5py reports while freeing an object of a file whose write failed."""
+    if isinstance(origin, str) and origin.endswith("ObjectID.__dealloc__"):
+        return True
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    code = tb.tb_frame.f_code if tb is not None else None
+    return code is not None and code.co_name.endswith("__dealloc__") and "h5py" in code.co_filename
+
+
+@contextlib.contextmanager
+def _h5py_deallocation_errors_logged():
+    """Once a write to a full disk fails, h5py prints a traceback for every object it frees (from
+    Cython, through both sys.excepthook and sys.unraisablehook); the failed write raises once with
+    the cause. These reports go to the debug log instead of stderr."""
+    excepthook, unraisablehook = sys.excepthook, sys.unraisablehook
+
+    def on_exception(kind, value, tb) -> None:
+        if issubclass(kind, RuntimeError) and _is_h5py_deallocation(None, tb):
+            log.debug("h5py while freeing an object: %s", value)
+        else:
+            excepthook(kind, value, tb)
+
+    def on_unraisable(unraisable) -> None:
+        if _is_h5py_deallocation(unraisable.object, unraisable.exc_traceback):
+            log.debug("h5py while freeing an object: %s", unraisable.exc_value)
+        else:
+            unraisablehook(unraisable)
+
+    sys.excepthook, sys.unraisablehook = on_exception, on_unraisable
+    try:
+        yield
+    finally:
+        sys.excepthook, sys.unraisablehook = excepthook, unraisablehook
 
 
 def abandoned_files() -> int:
@@ -179,11 +220,14 @@ class SurfaceTimeSeries:
         if self._failed:
             raise OSError(f"{self.h5_path}: an earlier frame failed to write")
         try:
-            self._write_frame(time, surface)
+            with _h5py_deallocation_errors_logged():
+                self._write_frame(time, surface)
         except (OSError, RuntimeError) as exc:  # h5py reports a failed flush as RuntimeError
             self._failed = True
             _ABANDONED.append(self.file)  # closing (or freeing) a file HDF5 failed to flush can crash it
             error = " ".join(str(exc).split())
+            cause = re.search(r"error message = '([^']*)'", error)  # HDF5's message holds the system's
+            error = cause.group(1) if cause else error
             raise OSError(f"{self.h5_path}: frame at t = {time:.6g} s not written ({error})") from None
         self.times.append(float(time))
         self._write_xml()

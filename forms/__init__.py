@@ -6,6 +6,7 @@ compiles, assembles or touches PETSc. Conventions: the mesh *is* the parameter d
 ``x.dx(a)`` is dx/dxi_a; ``x`` is a 3-vector field.
 """
 
+from bhem_hpc.forms.area_load import area_load_potential
 from bhem_hpc.forms.bending import bending_energy, bending_pseudo_hessian
 from bhem_hpc.forms.damping import mass_damping_potential, stiffness_damping_potential
 from bhem_hpc.forms.gravity import gravity_potential
@@ -16,6 +17,7 @@ from bhem_hpc.forms.membrane import membrane_energy
 from bhem_hpc.forms.pressure import pressure_work
 
 __all__ = [
+    "area_load_potential",
     "bending_energy",
     "bending_pseudo_hessian",
     "gravity_potential",

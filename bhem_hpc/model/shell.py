@@ -47,6 +47,21 @@ class LineLoad:
 
 
 @dataclass(frozen=True)
+class AreaLoad:
+    """Dead load per unit rest area, fixed in direction: ``force`` times ``profile(xi)``.
+
+    Attributes:
+        force: ``(3,)`` force per unit rest area [N/m^2] where the profile is 1.
+        profile: the load's distribution, a function of the parameters ``xi`` (a UFL 2-vector,
+            ``xi[0]``, ``xi[1]``) returning a UFL scalar, e.g. ``lambda xi: ufl.sin(ufl.pi * xi[0])``;
+            None: uniform.
+    """
+
+    force: tuple[float, float, float]
+    profile: Callable[[ufl.core.expr.Expr], ufl.core.expr.Expr] | None = None
+
+
+@dataclass(frozen=True)
 class PointLoad:
     """Dead point force at parameters ``(xi1, xi2)`` (paper eq. 21)."""
 
@@ -84,6 +99,7 @@ class Loads:
     pressure: float | None = None
     line_loads: tuple[LineLoad, ...] = field(default_factory=tuple)
     point_loads: tuple[PointLoad, ...] = field(default_factory=tuple)
+    area_loads: tuple[AreaLoad, ...] = field(default_factory=tuple)
 
     def validate(self) -> None:
         def vector(name: str, v: Sequence[float]) -> None:
@@ -101,6 +117,10 @@ class Loads:
             vector(f"line_loads[{i}].traction", load.traction)
         for i, load in enumerate(self.point_loads):
             vector(f"point_loads[{i}].force", load.force)
+        for i, load in enumerate(self.area_loads):
+            vector(f"area_loads[{i}].force", load.force)
+            if load.profile is not None and not callable(load.profile):
+                raise ModelError(f"loads.area_loads[{i}].profile must be a function of xi, got {load.profile!r}")
 
 
 @dataclass(frozen=True)
@@ -246,9 +266,23 @@ class ShellModel:
             self.gravity = self._constant(np.asarray(self.loads.gravity, dtype=float))
             gravity = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
             terms.append(Term("gravity", gravity, load_scaled=True, reported=True))
+        terms += self._area_load_terms()
         if self.dynamics is not None:
             terms += self._inertia_terms(section)
         return terms + self._work_terms(test)
+
+    def _area_load_terms(self) -> list[Term]:
+        """Dead area loads: potentials ``-q . x`` with ``q = force * profile(xi)``."""
+        xi = ufl.SpatialCoordinate(self.discretization.mesh)
+        self.area_load_forces = []
+        terms = []
+        for i, load in enumerate(self.loads.area_loads):
+            force = self._constant(np.asarray(load.force, dtype=float))
+            self.area_load_forces.append(force)
+            density = force if load.profile is None else load.profile(xi) * force
+            potential = forms.area_load_potential(self.x, self.x_rest, density, self.dx)
+            terms.append(Term(f"area_load_{i}", potential, load_scaled=True, reported=True))
+        return terms
 
     def _inertia_terms(self, section: tuple) -> list[Term]:
         """Implicit Euler's inertia and Rayleigh damping potentials, and the kinetic energy report."""
@@ -389,6 +423,35 @@ class ShellModel:
         meshtags = dolfinx.mesh.meshtags(mesh, 1, facets_all[order], np.concatenate(tags)[order])
         return ufl.Measure("ds", domain=mesh, subdomain_data=meshtags)
 
+    # -- loads -----------------------------------------------------------------------------------
+    def load_names(self) -> list[str]:
+        """The loads :meth:`set_load` can change: ``gravity``, ``pressure``, ``line_load_<i>``,
+        ``area_load_<i>`` (those the model was built with)."""
+        names = ["gravity"] if self.loads.gravity is not None else []
+        names += ["pressure"] if self.loads.pressure is not None else []
+        names += [f"line_load_{i}" for i in range(len(self.loads.line_loads))]
+        return names + [f"area_load_{i}" for i in range(len(self.loads.area_loads))]
+
+    def set_load(self, name: str, value) -> None:
+        """Change a load's magnitude (the load factor still scales it); a solve continues from the
+        current state. ``value``: 3 numbers (gravity [m/s^2], line load [N/m], area load [N/m^2])
+        or a number (pressure [Pa]).
+
+        Raises:
+            ModelError: an unknown load name or a value of the wrong shape.
+        """
+        constants = {"gravity": getattr(self, "gravity", None), "pressure": getattr(self, "pressure", None)}
+        constants |= {f"line_load_{i}": c for i, c in enumerate(getattr(self, "tractions", []))}
+        constants |= {f"area_load_{i}": c for i, c in enumerate(self.area_load_forces)}
+        if name not in self.load_names():
+            raise ModelError(f"load {name!r} does not exist; this model has {self.load_names()}")
+        constant = constants[name]
+        array = np.asarray(value, dtype=float)
+        if array.shape != constant.value.shape or not np.all(np.isfinite(array)):
+            shape = "a number" if constant.value.shape == () else "3 numbers"
+            raise ModelError(f"load {name!r} must be {shape} (finite), got {value!r}")
+        constant.value = array
+
     # -- state access --------------------------------------------------------------------------
     def set_state(self, surface: HermiteSurface) -> None:
         """Set the position field from a surface."""
@@ -401,8 +464,8 @@ class ShellModel:
     def energies(self) -> dict[str, float]:
         """Collective: every built energy term at the current state (load factor not applied).
 
-        ``external_work`` is the work of the dead loads at the current position: gravity, line
-        and point loads (a follower pressure has no potential and is not included).
+        ``external_work`` is the work of the dead loads at the current position: gravity, area,
+        line and point loads (a follower pressure has no potential and is not included).
         """
         values = {
             name: self.comm.allreduce(fem.assemble_scalar(form), op=MPI.SUM) for name, form in self.energy_forms.items()
@@ -411,7 +474,8 @@ class ShellModel:
         work = float(np.dot(self.point_load_open, self.x.x.array))
         if self.line_load_work_form is not None:
             work += fem.assemble_scalar(self.line_load_work_form)
-        values["external_work"] = self.comm.allreduce(work, op=MPI.SUM) - values.get("gravity", 0.0)
+        dead_potentials = sum(v for k, v in values.items() if k == "gravity" or k.startswith("area_load_"))
+        values["external_work"] = self.comm.allreduce(work, op=MPI.SUM) - dead_potentials
         return values
 
 

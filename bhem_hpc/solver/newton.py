@@ -241,7 +241,6 @@ class ShellSolver(PetscOwner):
         """
         if isinstance(load_steps, bool) or not isinstance(load_steps, int) or load_steps < 1:
             raise SolverError(f"solver '{self.prefix}': load_steps must be an integer >= 1, got {load_steps!r}")
-        model = self.model
         start = time.perf_counter()
         max_increment = 1.0 / load_steps
         increment = max_increment
@@ -257,13 +256,7 @@ class ShellSolver(PetscOwner):
                 # in-plane pull-in that a Newton step linearized at the last state misses).
                 last_factor, last = history[-1]
                 self.x.axpy((trial - factor) / (factor - last_factor), accepted - last)
-            model.load_factor.value = trial
-            initial, target = model.constrained_initial, model.constrained_target
-            self.problem.bc_values = initial + trial * (target - initial)
-            self.problem.set_point_targets(trial, ramp=True)
-            if len(self.problem.bc_local):
-                self.x.array[self.problem.bc_local] = self.problem.bc_values
-            if not self._solve_constrained():
+            if not self.solve_at(trial):
                 cuts += 1
                 self.report.cuts += 1
                 if cuts > max_cuts:
@@ -302,6 +295,18 @@ class ShellSolver(PetscOwner):
         self.problem.update_state(self.x)
         self.report.wall_s += time.perf_counter() - start
         return self.report
+
+    def solve_at(self, load_factor: float) -> bool:
+        """One Newton solve (SNES) at ``load_factor`` from the current iterate ``self.x``: loads and
+        prescribed values scaled to it. Returns whether it converged (``self.x`` holds the result)."""
+        model = self.model
+        model.load_factor.value = load_factor
+        initial, target = model.constrained_initial, model.constrained_target
+        self.problem.bc_values = initial + load_factor * (target - initial)
+        self.problem.set_point_targets(load_factor, ramp=True)
+        if len(self.problem.bc_local):
+            self.x.array[self.problem.bc_local] = self.problem.bc_values
+        return self._solve_constrained()
 
     def solve_step(
         self, bc_values: np.ndarray | None = None, regularizations: tuple[float, ...] = (1e-6, 1e-4, 1e-2)

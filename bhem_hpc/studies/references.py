@@ -166,3 +166,20 @@ def lateral_buckling_gamma(poisson: float) -> float:
     """
     lam = lateral_buckling_constant()
     return 12 * (1 - poisson**2) * lam / math.sqrt(72 * (1 - poisson**2) * (1 + poisson))
+
+
+def shallow_arch_load(rise: np.ndarray | float, initial_rise: float) -> np.ndarray | float:
+    """Load ``P = p L^4 / (pi^4 EI r)`` of a pinned shallow sinusoidal arch under the sinusoidal load
+    ``p sin(pi x / L)`` (downward, per length), at midspan rise ``xi = a / r`` (``r`` the radius of
+    gyration, ``a`` the current rise, ``initial_rise`` = ``e / r``).
+
+    Marguerre's shallow-arch equations with the rest shape ``e sin(pi x / L)`` keep the symmetric
+    path in that one mode exactly: the axial force ``N = EA pi^2 (a^2 - e^2) / (4 L^2)`` is constant
+    and stationarity of ``EI (pi/L)^4 (a - e)^2 L / 4 + EA L (pi/L)^4 (a^2 - e^2)^2 / 32 + p a L / 2``
+    gives ``P = (e - xi) + xi (e^2 - xi^2) / 4`` (in units of ``r``). Limit points at
+    ``xi^2 = (e^2 - 4) / 3`` for ``e > 2``; the antisymmetric mode never bifurcates from the path
+    while ``e^2 < 22``. Its error against a geometrically exact shell is of the order of the
+    squared slope ``(pi e / L)^2``.
+    """
+    xi = np.asarray(rise, dtype=float)
+    return (initial_rise - xi) + xi * (initial_rise**2 - xi**2) / 4

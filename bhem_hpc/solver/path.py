@@ -1,0 +1,593 @@
+"""Path following for static problems: load control at requested load levels, displacement control
+and arc-length continuation, with a PETSc SNES as the Newton engine.
+
+Load control uses the :class:`~bhem_hpc.solver.newton.ShellSolver`'s own SNES (Newton with the
+energy line search) at each requested load factor. Displacement control and arc-length continuation
+make the load factor ``lambda`` an unknown beside the DOFs: their SNES (type ``python``, own options
+prefix, own MUMPS factorization) takes bordered Newton steps (Crisfield): per iteration the tangent
+``K`` is factorized once and solved for the residual and for the load vector ``q = -dR/dlambda``,
+
+    K y_R = R,   K y_q = q,   du = -y_R + dlambda y_q,
+
+and ``dlambda`` follows from the linearized constraint: a prescribed displacement component of a
+material point (linear: met exactly after each step), or Crisfield's cylindrical arc length
+``|u - u_n| = ds`` on the DOF vector (a quadratic in ``dlambda``; the root that turns least from the
+step's direction). SNES tests convergence on ``|R|`` with its tolerances and reports its reasons.
+
+Every converged point records its stability from the inertia of the last LDL^T factorization of
+``K`` (MUMPS' negative-pivot count, INFOG(12)): a change between two points is flagged as a limit
+point where the load factor turns back, otherwise as a bifurcation.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from petsc4py import PETSc
+
+from bhem_hpc.solver.newton import ShellSolver, default_options
+from bhem_hpc.solver.petsc import (
+    PETSC_ERRORS,
+    SNES_REASONS,
+    PetscOwner,
+    SolverError,
+    SolverSetupError,
+    mumps_infog,
+    push_options,
+)
+
+log = logging.getLogger(__name__)
+
+
+class PathError(SolverError):
+    """A path step failed after its bounded cut-backs; ``path`` holds the points converged before."""
+
+    def __init__(self, message: str, path: list[PathPoint]):
+        super().__init__(message)
+        self.path = path
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A named material point ``(xi1, xi2)`` whose position is recorded at every path point."""
+
+    name: str
+    xi1: float
+    xi2: float
+
+
+@dataclass
+class PathPoint:
+    """One converged equilibrium on the path.
+
+    Attributes:
+        step: its index on the path (0: the start).
+        load_factor: lambda.
+        arc_length: accumulated ``sum |u_k - u_(k-1)|`` over the DOF vector (chords between points).
+        newton_iterations: of the converged solve (cut-back attempts not counted).
+        negative_pivots: negative eigenvalues of the tangent (MUMPS INFOG(12) of its LDL^T; -1 when
+            the factorization does not report it, e.g. LU).
+        event: ``"limit"`` or ``"bifurcation"`` where the inertia changed since the previous
+            point, else ``""``.
+        energies: the model's energies (:meth:`ShellModel.energies`).
+        probes: per probe name its position ``(3,)`` and displacement ``(3,)`` from the start.
+    """
+
+    step: int
+    load_factor: float
+    arc_length: float
+    newton_iterations: int
+    negative_pivots: int
+    event: str = ""
+    energies: dict[str, float] = field(default_factory=dict)
+    probes: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def stable(self) -> bool | None:
+        """Whether the tangent is positive definite (None when the inertia is unknown)."""
+        return None if self.negative_pivots < 0 else self.negative_pivots == 0
+
+
+@dataclass(frozen=True)
+class ArcLength:
+    """Arc-length continuation settings.
+
+    Attributes:
+        initial_step: first arc length ``ds`` (norm of the DOF increment) [m].
+        min_step, max_step: bounds of the adapted ``ds``.
+        max_steps: path points to compute at most.
+        load_factor_range: stop once lambda leaves ``(low, high)``.
+        target_iterations: Newton iterations per step the step size adapts to
+            (``ds *= sqrt(target / iterations)``, within a factor of 2 per step).
+        max_cuts: halvings of ``ds`` in a row before the step is given up.
+        direction: +1 to start with increasing lambda, -1 decreasing.
+    """
+
+    initial_step: float
+    min_step: float = 0.0
+    max_step: float = float("inf")
+    max_steps: int = 100
+    load_factor_range: tuple[float, float] = (-np.inf, 1.0)
+    target_iterations: int = 5
+    max_cuts: int = 8
+    direction: int = 1
+
+    def validate(self) -> None:
+        def number(name: str, value, ok: Callable[[float], bool], expected: str) -> None:
+            if isinstance(value, bool) or not isinstance(value, int | float) or np.isnan(value) or not ok(value):
+                raise PathSettingError(f"arc_length.{name} = {value!r} is invalid: must be {expected}")
+
+        number("initial_step", self.initial_step, lambda v: 0 < v < np.inf, "a number > 0")
+        number("min_step", self.min_step, lambda v: 0 <= v <= self.initial_step, "in [0, initial_step]")
+        number("max_step", self.max_step, lambda v: v >= self.initial_step, ">= initial_step")
+        number("max_steps", self.max_steps, lambda v: int(v) == v and 1 <= v <= 100_000, "an integer in 1..100000")
+        number("target_iterations", self.target_iterations, lambda v: int(v) == v and 1 <= v <= 50, "in 1..50")
+        number("max_cuts", self.max_cuts, lambda v: int(v) == v and 0 <= v <= 50, "an integer in 0..50")
+        low, high = self.load_factor_range
+        number("load_factor_range[0]", low, lambda v: v < high, "below load_factor_range[1]")
+        number("load_factor_range[1]", high, lambda v: v > low, "above load_factor_range[0]")
+        if self.direction not in (1, -1):
+            raise PathSettingError(f"arc_length.direction = {self.direction!r} is invalid: must be 1 or -1")
+
+
+class PathSettingError(ValueError):
+    """Path-following settings out of range (raised before any solve)."""
+
+
+def _check_levels(name: str, levels: Sequence[float]) -> np.ndarray:
+    values = np.asarray(levels, dtype=float)
+    if values.ndim != 1 or len(values) == 0 or not np.all(np.isfinite(values)):
+        raise PathSettingError(f"{name} must be a non-empty list of finite numbers, got {levels!r}")
+    if len(values) > 100_000:
+        raise PathSettingError(f"{name} has {len(values)} entries; at most 100000")
+    return values
+
+
+class _BorderedStep:
+    """The python-SNES context of one constrained solve: a bordered Newton step per iteration.
+
+    ``constraint(x, a, b)`` returns ``dlambda`` such that the new iterate ``x_new = base + a +
+    dlambda b`` (``a = x - base - y_R``, ``b = y_q``) meets the path's constraint.
+    """
+
+    def __init__(self, follower: PathFollower, base: PETSc.Vec, constraint):
+        self.follower = follower
+        self.base = base
+        self.constraint = constraint
+        self.failed = ""
+
+    def step(self, snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, y: PETSc.Vec) -> None:
+        follower = self.follower
+        y_r, y_q, a = follower.work
+        snes.computeJacobian(x, follower.jacobian)
+        ksp = snes.getKSP()
+        ksp.setOperators(follower.jacobian)
+        ksp.solve(f, y_r)
+        follower.load_vector(x, follower.q)
+        ksp.solve(follower.q, y_q)
+        x.copy(a)
+        a.axpy(-1.0, self.base)
+        a.axpy(-1.0, y_r)
+        dlambda = self.constraint(a, y_q)
+        if dlambda is None or not np.isfinite(dlambda):
+            self.failed = "the constraint has no solution along this Newton step"
+            dlambda = 0.0
+        # x_new = base + a + dlambda y_q, and SNES applies x_new = x - y
+        x.copy(y)
+        y.axpy(-1.0, self.base)
+        y.axpy(-1.0, a)
+        y.axpy(-dlambda, y_q)
+        follower.set_load_factor(follower.load_factor + dlambda)
+
+
+class PathFollower(PetscOwner):
+    """Follows the equilibrium path of a static :class:`ShellSolver`'s model from its current state.
+
+    Args:
+        solver: the static solver (its model, problem and SNES for load control).
+        probes: material points recorded at every path point.
+        prefix: options prefix of the constrained SNES (displacement control, arc length);
+            its defaults are the solver's (MUMPS LDL^T), and ``snes_linesearch_type basic``.
+        options: PETSc options (without prefix) that override those defaults.
+
+    The path starts with the current state at load factor ``start_load_factor`` as point 0.
+    """
+
+    def __init__(
+        self,
+        solver: ShellSolver,
+        probes: Sequence[Probe] = (),
+        prefix: str = "bhem_path_",
+        options: dict[str, object] | None = None,
+        start_load_factor: float = 0.0,
+    ):
+        self.solver = solver
+        self.model = solver.model
+        self.problem = solver.problem
+        self.prefix = prefix
+        self._closed = False
+        model = self.model
+        if model.dynamics is not None:
+            raise PathSettingError("path following needs a static model (dynamics = None)")
+        if np.any(model.constrained_target != model.constrained_initial):
+            raise PathSettingError(
+                "path following keeps prescribed values fixed: the model prescribes values that move "
+                "with the load factor (give them as the initial state instead)"
+            )
+        names = [p.name for p in probes]
+        if len(set(names)) != len(names):
+            raise PathSettingError(f"probe names must be unique, got {names}")
+        grid = model.rest_surface.grid
+        for probe in probes:
+            if not (grid.xi1_range[0] <= probe.xi1 <= grid.xi1_range[1]) or not (
+                grid.xi2_range[0] <= probe.xi2 <= grid.xi2_range[1]
+            ):
+                raise PathSettingError(
+                    f"probe {probe.name!r} at (xi1, xi2) = ({probe.xi1!r}, {probe.xi2!r}) lies outside the "
+                    f"parameter domain {grid.xi1_range} x {grid.xi2_range}"
+                )
+        self.probes = tuple(probes)
+        self._probe_basis = [model.discretization.point_basis(p.xi1, p.xi2) for p in self.probes]
+        self.x = solver.x
+        self.problem.state_to_vector(self.x)
+        self.jacobian = self.problem.jacobian
+        self.q = self.x.duplicate()
+        self.tangent = self.x.duplicate()  # K^-1 q at the last point, signed along the path
+        self.work = [self.x.duplicate() for _ in range(3)]
+        self._residual_scratch = self.x.duplicate()
+        self._last = self.x.copy()  # the DOFs of the last recorded point
+        self._snes = self._create_snes(options or {})
+        self.load_factor = float(start_load_factor)
+        self.set_load_factor(self.load_factor)
+        self._start_positions = self._probe_positions()
+        self._sign = 1.0  # the sign of dlambda/ds at the last point
+        self.path: list[PathPoint] = []
+        self._record(0)
+
+    # -- setup ------------------------------------------------------------------------------------
+    def _create_snes(self, options: dict[str, object]) -> PETSc.SNES:
+        opts = PETSc.Options()
+        self._overrides = push_options(self.prefix, {}, options)
+        defaults = default_options(self.model) | {"snes_type": "python", "snes_linesearch_type": "basic"}
+        pushed = push_options(self.prefix, defaults, {})
+        try:
+            snes = PETSc.SNES().create(self.model.comm)
+            snes.setOptionsPrefix(self.prefix)
+            snes.setType("python")
+            self._context: _BorderedStep | None = None
+            snes.setFunction(self._residual, self.solver.f)
+            snes.setJacobian(self._jacobian, self.jacobian, self.jacobian)
+            try:
+                snes.setFromOptions()
+            except PETSc.Error as exc:
+                snes.destroy()
+                raise SolverSetupError(
+                    f"SNES solver '{self.prefix}': PETSc rejected its options (error code {exc.ierr}: "
+                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
+                ) from None
+            if snes.getType() != "python":
+                snes.destroy()
+                raise SolverSetupError(f"SNES solver '{self.prefix}': snes_type must stay 'python' (bordered steps)")
+        finally:
+            for name in pushed:
+                opts.delValue(name)
+        return snes
+
+    def _residual(self, snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec) -> None:
+        self.problem.update_state(x)
+        self.problem.assemble_residual(x, f)
+
+    def _jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat) -> None:
+        self.problem.assemble_jacobian(pmat)
+
+    def set_load_factor(self, value: float) -> None:
+        self.load_factor = float(value)
+        self.model.load_factor.value = self.load_factor
+
+    def load_vector(self, x: PETSc.Vec, q: PETSc.Vec) -> None:
+        """``q = -dR/dlambda`` at ``x``: the residual is affine in lambda, so ``R(x, 0) - R(x, 1)``
+        (zero on prescribed rows, whose values do not move with lambda)."""
+        current = self.model.load_factor.value
+        self.problem.update_state(x)
+        self.model.load_factor.value = 0.0
+        self.problem.assemble_residual(x, q)
+        self.model.load_factor.value = 1.0
+        self.problem.assemble_residual(x, self._residual_scratch)
+        q.axpy(-1.0, self._residual_scratch)
+        self.model.load_factor.value = current
+
+    # -- measurements -----------------------------------------------------------------------------
+    def _probe_positions(self) -> np.ndarray:
+        """Positions ``(probes, 3)`` of the probes at the model's current state (collective)."""
+        local = np.zeros((len(self.probes), 3))
+        positions = self.model.x.x.array.reshape(-1, 3)
+        for k, (blocks, values) in enumerate(self._probe_basis):
+            if len(blocks):
+                local[k] = values @ positions[blocks]
+        return self.model.comm.allreduce(local)
+
+    def probe_displacement(self, name: str) -> np.ndarray:
+        """Displacement ``(3,)`` of a probe from the path's start, at the current state."""
+        index = [p.name for p in self.probes].index(name)
+        return self._probe_positions()[index] - self._start_positions[index]
+
+    def _functional(self, probe: Probe, component: int) -> PETSc.Vec:
+        """Closed-DOF vector ``c`` with ``c . x`` = component of the probe's position."""
+        blocks, values = self.model.discretization.point_basis(probe.xi1, probe.xi2)
+        open_vector = self.problem.f_open.duplicate()
+        with open_vector.localForm() as local:
+            local.set(0.0)
+            local.array[3 * blocks + component] += values
+        open_vector.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        closed = self.x.duplicate()
+        if self.problem.prolongation is not None:
+            self.problem.prolongation.multTranspose(open_vector, closed)
+        else:
+            open_vector.copy(closed)
+        open_vector.destroy()
+        return closed
+
+    def _record(self, iterations: int) -> PathPoint:
+        """Record the current state as a path point: its tangent and inertia from one factorization
+        of ``K`` there, the event if the inertia changed, the energies and the probes."""
+        increment = self.x.copy()
+        increment.axpy(-1.0, self._last)
+        step_length = increment.norm()
+        pivots, sign = self._tangent_at_current(increment if self.path else None)
+        increment.destroy()
+        self.x.copy(self._last)
+        self.problem.update_state(self.x)
+        event = ""
+        if self.path and pivots >= 0 and self.path[-1].negative_pivots >= 0 and pivots != self.path[-1].negative_pivots:
+            event = "limit" if sign != self._sign else "bifurcation"  # a limit point turns lambda back
+        self._sign = sign
+        positions = self._probe_positions()
+        point = PathPoint(
+            step=len(self.path),
+            load_factor=self.load_factor,
+            arc_length=(self.path[-1].arc_length if self.path else 0.0) + step_length,
+            newton_iterations=iterations,
+            negative_pivots=pivots,
+            event=event,
+            energies=self.model.energies(),
+            probes={
+                p.name: {"position": positions[k], "displacement": positions[k] - self._start_positions[k]}
+                for k, p in enumerate(self.probes)
+            },
+        )
+        if event:
+            log.info("%s: %s point at load factor %.6g (negative pivots %d -> %d)", self.prefix, event,
+                     self.load_factor, self.path[-1].negative_pivots, pivots)  # fmt: skip
+        self.path.append(point)
+        return point
+
+    def _tangent_at_current(self, increment: PETSc.Vec | None) -> tuple[int, float]:
+        """Factorize ``K`` at the current state, solve ``K t = q`` into :attr:`tangent` and orient it
+        along ``increment`` (the step that led here; none: increasing lambda).
+
+        Returns:
+            The negative pivots of the factorization (-1 if unknown) and the sign of dlambda/ds.
+        """
+        snes = self._snes
+        snes.computeJacobian(self.x, self.jacobian)
+        ksp = snes.getKSP()
+        ksp.setOperators(self.jacobian)
+        self.load_vector(self.x, self.q)
+        ksp.solve(self.q, self.tangent)
+        sign = 1.0 if increment is None or self.tangent.dot(increment) >= 0 else -1.0
+        self.tangent.scale(sign)
+        return self._negative_pivots(), sign
+
+    # -- load control -----------------------------------------------------------------------------
+    def load_control(self, levels: Sequence[float], max_cuts: int = 8) -> list[PathPoint]:
+        """Equilibria at exactly the load factors ``levels``, in order, each from the previous one.
+
+        A level whose solve fails is approached through intermediate load factors (halving the
+        distance, at most ``max_cuts`` times in a row); only the requested levels are recorded.
+
+        Raises:
+            PathError: a level was not reached; the path so far is kept.
+        """
+        targets = _check_levels("load levels", levels)
+        for level in targets:
+            start = self.load_factor
+            accepted = self.x.copy()
+            reached, cuts, iterations = start, 0, 0
+            while reached != level:
+                trial = level if cuts == 0 else reached + (level - reached) / 2**cuts
+                if self.solver.solve_at(trial):
+                    reached, cuts = trial, max(cuts - 1, 0)
+                    iterations = self.solver.snes.getIterationNumber()
+                    self.x.copy(accepted)
+                    self.set_load_factor(trial)
+                    continue
+                accepted.copy(self.x)
+                cuts += 1
+                if cuts > max_cuts:
+                    accepted.destroy()
+                    self.set_load_factor(reached)
+                    self._fail(f"load factor {level:.6g} not reached (from {reached:.6g})", self.solver.snes)
+            accepted.destroy()
+            self._record(iterations)
+        return self.path
+
+    # -- displacement control ---------------------------------------------------------------------
+    def displacement_control(
+        self, probe: str, component: int, values: Sequence[float], max_cuts: int = 8
+    ) -> list[PathPoint]:
+        """Equilibria where the probe's displacement component (0, 1, 2 = x, y, z, from the path's
+        start) takes ``values``, in order; the load factor is the unknown.
+
+        Raises:
+            PathSettingError: an unknown probe or component.
+            PathError: a value was not reached after ``max_cuts`` halvings; the path so far is kept.
+        """
+        names = [p.name for p in self.probes]
+        if probe not in names:
+            raise PathSettingError(f"displacement control names probe {probe!r}; the probes are {names}")
+        if component not in (0, 1, 2):
+            raise PathSettingError(f"displacement control component = {component!r}; expected 0, 1 or 2")
+        targets = _check_levels("displacement values", values)
+        index = names.index(probe)
+        c = self._functional(self.probes[index], component)
+        offset = self._start_positions[index][component]
+        try:
+            for value in targets:
+                self._advance_displacement(c, offset, value, max_cuts)
+        finally:
+            c.destroy()
+        return self.path
+
+    def _advance_displacement(self, c: PETSc.Vec, offset: float, value: float, max_cuts: int) -> None:
+        reached = c.dot(self.x) - offset
+        cuts, iterations = 0, 0
+        base = self.x.copy()
+        previous_factor = self.load_factor
+        while True:
+            trial = value if cuts == 0 else reached + (value - reached) / 2**cuts
+            base_value = c.dot(base)
+
+            def constraint(a: PETSc.Vec, b: PETSc.Vec, trial=trial, base_value=base_value) -> float | None:
+                slope = c.dot(b)
+                if slope == 0.0:
+                    return None
+                return (trial + offset - base_value - c.dot(a)) / slope
+
+            if self._constrained_solve(base, constraint):
+                iterations = self._snes.getIterationNumber()
+                reached = trial
+                self.x.copy(base)
+                previous_factor = self.load_factor
+                if trial == value:
+                    break
+                cuts = max(cuts - 1, 0)
+                continue
+            base.copy(self.x)
+            self.set_load_factor(previous_factor)
+            cuts += 1
+            if cuts > max_cuts:
+                base.destroy()
+                self._fail(f"displacement {value:.6g} not reached (from {reached:.6g})", self._snes)
+        base.destroy()
+        self._record(iterations)
+
+    def _constrained_solve(self, base: PETSc.Vec, constraint) -> bool:
+        """One SNES solve of the bordered system from ``self.x`` (``base``: the step's start)."""
+        context = _BorderedStep(self, base, constraint)
+        self._snes.setPythonContext(context)
+        try:
+            self._snes.solve(None, self.x)
+        except PETSc.Error as exc:
+            raise SolverSetupError(
+                f"SNES solver '{self.prefix}': PETSc stopped the solve with error code {exc.ierr} "
+                f"({PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
+            ) from None
+        converged = self._snes.getConvergedReason() > 0 and np.isfinite(self._snes.getFunctionNorm())
+        if context.failed:
+            log.info("%s: %s", self.prefix, context.failed)
+        return converged and not context.failed
+
+    def _negative_pivots(self) -> int:
+        ksp = self._snes.getKSP()
+        if ksp.getPC().getType() != "cholesky":
+            return -1
+        value = mumps_infog(ksp, 12)
+        return -1 if value is None else value
+
+    def _fail(self, what: str, snes: PETSc.SNES) -> None:
+        reason = snes.getConvergedReason()
+        raise PathError(
+            f"path step {len(self.path)} at load factor {self.load_factor:.6g} failed: {what} after its "
+            f"cut-backs; SNES '{snes.getOptionsPrefix()}': {SNES_REASONS.get(reason, reason)}, "
+            f"|F| = {snes.getFunctionNorm():.3e}",
+            self.path,
+        )
+
+    # -- arc length -------------------------------------------------------------------------------
+    def arc_length(self, settings: ArcLength) -> list[PathPoint]:
+        """Crisfield's cylindrical arc-length continuation from the current point, until lambda leaves
+        ``settings.load_factor_range`` or ``settings.max_steps`` points are added.
+
+        Raises:
+            PathError: a step failed after ``settings.max_cuts`` halvings of ``ds``; the path so far
+                is kept.
+        """
+        settings.validate()
+        low, high = settings.load_factor_range
+        if len(self.path) == 1 and self._sign != settings.direction:  # from the start: the given direction
+            self.tangent.scale(-1.0)
+            self._sign = float(settings.direction)
+        step_length = settings.initial_step
+        base = self.x.copy()
+        predictor = self.x.duplicate()
+        try:
+            for _ in range(settings.max_steps):
+                iterations = self._arc_length_step(base, predictor, step_length, settings)
+                step_length = float(np.clip(
+                    step_length * np.clip(np.sqrt(settings.target_iterations / max(iterations, 1)), 0.5, 2.0),
+                    settings.min_step, settings.max_step,
+                ))  # fmt: skip
+                if not low < self.load_factor < high:
+                    break
+        finally:
+            base.destroy()
+            predictor.destroy()
+        return self.path
+
+    def _arc_length_step(self, base: PETSc.Vec, predictor: PETSc.Vec, step_length: float, settings: ArcLength) -> int:
+        """One arc-length step from ``base`` (the last point) along :attr:`tangent`, halving ``ds``
+        on failure; records the point and returns its Newton iterations."""
+        start_factor = self.load_factor
+        for cuts in range(settings.max_cuts + 1):
+            scale = step_length / max(self.tangent.norm(), 1e-300)  # |du| = ds; dlambda = sign * scale
+            self.tangent.copy(predictor)
+            predictor.scale(scale)
+            base.copy(self.x)
+            self.x.axpy(1.0, predictor)
+            self.set_load_factor(start_factor + self._sign * scale)
+            if self._constrained_solve(base, self._arc_constraint(step_length, predictor)):
+                iterations = self._snes.getIterationNumber()
+                self.x.copy(base)
+                self._record(iterations)
+                return iterations
+            base.copy(self.x)
+            self.set_load_factor(start_factor)
+            if cuts == settings.max_cuts or step_length / 2 < settings.min_step:
+                break
+            step_length /= 2
+        self._fail(f"arc-length step of {step_length:.3g} not converged", self._snes)
+        return -1  # unreachable: _fail raises
+
+    def _arc_constraint(self, step_length: float, predictor: PETSc.Vec):
+        """``dlambda`` with ``|a + dlambda b| = ds``: of the two roots, the one whose increment is
+        closer in direction to the predictor; without a real root, the closest approach."""
+
+        def constraint(a: PETSc.Vec, b: PETSc.Vec) -> float | None:
+            bb, ab, aa = b.dot(b), a.dot(b), a.dot(a)
+            if bb == 0.0:
+                return None
+            discriminant = ab * ab - bb * (aa - step_length**2)
+            if discriminant < 0:
+                return -ab / bb
+            roots = [(-ab + sign * np.sqrt(discriminant)) / bb for sign in (1.0, -1.0)]
+            a_dot_p, b_dot_p = a.dot(predictor), b.dot(predictor)
+            return max(roots, key=lambda r: a_dot_p + r * b_dot_p)
+
+        return constraint
+
+    # -- lifetime ---------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Destroy the PETSc objects this follower owns and remove its options (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for vec in [self.q, self.tangent, *self.work, self._residual_scratch, self._last]:
+            vec.destroy()
+        self._snes.destroy()
+        opts = PETSc.Options()
+        for name in self._overrides:
+            opts.delValue(name)
+

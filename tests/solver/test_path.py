@@ -1,0 +1,111 @@
+"""Path following: load control at the requested levels, displacement control and arc length through
+the limit points of a shallow arch, against its closed-form path; stability and events; bad settings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.path import ArcLength, PathFollower, PathSettingError, Probe
+from bhem_hpc.studies.paths import ShallowArch
+from bhem_hpc.studies.references import shallow_arch_load
+
+ARCH = ShallowArch()
+#: Marguerre's shallow-arch theory against the exact shell: errors of order (pi e / L)^2 ~ 1e-3 of P_max.
+TOLERANCE = 2e-3 * float(shallow_arch_load(np.sqrt((ARCH.initial_rise**2 - 4) / 3), ARCH.initial_rise))
+LIMIT_RISE = np.sqrt((ARCH.initial_rise**2 - 4) / 3)
+
+
+def arch_path(comm, method: str, discretization: str = "hermite") -> tuple[np.ndarray, np.ndarray, list]:
+    """The arch's path by ``method``: load factors, midspan rises (units of r) and the points."""
+    model = ARCH.model(16, comm, discretization)
+    with ShellSolver(model) as solver, PathFollower(solver, [Probe("mid", *ARCH.midspan())]) as follower:
+        if method == "arc_length":
+            follower.arc_length(ArcLength(0.002, max_step=0.005, max_steps=200, load_factor_range=(-1.0, 7.0)))
+        elif method == "displacement":
+            follower.displacement_control("mid", 2, -np.linspace(0, 2 * ARCH.rise, 21)[1:])
+        else:
+            follower.load_control(np.linspace(0.5, 5.5, 11))
+        points = follower.path
+    factors = np.array([p.load_factor for p in points])
+    rises = np.array([(ARCH.rise + p.probes["mid"]["displacement"][2]) / ARCH.gyration_radius for p in points])
+    return factors, rises, points
+
+
+def check_path(factors, rises, points) -> None:
+    """On the closed-form path; one negative pivot exactly between the limit points; an event at each."""
+    assert np.abs(factors - shallow_arch_load(rises, ARCH.initial_rise)).max() < TOLERANCE
+    for point, rise in zip(points, rises, strict=True):
+        if abs(abs(rise) - LIMIT_RISE) > 0.05:  # away from the limit points the inertia is certain
+            assert point.negative_pivots == (1 if abs(rise) < LIMIT_RISE else 0), (point.step, rise)
+    events = [(k, p.event) for k, p in enumerate(points) if p.event]
+    assert [e for _, e in events] == ["limit", "limit"], events
+    for k, _ in events:  # each limit point lies between the flagged point and the one before
+        lo, hi = sorted(rises[k - 1 : k + 1])
+        assert lo <= LIMIT_RISE <= hi or lo <= -LIMIT_RISE <= hi, (k, rises[k - 1 : k + 1])
+
+
+@pytest.mark.parametrize("discretization", ["hermite", "bspline3"])
+def test_arc_length_passes_both_limit_points_of_a_shallow_arch(comm, discretization):
+    factors, rises, points = arch_path(comm, "arc_length", discretization)
+    check_path(factors, rises, points)
+    assert rises[-1] < -ARCH.initial_rise  # through the inverted equilibrium
+    assert factors[rises > 0].max() < shallow_arch_load(LIMIT_RISE, ARCH.initial_rise) + TOLERANCE  # no overshoot
+
+
+def test_displacement_control_follows_the_unstable_branch(comm):
+    factors, rises, points = arch_path(comm, "displacement")
+    np.testing.assert_allclose(rises[1:], ARCH.initial_rise * (1 - np.linspace(0, 2, 21)[1:]), atol=1e-9)
+    check_path(factors, rises, points)
+
+
+def test_load_control_stops_at_exactly_the_requested_levels(comm):
+    factors, rises, points = arch_path(comm, "load")
+    assert factors.tolist() == [0.0, *np.linspace(0.5, 5.5, 11).tolist()]
+    assert np.abs(factors - shallow_arch_load(rises, ARCH.initial_rise)).max() < TOLERANCE
+    assert all(p.negative_pivots == 0 and p.newton_iterations > 0 for p in points[1:])
+
+
+@pytest.mark.parallel
+def test_two_ranks_follow_the_serial_path(comm):
+    here = arch_path(comm, "displacement")
+    serial = arch_path(MPI.COMM_SELF, "displacement")
+    np.testing.assert_allclose(here[0], serial[0], rtol=0, atol=1e-9)
+    assert [p.negative_pivots for p in here[2]] == [p.negative_pivots for p in serial[2]]
+
+
+def test_a_step_that_cannot_converge_keeps_the_path_so_far(comm):
+    from bhem_hpc.solver.path import PathError
+
+    model = ARCH.model(8, comm)
+    with ShellSolver(model, options={"snes_max_it": 3}) as solver, PathFollower(solver) as follower:
+        with pytest.raises(PathError, match=r"path step 2 at load factor .* failed: load factor 9 not reached"):
+            follower.load_control([1.0, 9.0], max_cuts=2)
+        assert [p.load_factor for p in follower.path] == [0.0, 1.0]
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda f: f.arc_length(ArcLength(0.0)), r"arc_length.initial_step = 0.0 is invalid"),
+        (lambda f: f.arc_length(ArcLength(1e-3, max_step=1e-4)), r"arc_length.max_step = 0.0001 is invalid"),
+        (lambda f: f.arc_length(ArcLength(1e-3, direction=0)), r"arc_length.direction = 0 is invalid"),
+        (lambda f: f.load_control([]), r"load levels must be a non-empty list"),
+        (lambda f: f.load_control([1.0, float("nan")]), r"load levels must be a non-empty list of finite"),
+        (lambda f: f.displacement_control("tip", 2, [0.1]), r"probe 'tip'; the probes are \['mid'\]"),
+        (lambda f: f.displacement_control("mid", 3, [0.1]), r"component = 3"),
+    ],
+)
+def test_bad_settings_are_refused_before_any_solve(comm, call, message):
+    model = ARCH.model(4, comm)
+    with ShellSolver(model) as solver, PathFollower(solver, [Probe("mid", *ARCH.midspan())]) as follower:
+        with pytest.raises(PathSettingError, match=message):
+            call(follower)
+        assert len(follower.path) == 1
+
+
+def test_a_probe_outside_the_parameter_domain_is_refused(comm):
+    with ShellSolver(ARCH.model(4, comm)) as solver, pytest.raises(PathSettingError, match=r"probe 'far' .* outside"):
+        PathFollower(solver, [Probe("far", 2.0, 0.0)])

@@ -121,9 +121,20 @@ def _run(args: argparse.Namespace, comm) -> None:
     summary = run_scene(options, comm)
     if comm.rank == 0:
         steps = summary["steps"]
+        newton = sum(s["newton_iterations"] for s in steps)
+        if summary["static"]:
+            events = [f"{s['event']} point at load factor {s['load_factor']:.6g}" for s in steps if s.get("event")]
+            print(
+                f"{args.scene}: {len(steps)} path point(s) to load factor {summary['load_factor']:.6g}, "
+                f"{summary['dofs']} DoFs, {comm.size} rank(s), {newton} Newton iterations"
+                + "".join(f"\n  {e}" for e in events)
+                + f"\n  output: {args.out}/path.csv, path.png, surface.xdmf and surface.pvd (ParaView), last.png, "
+                "summary.json, checkpoint.h5"
+            )
+            return
         print(
             f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
-            f"{comm.size} rank(s), {sum(s['newton_iterations'] for s in steps)} Newton iterations, "
+            f"{comm.size} rank(s), {newton} Newton iterations, "
             f"{sum(s.get('recoveries', 0) for s in steps)} recoveries\n"
             f"  output: {args.out}/surface.xdmf and surface.pvd (ParaView), last.png, summary.json, checkpoint.h5"
         )

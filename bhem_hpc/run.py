@@ -19,13 +19,16 @@ from mpi4py import MPI
 
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
+from bhem_hpc.io.path_table import CsvTable, plot_path, probe_columns, read_rows
 from bhem_hpc.io.run_directory import (
     OutputDirectoryError,
     check_output_directory,
     start_output_directory,
     write_replacing,
 )
-from bhem_hpc.model.shell import Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
+from bhem_hpc.model.expression import ufl_expression
+from bhem_hpc.model.path import PathPlan, ProbeSet
+from bhem_hpc.model.shell import AreaLoad, Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
@@ -51,9 +54,10 @@ class RunOptions:
 
 
 def physics_hash(scene: Scene) -> str:
-    """Identity of a scene's physics (everything but time span and output), for restarts."""
-    raw = {k: v for k, v in scene.raw.items() if k not in ("output",)}
-    raw["time"] = {k: v for k, v in raw.get("time", {}).items() if k not in ("steps", "duration")}
+    """Identity of a scene's physics (everything but time span, path settings, probes and output),
+    for restarts."""
+    raw = {k: v for k, v in scene.raw.items() if k not in ("output", "path", "probes")}
+    raw["time"] = {k: v for k, v in raw.get("time", {}).items() if k not in ("steps", "duration", "load_steps")}
     canonical = json.dumps(raw, sort_keys=True, default=str)
     grid = scene.surface.grid
     canonical += repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
@@ -84,6 +88,7 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
         pressure=e.pressure,
         line_loads=tuple(LineLoad(edge, traction) for edge, traction in e.line_loads),
         point_loads=tuple(PointLoad(a, b, force) for a, b, force in e.point_loads),
+        area_loads=tuple(AreaLoad(force, profile and ufl_expression(profile)) for force, profile in e.area_loads),
     )
     dynamics = None if scene.static else Dynamics(scene.dt, e.mass_damping, e.stiffness_damping)
     return ShellModel(
@@ -167,7 +172,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     try:
         series = _start_output(options, scene, scene_text, summary, checkpoint if continuing else None, comm)
         if scene.static:
-            final = _run_static(scene, options, model, solver, series, summary, comm)
+            final = _run_static(scene, options, model, solver, series, summary, (checkpoint, continuing), comm)
         else:
             final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm)
         title = f"{options.scene.name}, t = {summary.get('time', 0):.4g} s"
@@ -209,8 +214,6 @@ def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, b
     checkpoint = None
     continuing = False
     if options.restart is not None:
-        if scene.static:
-            raise RunError(f"--restart {options.restart}: a static scene has no time steps to continue")
         checkpoint = _read_restart(options.restart, scene)
         continuing = _is_same_directory(options.restart, options.out)
     _check_output(options, continuing, comm)
@@ -255,6 +258,8 @@ def _on_rank0(comm: MPI.Comm, action, what: str):
 
 def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: dict | None) -> int:
     """``--steps``, or the steps left to the scene's end (all of them without a restart)."""
+    if scene.static:  # --steps bounds the path points of this run
+        return options.steps if options.steps is not None else scene.path_plan.point_count
     if options.steps is not None or checkpoint is None:
         return options.steps if options.steps is not None else scene.steps
     done = int(checkpoint["attrs"]["step"])
@@ -313,6 +318,17 @@ def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
         return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
     if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
         return "it holds non-finite or non-numeric values"
+    return _path_problem(arrays, attrs, position.shape) if scene.static else _clock_problem(attrs)
+
+
+def _path_problem(arrays: dict, attrs: dict, shape: tuple) -> str | None:
+    """What is wrong with a static run's path data in a checkpoint (and its clock), or None."""
+    previous = np.asarray(arrays.get("previous_position_dofs", np.zeros(0)))
+    if previous.shape != shape or previous.dtype.kind != "f" or not np.all(np.isfinite(previous)):
+        return "dataset 'previous_position_dofs' (the path's previous point) is missing or damaged"
+    factor = attrs.get("load_factor")
+    if isinstance(factor, bool) or not isinstance(factor, int | float | np.floating) or not np.isfinite(factor):
+        return f"its 'load_factor' attribute {factor!r} is not a number"
     return _clock_problem(attrs)
 
 
@@ -331,23 +347,106 @@ def _energies(model: ShellModel) -> dict[str, float]:
     return {k: float(v) for k, v in e.items()}
 
 
-def _run_static(scene, options, model, solver, series, summary, comm) -> HermiteSurface:
-    """Solve a static scene, writing its frame and checkpoint; returns the final surface (gathered
-    on every rank)."""
-    start = time.perf_counter()
-    report = solver.solve(scene.load_steps)
-    surface = _write_state(options.out, series, model, 1.0, 1, summary, comm)
-    summary["time"] = 1.0
-    summary["steps"].append(
-        {
-            "step": 1,
-            "load_steps": report.load_steps,
-            "newton_iterations": sum(report.newton_iterations),
-            "wall_s": time.perf_counter() - start,
-            "energies": _energies(model),
-        }
-    )
-    return surface
+def _run_static(scene, options, model, solver, series, summary, restart, comm) -> HermiteSurface:
+    """Follow a static scene's path (:class:`~bhem_hpc.model.path.PathPlan`), writing per converged
+    point a frame, a checkpoint, a row of ``path.csv`` and of the summary; ``path.png`` at the end
+    (also when a step fails: the converged part stays in every file). Returns the final surface."""
+    from bhem_hpc.solver.path import PathError, PathFollower
+
+    checkpoint, continuing = restart
+    plan: PathPlan = scene.path_plan
+    start, first_step, previous, arc_step = (0.0, 0.0), 0, None, None
+    if checkpoint is not None:
+        arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
+        disc = model.discretization
+        model.x.x.array[:] = disc.scatter_raw_dofs(arrays["position_dofs"])
+        previous = disc.open_to_closed(disc.scatter_raw_dofs(arrays["previous_position_dofs"]))
+        start, first_step = (float(attrs["load_factor"]), float(attrs.get("arc_length", 0.0))), int(attrs["step"])
+        arc_step = float(attrs.get("arc_step", np.nan))
+    output = _PathOutput(options.out, model, scene, series, summary, comm, first_step if continuing else None)
+    follower = PathFollower(solver, scene.probes, SOLVER_PREFIX + "path_", plan.options, *start, previous,
+                            first_step, on_point=output.write)  # fmt: skip
+    output.follower = follower
+    try:
+        if not continuing:  # a new series starts with the path's start (or the restart point)
+            output.write(follower.path[0])
+        _follow(plan, follower, first_step, _steps_to_run(scene, options, checkpoint), arc_step)
+    except PathError as exc:
+        raise RunError(str(exc)) from exc
+    finally:
+        output.plot(options.scene.name)
+        follower.close()
+    summary["time"] = output.last_time
+    summary["load_factor"] = follower.load_factor
+    return output.surface
+
+
+def _follow(plan: PathPlan, follower, done: int, count: int, arc_step: float | None) -> None:
+    """Run ``count`` more points of ``plan`` after the ``done`` already on the path (arc length
+    continues with the checkpoint's adapted step ``arc_step``)."""
+    from dataclasses import replace
+
+    settings = plan.arc_length
+    complete = done >= plan.point_count
+    if settings is not None:
+        low, high = settings.load_factor_range
+        complete = complete or not low < follower.load_factor < high
+    if complete:
+        raise RunError(f"the path is complete: the checkpoint is its last point (step {done}, "
+                       f"load factor {follower.load_factor:.6g})")  # fmt: skip
+    if plan.method == "load":
+        follower.load_control(plan.levels[done : done + count], plan.max_cuts)
+    elif plan.method == "displacement":
+        follower.displacement_control(plan.probe, plan.component, plan.values[done : done + count], plan.max_cuts)
+    else:
+        step = arc_step if arc_step is not None and np.isfinite(arc_step) else settings.initial_step
+        step = float(np.clip(step, settings.min_step, settings.max_step))
+        follower.arc_length(replace(settings, initial_step=step, min_step=min(settings.min_step, step),
+                                    max_steps=min(count, plan.point_count - done)))  # fmt: skip
+
+
+class _PathOutput:
+    """The files of a static run, one update per converged path point (collective :meth:`write`)."""
+
+    def __init__(self, out: Path, model: ShellModel, scene: Scene, series, summary: dict, comm, continued_step):
+        self.out, self.model, self.plan, self.series = out, model, scene.path_plan, series
+        self.summary, self.comm = summary, comm
+        self.probes = [p.name for p in scene.probes]
+        keep = read_rows(out / "path.csv", continued_step) if continued_step is not None else []
+        self.table = CsvTable(out / "path.csv", keep) if comm.rank == 0 else None
+        self.previous_raw = None
+        self.follower = None
+        self.surface = None
+        self.last_time = 0.0
+        self.started = time.perf_counter()
+
+    def write(self, point) -> None:
+        """Frame, checkpoint (with the previous point's DOFs), path.csv and summary rows."""
+        time_value = point.load_factor if self.plan.time_is_load_factor else point.arc_length
+        raw = self.model.discretization.gather_raw_dofs(self.model.x.x.array)
+        extra = {"previous_position_dofs": raw if self.previous_raw is None else self.previous_raw}
+        attrs = {"load_factor": point.load_factor, "arc_length": point.arc_length}
+        if self.follower is not None and np.isfinite(self.follower.arc_step):
+            attrs["arc_step"] = self.follower.arc_step
+        self.surface = _write_state(self.out, self.series, self.model, time_value, point.step, self.summary,
+                                    self.comm, extra, attrs)  # fmt: skip
+        self.previous_raw = raw
+        self.last_time = time_value
+        row = {"step": point.step, "load_factor": point.load_factor, "arc_length": point.arc_length,
+               "newton_iterations": point.newton_iterations, "negative_pivots": point.negative_pivots,
+               "stable": point.stable, "event": point.event}  # fmt: skip
+        row |= {f"energy_{k}": float(v) for k, v in point.energies.items()} | probe_columns(point.probes)
+        _on_rank0(self.comm, lambda: self.table.add(row), "path.csv")
+        now = time.perf_counter()
+        self.summary["steps"].append(row | {"wall_s": now - self.started})
+        self.started = now
+
+    def plot(self, title: str) -> None:
+        def draw() -> None:
+            if len(self.table.rows) > 1:
+                plot_path(self.table.rows, self.probes, self.out / "path.png", title)
+
+        _on_rank0(self.comm, draw, "path.png")
 
 
 def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
@@ -364,8 +463,10 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
         _restore(model, arrays)
         stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
     surface = model.state_surface()
+    probes = _ProbeTable(options.out, model, scene, stepper.step if checkpoint is not None else None, comm)
     if comm.bcast(series is not None and not series.times):  # a continued series has its restart frame
         _on_rank0(comm, lambda: series.write(stepper.time, surface), "a frame")
+        probes.write(stepper)
     progress = _progress(steps, options.progress and comm.rank == 0)
     last_summary = time.perf_counter()
     try:
@@ -375,6 +476,7 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
             wrote = stepper.step % scene.output_every == 0 or k == steps - 1  # the last step always writes
             if wrote:
                 surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm)
+            probes.write(stepper)
             output_s = time.perf_counter() - t_out
             summary["steps"].append(_step_summary(record, output_s, _energies(model)))
             # the step records up to a checkpoint, at most every SUMMARY_EVERY_S: a killed or
@@ -391,6 +493,24 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
             contact.close()
     summary["time"] = stepper.time
     return surface
+
+
+class _ProbeTable:
+    """``probes.csv`` of a dynamic run: time, step and every probe's position and displacement per
+    step (continuing the rows of a run continued in place)."""
+
+    def __init__(self, out: Path, model: ShellModel, scene: Scene, restart_step: int | None, comm: MPI.Comm):
+        self.comm = comm
+        self.probes = ProbeSet(model, scene.probes) if scene.probes else None
+        keep = read_rows(out / "probes.csv", restart_step) if restart_step is not None else []
+        self.table = CsvTable(out / "probes.csv", keep) if comm.rank == 0 and self.probes else None
+
+    def write(self, stepper: TimeStepper) -> None:
+        """A row for the stepper's current state (collective)."""
+        if self.probes is None:
+            return
+        row = {"step": stepper.step, "time": stepper.time} | probe_columns(self.probes.record())
+        _on_rank0(self.comm, lambda: self.table.add(row), "probes.csv")
 
 
 def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float]) -> dict:
@@ -411,29 +531,30 @@ def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
 
 
 def _write_state(
-    out: Path, series, model: ShellModel, time_value: float, step: int, summary: dict, comm: MPI.Comm
-) -> HermiteSurface:
-    """Write the current state as a frame and a checkpoint; returns it as a surface (every rank)."""
+    out: Path, series, model: ShellModel, time_value: float, step: int, summary: dict, comm: MPI.Comm,
+    arrays: dict | None = None, attrs: dict | None = None,
+) -> HermiteSurface:  # fmt: skip
+    """Write the current state as a frame and a checkpoint (with extra ``arrays`` and ``attrs``);
+    returns it as a surface (every rank)."""
     surface = model.state_surface()
     _on_rank0(comm, lambda: series.write(time_value, surface), "a frame of surface.h5")
-    _checkpoint(out / "checkpoint.h5", model, surface, time_value, step, summary, comm)
+    _checkpoint(out / "checkpoint.h5", model, surface, (time_value, step), summary, comm, arrays or {}, attrs or {})
     return surface
 
 
 def _checkpoint(
-    path: Path, model: ShellModel, surface: HermiteSurface, time_value: float, step: int, summary: dict,
-    comm: MPI.Comm,
+    path: Path, model: ShellModel, surface: HermiteSurface, clock: tuple[float, int], summary: dict,
+    comm: MPI.Comm, arrays: dict, attrs: dict,
 ) -> None:  # fmt: skip
-    """Write the state at ``time_value`` (a static run: load factor 1, zero velocity)."""
+    """Write the state at ``clock`` = (time, step) (a static run: zero velocity, the path point's
+    load factor and the previous point's DOFs in ``arrays`` and ``attrs``)."""
     position = model.discretization.gather_raw_dofs(model.x.x.array)
     velocity_array = model.velocity.x.array if model.dynamics is not None else np.zeros_like(model.x.x.array)
     velocity = model.discretization.gather_raw_dofs(velocity_array)
-    _on_rank0(comm, lambda: write_checkpoint(
-            path,
-            {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal},
-            {"time": time_value, "step": step, "physics_hash": summary["physics_hash"],
-             "static": model.dynamics is None},
-        ), path.name)  # fmt: skip
+    data = {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal} | arrays
+    meta = {"time": clock[0], "step": clock[1], "physics_hash": summary["physics_hash"],
+            "static": model.dynamics is None} | attrs  # fmt: skip
+    _on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
 
 
 def _progress(total: int, enabled: bool):

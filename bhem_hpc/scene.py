@@ -20,14 +20,19 @@ import numpy as np
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
+from bhem_hpc.model.expression import ExpressionError, finite_on, numpy_expression, parse_expression
 from bhem_hpc.model.material import Material, MaterialError
+from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
 
 SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
 CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "fix")
 MOTION_TYPES = ("linear", "rotation", "keyframes")
 CORNERS = ("min_min", "min_max", "max_min", "max_max")
 # Effects a scene may list; contact effects import the collision code only when listed.
-EFFECTS = ("gravity", "pressure", "damping", "point_loads", "line_loads", "contact", "self_collision", "friction")
+EFFECTS = (
+    "gravity", "pressure", "damping", "point_loads", "line_loads", "area_loads", "contact", "self_collision",
+    "friction",
+)  # fmt: skip
 CONTACT_EFFECTS = ("contact", "self_collision", "friction")
 #: Metrics of the contact impulses (:class:`bhem_hpc.contact.ContactSettings`).
 CONTACT_METRICS = ("mass", "jacobian")
@@ -93,6 +98,7 @@ class Effects:
     stiffness_damping: float = 0.0
     point_loads: tuple[tuple[float, float, tuple[float, float, float]], ...] = ()
     line_loads: tuple[tuple[str, tuple[float, float, float]], ...] = ()
+    area_loads: tuple[tuple[tuple[float, float, float], str | None], ...] = ()  # (force, profile expression)
 
 
 @dataclass(frozen=True)
@@ -126,6 +132,8 @@ class Scene:
     output_density: int = 4
     raw: dict[str, Any] = field(default_factory=dict)
     contact: SceneContact | None = None
+    path_plan: PathPlan | None = None  # static scenes: how the equilibrium path is followed
+    probes: tuple[Probe, ...] = ()
 
 
 class _Table:
@@ -227,7 +235,7 @@ def load_scene(path: str | Path) -> Scene:
     top = _Table(path, "", raw)
     surface = _surface(top.table("surface"), path)
     material = _material(top.table("material"))
-    effects = _effects(top.table("effects", None), path)
+    effects = _effects(top.table("effects", None), path, surface.grid)
     time_table = top.table("time")
     static = time_table.get("static", "a boolean", False)
     if static:
@@ -274,6 +282,8 @@ def load_scene(path: str | Path) -> Scene:
     constraints = _constraints(top, surface, path)
     points = _point_constraints(top, surface, path)
     contact = _contact(top, path, static)
+    probes = _probes(top, surface)
+    plan = _path_plan(top, static, load_steps, probes, path)
     top.done()
     return Scene(
         path=path,
@@ -293,6 +303,8 @@ def load_scene(path: str | Path) -> Scene:
         output_density=density,
         raw=raw,
         contact=contact,
+        path_plan=plan,
+        probes=probes,
     )
 
 
@@ -343,11 +355,7 @@ def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurfac
     spline = () if discretization == "hermite" else (int(discretization[-1]),)
     shapes = S if discretization == "hermite" else B
     if kind == "rectangle":
-        size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
-        origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
-        if spline:
-            return B.flat_rectangle(size[0], size[1], patches[0], patches[1], *spline, origin)
-        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin)
+        return _rectangle(t, patches, spline)
     if kind == "cylinder":
         closed = t.get("closed", "a boolean", True)
         angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
@@ -364,6 +372,30 @@ def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurfac
     return shapes.torus(radii[0], radii[1], *patches, *spline)
 
 
+def _rectangle(t: _Table, patches: list[int], spline: tuple[int, ...]) -> S.HermiteSurface | B.BSplineSurface:
+    """A flat rectangle, or one raised by ``z = height(xi1, xi2)`` (parameters from 0 to the size),
+    e.g. a shallow arch or panel: ``height = "0.01 * sin(pi * xi1)"``."""
+    size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
+    origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
+    height = t.get("height", "a string", None)
+    if height is None and spline:
+        return B.flat_rectangle(size[0], size[1], patches[0], patches[1], *spline, origin)
+    if height is None:
+        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin)
+    try:
+        z = numpy_expression(height)
+    except ExpressionError as exc:
+        t.fail("height", f"an expression of xi1 and xi2 ({exc})", height)
+    grid, flat = S.rectangle_shape(size[0], size[1], patches[0], patches[1], origin)
+
+    def shape(a, b):
+        return flat(a, b) + np.stack([0 * a, 0 * a, z(a, b)], axis=-1)
+
+    if not finite_on(height, *grid.node_parameters()):
+        t.fail("height", "an expression finite on the whole rectangle", height)
+    return B.from_callable(shape, grid, spline[0]) if spline else S.from_callable(shape, grid)
+
+
 def _material(t: _Table) -> Material:
     values = {k: t.get(k, "a number") for k in ("young", "poisson", "thickness")}
     values["density"] = t.get("density", "a number", 0.0)
@@ -374,7 +406,7 @@ def _material(t: _Table) -> Material:
         raise SceneError(f"{t.path}: {exc}") from exc
 
 
-def _effects(t: _Table | None, path: Path) -> Effects:
+def _effects(t: _Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
     if t is None:
         return Effects()
     for key in t.data:
@@ -394,6 +426,21 @@ def _effects(t: _Table | None, path: Path) -> Effects:
         mass_damping = damping.get("mass", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [1/s]")
         stiffness_damping = damping.get("stiffness", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [s]")
         damping.done()
+    point_loads, line_loads, area_loads = _loads(t, path, grid)
+    t.done()
+    return Effects(
+        gravity=tuple(gravity) if gravity is not None else None,
+        pressure=pressure,
+        mass_damping=mass_damping,
+        stiffness_damping=stiffness_damping,
+        point_loads=point_loads,
+        line_loads=line_loads,
+        area_loads=area_loads,
+    )
+
+
+def _loads(t: _Table, path: Path, grid: S.ParameterGrid) -> tuple[tuple, tuple, tuple]:
+    """``effects.point_loads``, ``line_loads`` and ``area_loads``."""
     point_loads = []
     for i, item in enumerate(t.get("point_loads", "a list", [])):
         load = _Table(path, f"effects.point_loads[{i}]", item)
@@ -406,15 +453,99 @@ def _effects(t: _Table | None, path: Path) -> Effects:
         edge = load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
         line_loads.append((edge, tuple(load.get("traction", "3 numbers"))))
         load.done()
+    area_loads = []
+    for i, item in enumerate(t.get("area_loads", "a list", [])):
+        load = _Table(path, f"effects.area_loads[{i}]", item)
+        force = tuple(load.get("force", "3 numbers", expected="3 numbers (force per rest area [N/m^2])"))
+        profile = load.get("profile", "a string", None)
+        if profile is not None:
+            try:
+                parse_expression(profile)
+            except ExpressionError as exc:
+                load.fail("profile", f"an expression of xi1 and xi2 ({exc})", profile)
+            if not finite_on(profile, *grid.node_parameters()):
+                load.fail("profile", "an expression finite on the whole surface", profile)
+        area_loads.append((force, profile))
+        load.done()
+    return tuple(point_loads), tuple(line_loads), tuple(area_loads)
+
+
+def _probes(top: _Table, surface) -> tuple[Probe, ...]:
+    """``[[probes]]``: named material points ``at = [xi1, xi2]`` inside the parameter domain."""
+    probes = []
+    grid = surface.grid
+    for i, item in enumerate(top.get("probes", "a list", [])):
+        t = _Table(top.path, f"probes[{i}]", item)
+        name = t.get("name", "a string", check=lambda v: v.isidentifier(), expected="a name (letters, digits, _)")
+        inside = f"2 numbers (xi1, xi2) in {list(grid.xi1_range)} x {list(grid.xi2_range)}"
+        at = t.get("at", "2 numbers", check=lambda v: grid.xi1_range[0] <= v[0] <= grid.xi1_range[1]
+                   and grid.xi2_range[0] <= v[1] <= grid.xi2_range[1], expected=inside)  # fmt: skip
+        if name in [p.name for p in probes]:
+            t.fail("name", "a name no other probe has", name)
+        probes.append(Probe(name, float(at[0]), float(at[1])))
+        t.done()
+    return tuple(probes)
+
+
+def _path_plan(top: _Table, static: bool, load_steps: int, probes: tuple[Probe, ...], path: Path) -> PathPlan | None:
+    """``[path]`` of a static scene (default: load control to 1 in ``time.load_steps`` levels)."""
+    t = top.table("path", None)
+    if not static:
+        if t is not None:
+            raise SceneError(f"{path}: table 'path' needs a static scene ('time.static = true')")
+        return None
+    if t is None:
+        return PathPlan("load", tuple(np.arange(1, load_steps + 1) / load_steps))
+    method = t.get("method", "a string", check=lambda v: v in PATH_METHODS, expected=f"one of {PATH_METHODS}")
+    max_cuts = t.get("max_cuts", "an integer", 8, lambda v: 0 <= v <= 50, "an integer in 0..50")
+    options = t.get("options", "a table", {})
+    for k, v in options.items():
+        if not isinstance(v, str | int | float | bool):
+            t.fail(f"options.{k}", "a string, number or boolean", v)
+    try:
+        if method == "load":
+            plan = PathPlan("load", _levels(t, "levels", "target"), max_cuts=max_cuts, options=options)
+        elif method == "displacement":
+            names = [p.name for p in probes]
+            probe = t.get("probe", "a string", check=lambda v: v in names, expected=f"the name of a probe {names}")
+            component = t.get("component", "a string", check=lambda v: v in ("x", "y", "z"), expected="'x', 'y' or 'z'")
+            values = _levels(t, "values", "target", default_target=None)
+            plan = PathPlan("displacement", probe=probe, component="xyz".index(component), values=values,
+                            max_cuts=max_cuts, options=options)  # fmt: skip
+        else:
+            plan = PathPlan("arc_length", arc_length=_arc_length(t), options=options)
+    except PathSettingError as exc:
+        raise SceneError(f"{path}: path.{exc}") from None
     t.done()
-    return Effects(
-        gravity=tuple(gravity) if gravity is not None else None,
-        pressure=pressure,
-        mass_damping=mass_damping,
-        stiffness_damping=stiffness_damping,
-        point_loads=tuple(point_loads),
-        line_loads=tuple(line_loads),
+    return plan
+
+
+def _levels(t: _Table, key: str, target_key: str, default_target: float | None = 1.0) -> tuple[float, ...]:
+    """``key = [...]``, or ``steps = n`` equal steps to ``target_key`` (default ``default_target``)."""
+    if key in t.data:
+        values = t.get(key, "a list")
+        return tuple(check_levels(key, values).tolist())
+    steps = t.get("steps", "an integer", check=lambda v: 1 <= v <= 100_000, expected=f"an integer in 1..100000 "
+                  f"(or '{key}', a list)")  # fmt: skip
+    target = t.get(target_key, "a number", ... if default_target is None else default_target)
+    return tuple(float(target) * k / steps for k in range(1, steps + 1))
+
+
+def _arc_length(t: _Table) -> ArcLength:
+    initial = t.get("initial_step", "a number", expected="a number > 0 (first arc length [m])")
+    low_high = t.get("load_factor_range", "2 numbers", [-math.inf, 1.0])
+    settings = ArcLength(
+        initial_step=initial,
+        min_step=t.get("min_step", "a number", 0.0),
+        max_step=t.get("max_step", "a number", math.inf),
+        max_steps=t.get("max_steps", "an integer", 100),
+        load_factor_range=(float(low_high[0]), float(low_high[1])),
+        target_iterations=t.get("target_iterations", "an integer", 5),
+        max_cuts=t.get("max_cuts", "an integer", 8),
+        direction=t.get("direction", "an integer", 1),
     )
+    settings.validate(prefix="")
+    return settings
 
 
 def _nodes(t: _Table, surface: S.HermiteSurface | B.BSplineSurface) -> np.ndarray:

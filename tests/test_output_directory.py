@@ -95,11 +95,11 @@ def test_a_static_run_replacing_a_dynamic_one_leaves_only_its_own_files(comm, sh
     assert summary["status"] == "completed" and summary["static"]
     assert sorted(p.name for p in out.iterdir()) == sorted(
         ["scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
-         "last.png"]
+         "last.png", "path.csv", "path.png"]
     )
     _, attrs = read_checkpoint(out / "checkpoint.h5")
     assert attrs["static"] and attrs["step"] == 1  # the static run's own checkpoint
-    assert frame_times(out) == [1.0]
+    assert frame_times(out) == [0.0, 1.0]  # the start and the load level
     assert (out / "scene.toml").read_text() == static
 
 

@@ -272,10 +272,11 @@ type = "clamp"
 edge = "xi1_min"
 """
     summary = run_scene(RunOptions(write(comm, workdir, text, "static.toml"), workdir / "static", progress=False), comm)
-    assert summary["static"] and len(summary["steps"]) == 1
+    assert summary["static"] and [row["load_factor"] for row in summary["steps"]] == [0.0, 0.5, 1.0]
     comm.Barrier()
-    with h5py.File(workdir / "static" / "surface.h5") as f:
-        tip_drop = -f["frames/0/geometry"][:, 2].min()
+    with h5py.File(workdir / "static" / "surface.h5") as f:  # frames at the start and at each load level
+        assert [float(f[f"frames/{k}"].attrs["time"]) for k in range(3)] == [0.0, 0.5, 1.0]
+        tip_drop = -f["frames/2/geometry"][:, 2].min()
     ei = 1e6 * 0.1 * 0.01**3 / 12
     assert abs(tip_drop / (1e-5 * 0.1 / (3 * ei)) - 1) < 1e-4  # P L^3 / (3 EI)
 

@@ -17,7 +17,7 @@ from pathlib import Path
 #: The files a run writes; a restart in place refuses to continue through a symbolic link among them.
 RUN_FILES = (
     "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
-    "last.png",
+    "last.png", "path.csv", "path.png", "probes.csv",
 )  # fmt: skip
 
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from petsc4py import PETSc
 
+from bhem_hpc.model.path import ArcLength, PathSettingError, Probe, ProbeSet, check_levels
 from bhem_hpc.solver.newton import ShellSolver, default_options
 from bhem_hpc.solver.petsc import (
     PETSC_ERRORS,
@@ -40,6 +41,7 @@ from bhem_hpc.solver.petsc import (
 )
 
 log = logging.getLogger(__name__)
+__all__ = ["ArcLength", "PathError", "PathFollower", "PathPoint", "PathSettingError", "Probe"]
 
 
 class PathError(SolverError):
@@ -48,15 +50,6 @@ class PathError(SolverError):
     def __init__(self, message: str, path: list[PathPoint]):
         super().__init__(message)
         self.path = path
-
-
-@dataclass(frozen=True)
-class Probe:
-    """A named material point ``(xi1, xi2)`` whose position is recorded at every path point."""
-
-    name: str
-    xi1: float
-    xi2: float
 
 
 @dataclass
@@ -73,7 +66,8 @@ class PathPoint:
         event: ``"limit"`` or ``"bifurcation"`` where the inertia changed since the previous
             point, else ``""``.
         energies: the model's energies (:meth:`ShellModel.energies`).
-        probes: per probe name its position ``(3,)`` and displacement ``(3,)`` from the start.
+        probes: per probe name its ``position`` ``(3,)`` and ``displacement`` ``(3,)`` from the
+            model's initial surface.
     """
 
     step: int
@@ -89,61 +83,6 @@ class PathPoint:
     def stable(self) -> bool | None:
         """Whether the tangent is positive definite (None when the inertia is unknown)."""
         return None if self.negative_pivots < 0 else self.negative_pivots == 0
-
-
-@dataclass(frozen=True)
-class ArcLength:
-    """Arc-length continuation settings.
-
-    Attributes:
-        initial_step: first arc length ``ds`` (norm of the DOF increment) [m].
-        min_step, max_step: bounds of the adapted ``ds``.
-        max_steps: path points to compute at most.
-        load_factor_range: stop once lambda leaves ``(low, high)``.
-        target_iterations: Newton iterations per step the step size adapts to
-            (``ds *= sqrt(target / iterations)``, within a factor of 2 per step).
-        max_cuts: halvings of ``ds`` in a row before the step is given up.
-        direction: +1 to start with increasing lambda, -1 decreasing.
-    """
-
-    initial_step: float
-    min_step: float = 0.0
-    max_step: float = float("inf")
-    max_steps: int = 100
-    load_factor_range: tuple[float, float] = (-np.inf, 1.0)
-    target_iterations: int = 5
-    max_cuts: int = 8
-    direction: int = 1
-
-    def validate(self) -> None:
-        def number(name: str, value, ok: Callable[[float], bool], expected: str) -> None:
-            if isinstance(value, bool) or not isinstance(value, int | float) or np.isnan(value) or not ok(value):
-                raise PathSettingError(f"arc_length.{name} = {value!r} is invalid: must be {expected}")
-
-        number("initial_step", self.initial_step, lambda v: 0 < v < np.inf, "a number > 0")
-        number("min_step", self.min_step, lambda v: 0 <= v <= self.initial_step, "in [0, initial_step]")
-        number("max_step", self.max_step, lambda v: v >= self.initial_step, ">= initial_step")
-        number("max_steps", self.max_steps, lambda v: int(v) == v and 1 <= v <= 100_000, "an integer in 1..100000")
-        number("target_iterations", self.target_iterations, lambda v: int(v) == v and 1 <= v <= 50, "in 1..50")
-        number("max_cuts", self.max_cuts, lambda v: int(v) == v and 0 <= v <= 50, "an integer in 0..50")
-        low, high = self.load_factor_range
-        number("load_factor_range[0]", low, lambda v: v < high, "below load_factor_range[1]")
-        number("load_factor_range[1]", high, lambda v: v > low, "above load_factor_range[0]")
-        if self.direction not in (1, -1):
-            raise PathSettingError(f"arc_length.direction = {self.direction!r} is invalid: must be 1 or -1")
-
-
-class PathSettingError(ValueError):
-    """Path-following settings out of range (raised before any solve)."""
-
-
-def _check_levels(name: str, levels: Sequence[float]) -> np.ndarray:
-    values = np.asarray(levels, dtype=float)
-    if values.ndim != 1 or len(values) == 0 or not np.all(np.isfinite(values)):
-        raise PathSettingError(f"{name} must be a non-empty list of finite numbers, got {levels!r}")
-    if len(values) > 100_000:
-        raise PathSettingError(f"{name} has {len(values)} entries; at most 100000")
-    return values
 
 
 class _BorderedStep:
@@ -192,8 +131,12 @@ class PathFollower(PetscOwner):
         prefix: options prefix of the constrained SNES (displacement control, arc length);
             its defaults are the solver's (MUMPS LDL^T), and ``snes_linesearch_type basic``.
         options: PETSc options (without prefix) that override those defaults.
-
-    The path starts with the current state at load factor ``start_load_factor`` as point 0.
+        start_load_factor: the load factor of the current state, the path's point 0.
+        previous: closed DOFs of the point before the current one (continuing a path): the
+            direction in which arc length goes on; None: increasing lambda.
+        start_arc_length: the arc length of point 0 (a continued path's).
+        first_step: the index of point 0 (a continued path's step).
+        on_point: called with every point recorded after point 0 (output, checkpoints).
     """
 
     def __init__(
@@ -203,34 +146,21 @@ class PathFollower(PetscOwner):
         prefix: str = "bhem_path_",
         options: dict[str, object] | None = None,
         start_load_factor: float = 0.0,
+        start_arc_length: float = 0.0,
+        previous: np.ndarray | None = None,
+        first_step: int = 0,
+        on_point: Callable[[PathPoint], None] | None = None,
     ):
         self.solver = solver
         self.model = solver.model
         self.problem = solver.problem
         self.prefix = prefix
         self._closed = False
-        model = self.model
-        if model.dynamics is not None:
+        if self.model.dynamics is not None:
             raise PathSettingError("path following needs a static model (dynamics = None)")
-        if np.any(model.constrained_target != model.constrained_initial):
-            raise PathSettingError(
-                "path following keeps prescribed values fixed: the model prescribes values that move "
-                "with the load factor (give them as the initial state instead)"
-            )
-        names = [p.name for p in probes]
-        if len(set(names)) != len(names):
-            raise PathSettingError(f"probe names must be unique, got {names}")
-        grid = model.rest_surface.grid
-        for probe in probes:
-            if not (grid.xi1_range[0] <= probe.xi1 <= grid.xi1_range[1]) or not (
-                grid.xi2_range[0] <= probe.xi2 <= grid.xi2_range[1]
-            ):
-                raise PathSettingError(
-                    f"probe {probe.name!r} at (xi1, xi2) = ({probe.xi1!r}, {probe.xi2!r}) lies outside the "
-                    f"parameter domain {grid.xi1_range} x {grid.xi2_range}"
-                )
-        self.probes = tuple(probes)
-        self._probe_basis = [model.discretization.point_basis(p.xi1, p.xi2) for p in self.probes]
+        self.probe_set = ProbeSet(self.model, probes)
+        self.probes = self.probe_set.probes
+        self.on_point = on_point
         self.x = solver.x
         self.problem.state_to_vector(self.x)
         self.jacobian = self.problem.jacobian
@@ -239,13 +169,17 @@ class PathFollower(PetscOwner):
         self.work = [self.x.duplicate() for _ in range(3)]
         self._residual_scratch = self.x.duplicate()
         self._last = self.x.copy()  # the DOFs of the last recorded point
+        if previous is not None:
+            self._last.array[:] = previous
         self._snes = self._create_snes(options or {})
         self.load_factor = float(start_load_factor)
         self.set_load_factor(self.load_factor)
-        self._start_positions = self._probe_positions()
         self._sign = 1.0  # the sign of dlambda/ds at the last point
         self.path: list[PathPoint] = []
-        self._record(0)
+        self._first_step = first_step
+        self._start_arc_length = float(start_arc_length)
+        self.arc_step = float("nan")  # the adapted arc length of the next step (arc-length continuation)
+        self._record(0, continuing=previous is not None)
 
     # -- setup ------------------------------------------------------------------------------------
     def _create_snes(self, options: dict[str, object]) -> PETSc.SNES:
@@ -300,19 +234,9 @@ class PathFollower(PetscOwner):
         self.model.load_factor.value = current
 
     # -- measurements -----------------------------------------------------------------------------
-    def _probe_positions(self) -> np.ndarray:
-        """Positions ``(probes, 3)`` of the probes at the model's current state (collective)."""
-        local = np.zeros((len(self.probes), 3))
-        positions = self.model.x.x.array.reshape(-1, 3)
-        for k, (blocks, values) in enumerate(self._probe_basis):
-            if len(blocks):
-                local[k] = values @ positions[blocks]
-        return self.model.comm.allreduce(local)
-
     def probe_displacement(self, name: str) -> np.ndarray:
-        """Displacement ``(3,)`` of a probe from the path's start, at the current state."""
-        index = [p.name for p in self.probes].index(name)
-        return self._probe_positions()[index] - self._start_positions[index]
+        """Displacement ``(3,)`` of a probe from the model's initial surface, at the current state."""
+        return self.probe_set.record()[name]["displacement"]
 
     def _functional(self, probe: Probe, component: int) -> PETSc.Vec:
         """Closed-DOF vector ``c`` with ``c . x`` = component of the probe's position."""
@@ -330,13 +254,13 @@ class PathFollower(PetscOwner):
         open_vector.destroy()
         return closed
 
-    def _record(self, iterations: int) -> PathPoint:
+    def _record(self, iterations: int, continuing: bool = False) -> PathPoint:
         """Record the current state as a path point: its tangent and inertia from one factorization
         of ``K`` there, the event if the inertia changed, the energies and the probes."""
         increment = self.x.copy()
         increment.axpy(-1.0, self._last)
-        step_length = increment.norm()
-        pivots, sign = self._tangent_at_current(increment if self.path else None)
+        step_length = increment.norm() if self.path else 0.0
+        pivots, sign = self._tangent_at_current(increment if self.path or continuing else None)
         increment.destroy()
         self.x.copy(self._last)
         self.problem.update_state(self.x)
@@ -344,24 +268,22 @@ class PathFollower(PetscOwner):
         if self.path and pivots >= 0 and self.path[-1].negative_pivots >= 0 and pivots != self.path[-1].negative_pivots:
             event = "limit" if sign != self._sign else "bifurcation"  # a limit point turns lambda back
         self._sign = sign
-        positions = self._probe_positions()
         point = PathPoint(
-            step=len(self.path),
+            step=self._first_step + len(self.path),
             load_factor=self.load_factor,
-            arc_length=(self.path[-1].arc_length if self.path else 0.0) + step_length,
+            arc_length=(self.path[-1].arc_length if self.path else self._start_arc_length) + step_length,
             newton_iterations=iterations,
             negative_pivots=pivots,
             event=event,
             energies=self.model.energies(),
-            probes={
-                p.name: {"position": positions[k], "displacement": positions[k] - self._start_positions[k]}
-                for k, p in enumerate(self.probes)
-            },
+            probes=self.probe_set.record(),
         )
         if event:
             log.info("%s: %s point at load factor %.6g (negative pivots %d -> %d)", self.prefix, event,
                      self.load_factor, self.path[-1].negative_pivots, pivots)  # fmt: skip
         self.path.append(point)
+        if self.on_point is not None and len(self.path) > 1:
+            self.on_point(point)
         return point
 
     def _tangent_at_current(self, increment: PETSc.Vec | None) -> tuple[int, float]:
@@ -391,7 +313,7 @@ class PathFollower(PetscOwner):
         Raises:
             PathError: a level was not reached; the path so far is kept.
         """
-        targets = _check_levels("load levels", levels)
+        targets = check_levels("load levels", levels)
         for level in targets:
             start = self.load_factor
             accepted = self.x.copy()
@@ -430,10 +352,11 @@ class PathFollower(PetscOwner):
             raise PathSettingError(f"displacement control names probe {probe!r}; the probes are {names}")
         if component not in (0, 1, 2):
             raise PathSettingError(f"displacement control component = {component!r}; expected 0, 1 or 2")
-        targets = _check_levels("displacement values", values)
+        targets = check_levels("displacement values", values)
+        self._check_fixed_supports()
         index = names.index(probe)
         c = self._functional(self.probes[index], component)
-        offset = self._start_positions[index][component]
+        offset = self.probe_set.start[index][component]
         try:
             for value in targets:
                 self._advance_displacement(c, offset, value, max_cuts)
@@ -474,6 +397,14 @@ class PathFollower(PetscOwner):
         base.destroy()
         self._record(iterations)
 
+    def _check_fixed_supports(self) -> None:
+        model = self.model
+        if np.any(model.constrained_target != model.constrained_initial):
+            raise PathSettingError(
+                "displacement control and arc length keep prescribed values fixed: the model prescribes "
+                "values that move with the load factor (make them the initial state, or use load control)"
+            )
+
     def _constrained_solve(self, base: PETSc.Vec, constraint) -> bool:
         """One SNES solve of the bordered system from ``self.x`` (``base``: the step's start)."""
         context = _BorderedStep(self, base, constraint)
@@ -499,8 +430,9 @@ class PathFollower(PetscOwner):
 
     def _fail(self, what: str, snes: PETSc.SNES) -> None:
         reason = snes.getConvergedReason()
+        step = self._first_step + len(self.path)
         raise PathError(
-            f"path step {len(self.path)} at load factor {self.load_factor:.6g} failed: {what} after its "
+            f"path step {step} at load factor {self.load_factor:.6g} failed: {what} after its "
             f"cut-backs; SNES '{snes.getOptionsPrefix()}': {SNES_REASONS.get(reason, reason)}, "
             f"|F| = {snes.getFunctionNorm():.3e}",
             self.path,
@@ -516,20 +448,17 @@ class PathFollower(PetscOwner):
                 is kept.
         """
         settings.validate()
+        self._check_fixed_supports()
         low, high = settings.load_factor_range
         if len(self.path) == 1 and self._sign != settings.direction:  # from the start: the given direction
             self.tangent.scale(-1.0)
             self._sign = float(settings.direction)
-        step_length = settings.initial_step
+        self.arc_step = settings.initial_step
         base = self.x.copy()
         predictor = self.x.duplicate()
         try:
             for _ in range(settings.max_steps):
-                iterations = self._arc_length_step(base, predictor, step_length, settings)
-                step_length = float(np.clip(
-                    step_length * np.clip(np.sqrt(settings.target_iterations / max(iterations, 1)), 0.5, 2.0),
-                    settings.min_step, settings.max_step,
-                ))  # fmt: skip
+                self._arc_length_step(base, predictor, settings)
                 if not low < self.load_factor < high:
                     break
         finally:
@@ -537,10 +466,12 @@ class PathFollower(PetscOwner):
             predictor.destroy()
         return self.path
 
-    def _arc_length_step(self, base: PETSc.Vec, predictor: PETSc.Vec, step_length: float, settings: ArcLength) -> int:
-        """One arc-length step from ``base`` (the last point) along :attr:`tangent`, halving ``ds``
-        on failure; records the point and returns its Newton iterations."""
+    def _arc_length_step(self, base: PETSc.Vec, predictor: PETSc.Vec, settings: ArcLength) -> None:
+        """One arc-length step of :attr:`arc_step` from ``base`` (the last point) along
+        :attr:`tangent`, halving it on failure; adapts :attr:`arc_step` to the Newton iterations
+        taken and records the point."""
         start_factor = self.load_factor
+        step_length = self.arc_step
         for cuts in range(settings.max_cuts + 1):
             scale = step_length / max(self.tangent.norm(), 1e-300)  # |du| = ds; dlambda = sign * scale
             self.tangent.copy(predictor)
@@ -551,15 +482,16 @@ class PathFollower(PetscOwner):
             if self._constrained_solve(base, self._arc_constraint(step_length, predictor)):
                 iterations = self._snes.getIterationNumber()
                 self.x.copy(base)
+                growth = np.clip(np.sqrt(settings.target_iterations / max(iterations, 1)), 0.5, 2.0)
+                self.arc_step = float(np.clip(step_length * growth, settings.min_step, settings.max_step))
                 self._record(iterations)
-                return iterations
+                return
             base.copy(self.x)
             self.set_load_factor(start_factor)
             if cuts == settings.max_cuts or step_length / 2 < settings.min_step:
                 break
             step_length /= 2
         self._fail(f"arc-length step of {step_length:.3g} not converged", self._snes)
-        return -1  # unreachable: _fail raises
 
     def _arc_constraint(self, step_length: float, predictor: PETSc.Vec):
         """``dlambda`` with ``|a + dlambda b| = ds``: of the two roots, the one whose increment is

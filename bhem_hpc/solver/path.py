@@ -379,6 +379,7 @@ class PathFollower(PetscOwner):
                     return None
                 return (trial + offset - base_value - c.dot(a)) / slope
 
+            self._predict_displacement(c, base, trial + offset - base_value)
             if self._constrained_solve(base, constraint):
                 iterations = self._snes.getIterationNumber()
                 reached = trial
@@ -404,6 +405,17 @@ class PathFollower(PetscOwner):
                 "displacement control and arc length keep prescribed values fixed: the model prescribes "
                 "values that move with the load factor (make them the initial state, or use load control)"
             )
+
+    def _predict_displacement(self, c: PETSc.Vec, base: PETSc.Vec, change: float) -> None:
+        """Start from ``base`` moved along the last point's tangent by the load-factor increment that
+        changes ``c . x`` by ``change`` (the solve then starts off equilibrium, as SNES needs to
+        iterate; a tangent that does not move ``c . x`` leaves the start at ``base``)."""
+        base.copy(self.x)
+        slope = self._sign * c.dot(self.tangent)  # c . K^-1 q
+        if slope != 0.0:
+            increment = change / slope
+            self.x.axpy(self._sign * increment, self.tangent)
+            self.set_load_factor(self.load_factor + increment)
 
     def _constrained_solve(self, base: PETSc.Vec, constraint) -> bool:
         """One SNES solve of the bordered system from ``self.x`` (``base``: the step's start)."""

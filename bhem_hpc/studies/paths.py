@@ -3,6 +3,8 @@
 * The shallow arch: a strip pinned at both ends with the rest shape ``e sin(pi x / L)``, under a
   dead load ``p sin(pi x / L)``; with ``nu = 0`` it is a beam, whose symmetric snap-through path
   :func:`~bhem_hpc.studies.references.shallow_arch_load` gives in closed form.
+* The compressed strip: pinned at both ends, one sliding, under an end load: Euler's bifurcation
+  and the post-buckled elastica (:func:`~bhem_hpc.studies.references.pinned_elastica`).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from mpi4py import MPI
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.shell import AreaLoad, Loads, ShellModel
+from bhem_hpc.model.shell import AreaLoad, LineLoad, Loads, ShellModel
 
 
 @dataclass(frozen=True)
@@ -69,3 +71,42 @@ class ShallowArch:
     def midspan(self) -> tuple[float, float]:
         """Parameters of the midspan probe."""
         return (self.length / 2, self.width / 2)
+
+
+@dataclass(frozen=True)
+class CompressedStrip:
+    """A strip (``nu = 0``: a beam) pinned at both ends, one end sliding along the strip, compressed
+    by an end load of ``load factor x P_cr`` (``P_cr = pi^2 EI / L^2``, Euler's first load), so its
+    path is the pinned elastica (:func:`~bhem_hpc.studies.references.pinned_elastica`).
+
+    Attributes:
+        imperfection: rest midspan bow ``w0 / L`` of the shape ``sin(pi x / L)`` (0: straight, a
+            bifurcation at load factor 1; small: a smooth path onto the buckled branch).
+    """
+
+    length: float = 1.0
+    width: float = 0.05
+    thickness: float = 0.01
+    young: float = 1.0e7
+    imperfection: float = 0.0
+
+    @property
+    def critical_load(self) -> float:
+        """Euler's load [N] of the strip, ``pi^2 E w h^3 / (12 L^2)``."""
+        return np.pi**2 * self.young * self.width * self.thickness**3 / (12 * self.length**2)
+
+    def model(self, patches: int = 16, comm: MPI.Comm = MPI.COMM_WORLD) -> ShellModel:
+        """The strip on ``patches`` x 1 Hermite patches; pinned at ``xi1 = 0`` (position and the edge
+        direction held), at ``xi1 = L`` the same but free to slide along x; loaded at ``xi1 = L``."""
+        length, bow = self.length, self.imperfection * self.length
+        grid = S.ParameterGrid(patches, 1, (0.0, length), (0.0, self.width))
+        rest = S.from_callable(lambda a, b: np.stack([a, b, bow * np.sin(np.pi * a / length)], -1), grid)
+        end = bcs.edge_nodes(grid, "xi1_max")
+        supports = [
+            bcs.simply_supported(grid, "xi1_min"),
+            bcs.NodalConstraint(end, (0,), (1, 2)),  # the loaded end slides along x
+            bcs.NodalConstraint(end, (2,), (0, 1, 2)),  # and keeps its direction: a hinge
+        ]
+        traction = (-self.critical_load / self.width, 0.0, 0.0)
+        loads = Loads(line_loads=(LineLoad("xi1_max", traction),))
+        return ShellModel(rest, Material(self.young, 0.0, self.thickness, 1.0), loads, supports, comm=comm)

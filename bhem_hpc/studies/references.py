@@ -183,3 +183,36 @@ def shallow_arch_load(rise: np.ndarray | float, initial_rise: float) -> np.ndarr
     """
     xi = np.asarray(rise, dtype=float)
     return (initial_rise - xi) + xi * (initial_rise**2 - xi**2) / 4
+
+
+def complete_elliptic_integrals(k: float) -> tuple[float, float]:
+    """``K(k)`` and ``E(k)`` (modulus ``k``, ``0 <= k < 1``) by the arithmetic-geometric mean, to
+    round-off (Abramowitz & Stegun 17.6)."""
+    a, b, c2_sum, power = 1.0, math.sqrt(1.0 - k * k), k * k / 2, 0.5
+    for _ in range(60):
+        if abs(a - b) <= 1e-16 * a:
+            break
+        c = (a - b) / 2
+        a, b = (a + b) / 2, math.sqrt(a * b)
+        power *= 2
+        c2_sum += power * c * c
+    elliptic_k = math.pi / (2 * a)
+    return elliptic_k, elliptic_k * (1 - c2_sum)
+
+
+def pinned_elastica(deflection: float) -> tuple[float, float]:
+    """The Euler elastica of a strut pinned at both ends: at midspan deflection ``w / L`` its load
+    ``P / P_cr`` and end shortening ``Delta / L``.
+
+    With ``k = sin(alpha / 2)`` (``alpha`` the end rotation): ``P / P_cr = (2 K(k) / pi)^2``,
+    ``w / L = k / K(k)``, ``Delta / L = 2 (1 - E(k) / K(k))``; ``k`` by bisection (``w / L`` up to 0.39).
+    """
+    if not 0 <= deflection <= 0.39:
+        raise ValueError(f"midspan deflection w / L = {deflection!r} outside [0, 0.39]")
+    low, high = 0.0, 0.95
+    for _ in range(200):
+        k = (low + high) / 2
+        low, high = (k, high) if k / complete_elliptic_integrals(k)[0] < deflection else (low, k)
+    k = (low + high) / 2
+    elliptic_k, elliptic_e = complete_elliptic_integrals(k)
+    return (2 * elliptic_k / math.pi) ** 2, 2 * (1 - elliptic_e / elliptic_k)

@@ -9,8 +9,8 @@ from mpi4py import MPI
 
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.path import ArcLength, PathFollower, PathSettingError, Probe
-from bhem_hpc.studies.paths import ShallowArch
-from bhem_hpc.studies.references import shallow_arch_load
+from bhem_hpc.studies.paths import CompressedStrip, ShallowArch
+from bhem_hpc.studies.references import pinned_elastica, shallow_arch_load
 
 ARCH = ShallowArch()
 #: Marguerre's shallow-arch theory against the exact shell: errors of order (pi e / L)^2 ~ 1e-3 of P_max.
@@ -66,6 +66,42 @@ def test_load_control_stops_at_exactly_the_requested_levels(comm):
     assert factors.tolist() == [0.0, *np.linspace(0.5, 5.5, 11).tolist()]
     assert np.abs(factors - shallow_arch_load(rises, ARCH.initial_rise)).max() < TOLERANCE
     assert all(p.negative_pivots == 0 and p.newton_iterations > 0 for p in points[1:])
+
+
+def strip_path(comm, imperfection: float, method: str, step: float = 0.01) -> list:
+    strip = CompressedStrip(imperfection=imperfection)
+    probes = [Probe("mid", 0.5, 0.025), Probe("end", 1.0, 0.025)]
+    with ShellSolver(strip.model(16, comm)) as solver, PathFollower(solver, probes) as follower:
+        if method == "displacement":
+            follower.displacement_control("mid", 2, np.linspace(0.02, 0.3, 8))
+        else:
+            follower.arc_length(ArcLength(step, max_step=max(step, 0.05), max_steps=80, load_factor_range=(-1, 1.16)))
+        return follower.path
+
+
+@pytest.mark.parametrize("method", ["displacement", "arc_length"])
+def test_a_compressed_strip_follows_the_elastica_past_buckling(comm, method):
+    """A bow of 1e-4 L carries the path onto the buckled branch; it lowers the load at deflection w
+    by about w0 / w (Southwell), which the tolerance allows for."""
+    imperfection = 1e-4
+    points = strip_path(comm, imperfection, method)[1:]
+    deflections = [p.probes["mid"]["displacement"][2] + imperfection for p in points]
+    assert max(deflections) > 0.29
+    for point, w in zip(points, deflections, strict=True):
+        load, shortening = pinned_elastica(w)
+        assert abs(point.load_factor / load - 1) < 1.5 * imperfection / w + 5e-4, (w, point.load_factor, load)
+        assert abs(-point.probes["end"]["displacement"][0] - shortening) < 2e-4, (w, shortening)
+        assert point.negative_pivots == 0 and not point.event
+
+
+def test_a_straight_strip_flags_the_bifurcation_at_eulers_load(comm):
+    points = strip_path(comm, 0.0, "arc_length", step=2e-5)
+    events = [k for k, p in enumerate(points) if p.event]
+    assert [points[k].event for k in events] == ["bifurcation"]
+    k = events[0]
+    assert points[k - 1].load_factor < 1.0 < points[k].load_factor
+    assert [p.negative_pivots for p in points[k:]] == [1] * (len(points) - k)
+    assert max(abs(p.probes["mid"]["displacement"][2]) for p in points) < 1e-12  # it stays straight
 
 
 @pytest.mark.parallel

@@ -25,7 +25,8 @@ from bhem_hpc.model.material import Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
 
 SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
-CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "fix")
+CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")
+EDGE_SUPPORTS = ("simply_supported", "hinged", "symmetry", "diaphragm")  # whole edges by name
 MOTION_TYPES = ("linear", "rotation", "keyframes")
 CORNERS = ("min_min", "min_max", "max_min", "max_max")
 # Effects a scene may list; contact effects import the collision code only when listed.
@@ -359,17 +360,31 @@ def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurfac
     if kind == "cylinder":
         closed = t.get("closed", "a boolean", True)
         angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
+        low, high = t.get("angles", "2 numbers", [0.0, angle], _angle_range, ANGLE_RANGE)
+        if closed and not math.isclose(high - low, 2 * math.pi):
+            t.fail("closed", "false for an open sector (angles less than 2 pi apart)", closed)
         radius, length = t.get("radius", "a number", **positive), t.get("length", "a number", **positive)
         return shapes.cylinder(radius, length, patches[0], patches[1], *spline, closed=closed,
-                               angle=angle if not closed else 2 * math.pi)  # fmt: skip
+                               angle=high - low if not closed else 2 * math.pi, seam_angle=low)  # fmt: skip
+    turn = {"closed": t.get("closed", "a boolean", None)}  # default: closed for a full turn
     if kind == "sphere_zone":
         polar = t.get("polar", "2 numbers")
-        return shapes.sphere_zone(t.get("radius", "a number", **positive), polar[0], polar[1], *patches, *spline)
+        azimuth = t.get("azimuth", "2 numbers", [0.0, 2 * math.pi], _angle_range, ANGLE_RANGE)
+        return shapes.sphere_zone(t.get("radius", "a number", **positive), polar[0], polar[1], *patches, *spline,
+                                  azimuth=tuple(azimuth), **turn)  # fmt: skip
     if kind == "annulus_sector":
-        radii, angles = t.get("radii", "2 numbers"), t.get("angles", "2 numbers")
-        return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline)
+        radii = t.get("radii", "2 numbers")
+        angles = t.get("angles", "2 numbers", check=_angle_range, expected=ANGLE_RANGE)
+        return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline, **turn)
     radii = t.get("radii", "2 numbers")
     return shapes.torus(radii[0], radii[1], *patches, *spline)
+
+
+ANGLE_RANGE = "2 numbers (min, max), at most 2 pi apart [rad]"
+
+
+def _angle_range(angles: list[float]) -> bool:
+    return 0 < angles[1] - angles[0] <= 2 * math.pi + 1e-12
 
 
 def _rectangle(t: _Table, patches: list[int], spline: tuple[int, ...]) -> S.HermiteSurface | B.BSplineSurface:
@@ -578,7 +593,13 @@ def _constraints(top: _Table, surface: S.HermiteSurface | B.BSplineSurface, path
     out = []
     for i, item in enumerate(top.get("constraints", "a list", [])):
         t = _Table(path, f"constraints[{i}]", item)
-        constraint = _constraint(t, surface, path)
+        kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
+        if kind == "symmetry":  # two sets of kinds and components: no motion
+            symmetry = _edge_support(t, kind, surface, path)
+            t.done()
+            out += [SceneConstraint(c, None, t.name) for c in symmetry]
+            continue
+        constraint = _constraint(t, kind, surface, path)
         try:
             constraint.validate(surface.grid, surface.node_shape, surface.kind_count)
         except bcs.BoundaryConditionError as exc:
@@ -591,17 +612,13 @@ def _constraints(top: _Table, surface: S.HermiteSurface | B.BSplineSurface, path
     return tuple(out)
 
 
-def _constraint(t: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> bcs.NodalConstraint:
-    """One ``[[constraints]]`` table. On B-splines the nodes are control points: ``clamp`` holds the
-    two outer rows (position and slope), ``simply_supported`` the boundary row (the edge curve)."""
-    kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
+def _constraint(t: _Table, kind: str, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> bcs.NodalConstraint:
+    """One ``[[constraints]]`` table of ``type`` ``kind``. On B-splines the nodes are control points:
+    ``clamp`` holds the two outer rows (position and slope), ``simply_supported`` the boundary row
+    (the edge curve)."""
     spline = surface.kind_count == 1
-    if kind == "simply_supported":
-        edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
-        try:
-            return bcs.support_edge(surface, edge)
-        except bcs.BoundaryConditionError as exc:
-            raise SceneError(f"{path}: key '{t.key('edge')}': {exc}") from exc
+    if kind in EDGE_SUPPORTS:
+        return _edge_support(t, kind, surface, path)
     nodes = _nodes(t, surface)
     if kind == "clamp":
         kinds: tuple[int, ...] = (0,) if spline else (0, 1, 2, 3)
@@ -628,6 +645,24 @@ def _constraint(t: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: P
         "a non-empty subset of [0, 1, 2]",
     )
     return bcs.NodalConstraint(nodes, kinds, tuple(components))
+
+
+def _edge_support(t: _Table, kind: str, surface, path: Path) -> bcs.NodalConstraint | list[bcs.NodalConstraint]:
+    """``simply_supported`` / ``hinged`` / ``symmetry`` / ``diaphragm`` on a named ``edge`` (the last
+    two in the plane normal to the axis ``normal``)."""
+    edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
+    normal = None
+    if kind in ("symmetry", "diaphragm"):
+        normal = t.get("normal", "a string", check=lambda v: v in bcs.AXES, expected=f"one of {bcs.AXES} (the plane's "
+                       "normal)")  # fmt: skip
+    try:
+        if normal is None:
+            return bcs.hinged_edge(surface, edge)
+        if kind == "diaphragm":
+            return bcs.diaphragm_edge(surface, edge, normal)
+        return bcs.symmetry_edge(surface, edge, normal)
+    except bcs.BoundaryConditionError as exc:
+        raise SceneError(f"{path}: key '{t.key('edge')}' = {edge!r}: {exc}") from exc
 
 
 def _point_constraints(top: _Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:

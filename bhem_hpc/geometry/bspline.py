@@ -394,25 +394,29 @@ def cylinder(
     degree: int,
     closed: bool = True,
     angle: float = 2 * math.pi,
+    seam_angle: float = 0.0,
 ) -> BSplineSurface:
     """A cylinder about the z axis (:func:`~bhem_hpc.geometry.surface.cylinder_shape`), periodic when ``closed``."""
-    grid, position = cylinder_shape(radius, length, n_along, n_around, closed, angle)
+    grid, position = cylinder_shape(radius, length, n_along, n_around, closed, angle, seam_angle)
     return from_callable(position, grid, degree)
 
 
 def sphere_zone(
-    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, degree: int
-) -> BSplineSurface:
-    """Zone of a sphere (:func:`~bhem_hpc.geometry.surface.sphere_zone_shape`), closed in the azimuth."""
-    grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth)
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, degree: int,
+    azimuth: tuple[float, float] = (0.0, 2 * math.pi), closed: bool | None = None,
+) -> BSplineSurface:  # fmt: skip
+    """Zone or sector of a sphere (:func:`~bhem_hpc.geometry.surface.sphere_zone_shape`)."""
+    grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth, azimuth, closed)
     return from_callable(position, grid, degree)
 
 
 def annulus_sector(
-    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, degree: int
-) -> BSplineSurface:
-    """Flat annulus sector (:func:`~bhem_hpc.geometry.surface.annulus_sector_shape`)."""
-    grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular)
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, degree: int,
+    closed: bool | None = None,
+) -> BSplineSurface:  # fmt: skip
+    """Flat annulus sector (:func:`~bhem_hpc.geometry.surface.annulus_sector_shape`); a full turn is
+    closed unless ``closed=False`` (a slit annulus)."""
+    grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular, closed)
     return from_callable(position, grid, degree)
 
 

@@ -576,27 +576,47 @@ def cylinder_shape(
     return grid, lambda z, p: _stack(r * np.cos(p), r * np.sin(p), z)
 
 
-def sphere_zone_shape(radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int) -> Shape:
-    """Zone of a sphere between two polar angles (radians from +z), closed in the azimuth.
+def _turn(name: str, low: float, high: float, closed: bool | None) -> bool:
+    """Whether an angle range ``[low, high]`` is closed (periodic): by default when it is a full turn;
+    ``closed=False`` on a full turn cuts it along one line (a slit with two separate edges)."""
+    full = math.isclose(high - low, 2 * math.pi)
+    if not 0 < high - low <= 2 * math.pi + 1e-12:
+        raise SurfaceError(f"{name} needs an angle range of (0, 2*pi], got [{low!r}, {high!r}]")
+    if closed and not full:
+        raise SurfaceError(f"a closed {name} needs a full turn (angle range 2*pi), got [{low!r}, {high!r}]")
+    return full if closed is None else bool(closed)
 
-    xi1 = polar angle, xi2 = azimuth in [0, 2*pi). A zone touching a pole is degenerate
-    (a1 x a2 = 0 there) and is rejected; use e.g. ``polar_min = 0.1`` for a hemisphere with a hole.
+
+def sphere_zone_shape(
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int,
+    azimuth: tuple[float, float] = (0.0, 2 * math.pi), closed: bool | None = None,
+) -> Shape:  # fmt: skip
+    """Zone of a sphere between two polar angles (radians from +z) and two azimuths.
+
+    xi1 = polar angle, xi2 = azimuth in ``azimuth`` (default a full turn, closed; an open sector
+    otherwise, or with ``closed=False`` a full turn cut along one meridian). A zone touching a pole
+    is degenerate (a1 x a2 = 0 there) and is rejected; use e.g. ``polar_min = 0.1`` for a hemisphere
+    with a hole.
     """
     if not 0.0 < polar_min < polar_max < math.pi:
         raise SurfaceError(
             f"sphere zone needs 0 < polar_min < polar_max < pi (a pole is a degenerate parameter point), "
             f"got polar_min={polar_min!r}, polar_max={polar_max!r}"
         )
-    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (0.0, 2 * math.pi), False, True)
+    low, high = (float(a) for a in azimuth)
+    periodic = _turn("sphere zone", low, high, closed)
+    grid = ParameterGrid(n_polar, n_azimuth, (float(polar_min), float(polar_max)), (low, high), False, periodic)
     r = float(radius)
     return grid, lambda t, p: _stack(r * np.sin(t) * np.cos(p), r * np.sin(t) * np.sin(p), r * np.cos(t))
 
 
 def annulus_sector_shape(
-    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int
-) -> Shape:
-    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle (periodic for a full turn)."""
-    closed = math.isclose(angle_max - angle_min, 2 * math.pi)
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int,
+    closed: bool | None = None,
+) -> Shape:  # fmt: skip
+    """Flat annulus sector in the z = 0 plane; xi1 = radius, xi2 = angle (periodic for a full turn
+    unless ``closed=False``, which leaves a slit: two separate edges along the ray at ``angle_min``)."""
+    closed = _turn("annulus sector", float(angle_min), float(angle_max), closed)
     if not (0 < r_inner < r_outer):
         raise SurfaceError(f"annulus sector needs 0 < r_inner < r_outer, got {r_inner!r}, {r_outer!r}")
     grid = ParameterGrid(n_radial, n_angular, (float(r_inner), float(r_outer)), (angle_min, angle_max), False, closed)
@@ -659,9 +679,12 @@ def cylinder(
     )
 
 
-def sphere_zone(radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int) -> HermiteSurface:
-    """Zone of a sphere (:func:`sphere_zone_shape`), checked to be regular."""
-    grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth)
+def sphere_zone(
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int,
+    azimuth: tuple[float, float] = (0.0, 2 * math.pi), closed: bool | None = None,
+) -> HermiteSurface:  # fmt: skip
+    """Zone or sector of a sphere (:func:`sphere_zone_shape`), checked to be regular."""
+    grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth, azimuth, closed)
     r = float(radius)
     surface = from_callable(
         position,
@@ -677,10 +700,12 @@ def sphere_zone(radius: float, polar_min: float, polar_max: float, n_polar: int,
 
 
 def annulus_sector(
-    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int
-) -> HermiteSurface:
-    """Flat annulus sector (:func:`annulus_sector_shape`); a full turn is closed (periodic in xi2)."""
-    grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular)
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int,
+    closed: bool | None = None,
+) -> HermiteSurface:  # fmt: skip
+    """Flat annulus sector (:func:`annulus_sector_shape`); a full turn is closed (periodic in xi2)
+    unless ``closed=False`` (a slit annulus)."""
+    grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular, closed)
     return from_callable(
         position,
         grid,

@@ -166,3 +166,100 @@ def support_edge(surface, edge: str) -> NodalConstraint:
     if surface.kind_count == 1:
         return NodalConstraint(edge_nodes(surface.grid, edge, surface.node_shape), (0,))
     return simply_supported(surface.grid, edge)
+
+
+AXES = ("x", "y", "z")
+
+
+def _axis(normal: str | int) -> int:
+    if normal in AXES:
+        return AXES.index(normal)
+    if normal in (0, 1, 2) and not isinstance(normal, bool):
+        return int(normal)
+    raise BoundaryConditionError(f"plane normal {normal!r} must be one of {AXES} (or 0, 1, 2)")
+
+
+def _edge_in_plane(surface, edge: str, axis: int, what: str) -> None:
+    """Raise unless ``edge`` exists and the rest edge lies in a plane normal to coordinate ``axis``."""
+    edge_nodes(surface.grid, edge, surface.node_shape)  # raises for an edge that does not exist
+    grid = surface.grid
+    t = np.linspace(0.0, 1.0, 8 * max(grid.n1, grid.n2) + 1)
+    (lo1, hi1), (lo2, hi2) = grid.xi1_range, grid.xi2_range
+    xi1 = {"xi1_min": np.full_like(t, lo1), "xi1_max": np.full_like(t, hi1)}.get(edge, lo1 + t * (hi1 - lo1))
+    xi2 = {"xi2_min": np.full_like(t, lo2), "xi2_max": np.full_like(t, hi2)}.get(edge, lo2 + t * (hi2 - lo2))
+    points = surface.evaluate(xi1, xi2).x
+    size = float(np.ptp(surface.evaluate(*grid.node_parameters()).x.reshape(-1, 3), axis=0).max())
+    spread = float(np.ptp(points[:, axis]))
+    if spread > 1e-9 * size:
+        raise BoundaryConditionError(
+            f"{what} on edge {edge!r}: the edge does not lie in a plane normal to {AXES[axis]} "
+            f"(its {AXES[axis]} coordinates spread over {spread:.3g})"
+        )
+
+
+def _edge_rows(surface, edge: str, rows: int) -> np.ndarray:
+    """The boundary row of nodes (control points) of ``edge`` and the ``rows - 1`` rows inside it."""
+    nodes = edge_nodes(surface.grid, edge, surface.node_shape)
+    c1, c2 = surface.node_shape
+    step = {"xi1_min": (1, 0), "xi1_max": (-1, 0), "xi2_min": (0, 1), "xi2_max": (0, -1)}[edge]
+    layers = [nodes + k * np.asarray(step) for k in range(rows)]
+    out = np.concatenate(layers)
+    if np.any(out < 0) or np.any(out[:, 0] >= c1) or np.any(out[:, 1] >= c2):
+        raise BoundaryConditionError(f"edge {edge!r}: the surface has fewer than {rows} rows of nodes across it")
+    return out
+
+
+def hinged_edge(surface, edge: str) -> NodalConstraint:
+    """A hinge along a boundary edge: the edge's positions held, its rotation about the edge free
+    (the same as :func:`support_edge`, the scene's ``simply_supported``)."""
+    return support_edge(surface, edge)
+
+
+def symmetry_edge(surface, edge: str, normal: str | int) -> list[NodalConstraint]:
+    """A boundary edge on a plane of symmetry normal to a coordinate axis ``n``: the edge stays in the
+    plane and the surface keeps crossing it at right angles (its tangent across the edge along ``n``),
+    so the displacement is even across the plane.
+
+    Hermite nodal vectors of the edge: the ``n`` component of the position and of the derivative
+    along the edge; the in-plane components of the derivative across the edge and of its change
+    along the edge (zero at rest).
+
+    Raises:
+        BoundaryConditionError: the edge is not in such a plane, the rest surface does not cross it at
+            right angles, or the surface is a B-spline (whose slope across an edge is the difference of
+            two rows of control points: it would need the rows tied, not held).
+    """
+    axis = _axis(normal)
+    _edge_in_plane(surface, edge, axis, "symmetry plane")
+    if surface.kind_count == 1:
+        raise BoundaryConditionError(
+            f"symmetry plane on edge {edge!r}: B-spline surfaces take no symmetry supports (their slope across "
+            "an edge ties two rows of control points); model the whole surface or use Hermite patches"
+        )
+    nodes = edge_nodes(surface.grid, edge)
+    along, across = (2, 1) if edge.startswith("xi1") else (1, 2)
+    in_plane = tuple(c for c in range(3) if c != axis)
+    slope = surface.nodal[nodes[:, 0], nodes[:, 1], across]
+    if np.abs(slope[:, in_plane]).max() > 1e-9 * float(np.abs(slope).max()):
+        raise BoundaryConditionError(
+            f"symmetry plane on edge {edge!r}: the rest surface does not cross the plane normal to "
+            f"{AXES[axis]} at right angles there (a symmetric structure does)"
+        )
+    return [NodalConstraint(nodes, (0, along), (axis,)), NodalConstraint(nodes, (across, 3), in_plane)]
+
+
+def diaphragm_edge(surface, edge: str, normal: str | int) -> NodalConstraint:
+    """A boundary edge fixed to a rigid diaphragm in the plane normal to a coordinate axis: rigid in
+    its plane (the edge's in-plane displacements held), flexible out of it (the displacement along
+    the normal and every rotation free), as the end diaphragms of a barrel vault.
+
+    Hermite: the in-plane components of the edge's positions and derivatives along it. B-splines:
+    the in-plane components of the boundary row of control points."""
+    axis = _axis(normal)
+    _edge_in_plane(surface, edge, axis, "rigid diaphragm")
+    in_plane = tuple(c for c in range(3) if c != axis)
+    nodes = edge_nodes(surface.grid, edge, surface.node_shape)
+    if surface.kind_count == 1:
+        return NodalConstraint(nodes, (0,), in_plane)
+    along = 2 if edge.startswith("xi1") else 1
+    return NodalConstraint(nodes, (0, along), in_plane)

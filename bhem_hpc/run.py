@@ -175,7 +175,8 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
             final = _run_static(scene, options, model, solver, series, summary, (checkpoint, continuing), comm)
         else:
             final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm)
-        title = f"{options.scene.name}, t = {summary.get('time', 0):.4g} s"
+        where = f"load factor {summary['load_factor']:.4g}" if scene.static else f"t = {summary.get('time', 0):.4g} s"
+        title = f"{options.scene.name}, {where}"
         _on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
     except Exception as exc:
         summary.update(status="failed", error=str(exc))
@@ -363,6 +364,9 @@ def _run_static(scene, options, model, solver, series, summary, restart, comm) -
         previous = disc.open_to_closed(disc.scatter_raw_dofs(arrays["previous_position_dofs"]))
         start, first_step = (float(attrs["load_factor"]), float(attrs.get("arc_length", 0.0))), int(attrs["step"])
         arc_step = float(attrs.get("arc_step", np.nan))
+    motions = prescribed_motions(scene)
+    if motions:  # a motion's time is the load factor: rotations turn the nodal vectors along the path
+        solver.prescribed = lambda factor: model.prescribed_values([m.at(factor) for m in motions])
     output = _PathOutput(options.out, model, scene, series, summary, comm, first_step if continuing else None)
     follower = PathFollower(solver, scene.probes, SOLVER_PREFIX + "path_", plan.options, *start, previous,
                             first_step, on_point=output.write)  # fmt: skip

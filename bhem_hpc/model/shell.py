@@ -452,6 +452,13 @@ class ShellModel:
             raise ModelError(f"load {name!r} must be {shape} (finite), got {value!r}")
         constant.value = array
 
+    def prescribed_values(self, moved: Sequence[NodalConstraint]) -> np.ndarray:
+        """Reference-DOF values of the constrained DOFs (``self.constrained``) with the values of the
+        ``moved`` constraints (same nodes, kinds and components as some of the model's) written over
+        the model's targets: prescribed motions at a time or load factor."""
+        target = target_surface(self.initial_surface, [*self.constraints, *moved])
+        return self.discretization.dof_values(target, self.constrained)
+
     # -- state access --------------------------------------------------------------------------
     def set_state(self, surface: HermiteSurface) -> None:
         """Set the position field from a surface."""

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bhem_hpc.model.bcs import NodalConstraint, target_surface
+from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.newton import ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
@@ -115,9 +115,7 @@ class TimeStepper:
         model = self.model
         if not self.motions:
             return model.constrained_target
-        moved = [m.at(t) for m in self.motions]
-        target = target_surface(model.initial_surface, [*model.constraints, *moved])
-        return model.discretization.dof_values(target, model.constrained)
+        return model.prescribed_values([m.at(t) for m in self.motions])
 
     def advance(self) -> StepRecord:
         """One time step of the model's dt (possibly as recovered substeps)."""

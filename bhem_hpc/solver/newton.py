@@ -102,6 +102,10 @@ class ShellSolver(PetscOwner):
         self.model = model
         self.prefix = prefix
         self._closed = False
+        #: ``load factor -> values of the constrained DOFs`` (``model.constrained``) for static load
+        #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
+        #: straight from the initial values to the targets.
+        self.prescribed = None
         disc = model.discretization
         comm = model.comm
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
@@ -297,12 +301,16 @@ class ShellSolver(PetscOwner):
         return self.report
 
     def solve_at(self, load_factor: float) -> bool:
-        """One Newton solve (SNES) at ``load_factor`` from the current iterate ``self.x``: loads and
-        prescribed values scaled to it. Returns whether it converged (``self.x`` holds the result)."""
+        """One Newton solve (SNES) at ``load_factor`` from the current iterate ``self.x``: loads scaled
+        to it, prescribed values from :attr:`prescribed` (or interpolated linearly from the initial
+        values to the targets). Returns whether it converged (``self.x`` holds the result)."""
         model = self.model
         model.load_factor.value = load_factor
-        initial, target = model.constrained_initial, model.constrained_target
-        self.problem.bc_values = initial + load_factor * (target - initial)
+        if self.prescribed is not None:
+            self.problem.bc_values = np.asarray(self.prescribed(load_factor), dtype=float)
+        else:
+            initial, target = model.constrained_initial, model.constrained_target
+            self.problem.bc_values = initial + load_factor * (target - initial)
         self.problem.set_point_targets(load_factor, ramp=True)
         if len(self.problem.bc_local):
             self.x.array[self.problem.bc_local] = self.problem.bc_values

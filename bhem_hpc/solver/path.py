@@ -314,26 +314,31 @@ class PathFollower(PetscOwner):
             PathError: a level was not reached; the path so far is kept.
         """
         targets = check_levels("load levels", levels)
-        for level in targets:
-            start = self.load_factor
-            accepted = self.x.copy()
-            reached, cuts, iterations = start, 0, 0
-            while reached != level:
-                trial = level if cuts == 0 else reached + (level - reached) / 2**cuts
-                if self.solver.solve_at(trial):
-                    reached, cuts = trial, max(cuts - 1, 0)
-                    iterations = self.solver.snes.getIterationNumber()
-                    self.x.copy(accepted)
-                    self.set_load_factor(trial)
-                    continue
-                accepted.copy(self.x)
-                cuts += 1
-                if cuts > max_cuts:
-                    accepted.destroy()
-                    self.set_load_factor(reached)
-                    self._fail(f"load factor {level:.6g} not reached (from {reached:.6g})", self.solver.snes)
+        accepted, before = self.x.copy(), self.x.copy()  # the last two equilibria, for the secant
+        factor_before = None
+        try:
+            for level in targets:
+                reached, cuts, iterations = self.load_factor, 0, 0
+                while reached != level:
+                    trial = level if cuts == 0 else reached + (level - reached) / 2**cuts
+                    if factor_before is not None and factor_before != reached:  # secant predictor
+                        self.x.axpy((trial - reached) / (reached - factor_before), accepted - before)
+                    if self.solver.solve_at(trial):
+                        accepted.copy(before)
+                        factor_before, reached, cuts = reached, trial, max(cuts - 1, 0)
+                        iterations = self.solver.snes.getIterationNumber()
+                        self.x.copy(accepted)
+                        self.set_load_factor(trial)
+                        continue
+                    accepted.copy(self.x)
+                    cuts += 1
+                    if cuts > max_cuts:
+                        self.set_load_factor(reached)
+                        self._fail(f"load factor {level:.6g} not reached (from {reached:.6g})", self.solver.snes)
+                self._record(iterations)
+        finally:
             accepted.destroy()
-            self._record(iterations)
+            before.destroy()
         return self.path
 
     # -- displacement control ---------------------------------------------------------------------
@@ -400,7 +405,7 @@ class PathFollower(PetscOwner):
 
     def _check_fixed_supports(self) -> None:
         model = self.model
-        if np.any(model.constrained_target != model.constrained_initial):
+        if self.solver.prescribed is not None or np.any(model.constrained_target != model.constrained_initial):
             raise PathSettingError(
                 "displacement control and arc length keep prescribed values fixed: the model prescribes "
                 "values that move with the load factor (make them the initial state, or use load control)"

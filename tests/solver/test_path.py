@@ -145,3 +145,39 @@ def test_bad_settings_are_refused_before_any_solve(comm, call, message):
 def test_a_probe_outside_the_parameter_domain_is_refused(comm):
     with ShellSolver(ARCH.model(4, comm)) as solver, pytest.raises(PathSettingError, match=r"probe 'far' .* outside"):
         PathFollower(solver, [Probe("far", 2.0, 0.0)])
+
+
+def test_a_prescribed_end_rotation_rolls_a_strip_into_the_exact_circle_at_every_level(comm):
+    """The free end's nodal vectors are turned about the y axis by 2 pi lambda (as a rotation, not
+    a straight-line interpolation): pure bending, so at every level the strip is an arc of radius
+    L / (2 pi lambda), at lambda = 1 a full circle whose end meets the clamp."""
+    from bhem_hpc.geometry import surface as S
+    from bhem_hpc.model import bcs
+    from bhem_hpc.model.material import Material
+    from bhem_hpc.model.shell import Loads, ShellModel
+
+    length, width = 1.0, 0.05
+    rest = S.flat_rectangle(length, width, 16, 1)
+    end = bcs.edge_nodes(rest.grid, "xi1_max")
+    model = ShellModel(rest, Material(1e7, 0.0, 0.01, 1.0), Loads(),
+                       [bcs.clamp_edge(rest, "xi1_min"), bcs.NodalConstraint(end, (1, 3))], comm=comm)  # fmt: skip
+    directors = rest.nodal[end[:, 0], end[:, 1]][:, [1, 3]]
+
+    def turned(factor: float) -> np.ndarray:
+        c, s = np.cos(2 * np.pi * factor), np.sin(2 * np.pi * factor)
+        rotation = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])
+        return model.prescribed_values([bcs.NodalConstraint(end, (1, 3), (0, 1, 2), directors @ rotation.T)])
+
+    stations = np.linspace(0.0, length, 9)
+    probes = [Probe(f"s{k}", s, width / 2) for k, s in enumerate(stations)]
+    with ShellSolver(model) as solver:
+        solver.prescribed = turned
+        with PathFollower(solver, probes) as follower:
+            follower.load_control(np.arange(1, 9) / 8)
+            points = follower.path[1:]
+    for point in points:
+        radius = length / (2 * np.pi * point.load_factor)
+        for probe, s in zip(probes, stations, strict=True):
+            exact = [radius * np.sin(s / radius), width / 2, radius * (1 - np.cos(s / radius))]
+            assert np.linalg.norm(point.probes[probe.name]["position"] - exact) < 1e-4 * length, (point.step, s)
+    assert np.linalg.norm(points[-1].probes["s8"]["position"] - [0.0, width / 2, 0.0]) < 1e-4  # closed

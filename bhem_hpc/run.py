@@ -28,7 +28,7 @@ from bhem_hpc.io.run_directory import (
 )
 from bhem_hpc.model.expression import ufl_expression
 from bhem_hpc.model.path import PathPlan, ProbeSet
-from bhem_hpc.model.shell import AreaLoad, Dynamics, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
+from bhem_hpc.model.shell import AreaLoad, Dynamics, EdgeMoment, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
@@ -89,6 +89,7 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
         line_loads=tuple(LineLoad(edge, traction) for edge, traction in e.line_loads),
         point_loads=tuple(PointLoad(a, b, force) for a, b, force in e.point_loads),
         area_loads=tuple(AreaLoad(force, profile and ufl_expression(profile)) for force, profile in e.area_loads),
+        edge_moments=tuple(EdgeMoment(edge, moment) for edge, moment in e.edge_moments),
     )
     dynamics = None if scene.static else Dynamics(scene.dt, e.mass_damping, e.stiffness_damping)
     return ShellModel(

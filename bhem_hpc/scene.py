@@ -31,8 +31,8 @@ MOTION_TYPES = ("linear", "rotation", "keyframes")
 CORNERS = ("min_min", "min_max", "max_min", "max_max")
 # Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = (
-    "gravity", "pressure", "damping", "point_loads", "line_loads", "area_loads", "contact", "self_collision",
-    "friction",
+    "gravity", "pressure", "damping", "point_loads", "line_loads", "area_loads", "edge_moments", "contact",
+    "self_collision", "friction",
 )  # fmt: skip
 CONTACT_EFFECTS = ("contact", "self_collision", "friction")
 #: Metrics of the contact impulses (:class:`bhem_hpc.contact.ContactSettings`).
@@ -100,6 +100,7 @@ class Effects:
     point_loads: tuple[tuple[float, float, tuple[float, float, float]], ...] = ()
     line_loads: tuple[tuple[str, tuple[float, float, float]], ...] = ()
     area_loads: tuple[tuple[tuple[float, float, float], str | None], ...] = ()  # (force, profile expression)
+    edge_moments: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -442,6 +443,12 @@ def _effects(t: _Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
         stiffness_damping = damping.get("stiffness", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [s]")
         damping.done()
     point_loads, line_loads, area_loads = _loads(t, path, grid)
+    edge_moments = []
+    for i, item in enumerate(t.get("edge_moments", "a list", [])):
+        load = _Table(path, f"effects.edge_moments[{i}]", item)
+        edge = load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
+        edge_moments.append((edge, float(load.get("moment", "a number", expected="a number (moment per length [N])"))))
+        load.done()
     t.done()
     return Effects(
         gravity=tuple(gravity) if gravity is not None else None,
@@ -451,6 +458,7 @@ def _effects(t: _Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
         point_loads=point_loads,
         line_loads=line_loads,
         area_loads=area_loads,
+        edge_moments=tuple(edge_moments),
     )
 
 

@@ -9,6 +9,7 @@ compiles, assembles or touches PETSc. Conventions: the mesh *is* the parameter d
 from bhem_hpc.forms.area_load import area_load_potential
 from bhem_hpc.forms.bending import bending_energy, bending_pseudo_hessian
 from bhem_hpc.forms.damping import mass_damping_potential, stiffness_damping_potential
+from bhem_hpc.forms.edge_moment import edge_moment_work
 from bhem_hpc.forms.gravity import gravity_potential
 from bhem_hpc.forms.inertia import impulse_metric, inertia_potential
 from bhem_hpc.forms.kinetic import kinetic_energy
@@ -20,6 +21,7 @@ __all__ = [
     "area_load_potential",
     "bending_energy",
     "bending_pseudo_hessian",
+    "edge_moment_work",
     "gravity_potential",
     "impulse_metric",
     "inertia_potential",

@@ -47,6 +47,15 @@ class LineLoad:
 
 
 @dataclass(frozen=True)
+class EdgeMoment:
+    """Distributed moment per unit rest length on a boundary edge (``EDGES``), about the edge's
+    current tangent; ``moment > 0`` curls the edge towards the surface normal ``a1 x a2``."""
+
+    edge: str
+    moment: float
+
+
+@dataclass(frozen=True)
 class AreaLoad:
     """Dead load per unit rest area, fixed in direction: ``force`` times ``profile(xi)``.
 
@@ -100,27 +109,38 @@ class Loads:
     line_loads: tuple[LineLoad, ...] = field(default_factory=tuple)
     point_loads: tuple[PointLoad, ...] = field(default_factory=tuple)
     area_loads: tuple[AreaLoad, ...] = field(default_factory=tuple)
+    edge_moments: tuple[EdgeMoment, ...] = field(default_factory=tuple)
 
     def validate(self) -> None:
-        def vector(name: str, v: Sequence[float]) -> None:
-            arr = np.asarray(v, dtype=float)
-            if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-                raise ModelError(f"loads.{name} must be 3 finite numbers, got {v!r}")
-
         if self.gravity is not None:
-            vector("gravity", self.gravity)
+            _check_vector("gravity", self.gravity)
         if self.pressure is not None and not np.isfinite(self.pressure):
             raise ModelError(f"loads.pressure must be finite, got {self.pressure!r}")
-        for i, load in enumerate(self.line_loads):
-            if load.edge not in EDGES:
-                raise ModelError(f"loads.line_loads[{i}].edge = {load.edge!r}; expected one of {EDGES}")
-            vector(f"line_loads[{i}].traction", load.traction)
         for i, load in enumerate(self.point_loads):
-            vector(f"point_loads[{i}].force", load.force)
+            _check_vector(f"point_loads[{i}].force", load.force)
         for i, load in enumerate(self.area_loads):
-            vector(f"area_loads[{i}].force", load.force)
+            _check_vector(f"area_loads[{i}].force", load.force)
             if load.profile is not None and not callable(load.profile):
                 raise ModelError(f"loads.area_loads[{i}].profile must be a function of xi, got {load.profile!r}")
+        self._validate_edge_loads()
+
+    def _validate_edge_loads(self) -> None:
+        for name, loads in (("line_loads", self.line_loads), ("edge_moments", self.edge_moments)):
+            for i, load in enumerate(loads):
+                if load.edge not in EDGES:
+                    raise ModelError(f"loads.{name}[{i}].edge = {load.edge!r}; expected one of {EDGES}")
+        for i, load in enumerate(self.line_loads):
+            _check_vector(f"line_loads[{i}].traction", load.traction)
+        for i, load in enumerate(self.edge_moments):
+            moment = load.moment
+            if isinstance(moment, bool) or not isinstance(moment, int | float) or not np.isfinite(moment):
+                raise ModelError(f"loads.edge_moments[{i}].moment must be a finite number, got {moment!r}")
+
+
+def _check_vector(name: str, v: Sequence[float]) -> None:
+    arr = np.asarray(v, dtype=float)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ModelError(f"loads.{name} must be 3 finite numbers, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -328,6 +348,15 @@ class ShellModel:
                 self.tractions.append(traction)
                 work = forms.line_load_work(self.x_rest, traction, test, ds(i + 1))
                 terms.append(Term(f"line_load_{i}", work, role="work", load_scaled=True))
+        if self.loads.edge_moments:
+            ds = self._edge_measure([load.edge for load in self.loads.edge_moments])
+            self.edge_moments = []
+            for i, load in enumerate(self.loads.edge_moments):
+                moment = self._constant(float(load.moment))
+                self.edge_moments.append(moment)
+                work = forms.edge_moment_work(self.x, self.x_rest, moment, test, ds(i + 1))
+                # the axis follows the edge: no potential in general, a non-symmetric tangent
+                terms.append(Term(f"edge_moment_{i}", work, role="work", load_scaled=True, conservative=False))
         return terms
 
     def _compose_forms(self) -> None:
@@ -430,6 +459,7 @@ class ShellModel:
         names = ["gravity"] if self.loads.gravity is not None else []
         names += ["pressure"] if self.loads.pressure is not None else []
         names += [f"line_load_{i}" for i in range(len(self.loads.line_loads))]
+        names += [f"edge_moment_{i}" for i in range(len(self.loads.edge_moments))]
         return names + [f"area_load_{i}" for i in range(len(self.loads.area_loads))]
 
     def set_load(self, name: str, value) -> None:
@@ -442,6 +472,7 @@ class ShellModel:
         """
         constants = {"gravity": getattr(self, "gravity", None), "pressure": getattr(self, "pressure", None)}
         constants |= {f"line_load_{i}": c for i, c in enumerate(getattr(self, "tractions", []))}
+        constants |= {f"edge_moment_{i}": c for i, c in enumerate(getattr(self, "edge_moments", []))}
         constants |= {f"area_load_{i}": c for i, c in enumerate(self.area_load_forces)}
         if name not in self.load_names():
             raise ModelError(f"load {name!r} does not exist; this model has {self.load_names()}")

@@ -181,3 +181,37 @@ def test_a_prescribed_end_rotation_rolls_a_strip_into_the_exact_circle_at_every_
             exact = [radius * np.sin(s / radius), width / 2, radius * (1 - np.cos(s / radius))]
             assert np.linalg.norm(point.probes[probe.name]["position"] - exact) < 1e-4 * length, (point.step, s)
     assert np.linalg.norm(points[-1].probes["s8"]["position"] - [0.0, width / 2, 0.0]) < 1e-4  # closed
+
+
+def test_an_edge_moment_rolls_a_strip_into_a_circle_at_every_level(comm):
+    """A moment per width ``m = 2 pi lambda D / L`` at the free end: a uniform state along the strip,
+    so a circular arc through the clamp, tangent to the strip there, at every level; its radius is
+    ``D / m`` to the order ``(h kappa)^2`` of the shell's membrane-bending coupling (the
+    bending measure ``b_11 = kappa a_11`` stretches the midsurface by about ``-(h kappa)^2 / 12``)."""
+    from bhem_hpc.geometry import surface as S
+    from bhem_hpc.model import bcs
+    from bhem_hpc.model.material import Material
+    from bhem_hpc.model.shell import EdgeMoment, Loads, ShellModel
+
+    length, width, thickness, young = 1.0, 0.05, 0.01, 1e7
+    bending = young * thickness**3 / 12
+    rest = S.flat_rectangle(length, width, 16, 1)
+    loads = Loads(edge_moments=(EdgeMoment("xi1_max", 2 * np.pi * bending / length),))
+    model = ShellModel(rest, Material(young, 0.0, thickness, 1.0), loads, [bcs.clamp_edge(rest, "xi1_min")], comm=comm)
+    stations = np.linspace(0.0, length, 9)[1:]
+    with ShellSolver(model) as solver:
+        probes = [Probe(f"s{k}", s, width / 2) for k, s in enumerate(stations)]
+        with PathFollower(solver, probes) as follower:
+            follower.load_control(np.arange(1, 9) / 8)
+            points = follower.path[1:]
+    for point in points:
+        positions = np.array([point.probes[p.name]["position"] for p in probes])
+        x, z = positions[:, 0], positions[:, 2]
+        radius = np.sum(z * (x**2 + z**2)) / (2 * np.sum(z**2))  # circle through 0, tangent to x there
+        exact = length / (2 * np.pi * point.load_factor)
+        deviation = np.abs(np.hypot(x, z - radius) - radius).max()
+        assert deviation < 1e-4 * radius, point.load_factor  # one circle, to the cubic patches' (h kappa)^4 / 384
+        assert abs(radius / exact - 1) < 1.5e-3, (point.load_factor, radius, exact)
+        np.testing.assert_allclose(positions[:, 1], width / 2, atol=1e-12)  # in its plane
+    assert np.hypot(*positions[-1][[0, 2]]) < 1e-3 * length  # at lambda = 1 the end meets the clamp
+    assert not model.symmetric and points[-1].negative_pivots == -1  # a follower axis: LU, inertia unknown

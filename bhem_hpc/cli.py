@@ -43,6 +43,9 @@ def _parser() -> argparse.ArgumentParser:
     study.add_argument("name", nargs="?", help="study name (plate, cantilever)")
     study.add_argument("--out", type=Path, help="output directory (must not exist or be empty)")
     study.add_argument("--docs", type=Path, help="run every study and write DOCS/accuracy-cost.md")
+    paths = sub.add_parser("paths", help="run the static path-following jobs against their references")
+    paths.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/path-following.md and its PNGs")
+    paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
@@ -192,6 +195,14 @@ def _bench(args: argparse.Namespace, comm) -> None:
             print("\n".join(json.dumps(row) for row in rows) if args.json else table)
 
 
+def _paths(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.studies.path_page import write_path_following
+
+    page = write_path_following(args.docs, args.out, comm)
+    if comm.rank == 0:
+        print(f"wrote {page}")
+
+
 def _summary(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.summary import update_readme
 
@@ -207,6 +218,7 @@ HANDLERS = {
     "study": _study,
     "bench": _bench,
     "summary": _summary,
+    "paths": _paths,
     "cantilever": _cantilever,
 }
 

@@ -383,6 +383,7 @@ def _run_static(scene, options, model, solver, series, summary, restart, comm) -
         follower.close()
     summary["time"] = output.last_time
     summary["load_factor"] = follower.load_factor
+    summary["path_method"] = plan.method
     return output.surface
 
 

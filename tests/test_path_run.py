@@ -116,7 +116,7 @@ def test_probes_of_a_dynamic_run(comm, shared_tmp_path):
     ("edit", "message"),
     [
         (lambda t: t.replace('method = "arc_length"', 'method = "riks"'), r"key 'path.method' must be one of"),
-        (lambda t: t.replace("initial_step = 0.002", "initial_step = -1.0"), r"path.initial_step = -1.0 is invalid"),
+        (lambda t: t.replace("initial_step = 1.0e-4", "initial_step = -1.0"), r"path.initial_step = -1.0 is invalid"),
         (lambda t: t.replace("max_steps = 200", "max_steps = 0"), r"path.max_steps = 0 is invalid"),
         (lambda t: t.replace("at = [0.5, 0.025]", "at = [1.5, 0.025]"), r"key 'probes\[0\].at' must be 2 numbers"),
         (lambda t: t.replace('profile = "sin(pi * xi1)"', 'profile = "sin(pi * x)"'), r"unknown name 'x'"),

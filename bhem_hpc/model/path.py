@@ -87,7 +87,8 @@ class ArcLength:
     """Arc-length continuation settings.
 
     Attributes:
-        initial_step: first arc length ``ds`` (norm of the DOF increment) [m].
+        initial_step: first arc length ``ds`` [m], a root-mean-square change of the DOFs
+            (``|du| / sqrt(n)``), so the same settings serve any mesh.
         min_step, max_step: bounds of the adapted ``ds``.
         max_steps: path points to compute at most.
         load_factor_range: stop once lambda leaves ``(low, high)``.

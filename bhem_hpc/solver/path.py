@@ -11,12 +11,14 @@ prefix, own MUMPS factorization) takes bordered Newton steps (Crisfield): per it
 
 and ``dlambda`` follows from the linearized constraint: a prescribed displacement component of a
 material point (linear: met exactly after each step), or Crisfield's cylindrical arc length
-``|u - u_n| = ds`` on the DOF vector (a quadratic in ``dlambda``; the root that turns least from the
-step's direction). SNES tests convergence on ``|R|`` with its tolerances and reports its reasons.
+``|u - u_n| = ds sqrt(n)`` on the ``n`` DOFs (``ds`` a root-mean-square change, the same on any mesh;
+a quadratic in ``dlambda``: the root that turns least from the step's direction). SNES tests
+convergence on ``|R|`` with its tolerances and reports its reasons.
 
-Every converged point records its stability from the inertia of the last LDL^T factorization of
-``K`` (MUMPS' negative-pivot count, INFOG(12)): a change between two points is flagged as a limit
-point where the load factor turns back, otherwise as a bifurcation.
+Every converged point records its stability from the inertia of an LDL^T factorization of ``K``
+at that point (MUMPS' negative-pivot count, INFOG(12)), which also gives the path's tangent there: a
+change of inertia between two points is flagged as a limit point where the tangent's load factor
+turns back, otherwise as a bifurcation.
 """
 
 from __future__ import annotations
@@ -59,7 +61,8 @@ class PathPoint:
     Attributes:
         step: its index on the path (0: the start).
         load_factor: lambda.
-        arc_length: accumulated ``sum |u_k - u_(k-1)|`` over the DOF vector (chords between points).
+        arc_length: accumulated ``sum |u_k - u_(k-1)| / sqrt(n)`` over the ``n`` DOFs (root-mean-square
+            chords between points, so that arc lengths mean the same on any mesh).
         newton_iterations: of the converged solve (cut-back attempts not counted).
         negative_pivots: negative eigenvalues of the tangent (MUMPS INFOG(12) of its LDL^T; -1 when
             the factorization does not report it, e.g. LU).
@@ -179,6 +182,7 @@ class PathFollower(PetscOwner):
         self._first_step = first_step
         self._start_arc_length = float(start_arc_length)
         self.arc_step = float("nan")  # the adapted arc length of the next step (arc-length continuation)
+        self._rms = float(np.sqrt(self.x.getSize()))  # arc lengths are root-mean-square DOF changes
         self._record(0, continuing=previous is not None)
 
     # -- setup ------------------------------------------------------------------------------------
@@ -259,7 +263,7 @@ class PathFollower(PetscOwner):
         of ``K`` there, the event if the inertia changed, the energies and the probes."""
         increment = self.x.copy()
         increment.axpy(-1.0, self._last)
-        step_length = increment.norm() if self.path else 0.0
+        step_length = increment.norm() / self._rms if self.path else 0.0
         pivots, sign = self._tangent_at_current(increment if self.path or continuing else None)
         increment.destroy()
         self.x.copy(self._last)
@@ -490,13 +494,14 @@ class PathFollower(PetscOwner):
         start_factor = self.load_factor
         step_length = self.arc_step
         for cuts in range(settings.max_cuts + 1):
-            scale = step_length / max(self.tangent.norm(), 1e-300)  # |du| = ds; dlambda = sign * scale
+            # |du| = ds sqrt(n): ds is a root-mean-square DOF change, the same on any mesh; dlambda = sign * scale
+            scale = step_length * self._rms / max(self.tangent.norm(), 1e-300)
             self.tangent.copy(predictor)
             predictor.scale(scale)
             base.copy(self.x)
             self.x.axpy(1.0, predictor)
             self.set_load_factor(start_factor + self._sign * scale)
-            if self._constrained_solve(base, self._arc_constraint(step_length, predictor)):
+            if self._constrained_solve(base, self._arc_constraint(step_length * self._rms, predictor)):
                 iterations = self._snes.getIterationNumber()
                 self.x.copy(base)
                 growth = np.clip(np.sqrt(settings.target_iterations / max(iterations, 1)), 0.5, 2.0)

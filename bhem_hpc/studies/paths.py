@@ -5,6 +5,8 @@
   :func:`~bhem_hpc.studies.references.shallow_arch_load` gives in closed form.
 * The compressed strip: pinned at both ends, one sliding, under an end load: Euler's bifurcation
   and the post-buckled elastica (:func:`~bhem_hpc.studies.references.pinned_elastica`).
+* The cylindrical panel: a thin shallow panel under a central point load, which snaps through with
+  a snap-back; its reference is the same path on a finer mesh.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from mpi4py import MPI
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.shell import AreaLoad, LineLoad, Loads, ShellModel
+from bhem_hpc.model.shell import AreaLoad, LineLoad, Loads, PointLoad, ShellModel
 
 
 @dataclass(frozen=True)
@@ -110,3 +112,32 @@ class CompressedStrip:
         traction = (-self.critical_load / self.width, 0.0, 0.0)
         loads = Loads(line_loads=(LineLoad("xi1_max", traction),))
         return ShellModel(rest, Material(self.young, 0.0, self.thickness, 1.0), loads, supports, comm=comm)
+
+
+@dataclass(frozen=True)
+class CylindricalPanel:
+    """A shallow cylindrical panel (radius 2540 mm, straight edges 508 mm long and hinged, curved
+    edges free, arc 0.2 rad; E 3102.75 N/mm^2, nu 0.3) under a central point load of ``load factor``
+    kN: thin enough (``thickness`` 6.35 mm) to snap through with a snap-back of the loaded point.
+    Modelled as the quarter by its two symmetry planes (Hermite patches)."""
+
+    radius: float = 2540.0
+    length: float = 508.0
+    angle: float = 0.2
+    thickness: float = 6.35
+    young: float = 3102.75
+    poisson: float = 0.3
+
+    def model(self, patches: int = 8, comm: MPI.Comm = MPI.COMM_WORLD) -> ShellModel:
+        half = self.angle / 2
+        rest = S.cylinder(self.radius, self.length / 2, patches, patches, closed=False, angle=half,
+                          seam_angle=np.pi / 2 - half)  # fmt: skip
+        loads = Loads(point_loads=(PointLoad(*self.centre(), (0.0, -250.0, 0.0)),))  # a quarter of 1 kN
+        supports = [bcs.hinged_edge(rest, "xi2_min"), *bcs.symmetry_edge(rest, "xi1_max", "z"),
+                    *bcs.symmetry_edge(rest, "xi2_max", "x")]  # fmt: skip
+        material = Material(self.young, self.poisson, self.thickness, 1.0)
+        return ShellModel(rest, material, loads, supports, comm=comm)
+
+    def centre(self) -> tuple[float, float]:
+        """Parameters of the loaded centre (a corner of the quarter)."""
+        return (self.length / 2, np.pi / 2)

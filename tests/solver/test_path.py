@@ -23,7 +23,7 @@ def arch_path(comm, method: str, discretization: str = "hermite") -> tuple[np.nd
     model = ARCH.model(16, comm, discretization)
     with ShellSolver(model) as solver, PathFollower(solver, [Probe("mid", *ARCH.midspan())]) as follower:
         if method == "arc_length":
-            follower.arc_length(ArcLength(0.002, max_step=0.005, max_steps=200, load_factor_range=(-1.0, 7.0)))
+            follower.arc_length(ArcLength(1e-4, max_step=2.5e-4, max_steps=200, load_factor_range=(-1.0, 7.0)))
         elif method == "displacement":
             follower.displacement_control("mid", 2, -np.linspace(0, 2 * ARCH.rise, 21)[1:])
         else:
@@ -68,14 +68,14 @@ def test_load_control_stops_at_exactly_the_requested_levels(comm):
     assert all(p.negative_pivots == 0 and p.newton_iterations > 0 for p in points[1:])
 
 
-def strip_path(comm, imperfection: float, method: str, step: float = 0.01) -> list:
+def strip_path(comm, imperfection: float, method: str, step: float = 5e-4) -> list:
     strip = CompressedStrip(imperfection=imperfection)
     probes = [Probe("mid", 0.5, 0.025), Probe("end", 1.0, 0.025)]
     with ShellSolver(strip.model(16, comm)) as solver, PathFollower(solver, probes) as follower:
         if method == "displacement":
             follower.displacement_control("mid", 2, np.linspace(0.02, 0.3, 8))
         else:
-            follower.arc_length(ArcLength(step, max_step=max(step, 0.05), max_steps=80, load_factor_range=(-1, 1.16)))
+            follower.arc_length(ArcLength(step, max_step=max(step, 2.5e-3), max_steps=80, load_factor_range=(-1, 1.16)))
         return follower.path
 
 
@@ -95,7 +95,7 @@ def test_a_compressed_strip_follows_the_elastica_past_buckling(comm, method):
 
 
 def test_a_straight_strip_flags_the_bifurcation_at_eulers_load(comm):
-    points = strip_path(comm, 0.0, "arc_length", step=2e-5)
+    points = strip_path(comm, 0.0, "arc_length", step=1e-6)
     events = [k for k, p in enumerate(points) if p.event]
     assert [points[k].event for k in events] == ["bifurcation"]
     k = events[0]
@@ -215,3 +215,46 @@ def test_an_edge_moment_rolls_a_strip_into_a_circle_at_every_level(comm):
         np.testing.assert_allclose(positions[:, 1], width / 2, atol=1e-12)  # in its plane
     assert np.hypot(*positions[-1][[0, 2]]) < 1e-3 * length  # at lambda = 1 the end meets the clamp
     assert not model.symmetric and points[-1].negative_pivots == -1  # a follower axis: LU, inertia unknown
+
+
+def panel_landmarks(comm, patches: int) -> dict[str, float]:
+    """The thin cylindrical panel's path by arc length: its limit load, its lowest load, the centre
+    deflection where it turns back (the snap-back) and the smallest one after; extremes by the
+    parabola through the three points around them."""
+    from bhem_hpc.studies.paths import CylindricalPanel
+
+    panel = CylindricalPanel()
+    with ShellSolver(panel.model(patches, comm)) as solver:
+        with PathFollower(solver, [Probe("centre", *panel.centre())]) as follower:
+            follower.arc_length(ArcLength(0.1, max_step=0.1, max_steps=200, load_factor_range=(-2.0, 1.0)))
+            points = follower.path
+
+    def vertex(values: list[float], k: int) -> float:
+        y0, y1, y2 = values[k - 1 : k + 2]
+        return y1 - (y2 - y0) ** 2 / (8 * (y0 - 2 * y1 + y2))
+
+    factors = [p.load_factor for p in points]
+    deflections = [-p.probes["centre"]["displacement"][1] for p in points]
+    lowest = int(np.argmin(factors))
+    turn = int(np.argmax(deflections[:lowest]))
+    back = turn + int(np.argmin(deflections[turn : lowest + 5]))
+    assert [p.event for p in points if p.event] == ["limit", "limit"]
+    return {
+        "limit load": vertex(factors, int(np.argmax(factors[:lowest]))),
+        "lowest load": vertex(factors, lowest),
+        "turning deflection": vertex(deflections, turn),
+        "snap-back deflection": vertex(deflections, back),
+    }
+
+
+def test_a_thin_cylindrical_panel_snaps_through_and_back_as_on_a_finer_mesh(comm):
+    """Arc length passes the limit point and follows the snap-back (the centre deflection turns back
+    by about 2.5 mm while the load is negative) on 8 x 8 patches of the quarter; the same landmarks
+    on 16 x 16 are the reference (24 x 24 changes them by < 1e-4). Tolerances: about 3 times the
+    8-against-16 differences measured."""
+    coarse, fine = panel_landmarks(comm, 8), panel_landmarks(comm, 16)
+    tolerances = {"limit load": 3e-4, "lowest load": 2e-4, "turning deflection": 3e-4, "snap-back deflection": 2e-3}
+    for name, tolerance in tolerances.items():
+        assert abs(coarse[name] / fine[name] - 1) < tolerance, (name, coarse[name], fine[name])
+    assert fine["limit load"] > 0 > fine["lowest load"]
+    assert fine["turning deflection"] - fine["snap-back deflection"] > 2.0  # mm: a snap-back

@@ -5,6 +5,7 @@ and a PNG per case)."""
 from __future__ import annotations
 
 import csv
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc.studies.paths import CompressedStrip, ShallowArch
+from bhem_hpc.studies.paths import CompressedStrip, CylindricalPanel, ShallowArch, snap_landmarks
 from bhem_hpc.studies.references import pinned_elastica, shallow_arch_load
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
@@ -80,6 +81,38 @@ def _circle_curve() -> dict:
     }
 
 
+@functools.cache
+def _panel_reference(patches: int = 16) -> tuple[dict, ...]:
+    """The cylindrical panel's path on ``patches`` (the job's arc-length settings), as path.csv rows."""
+    from bhem_hpc.scene import load_scene
+    from bhem_hpc.solver import ShellSolver
+    from bhem_hpc.solver.path import PathFollower, Probe
+
+    panel = CylindricalPanel()
+    settings = load_scene(JOBS / "cylindrical-panel.toml").path_plan.arc_length
+    with ShellSolver(panel.model(patches, MPI.COMM_SELF)) as solver:
+        with PathFollower(solver, [Probe("centre", *panel.centre())]) as follower:
+            follower.arc_length(settings)
+            return tuple({"load_factor": p.load_factor, "centre_uy": p.probes["centre"]["displacement"][1]}
+                         for p in follower.path)  # fmt: skip
+
+
+def _panel_landmarks(rows) -> dict[str, float]:
+    return snap_landmarks(list(_floats(rows, "load_factor")), list(-_floats(rows, "centre_uy")))
+
+
+def _panel(rows: list[dict]) -> tuple[float, str]:
+    coarse, fine = _panel_landmarks(rows), _panel_landmarks(_panel_reference())
+    error = max(abs(coarse[k] / fine[k] - 1) for k in coarse)
+    detail = ", ".join(f"{k} {coarse[k]:.5g} ({fine[k]:.5g})" for k in coarse)
+    return float(error), f"largest relative difference of the landmarks from 16 x 16 patches: {detail}"
+
+
+def _panel_curve() -> dict:
+    rows = _panel_reference()
+    return {"16 x 16 patches": (_floats(rows, "centre_uy"), _floats(rows, "load_factor"))}
+
+
 def _circle(radius_of_factor) -> object:
     def check(rows: list[dict]) -> tuple[float, str]:
         errors = []
@@ -99,6 +132,8 @@ CASES = (
              _arch_curve, ("mid_uz",)),  # fmt: skip
     PathCase("compressed-strip", "Compressed strip: past Euler's load by displacement control",
              "the pinned elastica", _strip, _elastica_curve, ("mid_uz",)),  # fmt: skip
+    PathCase("cylindrical-panel", "Cylindrical panel: snap-through and snap-back by arc length",
+             "the same path on 16 x 16 patches", _panel, _panel_curve, ("centre_uy",)),  # fmt: skip
     PathCase("roll-up", "Roll-up by a prescribed end rotation", "the circle of radius L / (2 pi lambda)",
              _circle(lambda factor: 1.0 / (2 * math.pi * factor)), _circle_curve, ("tip_ux", "tip_uz")),  # fmt: skip
     PathCase("moment-roll-up", "Roll-up by an end moment", "the circle of radius D / m",
@@ -123,7 +158,7 @@ def _plot(case: PathCase, rows: list[dict], png: Path) -> None:
     if events:
         ax.plot(_floats(events, case.plotted[0]), _floats(events, "load_factor"), "^", color="red", markersize=8,
                 label="flagged event")  # fmt: skip
-    ax.set_xlabel("displacement [m]")
+    ax.set_xlabel("displacement (in the job's length unit)")
     ax.set_ylabel("load factor")
     ax.set_title(case.title, fontsize=10)
     ax.grid(alpha=0.3)

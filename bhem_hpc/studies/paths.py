@@ -141,3 +141,23 @@ class CylindricalPanel:
     def centre(self) -> tuple[float, float]:
         """Parameters of the loaded centre (a corner of the quarter)."""
         return (self.length / 2, np.pi / 2)
+
+
+def snap_landmarks(factors: list[float], deflections: list[float]) -> dict[str, float]:
+    """Landmarks of a snap-through path with a snap-back (load factors and a deflection along it):
+    the limit load, the lowest load, the deflection where it turns back and the smallest one after,
+    each the vertex of the parabola through the three points around it."""
+
+    def vertex(values: list[float], k: int) -> float:
+        y0, y1, y2 = values[k - 1 : k + 2]
+        return y1 - (y2 - y0) ** 2 / (8 * (y0 - 2 * y1 + y2))
+
+    lowest = int(np.argmin(factors))
+    turn = int(np.argmax(deflections[:lowest]))
+    back = turn + int(np.argmin(deflections[turn : lowest + 5]))
+    return {
+        "limit load": vertex(factors, int(np.argmax(factors[:lowest]))),
+        "lowest load": vertex(factors, lowest),
+        "turning deflection": vertex(deflections, turn),
+        "snap-back deflection": vertex(deflections, back),
+    }

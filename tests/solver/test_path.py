@@ -218,33 +218,17 @@ def test_an_edge_moment_rolls_a_strip_into_a_circle_at_every_level(comm):
 
 
 def panel_landmarks(comm, patches: int) -> dict[str, float]:
-    """The thin cylindrical panel's path by arc length: its limit load, its lowest load, the centre
-    deflection where it turns back (the snap-back) and the smallest one after; extremes by the
-    parabola through the three points around them."""
-    from bhem_hpc.studies.paths import CylindricalPanel
+    """The thin cylindrical panel's path by arc length, reduced to its landmarks."""
+    from bhem_hpc.studies.paths import CylindricalPanel, snap_landmarks
 
     panel = CylindricalPanel()
     with ShellSolver(panel.model(patches, comm)) as solver:
         with PathFollower(solver, [Probe("centre", *panel.centre())]) as follower:
             follower.arc_length(ArcLength(0.1, max_step=0.1, max_steps=200, load_factor_range=(-2.0, 1.0)))
             points = follower.path
-
-    def vertex(values: list[float], k: int) -> float:
-        y0, y1, y2 = values[k - 1 : k + 2]
-        return y1 - (y2 - y0) ** 2 / (8 * (y0 - 2 * y1 + y2))
-
-    factors = [p.load_factor for p in points]
-    deflections = [-p.probes["centre"]["displacement"][1] for p in points]
-    lowest = int(np.argmin(factors))
-    turn = int(np.argmax(deflections[:lowest]))
-    back = turn + int(np.argmin(deflections[turn : lowest + 5]))
     assert [p.event for p in points if p.event] == ["limit", "limit"]
-    return {
-        "limit load": vertex(factors, int(np.argmax(factors[:lowest]))),
-        "lowest load": vertex(factors, lowest),
-        "turning deflection": vertex(deflections, turn),
-        "snap-back deflection": vertex(deflections, back),
-    }
+    factors = [p.load_factor for p in points]
+    return snap_landmarks(factors, [-p.probes["centre"]["displacement"][1] for p in points])
 
 
 def test_a_thin_cylindrical_panel_snaps_through_and_back_as_on_a_finer_mesh(comm):

@@ -126,6 +126,10 @@ def prescribe(
     nodes: np.ndarray, kinds: Sequence[str], components: Sequence[int], values: np.ndarray
 ) -> NodalConstraint:
     """Prescribe parametric values of chosen kinds (names from ``KIND_NAMES``) and components."""
+    if values is None:
+        raise BoundaryConditionError(
+            "prescribe needs values (NodalConstraint(nodes, kinds) holds the initial ones)"
+        )
     try:
         kind_ids = tuple(KIND_NAMES.index(k) for k in kinds)
     except ValueError as exc:

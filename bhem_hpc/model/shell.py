@@ -413,11 +413,10 @@ class ShellModel:
         """Point loads, point constraints' basis values, and the nodal constraints' DOFs and values."""
         disc = self.discretization
         # Point loads: basis values at the point times the force, on local open DOFs.
-        self.point_load_open = np.zeros_like(self.x.x.array)
-        for load in loads.point_loads:
-            blocks, values = disc.point_basis(load.xi1, load.xi2)
-            for comp in range(3):
-                np.add.at(self.point_load_open, 3 * blocks + comp, values * load.force[comp])
+        self._point_load_basis = [disc.point_basis(load.xi1, load.xi2) for load in loads.point_loads]
+        self.point_forces = np.array([load.force for load in loads.point_loads], dtype=float).reshape(-1, 3)
+        self.point_loads_version = 0
+        self._assemble_point_loads()
 
         # Point constraints: the 16 basis values of the containing patch (on its owning rank only).
         self.point_constraints = tuple(point_constraints)
@@ -429,6 +428,12 @@ class ShellModel:
         self.constrained = _merge(selections)
         self.constrained_initial = disc.dof_values(self.initial_surface, self.constrained)
         self.constrained_target = disc.dof_values(target, self.constrained)
+
+    def _assemble_point_loads(self) -> None:
+        self.point_load_open = np.zeros_like(self.x.x.array)
+        for (blocks, values), force in zip(self._point_load_basis, self.point_forces, strict=True):
+            for comp in range(3):
+                np.add.at(self.point_load_open, 3 * blocks + comp, values * force[comp])
 
     def _edge_measure(self, edges: Sequence[str]) -> ufl.Measure:
         """Facet measure tagging each listed edge ``i`` with ``i + 1``."""
@@ -455,10 +460,11 @@ class ShellModel:
     # -- loads -----------------------------------------------------------------------------------
     def load_names(self) -> list[str]:
         """The loads :meth:`set_load` can change: ``gravity``, ``pressure``, ``line_load_<i>``,
-        ``area_load_<i>`` (those the model was built with)."""
+        ``point_load_<i>``, ``edge_moment_<i>``, ``area_load_<i>`` (those the model was built with)."""
         names = ["gravity"] if self.loads.gravity is not None else []
         names += ["pressure"] if self.loads.pressure is not None else []
         names += [f"line_load_{i}" for i in range(len(self.loads.line_loads))]
+        names += [f"point_load_{i}" for i in range(len(self.loads.point_loads))]
         names += [f"edge_moment_{i}" for i in range(len(self.loads.edge_moments))]
         return names + [f"area_load_{i}" for i in range(len(self.loads.area_loads))]
 
@@ -476,6 +482,14 @@ class ShellModel:
         constants |= {f"area_load_{i}": c for i, c in enumerate(self.area_load_forces)}
         if name not in self.load_names():
             raise ModelError(f"load {name!r} does not exist; this model has {self.load_names()}")
+        if name.startswith("point_load_"):
+            force = np.asarray(value, dtype=float)
+            if force.shape != (3,) or not np.all(np.isfinite(force)):
+                raise ModelError(f"load {name!r} must be 3 numbers (finite), got {value!r}")
+            self.point_forces[int(name.rsplit("_", 1)[1])] = force
+            self._assemble_point_loads()
+            self.point_loads_version += 1
+            return
         constant = constants[name]
         array = np.asarray(value, dtype=float)
         if array.shape != constant.value.shape or not np.all(np.isfinite(array)):
@@ -491,6 +505,18 @@ class ShellModel:
         return self.discretization.dof_values(target, self.constrained)
 
     # -- state access --------------------------------------------------------------------------
+    @property
+    def num_dofs(self) -> int:
+        """Unknowns of the solver: 3 per closed DOF (Hermite nodal vector or control point)."""
+        return 3 * self.discretization.num_closed
+
+    def displacement(self, xi1: float, xi2: float) -> np.ndarray:
+        """Collective: the displacement ``(3,)`` of the material point ``(xi1, xi2)`` from the initial
+        surface, at the current state."""
+        blocks, values = self.discretization.point_basis(xi1, xi2)
+        local = values @ self.x.x.array.reshape(-1, 3)[blocks] if len(blocks) else np.zeros(3)
+        start = self.initial_surface.evaluate(np.array(xi1), np.array(xi2)).x
+        return self.comm.allreduce(np.asarray(local, dtype=float)) - start
     def set_state(self, surface: HermiteSurface) -> None:
         """Set the position field from a surface."""
         self.x.x.array[:] = self.discretization.surface_to_open(surface)

@@ -64,9 +64,8 @@ class ShellProblem(PetscOwner):
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.f_open = fem_petsc.create_vector(model.residual_form)
         self.point_loads = self.f_open.duplicate()
-        with self.point_loads.localForm() as local:
-            local.array[:] = model.point_load_open
-        self.point_loads.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._point_loads_version = -1
+        self._update_point_loads()
         # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
         # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
         # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
@@ -108,6 +107,15 @@ class ShellProblem(PetscOwner):
         lo, hi = nodes.min(axis=(0, 1)), nodes.max(axis=(0, 1))
         self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
 
+    def _update_point_loads(self) -> None:
+        """Copy the model's point loads (again when :meth:`ShellModel.set_load` changed one)."""
+        if self._point_loads_version == self.model.point_loads_version:
+            return
+        with self.point_loads.localForm() as local:
+            local.array[:] = self.model.point_load_open
+        self.point_loads.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._point_loads_version = self.model.point_loads_version
+
     def update_state(self, x: PETSc.Vec) -> None:
         """Write closed DOFs ``x`` into the model's position Function (with ghosts)."""
         target = self.model.x.vector
@@ -124,6 +132,7 @@ class ShellProblem(PetscOwner):
     def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
         """``f = P^T (F_int - F_ext)`` with constrained rows replaced by ``x - x_bc``."""
         t0 = time.perf_counter()
+        self._update_point_loads()
         with self.f_open.localForm() as local:
             local.set(0.0)
         fem_petsc.assemble_vector(self.f_open, self.model.residual_form)
@@ -159,6 +168,7 @@ class ShellProblem(PetscOwner):
 
     def potential_energy(self) -> float:
         """Total potential at the model's current state (internal - external work), collective."""
+        self._update_point_loads()
         local = fem.assemble_scalar(self.model.potential_form)
         local -= float(self.model.load_factor.value) * float(
             np.dot(self.point_loads.array_r, self.model.x.vector.array_r)

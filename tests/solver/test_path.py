@@ -242,3 +242,36 @@ def test_a_thin_cylindrical_panel_snaps_through_and_back_as_on_a_finer_mesh(comm
         assert abs(coarse[name] / fine[name] - 1) < tolerance, (name, coarse[name], fine[name])
     assert fine["limit load"] > 0 > fine["lowest load"]
     assert fine["turning deflection"] - fine["snap-back deflection"] > 2.0  # mm: a snap-back
+
+
+def test_loads_change_through_the_api_and_the_solve_continues(comm):
+    """set_load on a point load and an area load: the next solve, from the current state, lands where
+    a model built with the new loads lands; the DOF count and displacement accessors."""
+    from bhem_hpc.geometry import surface as S
+    from bhem_hpc.model import bcs
+    from bhem_hpc.model.material import Material
+    from bhem_hpc.model.shell import AreaLoad, Loads, ModelError, PointLoad, ShellModel
+
+    rest = S.flat_rectangle(1.0, 0.1, 8, 1)
+
+    def cantilever(force, pressure):
+        loads = Loads(point_loads=(PointLoad(1.0, 0.05, force),), area_loads=(AreaLoad(pressure),))
+        return ShellModel(rest, Material(1e6, 0.0, 0.01, 1.0), loads, [bcs.clamp_edge(rest, "xi1_min")], comm=comm)
+
+    model = cantilever((0.0, 0.0, -1e-4), (0.0, 0.0, 0.0))
+    assert model.num_dofs == 3 * 4 * 9 * 2 and model.load_names() == ["point_load_0", "area_load_0"]
+    with ShellSolver(model) as solver:
+        solver.solve()
+        first = model.displacement(1.0, 0.05)
+        model.set_load("point_load_0", (0.0, 0.0, -3e-4))
+        model.set_load("area_load_0", (0.0, 0.0, -1e-3))
+        assert solver.solve_at(1.0)  # from the current state
+        changed = model.displacement(1.0, 0.05)
+    with ShellSolver(fresh := cantilever((0.0, 0.0, -3e-4), (0.0, 0.0, -1e-3))) as solver:
+        solver.solve()
+    np.testing.assert_allclose(changed, fresh.displacement(1.0, 0.05), rtol=1e-8, atol=1e-14)
+    assert first[2] < 0 and changed[2] < 2 * first[2]
+    with pytest.raises(ModelError, match=r"load 'point_load_1' does not exist"):
+        model.set_load("point_load_1", (0.0, 0.0, 1.0))
+    with pytest.raises(ModelError, match=r"load 'point_load_0' must be 3 numbers"):
+        model.set_load("point_load_0", 1.0)

@@ -24,7 +24,17 @@ from bhem_hpc.model.shell import AreaLoad, LineLoad, Loads, PointLoad, ShellMode
 
 
 @dataclass(frozen=True)
-class ShallowArch:
+class Strip:
+    """A strip's dimensions and Young's modulus (``nu = 0``: it bends as a beam)."""
+
+    length: float = 1.0
+    width: float = 0.05
+    thickness: float = 0.01
+    young: float = 1.0e7
+
+
+@dataclass(frozen=True)
+class ShallowArch(Strip):
     """A pinned shallow sinusoidal arch (a strip, ``nu = 0``) of span ``length``, in units where its
     load factor is the closed form's ``P``.
 
@@ -32,10 +42,6 @@ class ShallowArch:
         initial_rise: ``e / r`` (``r = h / sqrt(12)``); 3.5 has two limit points and no bifurcation.
     """
 
-    length: float = 1.0
-    width: float = 0.05
-    thickness: float = 0.01
-    young: float = 1.0e7
     initial_rise: float = 3.5
 
     @property
@@ -76,7 +82,7 @@ class ShallowArch:
 
 
 @dataclass(frozen=True)
-class CompressedStrip:
+class CompressedStrip(Strip):
     """A strip (``nu = 0``: a beam) pinned at both ends, one end sliding along the strip, compressed
     by an end load of ``load factor x P_cr`` (``P_cr = pi^2 EI / L^2``, Euler's first load), so its
     path is the pinned elastica (:func:`~bhem_hpc.studies.references.pinned_elastica`).
@@ -86,10 +92,6 @@ class CompressedStrip:
             bifurcation at load factor 1; small: a smooth path onto the buckled branch).
     """
 
-    length: float = 1.0
-    width: float = 0.05
-    thickness: float = 0.01
-    young: float = 1.0e7
     imperfection: float = 0.0
 
     @property

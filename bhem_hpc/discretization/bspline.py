@@ -132,6 +132,70 @@ class BSplineDiscretization:
         indptr = np.arange(owned + 1) * width
         return indptr, self._rows[:owned].ravel(), self._weights[:owned].ravel()
 
+    def set_ties(self, ties, rest: BSplineSurface) -> None:
+        """Tie control-point components (:class:`~bhem_hpc.model.bcs.NodalTie`): components joined by
+        ties (directly or through others, as where two symmetry planes meet) follow one root, each at
+        its rest offset from it."""
+        c2 = self.control_shape[1]
+        parent: dict[int, int] = {}
+
+        def find(k: int) -> int:
+            while parent.setdefault(k, k) != k:
+                k = parent[k]
+            return k
+
+        slaves: set[int] = set()
+        for tie in ties:
+            for (s1, s2), (m1, m2) in zip(np.asarray(tie.nodes), np.asarray(tie.masters), strict=True):
+                for c in tie.components:
+                    slave, master = int(3 * (s1 * c2 + s2) + c), int(3 * (m1 * c2 + m2) + c)
+                    slaves.add(slave)
+                    parent[find(slave)] = find(master)
+        groups: dict[int, list[int]] = {}
+        for k in list(parent):
+            groups.setdefault(find(k), []).append(k)
+        members, roots = [], []
+        for group in groups.values():  # the root: a component that is nobody's slave (else the first)
+            root = min((k for k in group if k not in slaves), default=min(group))
+            members += [k for k in group if k != root]
+            roots += [root] * (len(group) - 1)
+        self._tie_slaves, self._tie_masters = np.array(members, dtype=np.int64), np.array(roots, dtype=np.int64)
+        rest_entries = self.entries_of_surface(rest).ravel()
+        self._tie_offsets = rest_entries[self._tie_slaves] - rest_entries[self._tie_masters]
+
+    def tied_roots(self, dofs: ConstrainedDofs) -> ConstrainedDofs:
+        """Collective: the owned roots of the tied components among every rank's ``dofs`` (a held
+        component that follows a root holds its root)."""
+        slaves, masters = self.component_ties()
+        held = np.concatenate(self.comm.allgather(np.asarray(dofs.rows, dtype=np.int64)))
+        roots = np.unique(masters[np.isin(slaves, held)])
+        first, last = 3 * self.closed_offset, 3 * (self.closed_offset + self.num_owned_closed)
+        roots = roots[(roots >= first) & (roots < last)]
+        entries, components = roots // 3, roots % 3
+        c2 = self.control_shape[1]
+        return ConstrainedDofs(rows=roots, local=roots - first, node=np.stack([entries // c2, entries % c2], axis=1),
+                               kind=np.zeros(len(roots), dtype=np.int64), component=components)  # fmt: skip
+
+    def component_ties(self) -> tuple[np.ndarray, np.ndarray]:
+        empty = np.zeros(0, dtype=np.int64)
+        return getattr(self, "_tie_slaves", empty), getattr(self, "_tie_masters", empty)
+
+    def prolongation_offset(self) -> np.ndarray | None:
+        slaves, _ = self.component_ties()
+        if not len(slaves):
+            return None
+        offsets = np.zeros(3 * self.num_entries)
+        offsets[slaves] = self._tie_offsets
+        return self.entries_to_open(offsets.reshape(-1, 3))
+
+    def _apply_ties(self, entries: np.ndarray) -> np.ndarray:
+        """Entries ``(N, 3)`` with every tied component set from its master."""
+        slaves, masters = self.component_ties()
+        if len(slaves):
+            flat = entries.reshape(-1)
+            flat[slaves] = flat[masters] + self._tie_offsets
+        return entries
+
     def _owned_entries(self) -> np.ndarray:
         return self.closed_offset + np.arange(self.num_owned_closed)
 
@@ -161,7 +225,7 @@ class BSplineDiscretization:
         out = np.zeros((self.num_entries, 3))
         for first, values in self.comm.allgather((self.closed_offset, np.asarray(closed).reshape(-1, 3))):
             out[first : first + len(values)] = values
-        return out
+        return self._apply_ties(out)
 
     def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
         """Collective: the control points of a B-spline field given by its open values."""

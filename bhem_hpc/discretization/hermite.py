@@ -204,6 +204,21 @@ class HermiteDiscretization:
         """Without seams the closed layout is the open one (no prolongation)."""
         return not self.is_periodic
 
+    def set_ties(self, ties, rest) -> None:
+        """Hermite nodal vectors are not tied (a tie joins B-spline control points)."""
+        raise DiscretizationError("ties join control points of B-spline surfaces; Hermite surfaces have none")
+
+    def component_ties(self) -> tuple[np.ndarray, np.ndarray]:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty
+
+    def prolongation_offset(self) -> np.ndarray | None:
+        return None
+
+    def tied_roots(self, dofs: ConstrainedDofs) -> ConstrainedDofs:
+        empty = np.zeros(0, dtype=np.int64)
+        return ConstrainedDofs(empty, empty, np.zeros((0, 2), dtype=np.int64), empty, empty)
+
     def prolongation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """The seam prolongation over the owned open blocks as CSR ``(indptr, closed blocks,
         weights)``: one unit entry per block (None without seams)."""

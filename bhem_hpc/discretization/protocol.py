@@ -127,6 +127,21 @@ class Discretization(Protocol):
         weight per block pair; it acts alike on x, y, z); None where the closed layout is the open one."""
         ...
 
+    def component_ties(self) -> tuple[np.ndarray, np.ndarray]:
+        """Scalar closed DOFs ``3 block + component`` tied to others: ``(slaves, masters)`` (empty
+        without ties); the prolongation's slave columns act on their masters instead."""
+        ...
+
+    def prolongation_offset(self) -> np.ndarray | None:
+        """The open array (owned + ghost blocks) that the prolongation adds to ``P x``: the tied
+        slaves' rest offsets from their masters; None without ties."""
+        ...
+
+    def tied_roots(self, dofs: ConstrainedDofs) -> ConstrainedDofs:
+        """Collective: the owned roots of tied components among every rank's ``dofs`` (a held
+        component that follows a root holds its root); empty without ties."""
+        ...
+
     # constraints, point loads, checkpoints
     def select_dofs(self, nodes: np.ndarray, kinds: tuple[int, ...], components: tuple[int, ...]) -> ConstrainedDofs:
         """Owned closed DOFs of nodes ``(k, 2)``, kinds and components (Hermite: distinct nodes,

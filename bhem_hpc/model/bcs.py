@@ -73,6 +73,27 @@ class NodalConstraint:
                 raise BoundaryConditionError("constraint values contain NaN/Inf")
 
 
+@dataclass(frozen=True)
+class NodalTie:
+    """Tie ``components`` of the control points ``nodes`` (the slaves) to those of ``masters``: each
+    slave keeps its rest offset from its master (B-spline surfaces; e.g. a symmetry plane's second
+    row of control points following the first, so that the slope across the edge stays normal)."""
+
+    nodes: np.ndarray
+    masters: np.ndarray
+    components: tuple[int, ...]
+    kinds: tuple[int, ...] = (0,)
+    values: None = None
+
+    def validate(self, grid: ParameterGrid, node_shape: tuple[int, int] | None = None, kind_count: int = 4) -> None:
+        if kind_count != 1:
+            raise BoundaryConditionError("ties join control points of B-spline surfaces only")
+        if np.shape(self.nodes) != np.shape(self.masters):
+            raise BoundaryConditionError("a tie needs one master per slave control point")
+        for nodes in (self.nodes, self.masters):
+            NodalConstraint(nodes, (0,), self.components).validate(grid, node_shape, kind_count)
+
+
 def target_surface(initial: HermiteSurface, constraints: Sequence[NodalConstraint]) -> HermiteSurface:
     """The initial surface with every prescribed value written in (parametric units); any surface
     with ``nodal`` data ``(m1, m2, kinds, 3)`` and ``with_nodal`` (Hermite, B-spline)."""
@@ -226,23 +247,21 @@ def symmetry_edge(surface, edge: str, normal: str | int) -> list[NodalConstraint
 
     Hermite nodal vectors of the edge: the ``n`` component of the position and of the derivative
     along the edge; the in-plane components of the derivative across the edge and of its change
-    along the edge (zero at rest).
+    along the edge (zero at rest). B-splines: the ``n`` component of the boundary row of control
+    points held, the second row's in-plane components tied to the boundary row's (a
+    :class:`NodalTie`).
 
     Raises:
-        BoundaryConditionError: the edge is not in such a plane, the rest surface does not cross it at
-            right angles, or the surface is a B-spline (whose slope across an edge is the difference of
-            two rows of control points: it would need the rows tied, not held).
+        BoundaryConditionError: the edge is not in such a plane, or the rest surface does not cross it
+            at right angles.
     """
     axis = _axis(normal)
     _edge_in_plane(surface, edge, axis, "symmetry plane")
+    in_plane = tuple(c for c in range(3) if c != axis)
     if surface.kind_count == 1:
-        raise BoundaryConditionError(
-            f"symmetry plane on edge {edge!r}: B-spline surfaces take no symmetry supports (their slope across "
-            "an edge ties two rows of control points); model the whole surface or use Hermite patches"
-        )
+        return _spline_symmetry(surface, edge, axis, in_plane)
     nodes = edge_nodes(surface.grid, edge)
     along, across = (2, 1) if edge.startswith("xi1") else (1, 2)
-    in_plane = tuple(c for c in range(3) if c != axis)
     slope = surface.nodal[nodes[:, 0], nodes[:, 1], across]
     if np.abs(slope[:, in_plane]).max() > 1e-9 * float(np.abs(slope).max()):
         raise BoundaryConditionError(
@@ -250,6 +269,22 @@ def symmetry_edge(surface, edge: str, normal: str | int) -> list[NodalConstraint
             f"{AXES[axis]} at right angles there (a symmetric structure does)"
         )
     return [NodalConstraint(nodes, (0, along), (axis,)), NodalConstraint(nodes, (across, 3), in_plane)]
+
+
+def _spline_symmetry(surface, edge: str, axis: int, in_plane: tuple[int, ...]) -> list:
+    """B-splines: the slope across the edge is ``P1 - P0`` (second row minus boundary row), so the
+    boundary row's normal components are held and the second row's in-plane components are tied to
+    the boundary row's (its normal component stays free: the surface may stretch across the plane)."""
+    rows = _edge_rows(surface, edge, 2)
+    boundary, second = np.split(rows, 2)
+    control = surface.nodal[..., 0, :]
+    slope = control[second[:, 0], second[:, 1]] - control[boundary[:, 0], boundary[:, 1]]
+    if np.abs(slope[:, in_plane]).max() > 1e-3 * float(np.abs(slope).max()):  # interpolated shapes: ~1e-5
+        raise BoundaryConditionError(
+            f"symmetry plane on edge {edge!r}: the rest surface does not cross the plane normal to "
+            f"{AXES[axis]} at right angles there (a symmetric structure does)"
+        )
+    return [NodalConstraint(boundary, (0,), (axis,)), NodalTie(second, boundary, in_plane)]
 
 
 def diaphragm_edge(surface, edge: str, normal: str | int) -> NodalConstraint:

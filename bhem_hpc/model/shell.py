@@ -22,7 +22,7 @@ from mpi4py import MPI
 from bhem_hpc import forms
 from bhem_hpc.discretization import ConstrainedDofs, Discretization, create_discretization
 from bhem_hpc.geometry.surface import HermiteSurface
-from bhem_hpc.model.bcs import EDGES, NodalConstraint, target_surface
+from bhem_hpc.model.bcs import EDGES, NodalConstraint, NodalTie, target_surface
 from bhem_hpc.model.jit import compilation_report, default_jit_params
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, shell_quadrature
@@ -205,7 +205,8 @@ class ShellModel:
         rest: rest (reference) surface; also the initial state unless ``initial`` is given.
         material: material constants.
         loads: external loads (only those given are built).
-        constraints: nodal boundary conditions.
+        constraints: nodal boundary conditions (:class:`~bhem_hpc.model.bcs.NodalConstraint`) and, on
+            B-spline surfaces, ties of control points (:class:`~bhem_hpc.model.bcs.NodalTie`).
         hessian: ``"exact"`` (UFL derivative of the residual) or ``"pseudo"`` (paper's pseudo
             Hessian: the second derivative of the curvature strain is dropped).
         quadrature_points: Gauss points per direction and patch, or ``"reduced"`` (quadratic
@@ -247,9 +248,12 @@ class ShellModel:
         self.quadrature_points = quadrature_points
         self.rest_surface = rest
         self.initial_surface = initial
-        self.constraints = tuple(constraints)
+        self.constraints = tuple(c for c in constraints if not isinstance(c, NodalTie))
+        self.ties = tuple(c for c in constraints if isinstance(c, NodalTie))
         self.dynamics = dynamics
         self.discretization: Discretization = create_discretization(rest, comm)
+        if self.ties:
+            self.discretization.set_ties(self.ties, rest)
         space = self.discretization.function_space
         self.x = fem.Function(space, name="position")
         self.x_rest = fem.Function(space, name="rest_position")
@@ -425,7 +429,11 @@ class ShellModel:
         # Boundary conditions as owned closed DOFs with initial and target values.
         target = target_surface(self.initial_surface, self.constraints)
         selections = [disc.select_dofs(c.nodes, c.kinds, c.components) for c in self.constraints]
-        self.constrained = _merge(selections)
+        # a tied control point's own components no longer shape the surface: held where they are;
+        # and a held component that follows a root holds its root
+        held = _merge(selections)
+        selections += [disc.select_dofs(t.nodes, (0,), t.components) for t in self.ties]
+        self.constrained = _merge([*selections, disc.tied_roots(held)])
         self.constrained_initial = disc.dof_values(self.initial_surface, self.constrained)
         self.constrained_target = disc.dof_values(target, self.constrained)
 

@@ -25,17 +25,31 @@ if TYPE_CHECKING:
 
 
 def _blocked_aij(
-    csr: tuple[np.ndarray, np.ndarray, np.ndarray], open_size: int, closed_sizes: tuple[int, int], comm
-) -> PETSc.Mat:
+    csr: tuple[np.ndarray, np.ndarray, np.ndarray], open_size: int, closed_sizes: tuple[int, int], comm,
+    ties: tuple[np.ndarray, np.ndarray] = (np.zeros(0, np.int64), np.zeros(0, np.int64)),
+) -> PETSc.Mat:  # fmt: skip
     """The prolongation as an AIJ matrix on 3-component DOFs: block CSR ``(indptr, closed blocks,
-    weights)`` over the owned open blocks, each entry repeated for the components x, y, z."""
+    weights)`` over the owned open blocks, each entry repeated for the components x, y, z; the
+    columns of tied scalar DOFs ``ties = (slaves, masters)`` moved to their masters (summed)."""
     indptr, blocks, weights = csr
     counts = np.diff(indptr)
     components = np.arange(3)
     row = (3 * np.repeat(np.arange(len(counts)), counts)[:, None] + components).ravel()
-    order = np.argsort(row, kind="stable")  # row 3b + c keeps block b's entries in their order
-    columns = (3 * np.asarray(blocks)[:, None] + components).ravel()[order]
-    values = np.repeat(np.asarray(weights, float), 3)[order]
+    columns = (3 * np.asarray(blocks)[:, None] + components).ravel()
+    values = np.repeat(np.asarray(weights, float), 3)
+    slaves, masters = ties
+    if len(slaves):
+        remap = np.arange(closed_sizes[1], dtype=np.int64)
+        remap[slaves] = masters
+        tied = remap[columns] != columns  # keep a stored zero in each slave column: P^T J P keeps its diagonal
+        row = np.concatenate([row, row[tied]])
+        columns = np.concatenate([remap[columns], columns[tied]])
+        values = np.concatenate([values, np.zeros(int(tied.sum()))])
+        keys, inverse = np.unique(row * closed_sizes[1] + columns, return_inverse=True)  # sums duplicates
+        row, columns, values = keys // closed_sizes[1], keys % closed_sizes[1], np.bincount(inverse, weights=values)
+    else:
+        order = np.argsort(row, kind="stable")  # row 3b + c keeps block b's entries in their order
+        row, columns, values = row[order], columns[order], values[order]
     row_pointer = np.concatenate([[0], np.cumsum(np.bincount(row, minlength=3 * len(counts)))])
     return PETSc.Mat().createAIJ(
         ((3 * len(counts), open_size), closed_sizes),
@@ -82,11 +96,18 @@ class ShellProblem(PetscOwner):
         prolongation = disc.prolongation()
         if prolongation is not None:
             open_size = 3 * disc.function_space.dofmap.index_map.size_global
-            self.prolongation = _blocked_aij(prolongation, open_size, (n_local, n_global), comm)
+            self.prolongation = _blocked_aij(prolongation, open_size, (n_local, n_global), comm,
+                                             disc.component_ties())  # fmt: skip
             self.jacobian = self.jacobian_open.PtAP(self.prolongation)
         else:
             self.jacobian = self.jacobian_open
         self.jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, model.symmetric)
+        self.prolongation_offset: PETSc.Vec | None = None
+        offset = disc.prolongation_offset()
+        if offset is not None:  # tied control points keep their rest offsets from their masters
+            self.prolongation_offset = model.x.vector.duplicate()
+            with self.prolongation_offset.localForm() as local:
+                local.array[:] = offset
         self.bc_local = model.constrained.local.astype(np.int64)
         self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
         self.bc_values = model.constrained_initial.copy()
@@ -121,6 +142,8 @@ class ShellProblem(PetscOwner):
         target = self.model.x.vector
         if self.prolongation is not None:
             self.prolongation.mult(x, target)
+            if self.prolongation_offset is not None:
+                target.axpy(1.0, self.prolongation_offset)
         else:
             x.copy(target)
         target.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -251,5 +274,7 @@ class ShellProblem(PetscOwner):
             objects.append(self.jacobian_blocked)
         if self.prolongation is not None:
             objects += [self.prolongation, self.jacobian]
+        if self.prolongation_offset is not None:
+            objects.append(self.prolongation_offset)
         for obj in objects:
             obj.destroy()

@@ -284,6 +284,9 @@ def load_scene(path: str | Path) -> Scene:
     constraints = _constraints(top, surface, path)
     points = _point_constraints(top, surface, path)
     contact = _contact(top, path, static)
+    if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
+        raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
+                         "(contact rows would push the tied control points)")  # fmt: skip
     probes = _probes(top, surface)
     plan = _path_plan(top, static, load_steps, probes, path)
     top.done()

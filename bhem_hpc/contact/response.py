@@ -120,6 +120,8 @@ class ContactHandler:
     ):
         self.settings = settings or ContactSettings()
         self.settings.validate()
+        if model.ties:
+            raise ValueError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
         self.model = model
         self.detector = detector
         self.projector = ContactProjector(solver, options=options)

@@ -157,3 +157,18 @@ def test_bad_support_keys_name_the_key(tmp_path, edit, message):
     path.write_text(edit(QUARTER_ROOF))
     with pytest.raises(SceneError, match=message):
         load_scene(path)
+
+
+def test_contact_with_tied_control_points_is_refused(tmp_path):
+    from bhem_hpc.scene import SceneError, load_scene
+
+    text = (
+        QUARTER_ROOF.replace("closed = false", 'closed = false\ndiscretization = "bspline3"')
+        .replace("static = true", "dt = 0.01\nsteps = 2")
+        .replace("[effects]", "[effects]\ncontact = true")
+        + '\n[[colliders]]\ntype = "plane"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 1.0, 0.0]\n'
+    )
+    path = tmp_path / "roof.toml"
+    path.write_text(text)
+    with pytest.raises(SceneError, match=r"contact effects and symmetry planes on a B-spline surface cannot"):
+        load_scene(path)

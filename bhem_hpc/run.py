@@ -173,7 +173,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     try:
         series = _start_output(options, scene, scene_text, summary, checkpoint if continuing else None, comm)
         if scene.static:
-            final = _run_static(scene, options, model, solver, series, summary, (checkpoint, continuing), comm)
+            final = _run_static(scene, options, steps, model, solver, series, summary, (checkpoint, continuing), comm)
         else:
             final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm)
         where = f"load factor {summary['load_factor']:.4g}" if scene.static else f"t = {summary.get('time', 0):.4g} s"
@@ -349,10 +349,11 @@ def _energies(model: ShellModel) -> dict[str, float]:
     return {k: float(v) for k, v in e.items()}
 
 
-def _run_static(scene, options, model, solver, series, summary, restart, comm) -> HermiteSurface:
-    """Follow a static scene's path (:class:`~bhem_hpc.model.path.PathPlan`), writing per converged
-    point a frame, a checkpoint, a row of ``path.csv`` and of the summary; ``path.png`` at the end
-    (also when a step fails: the converged part stays in every file). Returns the final surface."""
+def _run_static(scene, options, steps, model, solver, series, summary, restart, comm) -> HermiteSurface:
+    """Follow ``steps`` more points of a static scene's path (:class:`~bhem_hpc.model.path.PathPlan`),
+    writing per converged point a frame, a checkpoint, a row of ``path.csv`` and of the summary;
+    ``path.png`` at the end (also when a step fails: the converged part stays in every file).
+    Returns the final surface."""
     from bhem_hpc.solver.path import PathError, PathFollower
 
     checkpoint, continuing = restart
@@ -375,7 +376,7 @@ def _run_static(scene, options, model, solver, series, summary, restart, comm) -
     try:
         if not continuing:  # a new series starts with the path's start (or the restart point)
             output.write(follower.path[0])
-        _follow(plan, follower, first_step, _steps_to_run(scene, options, checkpoint), arc_step)
+        _follow(plan, follower, first_step, steps, arc_step)
     except PathError as exc:
         raise RunError(str(exc)) from exc
     finally:
@@ -430,7 +431,8 @@ class _PathOutput:
         """Frame, checkpoint (with the previous point's DOFs), path.csv and summary rows."""
         time_value = point.load_factor if self.plan.time_is_load_factor else point.arc_length
         raw = self.model.discretization.gather_raw_dofs(self.model.x.x.array)
-        extra = {"previous_position_dofs": raw if self.previous_raw is None else self.previous_raw}
+        previous = raw if self.previous_raw is None else self.previous_raw
+        extra = {"position_dofs": raw, "previous_position_dofs": previous}
         attrs = {"load_factor": point.load_factor, "arc_length": point.arc_length}
         if self.follower is not None and np.isfinite(self.follower.arc_step):
             attrs["arc_step"] = self.follower.arc_step
@@ -553,8 +555,11 @@ def _checkpoint(
     comm: MPI.Comm, arrays: dict, attrs: dict,
 ) -> None:  # fmt: skip
     """Write the state at ``clock`` = (time, step) (a static run: zero velocity, the path point's
-    load factor and the previous point's DOFs in ``arrays`` and ``attrs``)."""
-    position = model.discretization.gather_raw_dofs(model.x.x.array)
+    load factor and the previous point's DOFs in ``arrays`` and ``attrs``; the position's raw DOFs
+    are gathered unless ``arrays`` holds them already)."""
+    position = arrays.get("position_dofs")
+    if position is None:
+        position = model.discretization.gather_raw_dofs(model.x.x.array)
     velocity_array = model.velocity.x.array if model.dynamics is not None else np.zeros_like(model.x.x.array)
     velocity = model.discretization.gather_raw_dofs(velocity_array)
     data = {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal} | arrays

@@ -445,55 +445,52 @@ def _effects(t: _Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
         mass_damping = damping.get("mass", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [1/s]")
         stiffness_damping = damping.get("stiffness", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [s]")
         damping.done()
-    point_loads, line_loads, area_loads = _loads(t, path, grid)
-    edge_moments = []
-    for i, item in enumerate(t.get("edge_moments", "a list", [])):
-        load = _Table(path, f"effects.edge_moments[{i}]", item)
-        edge = load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
-        edge_moments.append((edge, float(load.get("moment", "a number", expected="a number (moment per length [N])"))))
-        load.done()
+    loads = _loads(t, path, grid)
     t.done()
     return Effects(
         gravity=tuple(gravity) if gravity is not None else None,
         pressure=pressure,
         mass_damping=mass_damping,
         stiffness_damping=stiffness_damping,
-        point_loads=point_loads,
-        line_loads=line_loads,
-        area_loads=area_loads,
-        edge_moments=tuple(edge_moments),
+        **loads,
     )
 
 
-def _loads(t: _Table, path: Path, grid: S.ParameterGrid) -> tuple[tuple, tuple, tuple]:
-    """``effects.point_loads``, ``line_loads`` and ``area_loads``."""
-    point_loads = []
-    for i, item in enumerate(t.get("point_loads", "a list", [])):
-        load = _Table(path, f"effects.point_loads[{i}]", item)
-        at = load.get("at", "2 numbers")
-        point_loads.append((at[0], at[1], tuple(load.get("force", "3 numbers"))))
-        load.done()
-    line_loads = []
-    for i, item in enumerate(t.get("line_loads", "a list", [])):
-        load = _Table(path, f"effects.line_loads[{i}]", item)
-        edge = load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
-        line_loads.append((edge, tuple(load.get("traction", "3 numbers"))))
-        load.done()
-    area_loads = []
-    for i, item in enumerate(t.get("area_loads", "a list", [])):
-        load = _Table(path, f"effects.area_loads[{i}]", item)
-        force = tuple(load.get("force", "3 numbers", expected="3 numbers (force per rest area [N/m^2])"))
-        profile = load.get("profile", "a string", None)
-        if profile is not None:
-            try:
-                parse_expression(profile)
-            except ExpressionError as exc:
-                load.fail("profile", f"an expression of xi1 and xi2 ({exc})", profile)
-            if not finite_on(profile, *grid.node_parameters()):
-                load.fail("profile", "an expression finite on the whole surface", profile)
-        area_loads.append((force, profile))
-        load.done()
-    return tuple(point_loads), tuple(line_loads), tuple(area_loads)
+def _loads(t: _Table, path: Path, grid: S.ParameterGrid) -> dict[str, tuple]:
+    """``effects.point_loads``, ``line_loads``, ``edge_moments`` and ``area_loads``, by name."""
+
+    def items(name: str):
+        for i, item in enumerate(t.get(name, "a list", [])):
+            load = _Table(path, f"effects.{name}[{i}]", item)
+            yield load
+            load.done()
+
+    moment = "a number (moment per length [N])"
+
+    def edge(load: _Table) -> str:
+        return load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
+
+    return {
+        "point_loads": tuple((*load.get("at", "2 numbers"), tuple(load.get("force", "3 numbers")))
+                             for load in items("point_loads")),  # fmt: skip
+        "line_loads": tuple((edge(load), tuple(load.get("traction", "3 numbers"))) for load in items("line_loads")),
+        "edge_moments": tuple((edge(load), float(load.get("moment", "a number", expected=moment)))
+                              for load in items("edge_moments")),  # fmt: skip
+        "area_loads": tuple(_area_load(load, grid) for load in items("area_loads")),
+    }
+
+
+def _area_load(load: _Table, grid: S.ParameterGrid) -> tuple[tuple[float, float, float], str | None]:
+    force = tuple(load.get("force", "3 numbers", expected="3 numbers (force per rest area [N/m^2])"))
+    profile = load.get("profile", "a string", None)
+    if profile is not None:
+        try:
+            parse_expression(profile)
+        except ExpressionError as exc:
+            load.fail("profile", f"an expression of xi1 and xi2 ({exc})", profile)
+        if not finite_on(profile, *grid.node_parameters()):
+            load.fail("profile", "an expression finite on the whole surface", profile)
+    return force, profile
 
 
 def _probes(top: _Table, surface) -> tuple[Probe, ...]:

@@ -1,7 +1,8 @@
 """Tables of recorded states: ``path.csv`` of a static run (one row per converged path point, with a
 PNG of the load against the probes' displacements) and ``probes.csv`` of a dynamic run (one row per
-time step). Serial: call on one rank. Each file is rewritten by rename after every row, so a run
-that stops keeps every row it completed.
+time step). Serial: call on one rank. A table is written by rename when its first row comes (with
+the rows of the run it continues), then each row is appended as one line: a run that stops keeps
+every row it completed, and a long run does not rewrite its whole table per step.
 """
 
 from __future__ import annotations
@@ -26,8 +27,7 @@ def probe_columns(probes: Mapping[str, Mapping[str, Sequence[float]]]) -> dict[s
 
 
 class CsvTable:
-    """A CSV file whose columns are those of its first row; rows are kept in memory and the file is
-    rewritten (by rename) after each one.
+    """A CSV file whose columns are those of its first row; rows are kept in memory (for plots).
 
     Args:
         path: the file.
@@ -37,22 +37,33 @@ class CsvTable:
     def __init__(self, path: Path, keep: Sequence[dict] = ()):
         self.path = path
         self.rows: list[dict] = [dict(row) for row in keep]
+        self._written = False
+
+    def _lines(self, rows: Sequence[Mapping[str, object]], header: bool) -> str:
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=list(self.rows[0]), extrasaction="ignore", lineterminator="\n")
+        if header:
+            writer.writeheader()
+        writer.writerows(rows)
+        return buffer.getvalue()
 
     def add(self, row: Mapping[str, object]) -> None:
         self.rows.append(dict(row))
-        buffer = io.StringIO()
-        writer = csv.DictWriter(buffer, fieldnames=list(self.rows[0]), extrasaction="ignore", lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(self.rows)
-        write_replacing(self.path, buffer.getvalue())
+        if self._written:
+            with open(self.path, "a", newline="") as f:
+                f.write(self._lines(self.rows[-1:], header=False))  # one whole line per write
+        else:
+            write_replacing(self.path, self._lines(self.rows, header=True))
+            self._written = True
 
 
 def read_rows(path: Path, last_step: int) -> list[dict]:
     """Rows of an earlier ``path.csv`` or ``probes.csv`` up to step ``last_step`` (none if it is
     missing or unreadable)."""
     try:
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
+        text = path.read_text()
+        text = text[: text.rfind("\n") + 1]  # without a line a stopped run left incomplete
+        rows = list(csv.DictReader(io.StringIO(text, newline="")))
     except (OSError, csv.Error, UnicodeDecodeError):
         return []
     kept = []

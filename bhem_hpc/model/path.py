@@ -61,12 +61,7 @@ class ProbeSet:
 
     def positions(self) -> np.ndarray:
         """Positions ``(probes, 3)`` at the model's current state (collective)."""
-        local = np.zeros((len(self.probes), 3))
-        positions = self.model.x.x.array.reshape(-1, 3)
-        for k, (blocks, values) in enumerate(self._basis):
-            if len(blocks):
-                local[k] = values @ positions[blocks]
-        return self.model.comm.allreduce(local)
+        return self.model.point_positions(self._basis)
 
     def record(self) -> dict[str, dict[str, np.ndarray]]:
         """Per probe name its ``position`` and ``displacement`` ``(3,)`` (collective)."""

@@ -518,13 +518,22 @@ class ShellModel:
         """Unknowns of the solver: 3 per closed DOF (Hermite nodal vector or control point)."""
         return 3 * self.discretization.num_closed
 
+    def point_positions(self, bases: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+        """Collective: positions ``(points, 3)`` at the current state of material points given by their
+        ``discretization.point_basis`` (each on the rank owning its patch, so summed over ranks)."""
+        local = np.zeros((len(bases), 3))
+        positions = self.x.x.array.reshape(-1, 3)
+        for k, (blocks, values) in enumerate(bases):
+            if len(blocks):
+                local[k] = values @ positions[blocks]
+        return self.comm.allreduce(local)
+
     def displacement(self, xi1: float, xi2: float) -> np.ndarray:
         """Collective: the displacement ``(3,)`` of the material point ``(xi1, xi2)`` from the initial
         surface, at the current state."""
-        blocks, values = self.discretization.point_basis(xi1, xi2)
-        local = values @ self.x.x.array.reshape(-1, 3)[blocks] if len(blocks) else np.zeros(3)
         start = self.initial_surface.evaluate(np.array(xi1), np.array(xi2)).x
-        return self.comm.allreduce(np.asarray(local, dtype=float)) - start
+        return self.point_positions([self.discretization.point_basis(xi1, xi2)])[0] - start
+
     def set_state(self, surface: HermiteSurface) -> None:
         """Set the position field from a surface."""
         self.x.x.array[:] = self.discretization.surface_to_open(surface)

@@ -26,7 +26,9 @@ from bhem_hpc.solver.petsc import (
     PetscOwner,
     SolverError,
     SolverSetupError,
+    negative_pivots,
     push_options,
+    solve_stopped,
     unused_options,
 )
 from bhem_hpc.solver.problem import ShellProblem
@@ -158,10 +160,7 @@ class ShellSolver(PetscOwner):
             try:
                 self.snes.solve(None, self.x)
             except PETSc.Error as exc:  # not a divergence: PETSc refused to go on (e.g. a bad option)
-                raise SolverSetupError(
-                    f"SNES solver '{self.prefix}': PETSc stopped the solve with error code {exc.ierr} "
-                    f"({PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
-                ) from None
+                raise solve_stopped(self.prefix, exc) from None
             if not self._converged() or not len(self.problem.alm_multipliers):
                 return self._converged()
             self.problem.update_state(self.x)
@@ -400,10 +399,7 @@ class ShellSolver(PetscOwner):
 
     def negative_pivots(self) -> int:
         """Negative pivots of the last LDL^T factorization (MUMPS INFOG(12)); -1 if unknown."""
-        factor_matrix = self._factor_matrix()
-        if factor_matrix is None or self.snes.getKSP().getPC().getType() != "cholesky":
-            return -1
-        return int(factor_matrix.getMumpsInfog(12))
+        return negative_pivots(self.snes.getKSP())
 
     def time_newton_iteration(self) -> dict[str, float]:
         """One Newton iteration at the current state, phase by phase (for benchmarks).

@@ -31,15 +31,16 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.path import ArcLength, PathSettingError, Probe, ProbeSet, check_levels
-from bhem_hpc.solver.newton import ShellSolver, default_options
+from bhem_hpc.solver.newton import ShellSolver, _jacobian_callback, _residual_callback, default_options
 from bhem_hpc.solver.petsc import (
     PETSC_ERRORS,
     SNES_REASONS,
     PetscOwner,
     SolverError,
     SolverSetupError,
-    mumps_infog,
+    negative_pivots,
     push_options,
+    solve_stopped,
 )
 
 log = logging.getLogger(__name__)
@@ -104,12 +105,7 @@ class _BorderedStep:
     def step(self, snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, y: PETSc.Vec) -> None:
         follower = self.follower
         y_r, y_q, a = follower.work
-        snes.computeJacobian(x, follower.jacobian)
-        ksp = snes.getKSP()
-        ksp.setOperators(follower.jacobian)
-        ksp.solve(f, y_r)
-        follower.load_vector(x, follower.q)
-        ksp.solve(follower.q, y_q)
+        follower.solve_load_tangent(x, y_q).solve(f, y_r)
         x.copy(a)
         a.axpy(-1.0, self.base)
         a.axpy(-1.0, y_r)
@@ -195,9 +191,8 @@ class PathFollower(PetscOwner):
             snes = PETSc.SNES().create(self.model.comm)
             snes.setOptionsPrefix(self.prefix)
             snes.setType("python")
-            self._context: _BorderedStep | None = None
-            snes.setFunction(self._residual, self.solver.f)
-            snes.setJacobian(self._jacobian, self.jacobian, self.jacobian)
+            snes.setFunction(_residual_callback, self.solver.f, kargs={"solver": self.solver})
+            snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self.solver})
             try:
                 snes.setFromOptions()
             except PETSc.Error as exc:
@@ -213,13 +208,6 @@ class PathFollower(PetscOwner):
             for name in pushed:
                 opts.delValue(name)
         return snes
-
-    def _residual(self, snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec) -> None:
-        self.problem.update_state(x)
-        self.problem.assemble_residual(x, f)
-
-    def _jacobian(self, snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat) -> None:
-        self.problem.assemble_jacobian(pmat)
 
     def set_load_factor(self, value: float) -> None:
         self.load_factor = float(value)
@@ -237,11 +225,17 @@ class PathFollower(PetscOwner):
         q.axpy(-1.0, self._residual_scratch)
         self.model.load_factor.value = current
 
-    # -- measurements -----------------------------------------------------------------------------
-    def probe_displacement(self, name: str) -> np.ndarray:
-        """Displacement ``(3,)`` of a probe from the model's initial surface, at the current state."""
-        return self.probe_set.record()[name]["displacement"]
+    def solve_load_tangent(self, x: PETSc.Vec, out: PETSc.Vec) -> PETSc.KSP:
+        """Factorize the tangent ``K`` at ``x``, solve ``K out = q`` (the load vector) and return the
+        KSP holding the factorization, for more solves with it."""
+        self._snes.computeJacobian(x, self.jacobian)
+        ksp = self._snes.getKSP()
+        ksp.setOperators(self.jacobian)
+        self.load_vector(x, self.q)
+        ksp.solve(self.q, out)
+        return ksp
 
+    # -- measurements -----------------------------------------------------------------------------
     def _functional(self, probe: Probe, component: int) -> PETSc.Vec:
         """Closed-DOF vector ``c`` with ``c . x`` = component of the probe's position."""
         blocks, values = self.model.discretization.point_basis(probe.xi1, probe.xi2)
@@ -297,15 +291,10 @@ class PathFollower(PetscOwner):
         Returns:
             The negative pivots of the factorization (-1 if unknown) and the sign of dlambda/ds.
         """
-        snes = self._snes
-        snes.computeJacobian(self.x, self.jacobian)
-        ksp = snes.getKSP()
-        ksp.setOperators(self.jacobian)
-        self.load_vector(self.x, self.q)
-        ksp.solve(self.q, self.tangent)
+        ksp = self.solve_load_tangent(self.x, self.tangent)
         sign = 1.0 if increment is None or self.tangent.dot(increment) >= 0 else -1.0
         self.tangent.scale(sign)
-        return self._negative_pivots(), sign
+        return negative_pivots(ksp), sign
 
     # -- load control -----------------------------------------------------------------------------
     def load_control(self, levels: Sequence[float], max_cuts: int = 8) -> list[PathPoint]:
@@ -433,21 +422,11 @@ class PathFollower(PetscOwner):
         try:
             self._snes.solve(None, self.x)
         except PETSc.Error as exc:
-            raise SolverSetupError(
-                f"SNES solver '{self.prefix}': PETSc stopped the solve with error code {exc.ierr} "
-                f"({PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
-            ) from None
+            raise solve_stopped(self.prefix, exc) from None
         converged = self._snes.getConvergedReason() > 0 and np.isfinite(self._snes.getFunctionNorm())
         if context.failed:
             log.info("%s: %s", self.prefix, context.failed)
         return converged and not context.failed
-
-    def _negative_pivots(self) -> int:
-        ksp = self._snes.getKSP()
-        if ksp.getPC().getType() != "cholesky":
-            return -1
-        value = mumps_infog(ksp, 12)
-        return -1 if value is None else value
 
     def _fail(self, what: str, snes: PETSc.SNES) -> None:
         reason = snes.getConvergedReason()

@@ -85,6 +85,23 @@ def mumps_infog(ksp: PETSc.KSP | None, entry: int = 1) -> int | None:
         return None
 
 
+def negative_pivots(ksp: PETSc.KSP) -> int:
+    """Negative pivots of a KSP's last LDL^T factorization (MUMPS INFOG(12)); -1 if unknown (no
+    Cholesky, or not MUMPS')."""
+    if ksp.getPC().getType() != "cholesky":
+        return -1
+    value = mumps_infog(ksp, 12)
+    return -1 if value is None else value
+
+
+def solve_stopped(prefix: str, exc: PETSc.Error) -> SolverSetupError:
+    """The error of a SNES solve that PETSc stopped (not a divergence: e.g. a bad option)."""
+    return SolverSetupError(
+        f"SNES solver '{prefix}': PETSc stopped the solve with error code {exc.ierr} "
+        f"({PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
+    )
+
+
 def library_versions() -> dict[str, str]:
     """Versions of bhem-hpc and the FEniCSx/PETSc stack, for run summaries."""
     import basix

@@ -182,12 +182,8 @@ class ShellProblem(PetscOwner):
         Returns:
             Array of shape ``(points, 3)``; unconstrained components are 0.
         """
-        local = np.zeros_like(self.alm_multipliers)
-        positions = self.model.x.x.array.reshape(-1, 3)
-        for k, (blocks, values) in enumerate(self.model.point_constraint_basis):
-            if len(blocks):
-                local[k] = values @ positions[blocks]
-        return (self.model.comm.allreduce(local) - self.alm_targets) * self.alm_mask
+        positions = self.model.point_positions(self.model.point_constraint_basis)
+        return (positions - self.alm_targets) * self.alm_mask
 
     def potential_energy(self) -> float:
         """Total potential at the model's current state (internal - external work), collective."""

@@ -85,16 +85,10 @@ def _circle_curve() -> dict:
 def _panel_reference(patches: int = 16) -> tuple[dict, ...]:
     """The cylindrical panel's path on ``patches`` (the job's arc-length settings), as path.csv rows."""
     from bhem_hpc.scene import load_scene
-    from bhem_hpc.solver import ShellSolver
-    from bhem_hpc.solver.path import PathFollower, Probe
 
-    panel = CylindricalPanel()
     settings = load_scene(JOBS / "cylindrical-panel.toml").path_plan.arc_length
-    with ShellSolver(panel.model(patches, MPI.COMM_SELF)) as solver:
-        with PathFollower(solver, [Probe("centre", *panel.centre())]) as follower:
-            follower.arc_length(settings)
-            return tuple({"load_factor": p.load_factor, "centre_uy": p.probes["centre"]["displacement"][1]}
-                         for p in follower.path)  # fmt: skip
+    points = CylindricalPanel().follow(patches, settings, MPI.COMM_SELF)
+    return tuple({"load_factor": p.load_factor, "centre_uy": p.probes["centre"]["displacement"][1]} for p in points)
 
 
 def _panel_landmarks(rows) -> dict[str, float]:

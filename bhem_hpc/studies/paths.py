@@ -144,6 +144,17 @@ class CylindricalPanel:
         """Parameters of the loaded centre (a corner of the quarter)."""
         return (self.length / 2, np.pi / 2)
 
+    def follow(self, patches: int, settings, comm: MPI.Comm = MPI.COMM_WORLD) -> list:
+        """The path by arc length (:class:`~bhem_hpc.model.path.ArcLength` ``settings``) on ``patches``
+        x ``patches``, probing the centre: a list of :class:`~bhem_hpc.solver.path.PathPoint`."""
+        from bhem_hpc.solver import ShellSolver
+        from bhem_hpc.solver.path import PathFollower, Probe
+
+        with ShellSolver(self.model(patches, comm)) as solver:
+            with PathFollower(solver, [Probe("centre", *self.centre())]) as follower:
+                follower.arc_length(settings)
+                return follower.path
+
 
 def snap_landmarks(factors: list[float], deflections: list[float]) -> dict[str, float]:
     """Landmarks of a snap-through path with a snap-back (load factors and a deflection along it):

@@ -62,3 +62,17 @@ def test_a_time_series_declares_its_arrays_and_exact_times(comm, shared_tmp_path
         frames = ET.parse(xdmf).getroot().findall(".//Grid[@GridType='Uniform']")
         times = [g.find("Time").get("Value") for g in frames]
         assert times == ["0.0", "0.1", "0.2", "0.3", "0.4", "0.5", "0.6"]  # not 0.30000000000000004
+
+
+def test_tables_append_a_line_per_row_and_a_continuation_drops_a_torn_line(tmp_path):
+    from bhem_hpc.io.path_table import CsvTable, read_rows
+
+    path = tmp_path / "t.csv"
+    table = CsvTable(path)
+    for step in range(3):
+        table.add({"step": step, "value": 0.5 * step})
+    assert path.read_text() == "step,value\n0,0.0\n1,0.5\n2,1.0\n"
+    with open(path, "a") as f:
+        f.write("3,")  # a run stopped in the middle of a line
+    assert [r["step"] for r in read_rows(path, 10)] == ["0", "1", "2"]
+    assert [r["step"] for r in read_rows(path, 1)] == ["0", "1"]

@@ -221,11 +221,8 @@ def panel_landmarks(comm, patches: int) -> dict[str, float]:
     """The thin cylindrical panel's path by arc length, reduced to its landmarks."""
     from bhem_hpc.studies.paths import CylindricalPanel, snap_landmarks
 
-    panel = CylindricalPanel()
-    with ShellSolver(panel.model(patches, comm)) as solver:
-        with PathFollower(solver, [Probe("centre", *panel.centre())]) as follower:
-            follower.arc_length(ArcLength(0.1, max_step=0.1, max_steps=200, load_factor_range=(-2.0, 1.0)))
-            points = follower.path
+    settings = ArcLength(0.1, max_step=0.1, max_steps=200, load_factor_range=(-2.0, 1.0))
+    points = CylindricalPanel().follow(patches, settings, comm)
     assert [p.event for p in points if p.event] == ["limit", "limit"]
     factors = [p.load_factor for p in points]
     return snap_landmarks(factors, [-p.probes["centre"]["displacement"][1] for p in points])

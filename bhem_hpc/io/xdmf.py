@@ -203,7 +203,7 @@ class SurfaceTimeSeries:
             else:
                 self.times.append(t)
         self.file.flush()
-        self.vtu_folder.mkdir(exist_ok=True)
+        self.vtu_folder.mkdir(exist_ok=True)  # only once the series to continue is known to be there
         for stale in self.vtu_folder.glob("frame_*.vtu"):
             index = stale.stem.removeprefix("frame_")
             if index.isdigit() and int(index) >= len(self.times):
@@ -235,14 +235,15 @@ class SurfaceTimeSeries:
     def _write_frame(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])
         fields = _point_fields(point, self.rest_point, self.material)
+        fields = {name: fields[name] for name in SERIES_FIELDS}
         group = self.file.create_group(f"frames/{len(self.times)}")
         group["geometry"] = point.x
-        for name in SERIES_FIELDS:
-            group[name] = fields[name]
+        for name, values in fields.items():
+            group[name] = values
         group["nodal"] = surface.nodal  # the exact surface (Hermite nodal data or control points), for the ray tracer
         group.attrs["time"] = float(time)
         self.file.flush()
-        write_vtu(self._vtu_path(len(self.times)), point.x, self.quads, {name: fields[name] for name in SERIES_FIELDS})
+        write_vtu(self._vtu_path(len(self.times)), point.x, self.quads, fields)
 
     def _vtu_path(self, frame: int) -> Path:
         return self.vtu_folder / f"frame_{frame:06d}.vtu"

@@ -137,10 +137,15 @@ def pin(nodes: np.ndarray) -> NodalConstraint:
     return NodalConstraint(np.asarray(nodes).reshape(-1, 2), (0,))
 
 
+def along_kind(edge: str) -> int:
+    """The Hermite kind of the derivative along a boundary edge (d2 on the xi1 edges, d1 on the xi2
+    ones); the other first derivative runs across it."""
+    return 2 if edge.startswith("xi1") else 1
+
+
 def simply_supported(grid: ParameterGrid, edge: str) -> NodalConstraint:
     """Hinged edge: position and the derivative along the edge fixed, rotation about it free."""
-    along = 2 if edge.startswith("xi1") else 1
-    return NodalConstraint(edge_nodes(grid, edge), (0, along))
+    return NodalConstraint(edge_nodes(grid, edge), (0, along_kind(edge)))
 
 
 def prescribe(
@@ -234,6 +239,13 @@ def _edge_rows(surface, edge: str, rows: int) -> np.ndarray:
     return out
 
 
+def _not_at_right_angles(edge: str, axis: int) -> BoundaryConditionError:
+    return BoundaryConditionError(
+        f"symmetry plane on edge {edge!r}: the rest surface does not cross the plane normal to "
+        f"{AXES[axis]} at right angles there (a symmetric structure does)"
+    )
+
+
 def hinged_edge(surface, edge: str) -> NodalConstraint:
     """A hinge along a boundary edge: the edge's positions held, its rotation about the edge free
     (the same as :func:`support_edge`, the scene's ``simply_supported``)."""
@@ -261,13 +273,11 @@ def symmetry_edge(surface, edge: str, normal: str | int) -> list[NodalConstraint
     if surface.kind_count == 1:
         return _spline_symmetry(surface, edge, axis, in_plane)
     nodes = edge_nodes(surface.grid, edge)
-    along, across = (2, 1) if edge.startswith("xi1") else (1, 2)
+    along = along_kind(edge)
+    across = 3 - along
     slope = surface.nodal[nodes[:, 0], nodes[:, 1], across]
     if np.abs(slope[:, in_plane]).max() > 1e-9 * float(np.abs(slope).max()):
-        raise BoundaryConditionError(
-            f"symmetry plane on edge {edge!r}: the rest surface does not cross the plane normal to "
-            f"{AXES[axis]} at right angles there (a symmetric structure does)"
-        )
+        raise _not_at_right_angles(edge, axis)
     return [NodalConstraint(nodes, (0, along), (axis,)), NodalConstraint(nodes, (across, 3), in_plane)]
 
 
@@ -280,10 +290,7 @@ def _spline_symmetry(surface, edge: str, axis: int, in_plane: tuple[int, ...]) -
     control = surface.nodal[..., 0, :]
     slope = control[second[:, 0], second[:, 1]] - control[boundary[:, 0], boundary[:, 1]]
     if np.abs(slope[:, in_plane]).max() > 1e-3 * float(np.abs(slope).max()):  # interpolated shapes: ~1e-5
-        raise BoundaryConditionError(
-            f"symmetry plane on edge {edge!r}: the rest surface does not cross the plane normal to "
-            f"{AXES[axis]} at right angles there (a symmetric structure does)"
-        )
+        raise _not_at_right_angles(edge, axis)
     return [NodalConstraint(boundary, (0,), (axis,)), NodalTie(second, boundary, in_plane)]
 
 
@@ -300,5 +307,4 @@ def diaphragm_edge(surface, edge: str, normal: str | int) -> NodalConstraint:
     nodes = edge_nodes(surface.grid, edge, surface.node_shape)
     if surface.kind_count == 1:
         return NodalConstraint(nodes, (0,), in_plane)
-    along = 2 if edge.startswith("xi1") else 1
-    return NodalConstraint(nodes, (0, along), in_plane)
+    return NodalConstraint(nodes, (0, along_kind(edge)), in_plane)

@@ -121,12 +121,17 @@ def scene_benchmark(
     comm: MPI.Comm = MPI.COMM_WORLD,
     warmup: int = 1,
     samples_per_side: int | None = None,
+    overrides: dict[str, dict] | None = None,
 ) -> dict:
     """Time ``steps`` implicit Euler steps of a scene after ``warmup`` untimed steps, without output.
 
     With contact effects the collision time (detection and response) is reported as well.
+    ``overrides``: scene keys replaced, ``{table: {key: value}}`` (e.g. the patches, the linear
+    solver). Besides times per step: the linear solver chosen, Krylov iterations per linear solve,
+    refactorizations per step and each rank's peak resident memory so far (the largest).
     """
     import dataclasses
+    import resource
 
     from bhem_hpc.run import SOLVER_PREFIX, build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
@@ -134,7 +139,7 @@ def scene_benchmark(
 
     if steps < 1:
         raise ValueError(f"--steps must be >= 1, got {steps!r}")
-    scene = load_scene(scene_path)
+    scene = load_scene(scene_path, overrides)
     if scene.static:
         raise ValueError(f"{scene_path}: a static scene has no time steps to benchmark")
     if hessian is not None:
@@ -148,7 +153,8 @@ def scene_benchmark(
             scene, contact=dataclasses.replace(scene.contact, samples_per_side=samples_per_side)
         )
     model = build_model(scene, comm)
-    with ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options) as solver:
+    with ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
+                     factorization=scene.factorization, linear=scene.linear) as solver:  # fmt: skip
         contact = build_contact(scene, model, solver)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
         for _ in range(max(warmup, 1)):
@@ -156,14 +162,29 @@ def scene_benchmark(
         reports = [stepper.advance() for _ in range(steps)]
         assemble = sum(r.assembly_s for r in reports)
         factor = sum(r.factorization_s for r in reports)
+        linear_solve = sum(r.linear_solve_s for r in reports)
         nnz = solver.problem.matrix_nonzeros()
+        linear = solver.linear.kind
+        fallbacks = len(solver.fallbacks)
         samples = contact.detector.num_samples if contact is not None else 0
         if contact is not None:
             contact.close()
     wall = float(np.mean([r.wall_s for r in reports]))
     collision = float(np.mean([r.collision_s for r in reports]))
+    newton = sum(r.newton_iterations for r in reports)
+    solves = sum(r.linear_solves for r in reports)
+    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # Linux: kilobytes
     return {
         "scene": str(scene_path),
+        "patches": [scene.surface.grid.n1, scene.surface.grid.n2],
+        "linear": linear,
+        "factorization": scene.factorization,
+        "linear_fallbacks": fallbacks,
+        "linear_solve_per_step_s": comm.allreduce(linear_solve / steps, op=MPI.MAX),
+        "krylov_per_solve": sum(r.krylov_iterations for r in reports) / max(solves, 1) if linear != "direct" else 0.0,
+        "refactorizations_per_step": sum(r.refactorizations for r in reports) / steps,
+        "newton_iteration_s": comm.allreduce(wall, op=MPI.MAX) * steps / max(newton, 1),
+        "peak_memory_per_rank_gb": comm.allreduce(peak_kb, op=MPI.MAX) / 1e6,
         "hessian": scene.hessian,
         "dofs": 3 * model.discretization.num_closed,
         "nnz": nnz,
@@ -452,8 +473,10 @@ def format_scene_row(row: dict) -> str:
         if row["sample_points"]
         else ""
     )
+    krylov = f", {row['krylov_per_solve']:.1f} Krylov iterations/solve" if row["linear"] == "iterative" else ""
     return (
         f"{row['scene']}: {row['dofs']} DoFs, {row['ranks']} rank(s), {row['hessian']} Hessian, "
+        f"{row['linear']} linear solver{krylov}, peak memory {row['peak_memory_per_rank_gb']:.2f} GB/rank, "
         f"{row['steps']} steps: {row['step_s']:.3f} s/step, {row['newton_per_step']:.2f} Newton "
         f"iterations/step (assembly {row['assembly_per_step_s']:.3f} s, factorization "
         f"{row['factor_per_step_s']:.3f} s per step), {row['recoveries']} recoveries" + collision

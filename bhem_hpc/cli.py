@@ -16,6 +16,8 @@ import sys
 import traceback
 from pathlib import Path
 
+BENCH_DEFAULT_PATCHES = [10, 20, 30]
+
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -55,7 +57,7 @@ def _parser() -> argparse.ArgumentParser:
     summary.add_argument("--docs", type=Path, default=Path("docs"), help="the docs directory")
     summary.add_argument("--readme", type=Path, default=Path("README.md"), help="the README to update")
     bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
-    bench.add_argument("--patches", type=int, nargs="+", default=[10, 20, 30])
+    bench.add_argument("--patches", type=int, nargs="+", default=BENCH_DEFAULT_PATCHES)
     bench.add_argument("--hessian", choices=("exact", "pseudo"), default="exact")
     bench.add_argument(
         "--discretization", choices=("hermite", "bspline2", "bspline3"), default="hermite", help="with --patches"
@@ -72,6 +74,25 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--samples", type=int, default=None, help="with --scene: contact samples per patch side")
     bench.add_argument("--docs", type=Path, default=None, help="measure everything and write DOCS/performance.md")
     bench.add_argument("--rays", action="store_true", help="ray-patch intersection: midpoint vs Newton-guided")
+    bench.add_argument("--linear", choices=("auto", "direct", "iterative"), default=None,
+                       help="with --scene: the linear solver (default: the scene's)")  # fmt: skip
+    bench.add_argument(
+        "--factorization", choices=("reuse", "fresh"), default=None,
+        help="with --scene: keep factorizations across Newton iterations or not (default: the scene's)",
+    )  # fmt: skip
+    bench.add_argument(
+        "--scaling", action="store_true",
+        help="time steps of --scene (default jobs/million-cloth.toml) for every --ranks count, --patches size and "
+        "linear solver, each in its own mpirun; writes CSV, Markdown, PNG",
+    )  # fmt: skip
+    bench.add_argument("--ranks", type=int, nargs="+", default=[1, 2], help="with --scaling: MPI rank counts")
+    bench.add_argument(
+        "--weak", type=int, default=None,
+        help="with --scaling: weak scaling too, patches per side for one rank (N sqrt(ranks) for more)",
+    )  # fmt: skip
+    bench.add_argument("--out", type=Path, default=Path("out/scaling"), help="with --scaling: the output folder")
+    bench.add_argument("--mpirun", default=None, help="with --scaling: the MPI launcher (default: mpirun)")
+    bench.add_argument("--timeout", type=float, default=3600.0, help="with --scaling: seconds per case")
     return parser
 
 
@@ -170,7 +191,11 @@ def _quadrature(text: str) -> int | str:
 def _bench(args: argparse.Namespace, comm) -> None:
     from bhem_hpc import benchmarks
 
-    if args.rays:
+    if args.scaling:
+        from bhem_hpc import scaling
+
+        scaling.run_scaling_command(args, comm)
+    elif args.rays:
         rows = [benchmarks.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
         for row in rows:
             print(json.dumps(row) if args.json else benchmarks.format_ray_row(row))
@@ -180,7 +205,13 @@ def _bench(args: argparse.Namespace, comm) -> None:
         if comm.rank == 0:
             print(f"wrote {path}")
     elif args.scene is not None:
-        row = benchmarks.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples)
+        overrides = {"solver": {k: v for k, v in (("linear", args.linear), ("factorization", args.factorization)) if v}}
+        if args.patches != BENCH_DEFAULT_PATCHES:
+            if len(args.patches) != 1:
+                raise ValueError(f"--scene takes one --patches size, got {args.patches}")
+            overrides["surface"] = {"patches": [args.patches[0]] * 2}
+        row = benchmarks.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples,
+                                         overrides)  # fmt: skip
         if comm.rank == 0:
             print(json.dumps(row) if args.json else benchmarks.format_scene_row(row))
     else:

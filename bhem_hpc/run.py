@@ -157,7 +157,8 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
                 f"{checkpoint['path']}: its DOFs have shape {checkpoint['arrays']['position_dofs'].shape}, "
                 f"this run's {expected}"
             )
-    solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options)
+    solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
+                         factorization=scene.factorization, linear=scene.linear)  # fmt: skip
     summary: dict = {
         "scene": str(options.scene),
         "status": "running",
@@ -167,6 +168,8 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
         "ranks": comm.size,
         "versions": library_versions(),
         "static": scene.static,
+        "linear_solver": solver.linear.as_dict(),
+        "factorization": scene.factorization,
         "steps": _previous_steps(options.out, checkpoint) if continuing else [],
     }
     series = None
@@ -191,6 +194,10 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
         if series is not None:
             series.close()
         _report_unused_options(solver, summary, comm)
+        summary["linear_solver_fallbacks"] = solver.fallbacks
+        summary["solver_totals"] = {k: v for k, v in solver.counters().items()
+                                    if k in ("refactorizations", "chord_iterations", "refactor_retries",
+                                             "krylov_iterations", "linear_solves")}  # fmt: skip
         solver.close()
     summary["status"] = "completed"
     _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
@@ -484,9 +491,12 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
             wrote = stepper.step % scene.output_every == 0 or k == steps - 1  # the last step always writes
             if wrote:
                 surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm)
+                # a run continued from this checkpoint starts with a fresh factorization: so does this one
+                solver.reuse.invalidate()
             probes.write(stepper)
+            energies = _energies(model) if wrote else None  # a few assemblies: with the frames only
             output_s = time.perf_counter() - t_out
-            summary["steps"].append(_step_summary(record, output_s, _energies(model)))
+            summary["steps"].append(_step_summary(record, output_s, energies))
             # the step records up to a checkpoint, at most every SUMMARY_EVERY_S: a killed or
             # requeued job's continuation keeps them
             if wrote and comm.bcast(time.perf_counter() - last_summary >= SUMMARY_EVERY_S):
@@ -521,14 +531,16 @@ class _ProbeTable:
         _on_rank0(self.comm, lambda: self.table.add(row), "probes.csv")
 
 
-def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float]) -> dict:
-    """A step's row of ``summary.json``."""
-    names = ("step", "time", "newton_iterations", "recoveries", "negative_pivots", "regularized_iterations")
+def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float] | None) -> dict:
+    """A step's row of ``summary.json`` (the energies at steps that wrote a frame)."""
+    names = ("step", "time", "newton_iterations", "recoveries", "negative_pivots", "regularized_iterations",
+             "refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations")  # fmt: skip
     row = {name: getattr(record, name) for name in names}
     row["wall_s"] = record.wall_s + output_s
     for name in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "contacts"):
         row[name] = getattr(record, name)
-    return row | {"output_s": output_s, "energies": energies}
+    row["output_s"] = output_s
+    return row if energies is None else row | {"energies": energies}
 
 
 def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:

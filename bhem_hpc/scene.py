@@ -23,6 +23,8 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.expression import ExpressionError, finite_on, numpy_expression, parse_expression
 from bhem_hpc.model.material import Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
+from bhem_hpc.solver.linear import LINEAR_SOLVERS
+from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES
 
 SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
 CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")
@@ -128,6 +130,8 @@ class Scene:
     load_steps: int
     hessian: str
     quadrature: int | str | None  # Gauss points per direction, 'reduced', None: the default
+    linear: str = "auto"  # linear solver: auto | direct | iterative
+    factorization: str = "reuse"  # reuse | fresh
     petsc_options: dict[str, Any] = field(default_factory=dict)
     point_constraints: tuple[ScenePoint, ...] = ()
     output_every: int = 1
@@ -230,10 +234,20 @@ def _read_toml(path: Path) -> dict:
         raise SceneError(f"{path}: nested too deeply to be a scene") from None
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file. Raises :class:`SceneError` on any problem."""
+def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = None) -> Scene:
+    """Read and validate a scene file. Raises :class:`SceneError` on any problem.
+
+    Args:
+        overrides: ``{table: {key: value}}`` replacing keys of the file's tables before validation,
+            e.g. ``{"surface": {"patches": [200, 200]}, "solver": {"linear": "iterative"}}``.
+    """
     path = Path(path)
     raw = _read_toml(path)
+    for table, values in (overrides or {}).items():
+        current = raw.setdefault(table, {})
+        if not isinstance(current, dict):
+            raise SceneError(f"{path}: '{table}' must be a table to take {sorted(values)}")
+        current.update(values)
     top = _Table(path, "", raw)
     surface = _surface(top.table("surface"), path)
     material = _material(top.table("material"))
@@ -260,8 +274,12 @@ def load_scene(path: str | Path) -> Scene:
         load_steps = 1
     time_table.done()
     solver = top.table("solver", None)
-    hessian, quadrature, options = "exact", None, {}
+    hessian, quadrature, options, linear, factorization = "exact", None, {}, "auto", "reuse"
     if solver is not None:
+        linear = solver.get("linear", "a string", "auto", lambda v: v in LINEAR_SOLVERS,
+                            "'auto', 'direct' or 'iterative'")  # fmt: skip
+        factorization = solver.get("factorization", "a string", "reuse", lambda v: v in FACTORIZATION_POLICIES,
+                                   "'reuse' or 'fresh'")  # fmt: skip
         hessian = solver.get("hessian", "a string", "exact", lambda v: v in ("exact", "pseudo"), "'exact' or 'pseudo'")
         quadrature = solver.get(
             "quadrature", "an integer or a string", None, lambda v: v in (2, 3, 4, 5, "reduced"),
@@ -302,6 +320,8 @@ def load_scene(path: str | Path) -> Scene:
         load_steps=load_steps,
         hessian=hessian,
         quadrature=quadrature,
+        linear=linear,
+        factorization=factorization,
         petsc_options=dict(options),
         point_constraints=points,
         output_every=every,

@@ -47,6 +47,11 @@ class StepRecord:
     regularized_retries: int = 0
     regularized_iterations: int = 0
     negative_pivots: int = -1  # of the last factorization (-1: unknown, not LDL^T)
+    refactorizations: int = 0  # Jacobians assembled and factored
+    chord_iterations: int = 0  # Newton iterations on a kept factorization
+    refactor_retries: int = 0  # failed solves repeated with a fresh factorization
+    krylov_iterations: int = 0  # of the iterative linear solver (0 with MUMPS' preonly)
+    linear_solves: int = 0
     wall_s: float = 0.0
     assembly_s: float = 0.0
     factorization_s: float = 0.0
@@ -129,7 +134,9 @@ class TimeStepper:
         self._tick()
         report.time = self.time
         after = self.solver.counters()
-        counted = ("regularized_retries", "regularized_iterations", "assembly_s", "factorization_s", "linear_solve_s")
+        counted = ("regularized_retries", "regularized_iterations", "assembly_s", "factorization_s", "linear_solve_s",
+                   "refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations",
+                   "linear_solves")  # fmt: skip
         for name in counted:
             setattr(report, name, after[name] - before[name])
         report.negative_pivots = after["negative_pivots"]

@@ -19,6 +19,13 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.linear import (
+    LinearSolverChoice,
+    LinearSolverError,
+    available_memory,
+    choose_linear_solver,
+    mass_dominance,
+)
 from bhem_hpc.solver.petsc import (
     KSP_REASONS,
     PETSC_ERRORS,
@@ -32,17 +39,23 @@ from bhem_hpc.solver.petsc import (
     unused_options,
 )
 from bhem_hpc.solver.problem import ShellProblem
+from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, refactor_cost
 
 log = logging.getLogger(__name__)
+#: Jacobian nonzeros per DoF for the memory estimate of a factorization (Hermite ~100, B-splines
+#: of degree 2 and 3 ~130: a bound for sizing, not a count).
+NONZEROS_PER_DOF = 130
+#: A Jacobian assembly and its preconditioner's setup, in Krylov-solved chord iterations.
+ITERATIVE_REFACTOR_COST = 8.0
 
 
-def default_options(model: ShellModel) -> dict[str, str]:
-    """Solver defaults for a model (all overridable under the prefix)."""
+def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]:
+    """Solver defaults for a model and a linear solver kind (all overridable under the prefix)."""
     m = model.material
     grid = model.rest_surface.grid
     # Absolute residual floor: round-off of the internal force is ~eps * Y h * patch size.
     force_scale = m.young * m.thickness * max(grid.h1, grid.h2)
-    return {
+    nonlinear = {
         "snes_type": "newtonls",
         # Conservative problems: full step damped by the energy precheck (ShellSolver.damp_step);
         # follower loads have no potential: backtracking on the residual norm.
@@ -51,6 +64,30 @@ def default_options(model: ShellModel) -> dict[str, str]:
         "snes_atol": f"{1e-13 * force_scale:.3e}",
         "snes_stol": "1e-14",
         "snes_max_it": "30",
+    }
+    if linear == "direct":
+        return default_direct_options(model) | nonlinear
+    krylov = {
+        "ksp_type": "cg" if model.symmetric else "gmres",
+        # inexact Newton: the nonlinear test is on the true residual, and a step solved to 1e-3
+        # converges about as fast as the chord steps it is used in
+        "ksp_rtol": "1e-3",
+        "ksp_atol": f"{1e-15 * force_scale:.3e}",
+        "ksp_max_it": "1000",
+        "ksp_norm_type": "unpreconditioned",
+    }
+    if model.dynamics is not None:  # M / dt^2 + K: block Jacobi / ILU(0) per rank (on a symmetric
+        # matrix ILU(0) is the incomplete Cholesky factorization, a symmetric preconditioner for CG)
+        pc = {"pc_type": "bjacobi", "sub_pc_type": "ilu", "sub_pc_factor_shift_type": "nonzero"}
+    else:  # K alone: algebraic multigrid with the three displacement components coarsened together
+        pc = {"pc_type": "hypre", "pc_hypre_type": "boomeramg", "pc_hypre_boomeramg_nodal_coarsen": "6",
+              "pc_hypre_boomeramg_vec_interp_variant": "3", "pc_hypre_boomeramg_strong_threshold": "0.5"}  # fmt: skip
+    return nonlinear | krylov | pc
+
+
+def default_direct_options(model: ShellModel) -> dict[str, str]:
+    """The direct solver's options (MUMPS)."""
+    return {
         "ksp_type": "preonly",
         "pc_type": "cholesky" if model.symmetric else "lu",
         "pc_factor_mat_solver_type": "mumps",
@@ -70,6 +107,19 @@ def _energy_precheck(x: PETSc.Vec, y: PETSc.Vec, solver: ShellSolver) -> None:
 
 def _jacobian_callback(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
     solver.problem.assemble_jacobian(pmat)
+    solver.reuse.invalidate()  # another SNES (the path's) filled the shared matrix
+
+
+def _kept_jacobian_callback(
+    snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver
+) -> None:
+    """Assemble the Jacobian only when the refactor policy asks; otherwise the matrix is left
+    untouched, so PETSc's PC sees an unchanged operator and keeps its factorization (a chord step)."""
+    iteration, norm = snes.getIterationNumber(), snes.getFunctionNorm()
+    if iteration == 0:
+        solver.target_norm = max(snes.getTolerances()[0] * norm, snes.getTolerances()[1])  # rtol, atol
+    if solver.reuse.refactor_now(iteration, norm, solver.target_norm, solver.operator_signature()):
+        solver.problem.assemble_jacobian(pmat)
 
 
 @dataclass
@@ -85,6 +135,9 @@ class SolveReport:
     regularized_retries: int = 0
     regularized_iterations: int = 0
     multiplier_updates: int = 0
+    refactor_retries: int = 0
+    krylov_iterations: int = 0
+    linear_solves: int = 0
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
@@ -98,12 +151,36 @@ class ShellSolver(PetscOwner):
         model: the shell problem (forms, constraints, loads).
         prefix: PETSc options prefix of this solver.
         options: PETSc options (without prefix) that override the defaults, e.g. from a scene.
+        factorization: ``"reuse"``: keep the Jacobian and its factorization (or preconditioner)
+            across Newton iterations and solves while chord steps converge well
+            (:class:`FactorizationReuse`); ``"fresh"``: assemble and factor at every Newton iteration.
+        linear: ``"direct"`` (MUMPS), ``"iterative"`` (preconditioned CG / GMRES) or ``"auto"``
+            (:func:`~bhem_hpc.solver.linear.choose_linear_solver`: by size, mass dominance and memory).
+
+    Raises:
+        LinearSolverError: an unknown ``linear`` or a direct solver that would not fit in memory.
     """
 
-    def __init__(self, model: ShellModel, prefix: str = "bhem_static_", options: Mapping[str, object] | None = None):
+    def __init__(
+        self, model: ShellModel, prefix: str = "bhem_static_", options: Mapping[str, object] | None = None,
+        factorization: str = "reuse", linear: str = "auto",
+    ):  # fmt: skip
+        if factorization not in FACTORIZATION_POLICIES:
+            raise ValueError(f"factorization must be one of {FACTORIZATION_POLICIES}, got {factorization!r}")
         self.model = model
         self.prefix = prefix
         self._closed = False
+        self._energy_scale = 0.0
+        self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
+        self.linear = self._choose_linear(linear)
+        #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
+        self.fallbacks: list[dict] = []
+        dofs = 3 * model.discretization.num_closed
+        self.reuse = FactorizationReuse(
+            enabled=factorization == "reuse",
+            # a Krylov solve costs about as much as assembling the Jacobian that preconditions it
+            refactor_cost=refactor_cost(dofs) if self.linear.kind == "direct" else ITERATIVE_REFACTOR_COST,
+        )
         #: ``load factor -> values of the constrained DOFs`` (``model.constrained``) for static load
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
         #: straight from the initial values to the targets.
@@ -117,13 +194,16 @@ class ShellSolver(PetscOwner):
         # the caller's options stay in the database for the solver's life (some are read only at
         # the first factorization) and are removed by close(); the defaults only for setup
         self._overrides = push_options(prefix, {}, options or {})
-        pushed = push_options(prefix, default_options(model), {})
+        pushed = push_options(prefix, default_options(model, self.linear.kind), {})
         try:  # the pushed defaults are removed again whatever happens
             ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
             mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
             # MUMPS' LDL^T takes SBAIJ (one triangle) serially; seams (PtAP) and MPI need AIJ.
             serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and disc.closed_is_open
-            self.matrix_format = "sbaij" if serial_sbaij else "aij"
+            # Block Jacobi / ILU works on the 3 x 3 blocks as assembled (no conversion); hypre and
+            # the seams' PtAP need AIJ.
+            blocked = opts.getString(prefix + "pc_type", "") == "bjacobi" and disc.closed_is_open
+            self.matrix_format = "sbaij" if serial_sbaij else "baij" if blocked else "aij"
             self.report = SolveReport()
             self.problem = ShellProblem(model, self.matrix_format, self.report)
             self.jacobian = self.problem.jacobian
@@ -131,10 +211,11 @@ class ShellSolver(PetscOwner):
             self.prolongation = self.problem.prolongation
 
             PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
+            self._stage = PETSc.Log.Stage(f"{prefix}solve")  # one per prefix: the same stage if reused
             self.snes = PETSc.SNES().create(comm)
             self.snes.setOptionsPrefix(prefix)
             self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
-            self.snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
+            self.snes.setJacobian(_kept_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
             self._trial: PETSc.Vec | None = None  # the energy line search's trial state
             if model.potential_form is not None:
                 self._trial = self.x.duplicate()
@@ -151,16 +232,97 @@ class ShellSolver(PetscOwner):
                 ) from None
         finally:
             for name in pushed:
-                opts.delValue(name)
+                if name.startswith(prefix + "mat_mumps_"):  # read at the first factorization
+                    self._overrides.append(name)
+                else:
+                    opts.delValue(name)
+
+    def _choose_linear(self, requested: str) -> LinearSolverChoice:
+        model = self.model
+        material, surface = model.material, model.rest_surface
+        nodes = surface.evaluate(*surface.grid.node_parameters()).x
+        edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
+        element = float(np.median(np.concatenate([e.ravel() for e in edges])))  # patch edge length
+        dt = float(model.time_step.value) if model.dynamics is not None else None
+        dofs = 3 * model.discretization.num_closed
+        choice = choose_linear_solver(
+            requested, dofs, NONZEROS_PER_DOF * dofs,
+            mass_dominance(material.density, material.young, material.poisson, element, dt),
+            available_memory(model.comm), model.dynamics is not None,
+        )  # fmt: skip
+        log.info("%s: %s linear solver (%s)", self.prefix, choice.kind, choice.reason)
+        return choice
+
+    def _fall_back_to_direct(self, reason: str) -> bool:
+        """Switch a failing Krylov solver to MUMPS (when a factorization fits); logged and recorded
+        in :attr:`fallbacks`. Returns whether it switched."""
+        if self.linear.kind != "iterative" or self.fallbacks:
+            return False
+        try:
+            choice = choose_linear_solver("direct", 3 * self.model.discretization.num_closed,
+                                          NONZEROS_PER_DOF * 3 * self.model.discretization.num_closed,
+                                          self.linear.mass_dominance, self.linear.available_bytes, True)  # fmt: skip
+        except LinearSolverError as exc:
+            log.warning("%s: the Krylov solve failed (%s) and %s", self.prefix, reason, exc)
+            return False
+        ksp = self.snes.getKSP()
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        pc.setType("cholesky" if self.model.symmetric else "lu")
+        pc.setFactorSolverType("mumps")
+        self.linear = choice
+        self.reuse.refactor_cost = refactor_cost(3 * self.model.discretization.num_closed)
+        self.reuse.invalidate()
+        self.fallbacks.append({"from": "iterative", "to": "direct", "reason": reason})
+        log.warning("%s: the Krylov solve failed (%s); continuing with the direct solver (MUMPS)", self.prefix, reason)
+        return True
 
     # -- assembly --------------------------------------------------------------------------------
+    def operator_signature(self) -> tuple:
+        """What the Jacobian's operator depends on besides the state: the time step (the mass term
+        scales with 1 / dt^2) and the diagonal regularizer. A kept factorization of another
+        signature is not reused."""
+        dt = float(self.model.time_step.value) if self.model.dynamics is not None else None
+        return (dt, self.problem.regularization)
+
+    def _snes_solve(self) -> None:
+        """One SNES solve from ``self.x``. A solve that failed on a kept factorization is repeated
+        from the same start with a fresh one; one whose Krylov solve failed, with MUMPS (once per
+        solver, when a factorization fits)."""
+        start = self.x.copy()
+        try:
+            for _ in range(3):
+                self.reuse.start_solve()
+                self._energy_scale = 0.0  # the potential's magnitude, once damp_step has met it
+                self._stage.push()
+                try:
+                    self.snes.solve(None, self.x)
+                except PETSc.Error as exc:  # not a divergence: PETSc refused to go on (e.g. a bad option)
+                    raise solve_stopped(self.prefix, exc) from None
+                finally:
+                    self._stage.pop()
+                self.report.krylov_iterations += self.snes.getLinearSolveIterations()
+                self.report.linear_solves += self.snes.getIterationNumber()
+                reason = self.snes.getConvergedReason()
+                if reason == PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+                    ksp_reason = self.snes.getKSP().getConvergedReason()
+                    if self._fall_back_to_direct(f"KSP {KSP_REASONS.get(ksp_reason, ksp_reason)}"):
+                        start.copy(self.x)
+                        continue
+                if self._converged() or not self.reuse.used_chord_steps():
+                    return
+                log.info("%s: chord steps on a kept factorization failed (%s); refactoring", self.prefix,
+                         SNES_REASONS.get(self.snes.getConvergedReason()))  # fmt: skip
+                self.reuse.failed()
+                self.report.refactor_retries += 1
+                start.copy(self.x)
+        finally:
+            start.destroy()
+
     def _solve_constrained(self, max_updates: int = 30) -> bool:
         """SNES solve, wrapped in augmented-Lagrangian multiplier updates when points are held."""
         for _ in range(max_updates):
-            try:
-                self.snes.solve(None, self.x)
-            except PETSc.Error as exc:  # not a divergence: PETSc refused to go on (e.g. a bad option)
-                raise solve_stopped(self.prefix, exc) from None
+            self._snes_solve()
             if not self._converged() or not len(self.problem.alm_multipliers):
                 return self._converged()
             self.problem.update_state(self.x)
@@ -177,11 +339,17 @@ class ShellSolver(PetscOwner):
         itself, the energy cannot judge a step and the full Newton step is taken (the local,
         quadratically convergent regime).
         """
+        slope = -self.f.dot(y)  # d/dlambda of the potential along x - lambda y, at lambda = 0
+        if slope > 0 and self.reuse.on_kept_factorization():
+            slope = self._fresh_direction(x, y)  # a kept factorization's step that goes uphill
+        indefinite = self.negative_pivots() > 0 or slope > 0
+        if not indefinite and abs(slope) <= 1e-9 * self._energy_scale:
+            return  # below the round-off of the potential met earlier in this solve: no assembly needed
         self.problem.update_state(x)
         energy0 = self.problem.potential_energy()
-        slope = -self.f.dot(y)  # d/dlambda of the potential along x - lambda y, at lambda = 0
+        self._energy_scale = abs(energy0)
         resolution = 1e-12 * abs(energy0)
-        if self.negative_pivots() > 0 or slope > 0:
+        if indefinite:
             slope = self._regularized_direction(y)
         if abs(slope) <= 1e3 * resolution:
             return
@@ -204,6 +372,28 @@ class ShellSolver(PetscOwner):
         if step < 1.0:
             y.scale(step)
 
+    def _fresh_direction(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
+        """Re-solve for ``y`` with the Jacobian assembled and factored at ``x`` (counted as a
+        refactorization). Returns the new slope ``-F.y``."""
+        self.problem.assemble_jacobian(self.jacobian)
+        self.reuse.refactored(self.operator_signature())
+        ksp = self.snes.getKSP()
+        ksp.setOperators(self.jacobian)
+        ksp.solve(self.f, y)
+        if not self._linear_solve_ok(ksp, y, "the fresh Jacobian's step"):
+            return 0.0
+        return -self.f.dot(y)
+
+    def _linear_solve_ok(self, ksp: PETSc.KSP, y: PETSc.Vec, what: str) -> bool:
+        """Whether a linear solve inside the line search converged; if not, no step is taken
+        (``y = 0``: Newton stalls and the caller's recovery takes over) and the reason is logged."""
+        reason = ksp.getConvergedReason()
+        if reason >= 0:
+            return True
+        log.info("%s: linear solve for %s failed (KSP %s); no step", self.prefix, what, KSP_REASONS.get(reason, reason))
+        y.set(0.0)
+        return False
+
     def _regularized_direction(self, y: PETSc.Vec, factors: tuple[float, ...] = (1e-6, 1e-4, 1e-2, 1.0)) -> float:
         """Re-solve for ``y`` with ``J + r |diag J|``, raising ``r`` until LDL^T shows no negative
         pivots (the paper's diagonal regularizer, applied within the Newton iteration).
@@ -223,9 +413,12 @@ class ShellSolver(PetscOwner):
             applied = factor
             ksp.setOperators(self.jacobian)
             ksp.solve(self.f, y)
+            if not self._linear_solve_ok(ksp, y, "a regularized step"):
+                break
             if self.negative_pivots() <= 0:
                 break
         magnitude.destroy()
+        self.reuse.invalidate()  # the factorization is of the regularized matrix
         self.report.regularized_iterations += 1
         log.info("%s: indefinite Jacobian regularized with r = %.0e", self.prefix, applied)
         return -self.f.dot(y)
@@ -454,17 +647,24 @@ class ShellSolver(PetscOwner):
             "regularized_retries": report.regularized_retries,
             "regularized_iterations": report.regularized_iterations,
             "negative_pivots": report.negative_pivots[-1] if report.negative_pivots else -1,
+            "refactorizations": self.reuse.refactorizations,
+            "chord_iterations": self.reuse.chord_iterations,
+            "refactor_retries": report.refactor_retries,
+            "krylov_iterations": report.krylov_iterations,
+            "linear_solves": report.linear_solves,
         }
 
-    @staticmethod
-    def linear_solver_seconds() -> tuple[float, float]:
-        """Cumulative ``(factorization, triangular solves)`` seconds of this process (PETSc log)."""
+    def linear_solver_seconds(self) -> tuple[float, float]:
+        """Cumulative ``(preconditioner setup, linear solves)`` seconds of this solver's SNES solves
+        on this process (its PETSc log stage): the setup is the factorization (MUMPS, or the
+        incomplete one of a Krylov solver's preconditioner), the solves the rest of ``KSPSolve``
+        (triangular solves, Krylov iterations)."""
 
-        def seconds(*events: str) -> float:
-            return sum(PETSc.Log.Event(name).getPerfInfo()["time"] for name in events)
+        def seconds(name: str) -> float:
+            return PETSc.Log.Event(name).getPerfInfo(self._stage.id)["time"]
 
-        factor = seconds("MatCholFctrSym", "MatCholFctrNum", "MatLUFactorSym", "MatLUFactorNum")
-        return factor, seconds("MatSolve")
+        setup = seconds("PCSetUp")  # within the stage, always inside KSPSolve
+        return setup, max(seconds("KSPSolve") - setup, 0.0)
 
     # -- lifetime -------------------------------------------------------------------------------
     def unused_options(self) -> list[str]:

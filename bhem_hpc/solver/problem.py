@@ -64,7 +64,8 @@ class ShellProblem(PetscOwner):
     Args:
         model: the shell model (forms, constraints, loads).
         matrix_format: PETSc type of the closed Jacobian (``"sbaij"``: one triangle, for a serial
-            LDL^T without seams; otherwise ``"aij"``).
+            LDL^T without seams; ``"baij"``: 3 x 3 blocks as assembled, for Krylov solvers with block
+            preconditioners without seams; otherwise ``"aij"``).
         report: where assembly times are added up.
     """
 
@@ -86,8 +87,11 @@ class ShellProblem(PetscOwner):
         self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
         fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
         self.jacobian_blocked.assemble()
-        self.jacobian_open = PETSc.Mat()
-        self.jacobian_blocked.convert(matrix_format, self.jacobian_open)
+        if matrix_format == "baij":  # Krylov solvers and block preconditioners take it as assembled
+            self.jacobian_open, self.jacobian_blocked = self.jacobian_blocked, None
+        else:
+            self.jacobian_open = PETSc.Mat()
+            self.jacobian_blocked.convert(matrix_format, self.jacobian_open)
         if matrix_format == "sbaij":
             self.jacobian_open.setOption(PETSc.Mat.Option.IGNORE_LOWER_TRIANGULAR, True)
             self.jacobian_blocked.destroy()

@@ -327,6 +327,14 @@ def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
         return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
     if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
         return "it holds non-finite or non-numeric values"
+    if "factorization_state_dofs" in arrays:
+        counters = [attrs.get(f"reuse_{k}") for k in ("cycle_cost", "cycle_solves", "solve_cost")]
+        for name in ("factorization_state_dofs",) + (() if scene.static else ("factorization_previous_dofs",)):
+            kept = np.asarray(arrays.get(name, np.zeros(0)))
+            if kept.shape != position.shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
+                return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
+        if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
+            return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
     return _path_problem(arrays, attrs, position.shape) if scene.static else _clock_problem(attrs)
 
 
@@ -475,6 +483,9 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
     stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
     if checkpoint is not None:
         arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
+        if "factorization_state_dofs" in arrays:
+            state = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
+            solver.restore_reuse_checkpoint(arrays, state)
         _restore(model, arrays)
         stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
     surface = model.state_surface()
@@ -490,9 +501,10 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
             t_out = time.perf_counter()
             wrote = stepper.step % scene.output_every == 0 or k == steps - 1  # the last step always writes
             if wrote:
-                surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm)
-                # a run continued from this checkpoint starts with a fresh factorization: so does this one
-                solver.reuse.invalidate()
+                arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
+                attrs = {f"reuse_{k}": v for k, v in reuse.items()}
+                surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm,
+                                       arrays, attrs)  # fmt: skip
             probes.write(stepper)
             energies = _energies(model) if wrote else None  # a few assemblies: with the frames only
             output_s = time.perf_counter() - t_out

@@ -120,6 +120,7 @@ def _kept_jacobian_callback(
         solver.target_norm = max(snes.getTolerances()[0] * norm, snes.getTolerances()[1])  # rtol, atol
     if solver.reuse.refactor_now(iteration, norm, solver.target_norm, solver.operator_signature()):
         solver.problem.assemble_jacobian(pmat)
+        solver.remember_factored_state()
 
 
 @dataclass
@@ -190,6 +191,8 @@ class ShellSolver(PetscOwner):
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.x = PETSc.Vec().createMPI((n_local, n_global), comm=comm)
         self.f = self.x.duplicate()
+        # the state the kept factorization's Jacobian was assembled at (position, previous position)
+        self._factored_state: tuple[np.ndarray, np.ndarray | None] | None = None
         opts = PETSc.Options()
         # the caller's options stay in the database for the solver's life (some are read only at
         # the first factorization) and are removed by close(); the defaults only for setup
@@ -376,6 +379,7 @@ class ShellSolver(PetscOwner):
         """Re-solve for ``y`` with the Jacobian assembled and factored at ``x`` (counted as a
         refactorization). Returns the new slope ``-F.y``."""
         self.problem.assemble_jacobian(self.jacobian)
+        self.remember_factored_state()
         self.reuse.refactored(self.operator_signature())
         ksp = self.snes.getKSP()
         ksp.setOperators(self.jacobian)
@@ -634,6 +638,44 @@ class ShellSolver(PetscOwner):
         times["negative_pivots"] = self.negative_pivots()
         step.destroy()
         return times
+
+    def remember_factored_state(self) -> None:
+        """Note what the Jacobian just assembled depends on: the position (open DOFs, as assembled)
+        and, in dynamics, the previous position (stiffness damping)."""
+        model = self.model
+        self._factored_state = (
+            model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None
+        )
+
+    def reuse_checkpoint(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """Collective: raw DOFs of the state the kept factorization was made at and the policy's
+        state (empty when none is kept), for :meth:`restore_reuse_checkpoint`."""
+        if not self.reuse.valid or self._factored_state is None:
+            return {}, {}
+        disc = self.model.discretization
+        position, previous = self._factored_state
+        arrays = {"factorization_state_dofs": disc.gather_raw_dofs(position)}
+        if previous is not None:
+            arrays["factorization_previous_dofs"] = disc.gather_raw_dofs(previous)
+        return arrays, self.reuse.state()
+
+    def restore_reuse_checkpoint(self, arrays: dict[str, np.ndarray], state: dict[str, float]) -> None:
+        """Collective: remake the kept factorization of a checkpoint (assembled and factored at its
+        state), so a continued run decides and computes as the uninterrupted one."""
+        model, disc = self.model, self.model.discretization
+        saved = (model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None)
+        model.x.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_state_dofs"])
+        if model.dynamics is not None:
+            model.x_previous.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_previous_dofs"])
+        self.remember_factored_state()
+        self.problem.assemble_jacobian(self.jacobian)
+        ksp = self.snes.getKSP()
+        ksp.setOperators(self.jacobian)
+        ksp.setUp()
+        model.x.x.array[:] = saved[0]
+        if saved[1] is not None:
+            model.x_previous.x.array[:] = saved[1]
+        self.reuse.restore(state, self.operator_signature())
 
     def counters(self) -> dict[str, float]:
         """Cumulative figures of this solver (the PETSc timings: of this process); the difference of

@@ -119,6 +119,23 @@ class FactorizationReuse:
         """Whether the current solve took a chord step (then a failure is worth a fresh retry)."""
         return self.enabled and self._chord_in_solve > 0
 
+    @property
+    def valid(self) -> bool:
+        """Whether a kept factorization may serve the next Newton iteration."""
+        return self._valid
+
+    def state(self) -> dict[str, float]:
+        """What the policy's next decisions depend on, for a checkpoint (with the iterate the kept
+        factorization was made at, a run continued from it decides as an uninterrupted one)."""
+        return {"cycle_cost": self._cycle_cost, "cycle_solves": self._cycle_solves, "solve_cost": self._solve_cost}
+
+    def restore(self, state: dict[str, float], signature: tuple) -> None:
+        """Continue from :meth:`state` with the factorization remade at ``signature``'s operator."""
+        self._valid, self._signature = True, signature
+        self._cycle_cost = float(state["cycle_cost"])
+        self._cycle_solves = int(state["cycle_solves"])
+        self._solve_cost = float(state["solve_cost"])
+
     def invalidate(self) -> None:
         """The kept factorization no longer belongs to the problem (e.g. the matrix was modified)."""
         self._valid = False

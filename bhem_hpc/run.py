@@ -327,15 +327,24 @@ def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
         return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
     if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
         return "it holds non-finite or non-numeric values"
-    if "factorization_state_dofs" in arrays:
-        counters = [attrs.get(f"reuse_{k}") for k in ("cycle_cost", "cycle_solves", "solve_cost")]
-        for name in ("factorization_state_dofs",) + (() if scene.static else ("factorization_previous_dofs",)):
-            kept = np.asarray(arrays.get(name, np.zeros(0)))
-            if kept.shape != position.shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
-                return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
-        if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
-            return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
+    problem = _reuse_problem(arrays, attrs, position.shape, scene.static)
+    if problem:
+        return problem
     return _path_problem(arrays, attrs, position.shape) if scene.static else _clock_problem(attrs)
+
+
+def _reuse_problem(arrays: dict, attrs: dict, shape: tuple, static: bool) -> str | None:
+    """What is wrong with a checkpoint's kept-factorization state (if it has one), or None."""
+    if "factorization_state_dofs" not in arrays:
+        return None
+    for name in ("factorization_state_dofs",) + (() if static else ("factorization_previous_dofs",)):
+        kept = np.asarray(arrays.get(name, np.zeros(0)))
+        if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
+            return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
+    counters = [attrs.get(f"reuse_{k}") for k in ("cycle_cost", "cycle_solves", "solve_cost")]
+    if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
+        return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
+    return None
 
 
 def _path_problem(arrays: dict, attrs: dict, shape: tuple) -> str | None:

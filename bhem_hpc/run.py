@@ -32,6 +32,7 @@ from bhem_hpc.model.shell import AreaLoad, Dynamics, EdgeMoment, LineLoad, Loads
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
+from bhem_hpc.solver.linear import LinearSolverError
 from bhem_hpc.solver.petsc import library_versions
 
 log = logging.getLogger(__name__)
@@ -157,8 +158,11 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
                 f"{checkpoint['path']}: its DOFs have shape {checkpoint['arrays']['position_dofs'].shape}, "
                 f"this run's {expected}"
             )
-    solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
-                         factorization=scene.factorization, linear=scene.linear)  # fmt: skip
+    try:
+        solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
+                             factorization=scene.factorization, linear=scene.linear)  # fmt: skip
+    except LinearSolverError as exc:
+        raise RunError(f"{options.scene}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
     summary: dict = {
         "scene": str(options.scene),
         "status": "running",

@@ -167,8 +167,13 @@ def test_run_writes_series_summary_checkpoint_and_restarts_exactly(comm, workdir
     assert len(full["steps"]) == 6 and full["time"] == pytest.approx(0.06)
     assert full["dofs"] == 3 * 4 * 12 and full["ranks"] == comm.size
     step = full["steps"][-1]
-    for key in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "output_s", "newton_iterations"):
+    for key in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "output_s", "newton_iterations",
+                "refactorizations", "chord_iterations", "krylov_iterations"):  # fmt: skip
         assert key in step
+    totals = full["solver_totals"]
+    assert totals["refactorizations"] == sum(s["refactorizations"] for s in full["steps"]) >= 1
+    assert totals["chord_iterations"] + totals["refactorizations"] >= sum(s["newton_iterations"] for s in full["steps"])
+    assert full["linear_solver"]["kind"] == "direct" and full["factorization"] == "reuse"
     assert set(step["energies"]) == {"membrane", "bending", "gravity", "kinetic", "external_work"}
     assert step["energies"]["external_work"] == pytest.approx(-step["energies"]["gravity"])
     comm.Barrier()

@@ -138,6 +138,6 @@ def available_memory(comm) -> float:
 
 
 def _shared_memory_split() -> int:
-    from mpi4py import MPI
+    from mpi4py import MPI  # here, not at import: a scene imports this module without MPI
 
     return MPI.COMM_TYPE_SHARED

@@ -38,6 +38,9 @@ class FactorizationReuse:
 
     Attributes:
         enabled: False: a fresh factorization at every Newton iteration.
+        chord_within_solve: False: a kept factorization serves only the first iteration of a
+            solve (static load steps: the solve then ends with Newton's quadratic steps, whose
+            last one lands far inside the tolerance, as analysts' references expect).
         refactor_cost: the cost of assembling and factoring the Jacobian, in chord iterations
             (a residual and two triangular solves): see :func:`refactor_cost`.
         max_chord_iterations: chord iterations within one solve before refactoring.
@@ -47,6 +50,7 @@ class FactorizationReuse:
     """
 
     enabled: bool = True
+    chord_within_solve: bool = True
     refactor_cost: float = 15.0
     max_chord_iterations: int = 30
     refactorizations: int = 0
@@ -88,6 +92,7 @@ class FactorizationReuse:
         self._previous_norm = residual_norm
         fresh = (
             not self.enabled
+            or (iteration > 0 and not self.chord_within_solve)
             or not self._valid
             or signature != self._signature
             or slowed

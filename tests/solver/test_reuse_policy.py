@@ -73,6 +73,12 @@ def test_fresh_policy_factors_at_every_iteration():
     assert not policy.used_chord_steps()
 
 
+def test_static_policy_keeps_factorizations_for_the_first_iteration_of_a_solve_only():
+    policy = FactorizationReuse(chord_within_solve=False)
+    assert solve(policy, [1.0, 1e-3, 1e-7]) == [True, True, True]
+    assert solve(policy, [1.0, 1e-3, 1e-7]) == [False, True, True]
+
+
 def test_refactor_cost_grows_like_the_square_root_of_the_size():
     assert refactor_cost(11532) == pytest.approx(15.0)
     assert refactor_cost(4 * 11532) == pytest.approx(30.0)

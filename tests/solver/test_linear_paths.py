@@ -1,0 +1,233 @@
+"""Factorization reuse and the iterative linear path on whole scenes: the same converged states as
+fresh MUMPS factorizations, with seams, constraints, point constraints and contact; failing Krylov
+solves fall back to MUMPS or fail the step, never pass as converged."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bhem_hpc.run import RunOptions, build_contact, build_model, prescribed_motions, run_scene
+from bhem_hpc.scene import load_scene
+from bhem_hpc.solver import ShellSolver, SolverError
+from bhem_hpc.solver.dynamics import StepFailure, TimeStepper
+from bhem_hpc.solver.linear import LinearSolverError
+
+JOBS = Path(__file__).resolve().parents[2] / "jobs"
+
+
+def step_scene(comm, scene, steps: int, **solver_args) -> tuple[np.ndarray, dict]:
+    """Positions (gathered raw DOFs) after ``steps`` steps of a scene, and the solver's counters."""
+    model = build_model(scene, comm)
+    with ShellSolver(model, prefix="lin_", options=scene.petsc_options, **solver_args) as solver:
+        contact = build_contact(scene, model, solver)
+        stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
+        for _ in range(steps):
+            stepper.advance()
+        if contact is not None:
+            contact.close()
+        counters = solver.counters() | {"kind": solver.linear.kind, "fallbacks": list(solver.fallbacks)}
+    return model.discretization.gather_raw_dofs(model.x.x.array), counters
+
+
+@pytest.mark.parametrize(("job", "steps"), [("twisting", 6), ("drape", 6), ("ball", 3)])
+def test_kept_factorizations_reach_the_same_states_as_fresh_ones(comm, job, steps):
+    scene = load_scene(JOBS / f"{job}.toml")
+    kept, counters = step_scene(comm, scene, steps, factorization="reuse")
+    fresh, fresh_counters = step_scene(comm, scene, steps, factorization="fresh")
+    size = np.ptp(fresh.reshape(-1, 3)[:, :2], axis=0).max()
+    rtol = float(scene.petsc_options.get("snes_rtol", 1e-9))
+    # each run stops once |F| <= rtol |F0| (the Newton tolerance): the states differ by what such a
+    # residual moves, a small multiple of rtol times the cloth's size
+    assert np.abs(kept - fresh).max() <= 100 * rtol * size
+    assert counters["chord_iterations"] > 0 and counters["refactorizations"] < fresh_counters["refactorizations"]
+    assert fresh_counters["chord_iterations"] == 0
+
+
+SEAMED = """
+[surface]
+kind = "cylinder"
+radius = 0.1
+length = 0.3
+patches = [4, 8]
+
+[material]
+young = 1.0e4
+poisson = 0.3
+thickness = 1.0e-3
+density = 200.0
+
+[time]
+dt = 0.005
+steps = 4
+
+[solver]
+linear = "{linear}"
+
+[output]
+every = 2
+
+[effects]
+gravity = [-9.81, -3.0, 0.0]
+damping = {{ mass = 1.0 }}
+contact = {{ push_out = 1.0e-4, samples_per_side = 2 }}
+
+[[constraints]]
+type = "pin"
+edge = "xi1_min"
+
+[[colliders]]
+type = "plane"
+point = [-0.1002, 0.0, 0.0]
+normal = [1.0, 0.0, 0.0]
+"""
+
+HELD = """
+[surface]
+kind = "rectangle"
+size = [0.4, 0.4]
+patches = [5, 5]
+
+[material]
+young = 1.0e4
+poisson = 0.3
+thickness = 1.0e-3
+density = 200.0
+
+[time]
+dt = 0.005
+steps = 4
+
+[solver]
+linear = "{linear}"
+
+[output]
+every = 2
+
+[effects]
+gravity = [0.0, 0.0, -9.81]
+contact = {{ push_out = 1.0e-4, samples_per_side = 2 }}
+
+[[constraints]]
+type = "clamp"
+edge = "xi1_min"
+
+[[point_constraints]]
+at = [0.25, 0.3]
+components = [0, 1, 2]
+
+[[colliders]]
+type = "sphere"
+center = [0.3, 0.2, -0.1001]
+radius = 0.1
+"""
+
+
+def write(comm, path: Path, text: str) -> Path:
+    if comm.rank == 0:
+        path.write_text(text)
+    comm.Barrier()
+    return path
+
+
+@pytest.mark.parametrize("text", [SEAMED, HELD], ids=["seams", "point-constraint"])
+def test_the_iterative_path_with_seams_constraints_points_and_contact_matches_mumps(comm, shared_tmp_path, text):
+    results = {}
+    for linear in ("direct", "iterative"):
+        scene = write(comm, shared_tmp_path / f"{linear}.toml", text.format(linear=linear))
+        summary = run_scene(RunOptions(scene, shared_tmp_path / linear, progress=False), comm)
+        assert summary["linear_solver"]["kind"] == linear and summary["linear_solver_fallbacks"] == []
+        results[linear] = summary
+        from bhem_hpc.io import read_checkpoint
+
+        results[linear + "_dofs"] = read_checkpoint(shared_tmp_path / linear / "checkpoint.h5")[0]["position_dofs"]
+    iterative = results["iterative"]
+    assert iterative["solver_totals"]["krylov_iterations"] > iterative["solver_totals"]["linear_solves"] > 0
+    assert max(step["contacts"] for step in iterative["steps"]) > 0  # the cylinder reached the plane
+    assert all("krylov_iterations" in step for step in iterative["steps"])
+    np.testing.assert_allclose(results["iterative_dofs"], results["direct_dofs"], atol=1e-8)
+
+
+def test_static_solves_take_algebraic_multigrid_and_agree_with_mumps(comm):
+    from bhem_hpc.geometry import surface as S
+    from bhem_hpc.model import bcs
+    from bhem_hpc.model.material import Material
+    from bhem_hpc.model.shell import Loads, ShellModel
+
+    rest = S.flat_rectangle(1.0, 1.0, 6, 6)
+    material = Material(young=1e9, poisson=0.3, thickness=1e-2, density=100.0)
+    tips = []
+    for linear in ("direct", "iterative"):
+        model = ShellModel(rest, material, Loads(gravity=(0.0, 0.0, -9.81)), [bcs.clamp_edge(rest, "xi1_min")],
+                           comm=comm)  # fmt: skip
+        with ShellSolver(model, linear=linear) as solver:
+            solver.solve(load_steps=2)
+            assert solver.linear.kind == linear
+            if linear == "iterative":
+                assert solver.snes.getKSP().getPC().getType() == "hypre"
+                assert solver.report.krylov_iterations > solver.report.linear_solves
+        tips.append(model.displacement(1.0, 0.5))
+    np.testing.assert_allclose(tips[1], tips[0], atol=1e-9)
+
+
+def test_a_stalled_krylov_solve_falls_back_to_mumps_and_is_recorded(comm):
+    scene = load_scene(JOBS / "twisting.toml")
+    options = {"ksp_max_it": 1, "ksp_rtol": 1e-12}  # one CG iteration cannot reach 1e-12
+    reference, _ = step_scene(comm, scene, 2, linear="direct")
+    import dataclasses
+
+    stalled = dataclasses.replace(scene, petsc_options=scene.petsc_options | options)
+    dofs, counters = step_scene(comm, stalled, 2, linear="iterative")
+    assert counters["kind"] == "direct"
+    assert counters["fallbacks"] == [{"from": "iterative", "to": "direct", "reason": "KSP DIVERGED_MAX_IT"}]
+    size = np.ptp(reference.reshape(-1, 3)[:, :2], axis=0).max()
+    assert np.abs(dofs - reference).max() <= 100 * 1e-9 * size  # the default snes_rtol
+
+
+def test_a_stalled_krylov_solve_without_a_fallback_fails_the_step(comm, monkeypatch):
+    import bhem_hpc.solver.newton as newton
+
+    monkeypatch.setattr(newton, "available_memory", lambda comm: 1.0)  # no factorization fits
+    scene = load_scene(JOBS / "drape.toml")
+    model = build_model(scene, comm)
+    options = scene.petsc_options | {"ksp_max_it": 1, "ksp_rtol": 1e-12}
+    with ShellSolver(model, prefix="lin_", options=options, linear="auto") as solver:
+        assert solver.linear.kind == "iterative" and "GB" in solver.linear.reason
+        stepper = TimeStepper(model, solver, prescribed_motions(scene), max_halvings=1)
+        with pytest.raises(StepFailure, match="DIVERGED_LINEAR_SOLVE"):
+            stepper.advance()
+        assert solver.fallbacks == [] and not stepper.history
+    with pytest.raises(LinearSolverError, match="the direct solver cannot run: a factorization needs about"):
+        ShellSolver(model, prefix="lin2_", linear="direct")
+
+
+def test_a_preconditioner_option_that_does_not_apply_is_a_clear_error(comm, shared_tmp_path):
+    text = SEAMED.format(linear="iterative").replace('linear = "iterative"',
+                                                    'linear = "iterative"\noptions = { pc_type = "hypre", '
+                                                    'pc_hypre_type = "nonsense" }')  # fmt: skip
+    scene = write(comm, shared_tmp_path / "bad.toml", text)
+    with pytest.raises(SolverError, match="PETSc rejected its options|PETSc stopped the solve"):
+        run_scene(RunOptions(scene, shared_tmp_path / "bad", progress=False), comm)
+
+
+def test_scene_solver_keys_are_checked_and_a_direct_solver_that_cannot_fit_is_refused(comm, shared_tmp_path,
+                                                                                       monkeypatch):  # fmt: skip
+    from bhem_hpc.run import RunError
+    from bhem_hpc.scene import SceneError
+
+    bad = write(comm, shared_tmp_path / "fast.toml", SEAMED.format(linear="fast"))
+    with pytest.raises(SceneError, match=r"fast.toml: key 'solver.linear' must be 'auto', 'direct' or 'iterative'"):
+        load_scene(bad)
+    text = SEAMED.format(linear="direct").replace('[solver]', '[solver]\nfactorization = "sometimes"')
+    with pytest.raises(SceneError, match=r"key 'solver.factorization' must be 'reuse' or 'fresh'"):
+        load_scene(write(comm, shared_tmp_path / "sometimes.toml", text))
+    import bhem_hpc.solver.newton as newton
+
+    monkeypatch.setattr(newton, "available_memory", lambda comm: 1e6)  # 1 MB
+    scene = write(comm, shared_tmp_path / "direct.toml", SEAMED.format(linear="direct"))
+    with pytest.raises(RunError, match=r"direct.toml: key 'solver.linear' = 'direct': the direct solver cannot run: "
+                                       r"a factorization needs about 0.0 GB, 0.0 GB are available"):  # fmt: skip
+        run_scene(RunOptions(scene, shared_tmp_path / "direct", progress=False), comm)
+    assert not (shared_tmp_path / "direct").exists()

@@ -1,0 +1,62 @@
+"""``bhem-hpc bench --scaling``: cases, speedups, the page, and one real run through mpirun."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+
+import pytest
+
+from bhem_hpc.scaling import ScalingError, scaling_cases, scaling_markdown, speedups
+
+
+def test_strong_and_weak_cases():
+    cases = scaling_cases([2, 1], [30, 100], ["direct", "iterative"], weak=50)
+    strong = [(c.ranks, c.patches, c.linear) for c in cases if c.kind == "strong"]
+    assert strong[:2] == [(1, 30, "direct"), (2, 30, "direct")] and len(strong) == 8
+    weak = [(c.ranks, c.patches) for c in cases if c.kind == "weak" and c.linear == "iterative"]
+    assert weak == [(1, 50), (2, 71)]  # patches grow as sqrt(ranks): DoFs per rank stay about equal
+    for bad in (dict(ranks=[0], sizes=[10]), dict(ranks=[1], sizes=[]), dict(ranks=[1], sizes=[10], weak=0)):
+        with pytest.raises(ScalingError):
+            scaling_cases(bad["ranks"], bad["sizes"], ["direct"], bad.get("weak"))
+
+
+def row(ranks, patches, linear, step_s, memory=1.0, status="ok"):
+    return {"kind": "strong", "ranks": ranks, "patches": patches, "linear": linear, "dofs": 12 * (patches + 1) ** 2,
+            "status": status, "step_s": step_s, "newton_per_step": 4.0, "newton_iteration_s": step_s / 4,
+            "assembly_per_iteration_s": step_s / 8, "solve_per_iteration_s": step_s / 8, "krylov_per_solve": 5.0,
+            "refactorizations_per_step": 0.5, "peak_memory_per_rank_gb": memory, "error": ""}  # fmt: skip
+
+
+def test_speedups_and_the_page():
+    rows = [row(1, 100, "iterative", 2.0), row(2, 100, "iterative", 1.0, 0.5), row(1, 100, "direct", 6.0, 2.0),
+            row(2, 100, "direct", 5.0, 1.5), row(1, 290, "direct", 0.0, status="failed") | {"error": "killed"}]  # fmt: skip
+    assert speedups(rows) == {(100, 2, "iterative"): 2.0, (100, 2, "direct"): 1.2}
+    page = scaling_markdown(rows, {"command": "bhem-hpc bench --scaling", "host": "h", "cores": 2, "scene": "s.toml",
+                                   "steps": 3, "warmup": 1}, "scaling/scaling.png")  # fmt: skip
+    assert "- 100 x 100 patches, iterative: 2 ranks 2.00x faster per step than 1" in page
+    assert "the iterative path's step takes 0.33x the time of MUMPS' (3.00x faster), 0.50x its memory" in page
+    assert "| failed: killed |" in page and "![scaling](scaling/scaling.png)" in page
+
+
+def test_the_command_runs_every_case_in_its_own_mpi_job(comm, shared_tmp_path):
+    if comm.rank == 0:
+        out = shared_tmp_path / "scaling"
+        env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+        command = [sys.executable, "-m", "bhem_hpc.cli", "bench", "--scaling", "--patches", "6", "--ranks", "1", "2",
+                   "--steps", "2", "--out", str(out), "--docs", str(shared_tmp_path / "docs")]  # fmt: skip
+        done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
+        assert done.returncode == 0, done.stderr
+        with (out / "scaling.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        assert [(r["ranks"], r["linear"], r["status"]) for r in rows] == [
+            ("1", "direct", "ok"), ("2", "direct", "ok"), ("1", "iterative", "ok"), ("2", "iterative", "ok")
+        ]  # fmt: skip
+        assert all(int(r["dofs"]) == 12 * 7 * 7 and float(r["step_s"]) > 0 for r in rows)
+        assert all(float(r["krylov_per_solve"]) > 0 for r in rows if r["linear"] == "iterative")
+        assert all(float(r["peak_memory_per_rank_gb"]) > 0.01 for r in rows)
+        page = (shared_tmp_path / "docs" / "scaling.md").read_text()
+        assert page.startswith("# Scaling") and (shared_tmp_path / "docs" / "scaling" / "scaling.png").stat().st_size
+    comm.Barrier()

@@ -31,8 +31,9 @@ def row(ranks, patches, linear, step_s, memory=1.0, status="ok"):
 
 
 def test_speedups_and_the_page():
+    failed = row(1, 290, "direct", 0.0, status="failed") | {"error": "killed"}
     rows = [row(1, 100, "iterative", 2.0), row(2, 100, "iterative", 1.0, 0.5), row(1, 100, "direct", 6.0, 2.0),
-            row(2, 100, "direct", 5.0, 1.5), row(1, 290, "direct", 0.0, status="failed") | {"error": "killed"}]  # fmt: skip
+            row(2, 100, "direct", 5.0, 1.5), failed]  # fmt: skip
     assert speedups(rows) == {(100, 2, "iterative"): 2.0, (100, 2, "direct"): 1.2}
     page = scaling_markdown(rows, {"command": "bhem-hpc bench --scaling", "host": "h", "cores": 2, "scene": "s.toml",
                                    "steps": 3, "warmup": 1}, "scaling/scaling.png")  # fmt: skip

@@ -9,7 +9,7 @@ RUFF_VERSION := 0.8.4
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
 
-.PHONY: setup demo test test-serial test-mpi lint bench stress study docs clean
+.PHONY: setup demo test test-serial test-mpi lint bench stress study docs scaling clean
 
 setup: $(VENV)/.installed
 
@@ -46,6 +46,11 @@ stress: setup
 	rm -rf out/stress-serial
 	$(PY) -m pytest -m stress --serial-results=out/stress-serial
 	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no -s --serial-results=out/stress-serial
+
+# Both linear solvers on the million-DoF cloth at three sizes, 1 and 2 ranks, and weak scaling:
+# docs/scaling.md (about half an hour here).
+scaling: setup
+	$(VENV)/bin/bhem-hpc bench --scaling --patches 100 200 290 --ranks 1 2 --weak 100 --steps 4 --docs docs
 
 # Long studies run behind the `study` marker and assert their convergence claims.
 study: setup

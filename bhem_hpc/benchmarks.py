@@ -165,6 +165,7 @@ def scene_benchmark(
         linear_solve = sum(r.linear_solve_s for r in reports)
         nnz = solver.problem.matrix_nonzeros()
         linear = solver.linear.kind
+        dominance = solver.linear.mass_dominance
         fallbacks = len(solver.fallbacks)
         samples = contact.detector.num_samples if contact is not None else 0
         if contact is not None:
@@ -178,6 +179,8 @@ def scene_benchmark(
         "scene": str(scene_path),
         "patches": [scene.surface.grid.n1, scene.surface.grid.n2],
         "linear": linear,
+        "dt": scene.dt,
+        "mass_dominance": dominance,
         "factorization": scene.factorization,
         "linear_fallbacks": fallbacks,
         "linear_solve_per_step_s": comm.allreduce(linear_solve / steps, op=MPI.MAX),

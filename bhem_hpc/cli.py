@@ -86,6 +86,9 @@ def _parser() -> argparse.ArgumentParser:
         "linear solver, each in its own mpirun; writes CSV, Markdown, PNG",
     )  # fmt: skip
     bench.add_argument("--ranks", type=int, nargs="+", default=[1, 2], help="with --scaling: MPI rank counts")
+    bench.add_argument("--dt", type=float, nargs="+", default=None,
+                       help="with --scene: the time step; with --scaling: Krylov iterations against these time steps "
+                            "(iterative solver, the first size, 1 rank)")  # fmt: skip
     bench.add_argument(
         "--weak", type=int, default=None,
         help="with --scaling: weak scaling too, patches per side for one rank (N sqrt(ranks) for more)",
@@ -205,13 +208,8 @@ def _bench(args: argparse.Namespace, comm) -> None:
         if comm.rank == 0:
             print(f"wrote {path}")
     elif args.scene is not None:
-        overrides = {"solver": {k: v for k, v in (("linear", args.linear), ("factorization", args.factorization)) if v}}
-        if args.patches != BENCH_DEFAULT_PATCHES:
-            if len(args.patches) != 1:
-                raise ValueError(f"--scene takes one --patches size, got {args.patches}")
-            overrides["surface"] = {"patches": [args.patches[0]] * 2}
         row = benchmarks.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples,
-                                         overrides)  # fmt: skip
+                                         _scene_overrides(args))  # fmt: skip
         if comm.rank == 0:
             print(json.dumps(row) if args.json else benchmarks.format_scene_row(row))
     else:
@@ -224,6 +222,20 @@ def _bench(args: argparse.Namespace, comm) -> None:
         if comm.rank == 0:
             table = benchmarks.format_newton_table(rows, args.hessian, args.repeats)
             print("\n".join(json.dumps(row) for row in rows) if args.json else table)
+
+
+def _scene_overrides(args: argparse.Namespace) -> dict[str, dict]:
+    """The scene keys ``bench --scene`` replaces: linear solver, factorization, patches, dt."""
+    overrides = {"solver": {k: v for k, v in (("linear", args.linear), ("factorization", args.factorization)) if v}}
+    if args.patches != BENCH_DEFAULT_PATCHES:
+        if len(args.patches) != 1:
+            raise ValueError(f"--scene takes one --patches size, got {args.patches}")
+        overrides["surface"] = {"patches": [args.patches[0]] * 2}
+    if args.dt:
+        if len(args.dt) != 1:
+            raise ValueError(f"--scene takes one --dt, got {args.dt}")
+        overrides["time"] = {"dt": args.dt[0], "steps": 1000, "duration": None}
+    return overrides
 
 
 def _paths(args: argparse.Namespace, comm) -> None:

@@ -24,7 +24,8 @@ from pathlib import Path
 
 #: Columns of ``scaling.csv`` (a case's row of ``bhem-hpc bench --scene --json`` plus the case).
 COLUMNS = (
-    "kind", "ranks", "patches", "linear", "dofs", "status", "step_s", "newton_per_step", "newton_iteration_s",
+    "kind", "ranks", "patches", "linear", "dt", "mass_dominance", "dofs", "status", "step_s", "newton_per_step",
+    "newton_iteration_s",
     "assembly_per_iteration_s", "solve_per_iteration_s", "krylov_per_solve", "refactorizations_per_step",
     "peak_memory_per_rank_gb", "linear_fallbacks", "wall_s", "error",
 )  # fmt: skip
@@ -42,10 +43,14 @@ class ScalingCase:
     ranks: int
     patches: int
     linear: str
+    dt: float | None = None  # None: the scene's
 
 
-def scaling_cases(ranks: list[int], sizes: list[int], linears: list[str], weak: int | None) -> list[ScalingCase]:
-    """Strong scaling (every size on every rank count) and, with ``weak``, weak scaling."""
+def scaling_cases(
+    ranks: list[int], sizes: list[int], linears: list[str], weak: int | None, dts: list[float] | None = None
+) -> list[ScalingCase]:
+    """Strong scaling (every size on every rank count), with ``weak`` weak scaling, and with ``dts``
+    the iterative solver at the first size on one rank for each time step."""
     if not ranks or min(ranks) < 1:
         raise ScalingError(f"--ranks must be integers >= 1, got {ranks}")
     if not sizes or min(sizes) < 1:
@@ -57,6 +62,9 @@ def scaling_cases(ranks: list[int], sizes: list[int], linears: list[str], weak: 
         cases += [
             ScalingCase("weak", r, round(weak * math.sqrt(r)), lin) for lin in linears for r in sorted(set(ranks))
         ]
+    if dts and min(dts) <= 0:
+        raise ScalingError(f"--dt must be > 0, got {dts}")
+    cases += [ScalingCase("dt", 1, sizes[0], "iterative", dt) for dt in dts or ()]
     return cases
 
 
@@ -82,10 +90,10 @@ def run_case(case: ScalingCase, scene: Path, steps: int, warmup: int, launcher: 
     command = [
         *launcher, "-n", str(case.ranks), sys.executable, "-m", "bhem_hpc.cli", "bench", "--scene", str(scene),
         "--patches", str(case.patches), "--linear", case.linear, "--steps", str(steps), "--warmup", str(warmup),
-        "--json",
+        "--json", *(("--dt", repr(case.dt)) if case.dt is not None else ()),
     ]  # fmt: skip
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")  # one BLAS thread per rank
-    row = {"kind": case.kind, "ranks": case.ranks, "patches": case.patches, "linear": case.linear}
+    row = {"kind": case.kind, "ranks": case.ranks, "patches": case.patches, "linear": case.linear, "dt": case.dt}
     start = time.perf_counter()
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, env=env)
@@ -108,6 +116,8 @@ def run_case(case: ScalingCase, scene: Path, steps: int, warmup: int, launcher: 
         "assembly_per_iteration_s": result["assembly_per_step_s"] / newton,
         "solve_per_iteration_s": (result["factor_per_step_s"] + result["linear_solve_per_step_s"]) / newton,
         "krylov_per_solve": result["krylov_per_solve"],
+        "dt": result["dt"],
+        "mass_dominance": result["mass_dominance"],
         "refactorizations_per_step": result["refactorizations_per_step"],
         "peak_memory_per_rank_gb": result["peak_memory_per_rank_gb"],
         "linear_fallbacks": result["linear_fallbacks"],
@@ -179,6 +189,14 @@ def scaling_markdown(rows: list[dict], meta: dict, figure: str) -> str:
     gains = speedups(rows)
     lines += [f"- {n} x {n} patches, {lin}: {top} ranks {s:.2f}x faster per step than 1" for (n, top, lin), s in
               sorted(gains.items())] or ["- (one rank count only)"]  # fmt: skip
+    by_dt = sorted((r for r in rows if r["kind"] == "dt" and r["status"] == "ok"), key=lambda r: r["dt"])
+    if by_dt:
+        lines += ["", "## Krylov iterations against the time step", "",
+                  f"The iterative solver on {by_dt[0]['patches']} x {by_dt[0]['patches']} patches, one rank.", "",
+                  "| dt [s] | mass dominance | Krylov / solve | Newton / step | s / step |",
+                  "| ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+        lines += [f"| {r['dt']:g} | {r['mass_dominance']:.3g} | {r['krylov_per_solve']:.1f} | "
+                  f"{r['newton_per_step']:.2f} | {r['step_s']:.3g} |" for r in by_dt]  # fmt: skip
     lines += ["", "## Iterative against direct (same ranks, same size)", ""]
     ok = {(r["kind"], r["ranks"], r["patches"], r["linear"]): r for r in rows if r["status"] == "ok"}
     pairs = [(k, ok[k[:3] + ("direct",)]) for k in ok if k[3] == "iterative" and k[:3] + ("direct",) in ok]
@@ -199,7 +217,7 @@ def plot_scaling(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ok = [r for r in rows if r["status"] == "ok"]
+    ok = [r for r in rows if r["status"] == "ok" and r["kind"] != "dt"]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
     styles = {"direct": "tab:blue", "iterative": "tab:orange"}
     for (n, lin) in sorted({(r["patches"], r["linear"]) for r in ok if r["kind"] == "strong"}):
@@ -238,7 +256,7 @@ def run_scaling_command(args, comm) -> None:
     if not Path(scene).is_file():
         raise ScalingError(f"--scene {scene}: no such scene file")
     linears = [args.linear] if args.linear and args.linear != "auto" else ["direct", "iterative"]
-    cases = scaling_cases(args.ranks, args.patches, linears, args.weak)
+    cases = scaling_cases(args.ranks, args.patches, linears, args.weak, args.dt)
     launcher = shlex.split(args.mpirun) if args.mpirun else default_launcher()
     steps, warmup = args.steps or 3, args.warmup
     out: Path = args.out

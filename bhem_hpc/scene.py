@@ -234,20 +234,28 @@ def _read_toml(path: Path) -> dict:
         raise SceneError(f"{path}: nested too deeply to be a scene") from None
 
 
+def _override(raw: dict, overrides: dict[str, dict[str, Any]], path: Path) -> dict:
+    """``raw`` with the keys of ``overrides`` replaced (a value None removes the key)."""
+    for table, values in overrides.items():
+        current = raw.setdefault(table, {})
+        if not isinstance(current, dict):
+            raise SceneError(f"{path}: '{table}' must be a table to take {sorted(values)}")
+        current.update(values)
+        for key in [k for k, v in values.items() if v is None]:
+            del current[key]
+    return raw
+
+
 def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = None) -> Scene:
     """Read and validate a scene file. Raises :class:`SceneError` on any problem.
 
     Args:
         overrides: ``{table: {key: value}}`` replacing keys of the file's tables before validation,
-            e.g. ``{"surface": {"patches": [200, 200]}, "solver": {"linear": "iterative"}}``.
+            e.g. ``{"surface": {"patches": [200, 200]}, "solver": {"linear": "iterative"}}``; a
+            value None removes the key.
     """
     path = Path(path)
-    raw = _read_toml(path)
-    for table, values in (overrides or {}).items():
-        current = raw.setdefault(table, {})
-        if not isinstance(current, dict):
-            raise SceneError(f"{path}: '{table}' must be a table to take {sorted(values)}")
-        current.update(values)
+    raw = _override(_read_toml(path), overrides or {}, path)
     top = _Table(path, "", raw)
     surface = _surface(top.table("surface"), path)
     material = _material(top.table("material"))

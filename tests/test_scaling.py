@@ -47,17 +47,23 @@ def test_the_command_runs_every_case_in_its_own_mpi_job(comm, shared_tmp_path):
         out = shared_tmp_path / "scaling"
         env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
         command = [sys.executable, "-m", "bhem_hpc.cli", "bench", "--scaling", "--patches", "6", "--ranks", "1", "2",
-                   "--steps", "2", "--out", str(out), "--docs", str(shared_tmp_path / "docs")]  # fmt: skip
+                   "--steps", "2", "--dt", "0.002", "0.008", "--out", str(out),
+                   "--docs", str(shared_tmp_path / "docs")]  # fmt: skip
         done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
         assert done.returncode == 0, done.stderr
         with (out / "scaling.csv").open() as f:
             rows = list(csv.DictReader(f))
-        assert [(r["ranks"], r["linear"], r["status"]) for r in rows] == [
-            ("1", "direct", "ok"), ("2", "direct", "ok"), ("1", "iterative", "ok"), ("2", "iterative", "ok")
+        assert [(r["kind"], r["ranks"], r["linear"], r["status"]) for r in rows] == [
+            ("strong", "1", "direct", "ok"), ("strong", "2", "direct", "ok"), ("strong", "1", "iterative", "ok"),
+            ("strong", "2", "iterative", "ok"), ("dt", "1", "iterative", "ok"), ("dt", "1", "iterative", "ok"),
         ]  # fmt: skip
+        # a longer time step: less inertia in the step matrix, more Krylov iterations
+        short, long = rows[-2:]
+        assert float(short["dt"]) == 0.002 and float(long["mass_dominance"]) < float(short["mass_dominance"]) / 15
         assert all(int(r["dofs"]) == 12 * 7 * 7 and float(r["step_s"]) > 0 for r in rows)
         assert all(float(r["krylov_per_solve"]) > 0 for r in rows if r["linear"] == "iterative")
         assert all(float(r["peak_memory_per_rank_gb"]) > 0.01 for r in rows)
         page = (shared_tmp_path / "docs" / "scaling.md").read_text()
+        assert "## Krylov iterations against the time step" in page
         assert page.startswith("# Scaling") and (shared_tmp_path / "docs" / "scaling" / "scaling.png").stat().st_size
     comm.Barrier()

@@ -46,13 +46,8 @@ def test_kept_factorizations_reach_the_same_states_as_fresh_ones(comm, job, step
     assert fresh_counters["chord_iterations"] == 0
 
 
-SEAMED = """
-[surface]
-kind = "cylinder"
-radius = 0.1
-length = 0.3
-patches = [4, 8]
-
+#: Material, time, solver and output of the two contact scenes below.
+COMMON = """
 [material]
 young = 1.0e4
 poisson = 0.3
@@ -68,7 +63,15 @@ linear = "{linear}"
 
 [output]
 every = 2
+"""
 
+SEAMED = """
+[surface]
+kind = "cylinder"
+radius = 0.1
+length = 0.3
+patches = [4, 8]
+""" + COMMON + """
 [effects]
 gravity = [-9.81, -3.0, 0.0]
 damping = {{ mass = 1.0 }}
@@ -89,23 +92,7 @@ HELD = """
 kind = "rectangle"
 size = [0.4, 0.4]
 patches = [5, 5]
-
-[material]
-young = 1.0e4
-poisson = 0.3
-thickness = 1.0e-3
-density = 200.0
-
-[time]
-dt = 0.005
-steps = 4
-
-[solver]
-linear = "{linear}"
-
-[output]
-every = 2
-
+""" + COMMON + """
 [effects]
 gravity = [0.0, 0.0, -9.81]
 contact = {{ push_out = 1.0e-4, samples_per_side = 2 }}

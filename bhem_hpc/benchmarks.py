@@ -266,6 +266,22 @@ def paper_comparison(jobs_dir: Path, steps: int = 5, comm: MPI.Comm = MPI.COMM_W
     return rows
 
 
+#: Jobs timed with fresh and kept factorizations: (job, untimed warm-up steps, timed steps).
+REUSE_JOBS = (("twisting", 1, 50), ("ball", 70, 20))
+
+
+def reuse_comparison(jobs_dir: Path, comm: MPI.Comm = MPI.COMM_WORLD) -> list[dict]:
+    """Time steps of :data:`REUSE_JOBS` with a fresh factorization per Newton iteration and with the
+    refactor policy, one after the other in one run."""
+    rows = []
+    for job, warmup, steps in REUSE_JOBS:
+        for factorization in ("fresh", "reuse"):
+            overrides = {"solver": {"factorization": factorization}}
+            row = scene_benchmark(jobs_dir / f"{job}.toml", steps, comm=comm, warmup=warmup, overrides=overrides)
+            rows.append(row | {"job": job})
+    return rows
+
+
 def write_performance(docs: Path, jobs_dir: Path, steps: int = 5, comm: MPI.Comm = MPI.COMM_WORLD) -> Path:
     """Measure everything ``docs/performance.md`` shows, in one run, and write it with its rows
     (``docs/performance.json``): one Newton iteration on 10 x 10 to 30 x 30 sheets, ray-patch
@@ -290,6 +306,7 @@ def write_performance(docs: Path, jobs_dir: Path, steps: int = 5, comm: MPI.Comm
         "equal_accuracy": equal_accuracy_benchmarks(docs, comm),
         "rays": [ray_benchmark(n) for n in (10, 30)] if comm.rank == 0 else [],
         "scenes": paper_comparison(jobs_dir, steps, comm),
+        "reuse": reuse_comparison(jobs_dir, comm),
         "steps": steps,
     }
     out = docs / "performance.md"
@@ -359,7 +376,34 @@ def performance_markdown(rows: dict) -> str:
         lines += [f"- {format_ray_row(r)}" for r in rows["rays"]]
         lines += [""]
     lines += _scene_table(rows["scenes"], rows["steps"])
+    lines += _reuse_table(rows.get("reuse", []))
     return "\n".join(lines) + "\n"
+
+
+def _reuse_table(rows: list[dict]) -> list[str]:
+    """Fresh factorizations against the refactor policy, per job."""
+    if not rows:
+        return []
+    lines = [
+        "",
+        "## Factorization reuse (`bhem-hpc bench --scene JOB --factorization fresh|reuse`)",
+        "",
+        "Each job's warm-up steps untimed, then the mean over its timed steps, without output; `fresh` factors the "
+        "Jacobian at every Newton iteration, `reuse` keeps factorizations while chord steps converge well.",
+        "",
+        "| job | warm-up + timed steps | factorization | s / step | Newton / step | refactorizations / step | "
+        "assembly s / step | factorization s / step | speedup |",
+        "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    fresh = {r["job"]: r for r in rows if r["factorization"] == "fresh"}
+    for r in rows:
+        speedup = fresh[r["job"]]["step_s"] / r["step_s"] if r["job"] in fresh else float("nan")
+        lines.append(
+            f"| `{r['job']}` | {r['warmup']} + {r['steps']} | {r['factorization']} | {r['step_s']:.3f} | "
+            f"{r['newton_per_step']:.2f} | {r['refactorizations_per_step']:.2f} | {r['assembly_per_step_s']:.3f} | "
+            f"{r['factor_per_step_s']:.3f} | {speedup:.2f}x |"
+        )
+    return lines
 
 
 def _discretization_table(rows: list[dict], equal_accuracy: list[dict]) -> list[str]:

@@ -268,7 +268,7 @@ def run_scaling_command(args, comm) -> None:
         print(_progress_line(row), flush=True)
         write_csv(rows, out / "scaling.csv")  # after every case: a long run keeps what it measured
     meta = {
-        "command": "bhem-hpc bench --scaling " + " ".join(shlex.quote(a) for a in sys.argv[3:]),
+        "command": "bhem-hpc " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         "host": os.uname().nodename,
         "cores": os.cpu_count(),
         "scene": os.path.relpath(scene),

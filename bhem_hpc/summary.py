@@ -68,6 +68,15 @@ def _performance_lines(docs: Path) -> list[str]:
                 f"{100 * scene['collision_fraction']:.1f} % of it ({scene['dofs']} DoFs, "
                 f"{scene['sample_points']} sample points)."
             )
+    reuse = {(r["job"], r["factorization"]): r for r in rows.get("reuse", [])}
+    for job in dict.fromkeys(job for job, _ in reuse):
+        if (job, "fresh") in reuse and (job, "reuse") in reuse:
+            fresh, kept = reuse[job, "fresh"], reuse[job, "reuse"]
+            lines.append(
+                f"- `{job}` with kept factorizations: {kept['step_s']:.3g} s per time step "
+                f"({fresh['step_s'] / kept['step_s']:.1f}x faster than a factorization per Newton iteration, "
+                f"{kept['refactorizations_per_step']:.2f} refactorizations per step)."
+            )
     for ray in rows["rays"]:
         lines.append(
             f"- Ray-patch intersection, {ray['patches']} x {ray['patches']} patches: Newton-guided splitting "

@@ -33,7 +33,9 @@ from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
+from bhem_hpc.solver.newton import LINEAR_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
+from bhem_hpc.solver.reuse import FactorizationReuse
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
@@ -199,9 +201,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
             series.close()
         _report_unused_options(solver, summary, comm)
         summary["linear_solver_fallbacks"] = solver.fallbacks
-        summary["solver_totals"] = {k: v for k, v in solver.counters().items()
-                                    if k in ("refactorizations", "chord_iterations", "refactor_retries",
-                                             "krylov_iterations", "linear_solves")}  # fmt: skip
+        summary["solver_totals"] = {k: v for k, v in solver.counters().items() if k in LINEAR_COUNTERS}
         solver.close()
     summary["status"] = "completed"
     _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
@@ -345,7 +345,7 @@ def _reuse_problem(arrays: dict, attrs: dict, shape: tuple, static: bool) -> str
         kept = np.asarray(arrays.get(name, np.zeros(0)))
         if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
             return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
-    counters = [attrs.get(f"reuse_{k}") for k in ("cycle_cost", "cycle_solves", "solve_cost")]
+    counters = [attrs.get(f"reuse_{k}") for k in FactorizationReuse.STATE_KEYS]
     if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
         return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
     return None

@@ -19,7 +19,7 @@ import numpy as np
 
 from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.solver.newton import ShellSolver
+from bhem_hpc.solver.newton import LINEAR_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
@@ -135,8 +135,7 @@ class TimeStepper:
         report.time = self.time
         after = self.solver.counters()
         counted = ("regularized_retries", "regularized_iterations", "assembly_s", "factorization_s", "linear_solve_s",
-                   "refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations",
-                   "linear_solves")  # fmt: skip
+                   *LINEAR_COUNTERS)  # fmt: skip
         for name in counted:
             setattr(report, name, after[name] - before[name])
         report.negative_pivots = after["negative_pivots"]

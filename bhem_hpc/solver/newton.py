@@ -47,6 +47,8 @@ log = logging.getLogger(__name__)
 NONZEROS_PER_DOF = 130
 #: A Jacobian assembly and its preconditioner's setup, in Krylov-solved chord iterations.
 ITERATIVE_REFACTOR_COST = 8.0
+#: The counters of :meth:`ShellSolver.counters` that count the linear solver's work.
+LINEAR_COUNTERS = ("refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations", "linear_solves")
 
 
 def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]:
@@ -118,7 +120,8 @@ def _kept_jacobian_callback(
     untouched, so PETSc's PC sees an unchanged operator and keeps its factorization (a chord step)."""
     iteration, norm = snes.getIterationNumber(), snes.getFunctionNorm()
     if iteration == 0:
-        solver.target_norm = max(snes.getTolerances()[0] * norm, snes.getTolerances()[1])  # rtol, atol
+        rtol, atol, _, _ = snes.getTolerances()
+        solver.target_norm = max(rtol * norm, atol)
     if solver.reuse.refactor_now(iteration, norm, solver.target_norm, solver.operator_signature()):
         solver.problem.assemble_jacobian(pmat)
         solver.remember_factored_state()
@@ -177,12 +180,11 @@ class ShellSolver(PetscOwner):
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
         self.fallbacks: list[dict] = []
-        dofs = 3 * model.discretization.num_closed
         self.reuse = FactorizationReuse(
             enabled=factorization == "reuse",
             chord_within_solve=model.dynamics is not None,
             # a Krylov solve costs about as much as assembling the Jacobian that preconditions it
-            refactor_cost=refactor_cost(dofs) if self.linear.kind == "direct" else ITERATIVE_REFACTOR_COST,
+            refactor_cost=refactor_cost(self._dofs) if self.linear.kind == "direct" else ITERATIVE_REFACTOR_COST,
         )
         #: ``load factor -> values of the constrained DOFs`` (``model.constrained``) for static load
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
@@ -242,21 +244,25 @@ class ShellSolver(PetscOwner):
                 else:
                     opts.delValue(name)
 
+    @property
+    def _dofs(self) -> int:
+        return 3 * self.model.discretization.num_closed
+
     def _choose_linear(self, requested: str) -> LinearSolverChoice:
         model = self.model
-        material, surface = model.material, model.rest_surface
-        nodes = surface.evaluate(*surface.grid.node_parameters()).x
+        material = model.material
+        nodes = model.rest_surface.nodal[..., 0, :]  # nodes (Hermite) or control points (B-splines)
         edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
         element = float(np.median(np.concatenate([e.ravel() for e in edges])))  # patch edge length
         dt = float(model.time_step.value) if model.dynamics is not None else None
-        dofs = 3 * model.discretization.num_closed
-        choice = choose_linear_solver(
-            requested, dofs, NONZEROS_PER_DOF * dofs,
-            mass_dominance(material.density, material.young, material.poisson, element, dt),
-            available_memory(model.comm), model.dynamics is not None,
-        )  # fmt: skip
+        dominance = mass_dominance(material.density, material.young, material.poisson, element, dt)
+        choice = self._linear_choice(requested, dominance, available_memory(model.comm))
         log.info("%s: %s linear solver (%s)", self.prefix, choice.kind, choice.reason)
         return choice
+
+    def _linear_choice(self, requested: str, dominance: float, available: float) -> LinearSolverChoice:
+        return choose_linear_solver(requested, self._dofs, NONZEROS_PER_DOF * self._dofs, dominance, available,
+                                    self.model.dynamics is not None)  # fmt: skip
 
     def _fall_back_to_direct(self, reason: str) -> bool:
         """Switch a failing Krylov solver to MUMPS (when a factorization fits); logged and recorded
@@ -264,9 +270,7 @@ class ShellSolver(PetscOwner):
         if self.linear.kind != "iterative" or self.fallbacks:
             return False
         try:
-            choice = choose_linear_solver("direct", 3 * self.model.discretization.num_closed,
-                                          NONZEROS_PER_DOF * 3 * self.model.discretization.num_closed,
-                                          self.linear.mass_dominance, self.linear.available_bytes, True)  # fmt: skip
+            choice = self._linear_choice("direct", self.linear.mass_dominance, self.linear.available_bytes)
         except LinearSolverError as exc:
             log.warning("%s: the Krylov solve failed (%s) and %s", self.prefix, reason, exc)
             return False
@@ -277,7 +281,7 @@ class ShellSolver(PetscOwner):
         pc.setType("cholesky" if self.model.symmetric and self.matrix_format != "baij" else "lu")
         pc.setFactorSolverType("mumps")
         self.linear = choice
-        self.reuse.refactor_cost = refactor_cost(3 * self.model.discretization.num_closed)
+        self.reuse.refactor_cost = refactor_cost(self._dofs)
         self.reuse.invalidate()
         self.fallbacks.append({"from": "iterative", "to": "direct", "reason": reason})
         log.warning("%s: the Krylov solve failed (%s); continuing with the direct solver (MUMPS)", self.prefix, reason)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 #: ``solver.factorization`` values: ``"reuse"`` keeps factorizations while they converge well,
 #: ``"fresh"`` factors the Jacobian at every Newton iteration (full Newton).
@@ -129,10 +130,13 @@ class FactorizationReuse:
         """Whether a kept factorization may serve the next Newton iteration."""
         return self._valid
 
+    #: The keys of :meth:`state`.
+    STATE_KEYS: ClassVar[tuple[str, ...]] = ("cycle_cost", "cycle_solves", "solve_cost")
+
     def state(self) -> dict[str, float]:
         """What the policy's next decisions depend on, for a checkpoint (with the iterate the kept
         factorization was made at, a run continued from it decides as an uninterrupted one)."""
-        return {"cycle_cost": self._cycle_cost, "cycle_solves": self._cycle_solves, "solve_cost": self._solve_cost}
+        return dict(zip(self.STATE_KEYS, (self._cycle_cost, self._cycle_solves, self._solve_cost), strict=True))
 
     def restore(self, state: dict[str, float], signature: tuple) -> None:
         """Continue from :meth:`state` with the factorization remade at ``signature``'s operator."""

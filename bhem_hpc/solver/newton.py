@@ -176,6 +176,8 @@ class ShellSolver(PetscOwner):
         self.prefix = prefix
         self._closed = False
         self._energy_scale = 0.0
+        # the potential at the state the energy line search accepted last (None: not evaluated there)
+        self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
@@ -304,6 +306,7 @@ class ShellSolver(PetscOwner):
             for _ in range(3):
                 self.reuse.start_solve()
                 self._energy_scale = 0.0  # the potential's magnitude, once damp_step has met it
+                self._accepted_energy = None
                 self._stage.push()
                 try:
                     self.snes.solve(None, self.x)
@@ -353,10 +356,14 @@ class ShellSolver(PetscOwner):
         if slope > 0 and self.reuse.on_kept_factorization():
             slope = self._fresh_direction(x, y)  # a kept factorization's step that goes uphill
         indefinite = self.negative_pivots() > 0 or slope > 0
+        accepted, self._accepted_energy = self._accepted_energy, None
         if not indefinite and abs(slope) <= 1e-9 * self._energy_scale:
             return  # below the round-off of the potential met earlier in this solve: no assembly needed
-        self.problem.update_state(x)
-        energy0 = self.problem.potential_energy()
+        if accepted is not None and x.equal(self._trial):
+            energy0 = accepted  # SNES took the step this line search accepted last: the same state
+        else:
+            self.problem.update_state(x)
+            energy0 = self.problem.potential_energy()
         self._energy_scale = abs(energy0)
         resolution = 1e-12 * abs(energy0)
         if indefinite:
@@ -369,6 +376,7 @@ class ShellSolver(PetscOwner):
             self.problem.update_state(self._trial)
             energy = self.problem.potential_energy()
             if np.isfinite(energy) and energy <= energy0 + 1e-4 * step * slope + resolution:
+                self._accepted_energy = energy
                 break
             curvature = energy - energy0 - slope * step
             guess = -slope * step**2 / (2 * curvature) if np.isfinite(energy) and curvature > 0 else 0.1 * step

@@ -14,6 +14,7 @@ from bhem_hpc.scene import load_scene
 from bhem_hpc.solver import ShellSolver, SolverError
 from bhem_hpc.solver.dynamics import StepFailure, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
+from bhem_hpc.solver.problem import ShellProblem
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
 
@@ -44,6 +45,30 @@ def test_kept_factorizations_reach_the_same_states_as_fresh_ones(comm, job, step
     assert np.abs(kept - fresh).max() <= 100 * rtol * size
     assert counters["chord_iterations"] > 0 and counters["refactorizations"] < fresh_counters["refactorizations"]
     assert fresh_counters["chord_iterations"] == 0
+
+
+def test_the_energy_line_search_reuses_the_potential_of_the_state_it_accepted(comm, monkeypatch):
+    """Each Newton iteration starts where the last line search stopped: its potential is already
+    known. Keeping it changes nothing but the number of potential assemblies."""
+    scene = load_scene(JOBS / "twisting.toml")
+    evaluations = []
+    potential = ShellProblem.potential_energy
+    monkeypatch.setattr(ShellProblem, "potential_energy", lambda self: evaluations.append(1) or potential(self))
+    kept, counters = step_scene(comm, scene, 3)
+    kept_evaluations = len(evaluations)
+
+    damp_step = ShellSolver.damp_step
+
+    def forgetting(self, x, y, *args):
+        self._accepted_energy = None
+        return damp_step(self, x, y, *args)
+
+    monkeypatch.setattr(ShellSolver, "damp_step", forgetting)
+    evaluations.clear()
+    recomputed, _ = step_scene(comm, scene, 3)
+    assert np.array_equal(kept, recomputed)
+    # at least one evaluation saved per step, at most one per Newton iteration
+    assert 3 <= len(evaluations) - kept_evaluations <= counters["linear_solves"]
 
 
 #: Material, time, solver and output of the two contact scenes below.

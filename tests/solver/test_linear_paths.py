@@ -66,7 +66,10 @@ def test_the_energy_line_search_reuses_the_potential_of_the_state_it_accepted(co
     monkeypatch.setattr(ShellSolver, "damp_step", forgetting)
     evaluations.clear()
     recomputed, _ = step_scene(comm, scene, 3)
-    assert np.array_equal(kept, recomputed)
+    if comm.size == 1:
+        assert np.array_equal(kept, recomputed)
+    else:  # parallel MUMPS does not repeat itself bit for bit (two equal runs differ by ~1e-17 m)
+        assert np.abs(kept - recomputed).max() <= 1e-12
     # at least one evaluation saved per step, at most one per Newton iteration
     assert 3 <= len(evaluations) - kept_evaluations <= counters["linear_solves"]
 

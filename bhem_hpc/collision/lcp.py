@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
+#: Block-pivoting exchanges of all wrong rows allowed without fewer wrong rows than the best so far.
+PIVOTING_TRIES = 3
+
 
 class ComplementarityError(RuntimeError):
     """The active-set method did not find the solution within its bound."""
@@ -56,8 +59,8 @@ def block_pivoting(
     Rows are split into pushing (``lam`` from the dense solve on them) and resting (``lam = 0``).
     Every row on the wrong side (a pushing row with ``lam < 0``, a resting row with
     ``r - M lam > limit``) changes side at once while that shrinks the number of wrong rows, or
-    within three tries of the best so far; otherwise only the last wrong row does (Murty's rule,
-    which ends in finitely many steps for a positive definite ``M``).
+    within :data:`PIVOTING_TRIES` tries of the best so far; otherwise only the last wrong row
+    does (Murty's rule, which ends in finitely many steps for a positive definite ``M``).
 
     Args:
         matrix: ``(m, m)`` symmetric positive definite ``M``.
@@ -70,7 +73,7 @@ def block_pivoting(
     """
     count = len(rhs)
     pushing = np.zeros(count, dtype=bool)
-    fewest, tries = count + 1, 3
+    fewest, tries = count + 1, PIVOTING_TRIES
     for iteration in range(1, max_iterations + 1):
         impulses = np.zeros(count)
         if pushing.any():
@@ -80,7 +83,7 @@ def block_pivoting(
         if wrong_count == 0:
             return impulses, iteration
         if wrong_count < fewest:
-            fewest, tries = wrong_count, 3
+            fewest, tries = wrong_count, PIVOTING_TRIES
             pushing ^= wrong
         elif tries > 0:
             tries -= 1

@@ -25,9 +25,10 @@ class FactorizationReuse:
 
     A kept factorization is dropped (the next Newton iteration assembles and factors) when
 
-    * a chord step did not reduce the residual norm, or its contraction ``|F_k| / |F_{k-1}|``
-      predicts more chord iterations to the solve's tolerance than ``refactor_cost`` (a fresh
-      Jacobian converges in a few Newton iterations from there);
+    * a chord step did not reduce the residual norm, or the contraction of the last two
+      (the geometric mean of ``|F_k| / |F_{k-1}|`` over the chord steps since the factorization,
+      at most two) predicts more chord iterations to the solve's tolerance than ``refactor_cost``
+      (a fresh Jacobian converges in a few Newton iterations from there);
     * a solve has taken ``max_chord_iterations`` Newton iterations on it without converging;
     * at the start of a solve, when the last solve cost more than the average solve since the
       factorization was made, counting a refactorization as ``refactor_cost`` Newton iterations:
@@ -61,6 +62,7 @@ class FactorizationReuse:
     _signature: tuple = field(default=(), repr=False)
     _previous_norm: float = field(default=float("inf"), repr=False)
     _chord_in_solve: int = field(default=0, repr=False)
+    _previous_ratio: float = field(default=0.0, repr=False)
     _cycle_cost: float = field(default=0.0, repr=False)  # since the factorization: refactor + iterations
     _cycle_solves: int = field(default=0, repr=False)
     _solve_cost: float = field(default=0.0, repr=False)  # the current solve's, since the cycle began
@@ -87,10 +89,14 @@ class FactorizationReuse:
         ``residual_norm`` must assemble and factor the Jacobian, the solve converging at
         ``target_norm``; counts the decision."""
         slowed = False
+        ratio = residual_norm / self._previous_norm if iteration > 0 else 0.0
         if iteration > 0 and residual_norm > target_norm:
-            ratio = residual_norm / self._previous_norm
-            slowed = ratio >= 1.0 or math.log(target_norm / residual_norm) / math.log(ratio) > self.refactor_cost
+            # two contractions: Anderson-mixed chord steps contract unevenly from one to the next
+            rate = math.sqrt(ratio * self._previous_ratio) if self._previous_ratio > 0 else ratio
+            remaining = math.log(target_norm / residual_norm) / math.log(rate) if rate < 1.0 else math.inf
+            slowed = ratio >= 1.0 or remaining > self.refactor_cost
         self._previous_norm = residual_norm
+        self._previous_ratio = ratio
         fresh = (
             not self.enabled
             or (iteration > 0 and not self.chord_within_solve)
@@ -114,6 +120,7 @@ class FactorizationReuse:
         (the current solve's cost counts from here)."""
         self.refactorizations += 1
         self._valid, self._signature, self._chord_in_solve = True, signature, 0
+        self._previous_ratio = 0.0  # the next contraction is the new factorization's first
         self._cycle_cost, self._cycle_solves, self._solve_cost = self.refactor_cost, 1, self.refactor_cost
         self._current_is_kept = False
 

@@ -14,6 +14,7 @@ from bhem_hpc.scene import load_scene
 from bhem_hpc.solver import ShellSolver, SolverError
 from bhem_hpc.solver.dynamics import StepFailure, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
+from bhem_hpc.solver.petsc import SolverSetupError
 from bhem_hpc.solver.problem import ShellProblem
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
@@ -45,6 +46,35 @@ def test_kept_factorizations_reach_the_same_states_as_fresh_ones(comm, job, step
     assert np.abs(kept - fresh).max() <= 100 * rtol * size
     assert counters["chord_iterations"] > 0 and counters["refactorizations"] < fresh_counters["refactorizations"]
     assert fresh_counters["chord_iterations"] == 0
+
+
+def test_anderson_mixed_chord_steps_reach_the_states_of_plain_chord_steps(comm, monkeypatch):
+    import dataclasses
+
+    from bhem_hpc.solver.anderson import AndersonMixing
+
+    mixed_steps = []
+    original = AndersonMixing.mixed_step
+
+    def counted(self, iterate, step):
+        mixed = original(self, iterate, step)
+        mixed_steps.append(mixed is not None)
+        return mixed
+
+    monkeypatch.setattr(AndersonMixing, "mixed_step", counted)
+    scene = load_scene(JOBS / "drape.toml")
+    mixed, _ = step_scene(comm, scene, 6)
+    assert sum(mixed_steps) > 10
+    mixed_steps.clear()
+    plain_scene = dataclasses.replace(scene, petsc_options=scene.petsc_options | {"chord_anderson_depth": 0})
+    plain, _ = step_scene(comm, plain_scene, 6)
+    assert mixed_steps and not any(mixed_steps)
+    size = np.ptp(plain.reshape(-1, 3)[:, :2], axis=0).max()
+    assert np.abs(mixed - plain).max() <= 100 * float(scene.petsc_options.get("snes_rtol", 1e-9)) * size
+    for bad in ("-1", "two"):
+        message = f"option lin_chord_anderson_depth must be an integer >= 0, got '{bad}'"
+        with pytest.raises(SolverSetupError, match=message):
+            ShellSolver(build_model(scene, comm), prefix="lin_", options={"chord_anderson_depth": bad})
 
 
 def test_the_energy_line_search_reuses_the_potential_of_the_state_it_accepted(comm, monkeypatch):

@@ -44,6 +44,17 @@ def test_a_residual_that_grows_or_contracts_too_slowly_refactors():
     assert solve(policy, [1.0, 1e-10], target=1e-9) == [False, False]
 
 
+def test_the_contraction_is_judged_over_the_last_two_chord_steps():
+    policy = FactorizationReuse(refactor_cost=15.0)
+    solve(policy, [1.0, 1e-10])
+    # 0.1 then 0.6: sqrt(0.06) = 0.245 per step, log(1e-9 / 0.06) / log(0.245) = 12.7 steps < 15: keep
+    # (0.6 alone would predict 35)
+    assert solve(policy, [1.0, 0.1, 0.06]) == [False, False, False]
+    # 0.3 then 0.6: sqrt(0.18) = 0.42 per step, 20 steps from 0.036 > 15: refactor; the new
+    # factorization's first contraction is then judged alone (0.1 from 0.0036: 6.6 steps)
+    assert solve(policy, [1.0, 0.2, 0.06, 0.036, 0.0036]) == [False, False, False, True, False]
+
+
 def test_a_solve_that_costs_more_than_the_cycle_average_ends_the_cycle():
     policy = FactorizationReuse(refactor_cost=10.0)
     solve(policy, [1.0, 1e-5, 1e-10])  # factor + 3 iterations: cycle cost 13 in 1 solve

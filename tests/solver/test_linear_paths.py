@@ -276,3 +276,18 @@ def test_scene_solver_keys_are_checked_and_a_direct_solver_that_cannot_fit_is_re
                                        r"a factorization needs about 0.0 GB, 0.0 GB are available"):  # fmt: skip
         run_scene(RunOptions(scene, shared_tmp_path / "direct", progress=False), comm)
     assert not (shared_tmp_path / "direct").exists()
+
+
+@pytest.mark.parametrize("linear", ["direct", "iterative"])
+def test_steps_on_a_kept_factorization_record_their_linear_solve_time(comm, linear):
+    scene = load_scene(JOBS / "twisting.toml")
+    model = build_model(scene, comm)
+    with ShellSolver(model, prefix="lin_", options=scene.petsc_options, linear=linear) as solver:
+        stepper = TimeStepper(model, solver, prescribed_motions(scene))
+        records = [stepper.advance() for _ in range(4)]
+    assert records[0].refactorizations >= 1 and records[0].factorization_s > 0
+    kept = [r for r in records if r.refactorizations == 0]
+    assert kept  # twisting keeps its first factorization for several steps
+    for record in kept:
+        # the solves on the kept factorization take time; none of it is a factorization's
+        assert record.linear_solves > 0 and record.linear_solve_s > 0 and record.factorization_s == 0

@@ -3,7 +3,7 @@
 A chord step on a kept factorization ``J0`` is the fixed-point iteration
 ``x_{k+1} = x_k - s_k`` with ``s_k = J0^{-1} F(x_k)``. It contracts the residual linearly, at the
 rate of the slowest mode of ``I - J0^{-1} J(x)``; once the state has drifted from the factored one
-a few such modes dominate and the rate stays at 0.3-0.5 for many iterations. Anderson mixing
+a few such modes dominate and the rate stays far from Newton's for many iterations. Anderson mixing
 (type II, mixing parameter 1) combines the last ``depth`` steps so that the combination of their
 chord steps is smallest in the least-squares sense,
 
@@ -12,7 +12,7 @@ chord steps is smallest in the least-squares sense,
 
 which removes those modes as a Krylov method would, using only vectors the chord steps computed
 anyway (no extra residual, no extra triangular solve). On a linear problem it is equivalent to
-GMRES on ``J0^{-1} J`` (Walker & Ni, Theorem 2.2).
+GMRES on ``J0^{-1} J`` (Walker & Ni, section 2).
 """
 
 from __future__ import annotations

@@ -48,9 +48,9 @@ log = logging.getLogger(__name__)
 NONZEROS_PER_DOF = 130
 #: A Jacobian assembly and its preconditioner's setup, in Krylov-solved chord iterations.
 ITERATIVE_REFACTOR_COST = 8.0
-#: Chord steps combined by Anderson mixing (option ``chord_anderson_depth`` under the solver's
-#: prefix; 0: plain chord steps); of 3, 5 and 8, 5 took the fewest Newton iterations on the
-#: ball scene in contact.
+#: Chord steps combined by Anderson mixing in problems with a potential, whose energy line search
+#: applies it (option ``chord_anderson_depth`` under the solver's prefix; 0: plain chord steps);
+#: of 3, 5 and 8, 5 took the fewest Newton iterations on the ball scene in contact.
 CHORD_ANDERSON_DEPTH = 5
 #: The counters of :meth:`ShellSolver.counters` that count the linear solver's work.
 LINEAR_COUNTERS = ("refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations", "linear_solves")

@@ -4,6 +4,7 @@ solves fall back to MUMPS or fail the step, never pass as converged."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -34,23 +35,25 @@ def step_scene(comm, scene, steps: int, **solver_args) -> tuple[np.ndarray, dict
     return model.discretization.gather_raw_dofs(model.x.x.array), counters
 
 
+def newton_tolerance(scene, reference: np.ndarray) -> float:
+    """How far two runs of ``scene`` that each stop once ``|F| <= rtol |F0|`` (the Newton tolerance)
+    may end apart: what such a residual moves, a small multiple of rtol times the cloth's size
+    (``reference``: gathered raw DOFs of one of them)."""
+    size = np.ptp(reference.reshape(-1, 3)[:, :2], axis=0).max()
+    return 100 * float(scene.petsc_options.get("snes_rtol", 1e-9)) * size
+
+
 @pytest.mark.parametrize(("job", "steps"), [("twisting", 6), ("drape", 6), ("ball", 3)])
 def test_kept_factorizations_reach_the_same_states_as_fresh_ones(comm, job, steps):
     scene = load_scene(JOBS / f"{job}.toml")
     kept, counters = step_scene(comm, scene, steps, factorization="reuse")
     fresh, fresh_counters = step_scene(comm, scene, steps, factorization="fresh")
-    size = np.ptp(fresh.reshape(-1, 3)[:, :2], axis=0).max()
-    rtol = float(scene.petsc_options.get("snes_rtol", 1e-9))
-    # each run stops once |F| <= rtol |F0| (the Newton tolerance): the states differ by what such a
-    # residual moves, a small multiple of rtol times the cloth's size
-    assert np.abs(kept - fresh).max() <= 100 * rtol * size
+    assert np.abs(kept - fresh).max() <= newton_tolerance(scene, fresh)
     assert counters["chord_iterations"] > 0 and counters["refactorizations"] < fresh_counters["refactorizations"]
     assert fresh_counters["chord_iterations"] == 0
 
 
 def test_anderson_mixed_chord_steps_reach_the_states_of_plain_chord_steps(comm, monkeypatch):
-    import dataclasses
-
     from bhem_hpc.solver.anderson import AndersonMixing
 
     mixed_steps = []
@@ -69,8 +72,7 @@ def test_anderson_mixed_chord_steps_reach_the_states_of_plain_chord_steps(comm, 
     plain_scene = dataclasses.replace(scene, petsc_options=scene.petsc_options | {"chord_anderson_depth": 0})
     plain, _ = step_scene(comm, plain_scene, 6)
     assert mixed_steps and not any(mixed_steps)
-    size = np.ptp(plain.reshape(-1, 3)[:, :2], axis=0).max()
-    assert np.abs(mixed - plain).max() <= 100 * float(scene.petsc_options.get("snes_rtol", 1e-9)) * size
+    assert np.abs(mixed - plain).max() <= newton_tolerance(scene, plain)
     for bad in ("-1", "two"):
         message = f"option lin_chord_anderson_depth must be an integer >= 0, got '{bad}'"
         with pytest.raises(SolverSetupError, match=message):
@@ -221,14 +223,11 @@ def test_a_stalled_krylov_solve_falls_back_to_mumps_and_is_recorded(comm):
     scene = load_scene(JOBS / "twisting.toml")
     options = {"ksp_max_it": 1, "ksp_rtol": 1e-12}  # one CG iteration cannot reach 1e-12
     reference, _ = step_scene(comm, scene, 2, linear="direct")
-    import dataclasses
-
     stalled = dataclasses.replace(scene, petsc_options=scene.petsc_options | options)
     dofs, counters = step_scene(comm, stalled, 2, linear="iterative")
     assert counters["kind"] == "direct"
     assert counters["fallbacks"] == [{"from": "iterative", "to": "direct", "reason": "KSP DIVERGED_MAX_IT"}]
-    size = np.ptp(reference.reshape(-1, 3)[:, :2], axis=0).max()
-    assert np.abs(dofs - reference).max() <= 100 * 1e-9 * size  # the default snes_rtol
+    assert np.abs(dofs - reference).max() <= newton_tolerance(scene, reference)
 
 
 def test_a_stalled_krylov_solve_without_a_fallback_fails_the_step(comm, monkeypatch):

@@ -47,12 +47,12 @@ stress: setup
 	$(PY) -m pytest -m stress --serial-results=out/stress-serial
 	$(MPIRUN) -n 2 scripts/pytest-rank -m stress --color=no -s --serial-results=out/stress-serial
 
-# Both linear solvers on the million-DoF cloth at three sizes, 1 and 2 ranks, weak scaling and
-# Krylov iterations against dt:
-# docs/scaling.md (about half an hour here).
+# Both linear solvers on the million-DoF cloth at three sizes, 1 and 2 ranks, weak scaling,
+# Krylov iterations against dt and MUMPS factoring at every Newton iteration at 200 x 200:
+# docs/scaling.md (about 45 minutes here).
 scaling: setup
 	$(VENV)/bin/bhem-hpc bench --scaling --patches 100 200 290 --ranks 1 2 --weak 100 --dt 0.001 0.002 0.004 0.008 \
-		--steps 4 --docs docs
+		--fresh 200 --steps 4 --docs docs
 
 # Long studies run behind the `study` marker and assert their convergence claims.
 study: setup

@@ -90,6 +90,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="with --scene: the time step; with --scaling: Krylov iterations against these time steps "
                             "(iterative solver, the first size, 1 rank)")  # fmt: skip
     bench.add_argument(
+        "--fresh", type=int, nargs="+", default=None,
+        help="with --scaling: also MUMPS factoring the Jacobian at every Newton iteration, one rank, these sizes",
+    )  # fmt: skip
+    bench.add_argument(
         "--weak", type=int, default=None,
         help="with --scaling: weak scaling too, patches per side for one rank (N sqrt(ranks) for more)",
     )  # fmt: skip

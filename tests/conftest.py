@@ -6,6 +6,10 @@ fail on more than one rank, so a serial session does not collect them.
 
 from __future__ import annotations
 
+# isort: off
+import bhem_hpc  # noqa: F401  first: it picks OpenBLAS's kernels before numpy loads the library
+# isort: on
+
 import logging
 import shutil
 import tempfile

@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from bhem_hpc.blas import blas_label, openblas_core
 from bhem_hpc.scaling import ScalingError, scaling_cases, scaling_markdown, speedups
 
 
@@ -18,9 +19,12 @@ def test_strong_and_weak_cases():
     assert strong[:2] == [(1, 30, "direct"), (2, 30, "direct")] and len(strong) == 8
     weak = [(c.ranks, c.patches) for c in cases if c.kind == "weak" and c.linear == "iterative"]
     assert weak == [(1, 50), (2, 71)]  # patches grow as sqrt(ranks): DoFs per rank stay about equal
-    for bad in (dict(ranks=[0], sizes=[10]), dict(ranks=[1], sizes=[]), dict(ranks=[1], sizes=[10], weak=0)):
+    for bad in (dict(ranks=[0], sizes=[10]), dict(ranks=[1], sizes=[]), dict(ranks=[1], sizes=[10], weak=0),
+                dict(ranks=[1], sizes=[10], fresh=[0])):  # fmt: skip
         with pytest.raises(ScalingError):
-            scaling_cases(bad["ranks"], bad["sizes"], ["direct"], bad.get("weak"))
+            scaling_cases(bad["ranks"], bad["sizes"], ["direct"], bad.get("weak"), fresh=bad.get("fresh"))
+    fresh = [c for c in scaling_cases([1, 2], [30], ["iterative"], None, fresh=[30]) if c.kind == "fresh"]
+    assert [(c.ranks, c.patches, c.linear, c.factorization) for c in fresh] == [(1, 30, "direct", "fresh")]
 
 
 def row(ranks, patches, linear, step_s, memory=1.0, status="ok"):
@@ -40,6 +44,18 @@ def test_speedups_and_the_page():
     assert "- 100 x 100 patches, iterative: 2 ranks 2.00x faster per step than 1" in page
     assert "the iterative path's step takes 0.33x the time of MUMPS' (3.00x faster), 0.50x its memory" in page
     assert "| failed: killed |" in page and "![scaling](scaling/scaling.png)" in page
+    assert "factorization at every Newton iteration" not in page
+
+
+def test_the_page_compares_both_paths_with_a_factorization_per_newton_iteration():
+    fresh = row(1, 200, "direct", 120.0, 3.0) | {"kind": "fresh", "factorization": "fresh"}
+    rows = [row(1, 200, "iterative", 6.0), row(1, 200, "direct", 8.0, 3.0), fresh]
+    page = scaling_markdown(rows, {"command": "c", "host": "h", "cores": 2, "scene": "s.toml", "steps": 3,
+                                   "warmup": 1}, "scaling.png")  # fmt: skip
+    assert "| fresh | 1 | 200 | 484812 | direct, factored every iteration | 120 |" in page
+    assert ("- 200 x 200 patches: MUMPS factoring at every Newton iteration 120 s / step; the iterative path "
+            "6 s / step (20.00x faster); MUMPS keeping its factorizations 8 s / step (15.00x faster)") in page
+    assert speedups(rows) == {}  # one rank only: the fresh case is no rank count of its own
 
 
 def test_the_command_runs_every_case_in_its_own_mpi_job(comm, shared_tmp_path):
@@ -47,7 +63,7 @@ def test_the_command_runs_every_case_in_its_own_mpi_job(comm, shared_tmp_path):
         out = shared_tmp_path / "scaling"
         env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
         command = [sys.executable, "-m", "bhem_hpc.cli", "bench", "--scaling", "--patches", "6", "--ranks", "1", "2",
-                   "--steps", "2", "--dt", "0.002", "0.008", "--out", str(out),
+                   "--steps", "2", "--dt", "0.002", "0.008", "--fresh", "6", "--out", str(out),
                    "--docs", str(shared_tmp_path / "docs")]  # fmt: skip
         done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=600)
         assert done.returncode == 0, done.stderr
@@ -56,14 +72,23 @@ def test_the_command_runs_every_case_in_its_own_mpi_job(comm, shared_tmp_path):
         assert [(r["kind"], r["ranks"], r["linear"], r["status"]) for r in rows] == [
             ("strong", "1", "direct", "ok"), ("strong", "2", "direct", "ok"), ("strong", "1", "iterative", "ok"),
             ("strong", "2", "iterative", "ok"), ("dt", "1", "iterative", "ok"), ("dt", "1", "iterative", "ok"),
+            ("fresh", "1", "direct", "ok"),
         ]  # fmt: skip
+        *_, fresh = rows  # a factorization at every Newton iteration: as many as Newton iterations
+        assert fresh["factorization"] == "fresh" and float(fresh["refactorizations_per_step"]) == float(
+            fresh["newton_per_step"])
+        assert rows[0]["factorization"] == "reuse" and float(rows[0]["refactorizations_per_step"]) < float(
+            rows[0]["newton_per_step"])
         # a longer time step: less inertia in the step matrix, more Krylov iterations
-        short, long = rows[-2:]
+        short, long = rows[-3:-1]
         assert float(short["dt"]) == 0.002 and float(long["mass_dominance"]) < float(short["mass_dominance"]) / 15
         assert all(int(r["dofs"]) == 12 * 7 * 7 and float(r["step_s"]) > 0 for r in rows)
         assert all(float(r["krylov_per_solve"]) > 0 for r in rows if r["linear"] == "iterative")
         assert all(float(r["peak_memory_per_rank_gb"]) > 0.01 for r in rows)
+        assert {r["blas"] for r in rows} == {openblas_core()}  # the ranks run the kernels this process chose
         page = (shared_tmp_path / "docs" / "scaling.md").read_text()
         assert "## Krylov iterations against the time step" in page
+        assert "- 6 x 6 patches: MUMPS factoring at every Newton iteration" in page
+        assert f"BLAS: {blas_label(openblas_core())})" in page
         assert page.startswith("# Scaling") and (shared_tmp_path / "docs" / "scaling" / "scaling.png").stat().st_size
     comm.Barrier()

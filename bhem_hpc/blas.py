@@ -1,0 +1,79 @@
+"""OpenBLAS kernels chosen by the CPU's instruction sets, before the library loads.
+
+MUMPS spends its factorizations and triangular solves in BLAS. OpenBLAS picks its kernels from the
+CPU's model number; on a model its table does not list (common on virtual machines, which report a
+generic "Intel Xeon Processor") it falls back to its generic SSE3 kernels ("Prescott"), far slower
+for an LDL^T than the AVX-512 or AVX2 ones on the same CPU. OpenBLAS reads
+``OPENBLAS_CORETYPE`` once, when it loads; :func:`choose_openblas_kernels` sets it from the
+instruction sets the CPU reports, unless the user set it. ``import bhem_hpc`` calls it, so it takes
+effect wherever bhem_hpc is imported before numpy, PETSc or anything else that loads BLAS (the
+command line, job scripts that start with it).
+
+No numpy here: importing it would load the BLAS this module is meant to configure.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+from collections.abc import MutableMapping
+
+#: OpenBLAS core types and the CPU flags (as in /proc/cpuinfo) their kernels need, best first.
+KERNELS_BY_FLAGS: tuple[tuple[str, frozenset[str]], ...] = (
+    ("SkylakeX", frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"})),
+    ("Haswell", frozenset({"avx2", "fma"})),
+)
+
+
+def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
+    """The instruction-set flags of the first processor listed in ``cpuinfo`` (empty if unreadable)."""
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.partition(":")[2].split())
+    except OSError:
+        pass
+    return frozenset()
+
+
+def choose_openblas_kernels(
+    environ: MutableMapping[str, str] = os.environ, flags: frozenset[str] | None = None
+) -> str | None:
+    """Set ``OPENBLAS_CORETYPE`` in ``environ`` to the best kernels the CPU's ``flags`` support.
+
+    Returns the core type set, or None when the user already set one or no listed kernels fit
+    (OpenBLAS then detects as usual). Child processes (``mpirun`` ranks) inherit the choice.
+    """
+    if environ.get("OPENBLAS_CORETYPE"):
+        return None
+    available = cpu_flags() if flags is None else flags
+    for core, needed in KERNELS_BY_FLAGS:
+        if needed <= available:
+            environ["OPENBLAS_CORETYPE"] = core
+            return core
+    return None
+
+
+def openblas_core() -> str | None:
+    """The kernels the loaded OpenBLAS uses (``openblas_get_corename``), or None when no OpenBLAS
+    is loaded in this process."""
+    try:
+        with open("/proc/self/maps") as f:
+            paths = {line.split()[-1] for line in f if os.path.basename(line.split()[-1]).startswith("libopenblas")}
+    except OSError:
+        return None
+    for path in sorted(paths):
+        try:
+            library = ctypes.CDLL(path)
+            corename = library.openblas_get_corename
+        except (OSError, AttributeError):
+            continue
+        corename.restype = ctypes.c_char_p
+        return corename().decode()
+    return None
+
+
+def blas_label(core: str | None) -> str:
+    """How a measured page names the BLAS: ``core`` as :func:`openblas_core` returned it."""
+    return f"OpenBLAS with its {core} kernels" if core else "not OpenBLAS"

@@ -42,7 +42,7 @@ def test_speedups_and_the_page():
     page = scaling_markdown(rows, {"command": "bhem-hpc bench --scaling", "host": "h", "cores": 2, "scene": "s.toml",
                                    "steps": 3, "warmup": 1}, "scaling/scaling.png")  # fmt: skip
     assert "- 100 x 100 patches, iterative: 2 ranks 2.00x faster per step than 1" in page
-    assert "the iterative path's step takes 0.33x the time of MUMPS' (3.00x faster), 0.50x its memory" in page
+    assert "the iterative path's step takes 0.33x the time of MUMPS' (3.00x as fast), 0.50x its memory" in page
     assert "| failed: killed |" in page and "![scaling](scaling/scaling.png)" in page
     assert "factorization at every Newton iteration" not in page
 
@@ -54,7 +54,7 @@ def test_the_page_compares_both_paths_with_a_factorization_per_newton_iteration(
                                    "warmup": 1}, "scaling.png")  # fmt: skip
     assert "| fresh | 1 | 200 | 484812 | direct, factored every iteration | 120 |" in page
     assert ("- 200 x 200 patches: MUMPS factoring at every Newton iteration 120 s / step; the iterative path "
-            "6 s / step (20.00x faster); MUMPS keeping its factorizations 8 s / step (15.00x faster)") in page
+            "6 s / step (20.00x as fast); MUMPS keeping its factorizations 8 s / step (15.00x as fast)") in page
     assert speedups(rows) == {}  # one rank only: the fresh case is no rank count of its own
 
 

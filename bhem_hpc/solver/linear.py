@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 LINEAR_SOLVERS = ("auto", "direct", "iterative")
 #: Below this size a factorization (kept across Newton iterations and steps) costs less than Krylov
-#: solves.
+#: solves; above it the Krylov path takes about as long or less, in a fraction of the memory
+#: (docs/scaling.md).
 ITERATIVE_MIN_DOFS = 100_000
 #: The inertia-to-membrane-stiffness ratio below which preconditioned CG needs too many iterations.
 MIN_MASS_DOMINANCE = 0.01

@@ -15,6 +15,7 @@ No numpy here: importing it would load the BLAS this module is meant to configur
 from __future__ import annotations
 
 import ctypes
+import logging
 import os
 from collections.abc import MutableMapping
 
@@ -23,6 +24,12 @@ KERNELS_BY_FLAGS: tuple[tuple[str, frozenset[str]], ...] = (
     ("SkylakeX", frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"})),
     ("Haswell", frozenset({"avx2", "fma"})),
 )
+
+
+#: OpenBLAS core types with AVX2 or wider kernels: a BLAS already loaded with one of these is fine.
+VECTOR_CORES = frozenset({"haswell", "zen", "skylakex", "cooperlake", "sapphirerapids"})
+
+log = logging.getLogger("bhem_hpc.blas")
 
 
 def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
@@ -53,6 +60,24 @@ def choose_openblas_kernels(
             environ["OPENBLAS_CORETYPE"] = core
             return core
     return None
+
+
+def generic_kernels_loaded(chosen: str | None, loaded: str | None) -> bool:
+    """Whether OpenBLAS was ``loaded`` (its core type, None: not loaded) with kernels narrower than
+    AVX2 although the CPU supports the ``chosen`` ones: numpy or PETSc loaded it before bhem_hpc
+    could set ``OPENBLAS_CORETYPE``."""
+    return chosen is not None and loaded is not None and loaded.lower() not in VECTOR_CORES
+
+
+def warn_about_generic_kernels(chosen: str | None) -> None:
+    """Log a warning when this process's OpenBLAS runs generic kernels that ``chosen`` would replace."""
+    loaded = openblas_core()
+    if generic_kernels_loaded(chosen, loaded):
+        log.warning(
+            "OpenBLAS runs its generic %s kernels, loaded before bhem_hpc was imported; MUMPS runs faster with "
+            "OPENBLAS_CORETYPE=%s set before Python starts (or bhem_hpc imported before numpy and PETSc)",
+            loaded, chosen,
+        )  # fmt: skip
 
 
 def openblas_core() -> str | None:

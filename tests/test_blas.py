@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import os
 
-from bhem_hpc.blas import KERNELS_BY_FLAGS, choose_openblas_kernels, cpu_flags, openblas_core
+from bhem_hpc.blas import (
+    KERNELS_BY_FLAGS,
+    choose_openblas_kernels,
+    cpu_flags,
+    generic_kernels_loaded,
+    openblas_core,
+)
 
 AVX512 = {"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
 
@@ -31,3 +37,11 @@ def test_this_process_runs_the_kernels_chosen_for_its_cpu():
     if chosen is not None and os.environ.get("OPENBLAS_CORETYPE") == chosen:
         assert core.lower() == chosen.lower()
     assert cpu_flags("/nonexistent/cpuinfo") == frozenset()
+
+
+def test_generic_kernels_loaded_before_bhem_hpc_are_reported():
+    assert generic_kernels_loaded("SkylakeX", "Prescott")  # numpy loaded OpenBLAS first on an unknown model
+    assert not generic_kernels_loaded("SkylakeX", "Cooperlake")  # OpenBLAS knew the CPU: wide kernels
+    assert not generic_kernels_loaded("Haswell", "Zen")
+    assert not generic_kernels_loaded(None, "Prescott")  # the user's choice, or a CPU without AVX2
+    assert not generic_kernels_loaded("SkylakeX", None)  # no OpenBLAS loaded yet

@@ -144,3 +144,11 @@ corners = ["max_min"]
 kinds = ["x"]
 motion = { type = "linear", velocity = [-0.5, 0.0, 0.0] }
 """
+
+
+def newton_tolerance(scene, reference: np.ndarray) -> float:
+    """How far two runs of ``scene`` that each stop once ``|F| <= rtol |F0|`` (the Newton tolerance)
+    may end apart: what such a residual moves, a small multiple of rtol times the cloth's size
+    (``reference``: gathered raw DOFs of one of them)."""
+    size = np.ptp(reference.reshape(-1, 3)[:, :2], axis=0).max()
+    return 100 * float(scene.petsc_options.get("snes_rtol", 1e-9)) * size

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import subprocess
 import sys
@@ -12,7 +13,7 @@ import h5py
 import meshio
 import numpy as np
 import pytest
-from helpers import BASE
+from helpers import BASE, newton_tolerance
 
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import read_checkpoint
@@ -204,6 +205,31 @@ def test_run_writes_series_summary_checkpoint_and_restarts_exactly(comm, workdir
     scale = np.abs(arrays["position_dofs"]).max()
     assert np.abs(restarted["position_dofs"] - arrays["position_dofs"]).max() <= 1e-12 * scale
     assert np.abs(restarted["velocity_dofs"] - arrays["velocity_dofs"]).max() <= 1e-10
+
+
+def test_a_run_continues_with_other_solver_settings(comm, workdir, caplog):
+    # e.g. the iterative solver where MUMPS' factorization ran out of memory
+    scene = write(comm, workdir, BASE)
+    run_scene(RunOptions(scene, workdir / "full", progress=False), comm)
+    run_scene(RunOptions(scene, workdir / "first", steps=3, progress=False), comm)
+    method = '[solver]\nlinear = "iterative"\nfactorization = "fresh"\noptions = { ksp_rtol = 1e-4 }\n'
+    other = write(comm, workdir, BASE + method, "other.toml")
+    with caplog.at_level(logging.WARNING, logger="bhem_hpc.run"):
+        summary = run_scene(RunOptions(other, workdir / "second", steps=3, restart=workdir / "first",
+                                       progress=False), comm)  # fmt: skip
+    assert "instead of the checkpoint's {}" in caplog.text
+    assert summary["linear_solver"]["kind"] == "iterative" and summary["factorization"] == "fresh"
+    expected = {"linear": "iterative", "factorization": "fresh", "options": {"ksp_rtol": 1e-4}}
+    assert summary["solution_method"] == expected
+    full, _ = read_checkpoint(workdir / "full" / "checkpoint.h5")
+    continued, attrs = read_checkpoint(workdir / "second" / "checkpoint.h5")
+    assert attrs["step"] == 6 and summary["solver_totals"]["krylov_iterations"] > 0
+    difference = np.abs(continued["position_dofs"] - full["position_dofs"]).max()
+    assert 0 < difference <= newton_tolerance(load_scene(scene), full["position_dofs"])  # not bit for bit
+    # the physics itself stays fixed: another material is another scene
+    stiffer = write(comm, workdir, BASE.replace("young = 1.0e4", "young = 2.0e4") + method, "stiffer.toml")
+    with pytest.raises(RunError, match="different scene or resolution"):
+        run_scene(RunOptions(stiffer, workdir / "third", steps=1, restart=workdir / "first", progress=False), comm)
 
 
 def test_run_refuses_to_overwrite_and_foreign_restarts(comm, workdir):

@@ -116,6 +116,8 @@ def lawson_hanson(matrix: np.ndarray, rhs: np.ndarray, limit: float) -> tuple[np
     """
     count = len(rhs)
     lam = np.zeros(count)
+    if count == 0:
+        return lam, 0
     free = np.zeros(count, dtype=bool)
     for iteration in range(1, 3 * count + 11):
         gradient = rhs - matrix @ lam  # the descent direction of the fixed rows' impulses

@@ -60,6 +60,8 @@ def test_many_pushing_rows_take_a_few_pivoting_steps():
 
 def test_no_rows_and_rows_already_met():
     assert solve_lcp(np.zeros((0, 0)), np.zeros(0))[0].shape == (0,)
+    impulses, iterations = lawson_hanson(np.zeros((0, 0)), np.zeros(0), 1e-10)  # also on its own
+    assert impulses.shape == (0,) and iterations == 0
     matrix, rhs = contact_like(1, 20, 60)
     impulses, iterations = solve_lcp(matrix, -np.abs(rhs))
     assert not impulses.any() and iterations == 1

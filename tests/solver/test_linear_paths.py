@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import newton_tolerance
 
 from bhem_hpc.run import RunOptions, build_contact, build_model, prescribed_motions, run_scene
 from bhem_hpc.scene import load_scene
@@ -33,14 +34,6 @@ def step_scene(comm, scene, steps: int, **solver_args) -> tuple[np.ndarray, dict
             contact.close()
         counters = solver.counters() | {"kind": solver.linear.kind, "fallbacks": list(solver.fallbacks)}
     return model.discretization.gather_raw_dofs(model.x.x.array), counters
-
-
-def newton_tolerance(scene, reference: np.ndarray) -> float:
-    """How far two runs of ``scene`` that each stop once ``|F| <= rtol |F0|`` (the Newton tolerance)
-    may end apart: what such a residual moves, a small multiple of rtol times the cloth's size
-    (``reference``: gathered raw DOFs of one of them)."""
-    size = np.ptp(reference.reshape(-1, 3)[:, :2], axis=0).max()
-    return 100 * float(scene.petsc_options.get("snes_rtol", 1e-9)) * size
 
 
 @pytest.mark.parametrize(("job", "steps"), [("twisting", 6), ("drape", 6), ("ball", 3)])

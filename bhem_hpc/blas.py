@@ -25,7 +25,6 @@ KERNELS_BY_FLAGS: tuple[tuple[str, frozenset[str]], ...] = (
     ("Haswell", frozenset({"avx2", "fma"})),
 )
 
-
 #: OpenBLAS core types with AVX2 or wider kernels: a BLAS already loaded with one of these is fine.
 VECTOR_CORES = frozenset({"haswell", "zen", "skylakex", "cooperlake", "sapphirerapids"})
 
@@ -71,6 +70,8 @@ def generic_kernels_loaded(chosen: str | None, loaded: str | None) -> bool:
 
 def warn_about_generic_kernels(chosen: str | None) -> None:
     """Log a warning when this process's OpenBLAS runs generic kernels that ``chosen`` would replace."""
+    if chosen is None:
+        return  # the user's choice, or no wider kernels to offer: nothing to look up
     loaded = openblas_core()
     if generic_kernels_loaded(chosen, loaded):
         log.warning(
@@ -85,7 +86,8 @@ def openblas_core() -> str | None:
     is loaded in this process."""
     try:
         with open("/proc/self/maps") as f:
-            paths = {line.split()[-1] for line in f if os.path.basename(line.split()[-1]).startswith("libopenblas")}
+            mapped = {line.split()[-1] for line in f}
+        paths = {path for path in mapped if os.path.basename(path).startswith("libopenblas")}
     except OSError:
         return None
     for path in sorted(paths):

@@ -67,17 +67,21 @@ def physics_hash(scene: Scene) -> str:
     raw = {k: v for k, v in scene.raw.items() if k not in ("output", "path", "probes")}
     raw["solver"] = {k: v for k, v in raw.get("solver", {}).items() if k not in SOLUTION_METHOD_KEYS}
     raw["time"] = {k: v for k, v in raw.get("time", {}).items() if k not in ("steps", "duration", "load_steps")}
-    canonical = json.dumps(raw, sort_keys=True, default=str)
+    canonical = _canonical_json(raw)
     grid = scene.surface.grid
     canonical += repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
 
 
-def solution_method(scene: Scene) -> str:
-    """The scene's :data:`SOLUTION_METHOD_KEYS` that it sets, as canonical JSON (summary.json and
-    checkpoints keep it)."""
-    method = {k: v for k, v in scene.raw.get("solver", {}).items() if k in SOLUTION_METHOD_KEYS}
-    return json.dumps(method, sort_keys=True, default=str)
+def solution_method(scene: Scene) -> dict:
+    """The scene's :data:`SOLUTION_METHOD_KEYS` that it sets (summary.json keeps them, checkpoints
+    as :func:`_canonical_json`)."""
+    return {k: v for k, v in scene.raw.get("solver", {}).items() if k in SOLUTION_METHOD_KEYS}
+
+
+def _canonical_json(value: dict) -> str:
+    """``value`` as JSON that is equal for equal contents (keys sorted)."""
+    return json.dumps(value, sort_keys=True, default=str)
 
 
 def _check_output(options: RunOptions, continuing: bool, comm: MPI.Comm) -> None:
@@ -182,7 +186,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
         "scene": str(options.scene),
         "status": "running",
         "physics_hash": physics_hash(scene),
-        "solution_method": json.loads(solution_method(scene)),
+        "solution_method": solution_method(scene),
         "dofs": 3 * disc.num_closed,
         "nonzeros": solver.problem.matrix_nonzeros(),
         "ranks": comm.size,
@@ -329,11 +333,12 @@ def _read_restart(directory: Path, scene: Scene) -> dict:
     problem = _checkpoint_problem(arrays, attrs, scene)
     if problem:
         raise RunError(f"{path}: {problem}")
-    if attrs.get("solution_method") != solution_method(scene):
+    method = _canonical_json(solution_method(scene))
+    if attrs.get("solution_method") != method:
         log.warning(
             "--restart %s: continuing with solver settings %s instead of the checkpoint's %s; the continued "
             "steps agree with an uninterrupted run within the Newton tolerance, not bit for bit",
-            directory, solution_method(scene), attrs.get("solution_method", "(not recorded)"),
+            directory, method, attrs.get("solution_method", "(not recorded)"),
         )  # fmt: skip
     return {"arrays": arrays, "attrs": attrs, "path": path}
 
@@ -621,7 +626,7 @@ def _checkpoint(
     velocity = model.discretization.gather_raw_dofs(velocity_array)
     data = {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal} | arrays
     meta = {"time": clock[0], "step": clock[1], "physics_hash": summary["physics_hash"],
-            "solution_method": json.dumps(summary["solution_method"], sort_keys=True, default=str),
+            "solution_method": _canonical_json(summary["solution_method"]),
             "static": model.dynamics is None} | attrs  # fmt: skip
     _on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
 

@@ -227,15 +227,15 @@ def scaling_markdown(rows: list[dict], meta: dict, figure: str) -> str:
         f"{ok[k]['peak_memory_per_rank_gb'] / direct['peak_memory_per_rank_gb']:.2f}x its memory per rank"
         for k, direct in sorted(pairs)
     ] or ["- (no size ran with both solvers)"]
-    lines += _against_fresh(rows)
+    lines += _against_fresh(ok)
     return "\n".join(lines) + "\n"
 
 
-def _against_fresh(rows: list[dict]) -> list[str]:
+def _against_fresh(ok: dict[tuple, dict]) -> list[str]:
     """The section comparing both paths with MUMPS factoring at every Newton iteration (``fresh``
-    cases), at the same size on one rank; empty without such cases."""
-    ok = {(r["kind"], r["ranks"], r["patches"], r["linear"]): r for r in rows if r["status"] == "ok"}
-    fresh = sorted((r for r in rows if r["kind"] == "fresh" and r["status"] == "ok"), key=lambda r: r["patches"])
+    cases), at the same size on one rank; empty without such cases. ``ok``: the rows that ran,
+    by ``(kind, ranks, patches, linear)``."""
+    fresh = sorted((r for key, r in ok.items() if key[0] == "fresh"), key=lambda r: r["patches"])
     if not fresh:
         return []
     lines = ["", "## Against MUMPS with a factorization at every Newton iteration (one rank)", ""]

@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 
 from bhem_hpc.blas import (
-    KERNELS_BY_FLAGS,
     choose_openblas_kernels,
     cpu_flags,
     generic_kernels_loaded,
@@ -31,7 +30,7 @@ def test_a_core_type_the_user_set_is_kept():
 
 def test_this_process_runs_the_kernels_chosen_for_its_cpu():
     # conftest imports bhem_hpc before numpy: the choice reached OpenBLAS when it loaded
-    chosen = next((core for core, needed in KERNELS_BY_FLAGS if needed <= cpu_flags()), None)
+    chosen = choose_openblas_kernels({}, cpu_flags())
     core = openblas_core()
     assert core is not None  # setup installs OpenBLAS as the system BLAS
     if chosen is not None and os.environ.get("OPENBLAS_CORETYPE") == chosen:

@@ -6,16 +6,19 @@ and on every rank alike.
 
 * ``"direct"``: MUMPS LDL^T (LU for non-symmetric Jacobians). Robust for any matrix, statics
   and buckling included; its factor grows like DoFs log DoFs in memory and DoFs^1.5 in flops.
-* ``"iterative"``: conjugate gradients (GMRES for statics and non-symmetric Jacobians). A time
-  step's matrix ``M / dt^2 + K`` is preconditioned by an incomplete factorization of each rank's
-  block (block Jacobi / ILU(0) on the 3 x 3 blocks, which on a symmetric matrix is incomplete
-  Cholesky): the inertia keeps the matrix well conditioned, so a few iterations suffice (``bhem-hpc
-  bench --scaling`` reports them), and on the paper's cloth this took less time per solve than
-  Jacobi, GAMG (rigid-body-free, threshold 0.01) or BoomerAMG, whose setup and cycles cost more
-  than the iterations they save here. A static stiffness ``K`` (no inertia, condition number ~
-  patches^4) gets hypre's BoomerAMG with nodal coarsening: of the preconditioners tried its
-  iteration count was the lowest and grows the least with the mesh, where incomplete
-  factorizations need hundreds of iterations.
+* ``"iterative"``: Krylov solves. A time step's matrix ``M / dt^2 + K`` goes to flexible GMRES
+  preconditioned by incomplete factorizations (ILU(0) on the 3 x 3 blocks) of each rank's rows
+  grown by one layer of the neighbouring ranks' rows, combined by restricted additive Schwarz: the
+  inertia keeps the matrix well conditioned, so a few iterations suffice (``bhem-hpc bench
+  --scaling`` reports them), and on the paper's cloth this took less time per solve than Jacobi,
+  GAMG (rigid-body-free, threshold 0.01) or BoomerAMG, whose setup and cycles cost more than the
+  iterations they save here. Without the overlap (block Jacobi: conjugate gradients could run, the
+  preconditioner being symmetric) the coupling across rank boundaries is lost and the iterations
+  per solve grow with the rank count; the restricted Schwarz preconditioner is not symmetric,
+  hence flexible GMRES. A static stiffness ``K`` (no inertia, condition number ~ patches^4) gets
+  GMRES with hypre's BoomerAMG (nodal coarsening): of the preconditioners tried its iteration count
+  was the lowest and grows the least with the mesh, where incomplete factorizations need hundreds
+  of iterations.
 * ``"auto"``: iterative for dynamic problems of at least :data:`ITERATIVE_MIN_DOFS` DoFs whose
   step matrix is mass-dominated enough (:func:`mass_dominance` >= :data:`MIN_MASS_DOMINANCE`), and
   whenever a factorization would not fit in memory; direct otherwise.
@@ -31,7 +34,8 @@ LINEAR_SOLVERS = ("auto", "direct", "iterative")
 #: solves; above it the Krylov path takes about as long or less, in a fraction of the memory
 #: (docs/scaling.md).
 ITERATIVE_MIN_DOFS = 100_000
-#: The inertia-to-membrane-stiffness ratio below which preconditioned CG needs too many iterations.
+#: The inertia-to-membrane-stiffness ratio below which the preconditioned Krylov solves need too many
+#: iterations.
 MIN_MASS_DOMINANCE = 0.01
 #: MUMPS' factor and work space per Jacobian nonzero, measured on Hermite cloth (AMF ordering) at
 #: 11,532 DoFs, growing with log2 of the size (nested-dissection-like fill).

@@ -74,21 +74,27 @@ def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]
     }
     if linear == "direct":
         return default_direct_options(model) | nonlinear
-    dynamic = model.symmetric and model.dynamics is not None
+    dynamic = model.dynamics is not None
     krylov = {
-        # CG for the SPD time-step matrix; GMRES for statics (K may be indefinite along a path)
-        "ksp_type": "cg" if dynamic else "gmres",
+        # flexible GMRES for time steps (their preconditioner is not symmetric, below; it keeps the
+        # preconditioned directions, so forming the solution takes no extra application); GMRES for
+        # statics (K may be indefinite along a path)
+        "ksp_type": "fgmres" if dynamic else "gmres",
         # inexact Newton: the nonlinear test is on the true residual. Time steps: the Anderson-mixed
-        # chord steps make up for a crude solve (1e-2 cost fewer CG iterations in all than 1e-3 on
+        # chord steps make up for a crude solve (1e-2 cost fewer Krylov iterations in all than 1e-3 on
         # the million-DoF cloth scene); statics end with Newton steps, which need accurate ones
-        "ksp_rtol": "1e-2" if dynamic else "1e-3",
+        "ksp_rtol": "1e-2" if dynamic and model.symmetric else "1e-3",
         "ksp_atol": f"{1e-15 * force_scale:.3e}",
         "ksp_max_it": "1000",
         "ksp_norm_type": "unpreconditioned",
     }
-    if model.dynamics is not None:  # M / dt^2 + K: block Jacobi / ILU(0) per rank (on a symmetric
-        # matrix ILU(0) is the incomplete Cholesky factorization, a symmetric preconditioner for CG)
-        pc = {"pc_type": "bjacobi", "sub_pc_type": "ilu", "sub_pc_factor_shift_type": "nonzero"}
+    if dynamic:  # M / dt^2 + K: ILU(0) of each rank's rows grown by one layer of its neighbours'
+        # (restricted additive Schwarz): without the overlap (block Jacobi) the coupling across rank
+        # boundaries is lost and the Krylov iterations grow with the rank count. One rank: block
+        # Jacobi, the same preconditioner without Schwarz's copy of the matrix.
+        schwarz = {"pc_type": "asm", "pc_asm_overlap": "1", "pc_asm_type": "restrict"}
+        pc = schwarz if model.comm.size > 1 else {"pc_type": "bjacobi"}
+        pc |= {"sub_pc_type": "ilu", "sub_pc_factor_shift_type": "nonzero"}
     else:  # K alone: algebraic multigrid with the three displacement components coarsened together
         pc = {"pc_type": "hypre", "pc_hypre_type": "boomeramg", "pc_hypre_boomeramg_nodal_coarsen": "6",
               "pc_hypre_boomeramg_vec_interp_variant": "3", "pc_hypre_boomeramg_strong_threshold": "0.5"}  # fmt: skip
@@ -166,7 +172,7 @@ class ShellSolver(PetscOwner):
         factorization: ``"reuse"``: keep the Jacobian and its factorization (or preconditioner)
             across Newton iterations and solves while chord steps converge well
             (:class:`FactorizationReuse`); ``"fresh"``: assemble and factor at every Newton iteration.
-        linear: ``"direct"`` (MUMPS), ``"iterative"`` (preconditioned CG / GMRES) or ``"auto"``
+        linear: ``"direct"`` (MUMPS), ``"iterative"`` (preconditioned GMRES) or ``"auto"``
             (:func:`~bhem_hpc.solver.linear.choose_linear_solver`: by size, mass dominance and memory).
 
     Raises:
@@ -216,9 +222,9 @@ class ShellSolver(PetscOwner):
             mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
             # MUMPS' LDL^T takes SBAIJ (one triangle) serially; seams (PtAP) and MPI need AIJ.
             serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and disc.closed_is_open
-            # Block Jacobi / ILU works on the 3 x 3 blocks as assembled (no conversion); hypre and
-            # the seams' PtAP need AIJ.
-            blocked = opts.getString(prefix + "pc_type", "") == "bjacobi" and disc.closed_is_open
+            # Block Jacobi and additive Schwarz / ILU work on the 3 x 3 blocks as assembled (no
+            # conversion); hypre and the seams' PtAP need AIJ.
+            blocked = opts.getString(prefix + "pc_type", "") in ("bjacobi", "asm") and disc.closed_is_open
             self.matrix_format = "sbaij" if serial_sbaij else "baij" if blocked else "aij"
             self.report = SolveReport()
             self.problem = ShellProblem(model, self.matrix_format, self.report)
@@ -299,7 +305,7 @@ class ShellSolver(PetscOwner):
         ksp = self.snes.getKSP()
         ksp.setType("preonly")
         pc = ksp.getPC()
-        # MUMPS' LDL^T takes AIJ or SBAIJ; the blocked matrix of block Jacobi gets its LU
+        # MUMPS' LDL^T takes AIJ or SBAIJ; the blocked matrix of the Krylov path gets its LU
         pc.setType("cholesky" if self.model.symmetric and self.matrix_format != "baij" else "lu")
         pc.setFactorSolverType("mumps")
         self.linear = choice

@@ -33,7 +33,7 @@ from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
-from bhem_hpc.solver.newton import LINEAR_COUNTERS
+from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
 from bhem_hpc.solver.reuse import FactorizationReuse
 
@@ -219,7 +219,9 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
             series.close()
         _report_unused_options(solver, summary, comm)
         summary["linear_solver_fallbacks"] = solver.fallbacks
-        summary["solver_totals"] = {k: v for k, v in solver.counters().items() if k in LINEAR_COUNTERS}
+        summary["solver_totals"] = {
+            k: v for k, v in solver.counters().items() if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)
+        }
         solver.close()
     summary["status"] = "completed"
     _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
@@ -583,7 +585,8 @@ class _ProbeTable:
 
 def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float] | None) -> dict:
     """A step's row of ``summary.json`` (the energies at steps that wrote a frame)."""
-    names = ("step", "time", "newton_iterations", "recoveries", "negative_pivots", "regularized_iterations",
+    names = ("step", "time", "newton_iterations", "recoveries", "dt_halvings", "regularized_retries",
+             "trust_region_solves", "negative_pivots", "regularized_iterations", "projected_iterations",
              "refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations")  # fmt: skip
     row = {name: getattr(record, name) for name in names}
     row["wall_s"] = record.wall_s + output_s

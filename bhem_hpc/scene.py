@@ -21,7 +21,8 @@ from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.expression import ExpressionError, finite_on, numpy_expression, parse_expression
-from bhem_hpc.model.material import Material, MaterialError
+from bhem_hpc.model.hessian import HESSIAN_KINDS
+from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
 from bhem_hpc.solver.linear import LINEAR_SOLVERS
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES
@@ -282,13 +283,17 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
         load_steps = 1
     time_table.done()
     solver = top.table("solver", None)
-    hessian, quadrature, options, linear, factorization = "exact", None, {}, "auto", "reuse"
+    # the Hessian Newton iterates with: exact for statics (its inertia tells stability), positive
+    # semi-definite for time steps (every Newton step goes downhill)
+    default_hessian = "exact" if static else "projected"
+    hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", "reuse"
     if solver is not None:
         linear = solver.get("linear", "a string", "auto", lambda v: v in LINEAR_SOLVERS,
                             "'auto', 'direct' or 'iterative'")  # fmt: skip
         factorization = solver.get("factorization", "a string", "reuse", lambda v: v in FACTORIZATION_POLICIES,
                                    "'reuse' or 'fresh'")  # fmt: skip
-        hessian = solver.get("hessian", "a string", "exact", lambda v: v in ("exact", "pseudo"), "'exact' or 'pseudo'")
+        hessian = solver.get("hessian", "a string", default_hessian, lambda v: v in HESSIAN_KINDS,
+                             "'exact', 'pseudo', 'projected' or 'adaptive'")  # fmt: skip
         quadrature = solver.get(
             "quadrature", "an integer or a string", None, lambda v: v in (2, 3, 4, 5, "reduced"),
             "2, 3, 4, 5 (Gauss points per direction) or 'reduced' (quadratic B-splines)",
@@ -446,6 +451,10 @@ def _rectangle(t: _Table, patches: list[int], spline: tuple[int, ...]) -> S.Herm
 def _material(t: _Table) -> Material:
     values = {k: t.get(k, "a number") for k in ("young", "poisson", "thickness")}
     values["density"] = t.get("density", "a number", 0.0)
+    values["membrane"] = t.get("membrane", "a string", "svk", lambda v: v in MEMBRANE_MODELS,
+                               f"one of {MEMBRANE_MODELS}")  # fmt: skip
+    values["bending"] = t.get("bending", "a string", "svk", lambda v: v in BENDING_MODELS, f"one of {BENDING_MODELS}")
+    values["shear_ratio"] = t.get("shear_ratio", "a number", None)
     t.done()
     try:
         return Material(**values)

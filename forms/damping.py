@@ -23,19 +23,16 @@ def mass_damping_potential(
     )
 
 
-def stiffness_damping_potential(
-    internal_energy_at_previous: ufl.Form, x, x_previous, coefficient, time_step
-) -> ufl.Form:
+def stiffness_damping_potential(stiffness_at_previous: ufl.Form, x, x_previous, coefficient, time_step) -> ufl.Form:
     """``beta / (2 dt) (x - x_n)^T K(x_n) (x - x_n)``; ``coefficient`` is beta [s].
 
-    ``internal_energy_at_previous`` is the elastic energy written in terms of ``x_previous``. UFL
-    only differentiates in the direction of a Function or Argument, so the Hessian at ``x_n`` is
-    formed with arguments, expanded, and then both arguments are replaced by ``x - x_n``.
+    ``stiffness_at_previous`` is the bilinear form of ``K(x_n)`` (the elastic Hessian, exact or
+    positive semi-definite, written in terms of ``x_previous`` with a test and a trial function).
+    UFL only differentiates in the direction of a Function or Argument, so the stiffness is formed
+    with arguments, expanded, and then both arguments are replaced by ``x - x_n``.
     """
-    space = x.ufl_function_space()
-    test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
-    hessian = ufl.derivative(ufl.derivative(internal_energy_at_previous, x_previous, test), x_previous, trial)
+    test, trial = stiffness_at_previous.arguments()
     increment = x - x_previous
-    expanded = apply_derivatives(apply_algebra_lowering(hessian))
+    expanded = apply_derivatives(apply_algebra_lowering(stiffness_at_previous))
     quadratic = ufl.replace(expanded, {test: increment, trial: increment})
     return coefficient / (2 * time_step) * quadratic

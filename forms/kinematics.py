@@ -57,6 +57,20 @@ def svk_bilinear(
     return 0.5 * lmbda * ufl.tr(ma) * ufl.tr(mb) + mu * ufl.tr(ma * mb)
 
 
+def positive_part_2x2(matrix: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """``S+ = (S + |S|) / 2`` of a symmetric 2 x 2 matrix: its eigenvalues clamped at zero.
+
+    ``|S| = sqrt(S^2) = (S^2 + |det S| I) / (|s1| + |s2|)`` (the square root of a 2 x 2 matrix by
+    Cayley-Hamilton), with ``|s1| + |s2| = sqrt(tr(S^2) + 2 |det S|)``: no eigenvectors, no branch.
+    The smallest normal double in the denominator makes ``S = 0`` give ``S+ = 0``.
+    """
+    square = matrix * matrix
+    determinant = abs(ufl.det(matrix))
+    spread = ufl.sqrt(ufl.tr(square) + 2 * determinant) + 2.2250738585072014e-308
+    absolute = (square + determinant * ufl.Identity(2)) / spread
+    return 0.5 * (matrix + absolute)
+
+
 def plane_stress_lame(young, poisson) -> tuple[ufl.core.expr.Expr, ufl.core.expr.Expr]:
     """Lame parameters of the paper: ``lambda = Y nu / (1 - nu^2)``, ``mu = Y / (2 (1 + nu))``."""
     return young * poisson / (1 - poisson**2), young / (2 * (1 + poisson))

@@ -10,7 +10,8 @@ from helpers import assert_imports_without
 
 PACKAGE = Path(__file__).resolve().parents[1] / "bhem_hpc"
 #: The only modules that may import petsc4py (as dolfinx keeps PETSc code in petsc.py files).
-PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py", "contact/petsc.py"}
+PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py",
+                 "solver/trust_region.py", "contact/petsc.py"}
 
 
 @pytest.mark.parametrize(

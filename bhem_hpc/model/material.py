@@ -10,21 +10,37 @@ class MaterialError(ValueError):
     """A material constant is out of its physical range."""
 
 
+#: Membrane energies: Kirchhoff-Love St. Venant-Kirchhoff, or the FEM Baraff-Witkin cloth membrane.
+MEMBRANE_MODELS = ("svk", "fbw")
+#: Bending energies: Kirchhoff-Love St. Venant-Kirchhoff, or the quadratic (Bergou) bending energy.
+BENDING_MODELS = ("svk", "quadratic")
+
+
 @dataclass(frozen=True)
 class Material:
-    """St. Venant-Kirchhoff shell material.
+    """Shell material: its constants and which membrane and bending energies it has.
 
     Attributes:
         young: Young's modulus Y [Pa], > 0.
         poisson: Poisson's ratio nu in (-1, 0.5].
         thickness: shell thickness h [m], in (0, 1e3].
         density: mass density rho [kg/m^3], in [0, 1e6].
+        membrane: ``"svk"`` (Kirchhoff-Love St. Venant-Kirchhoff, isotropic) or ``"fbw"`` (the FEM
+            Baraff-Witkin cloth membrane, anisotropic along the rest surface's parametric directions:
+            stretch stiffness ``Y h`` along warp and weft, shear stiffness ``shear_ratio Y h``).
+        bending: ``"svk"`` (Kirchhoff-Love St. Venant-Kirchhoff) or ``"quadratic"`` (Bergou et al.'s
+            quadratic energy ``D/2 int |Delta x|^2`` for flat rest surfaces, ``D = Y h^3 / (12 (1 - nu^2))``).
+        shear_ratio: shear-to-stretch stiffness ratio of the ``"fbw"`` membrane, in (0, 1e3]; only
+            with it, and required there.
     """
 
     young: float
     poisson: float
     thickness: float
     density: float = 0.0
+    membrane: str = "svk"
+    bending: str = "svk"
+    shear_ratio: float | None = None
 
     def __post_init__(self) -> None:
         checks = (
@@ -35,12 +51,36 @@ class Material:
             ("density", self.density, lambda v: 0 <= v <= 1e6, "in [0, 1e6] kg/m^3"),
         )
         for name, value, ok, expected in checks:
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise MaterialError(f"material.{name} must be a number, got {value!r}")
-            if not math.isfinite(value) or not ok(value):
-                raise MaterialError(f"material.{name} = {value!r} is invalid: must be {expected}")
+            _check_number(name, value, ok, expected)
+        self._check_models()
+
+    def _check_models(self) -> None:
+        for name, value, models in (("membrane", self.membrane, MEMBRANE_MODELS), ("bending", self.bending,
+                                                                                     BENDING_MODELS)):  # fmt: skip
+            if value not in models:
+                raise MaterialError(f"material.{name} = {value!r} is invalid: must be one of {models}")
+        if self.membrane == "fbw":
+            if self.shear_ratio is None:
+                raise MaterialError("material.shear_ratio is required with material.membrane = 'fbw' "
+                                    "(shear-to-stretch stiffness ratio, e.g. 1.0)")  # fmt: skip
+            _check_number("shear_ratio", self.shear_ratio, lambda v: 0 < v <= 1e3, "in (0, 1e3]")
+        elif self.shear_ratio is not None:
+            raise MaterialError(f"material.shear_ratio = {self.shear_ratio!r} applies only to "
+                                f"material.membrane = 'fbw', not {self.membrane!r}")  # fmt: skip
+
+    @property
+    def stretch_stiffness(self) -> float:
+        """Membrane stiffness ``Y h`` [N/m] (the Baraff-Witkin membrane's yarn stretch stiffness)."""
+        return self.young * self.thickness
 
     @property
     def bending_stiffness(self) -> float:
         """Plate bending stiffness ``D = Y h^3 / (12 (1 - nu^2))``."""
         return self.young * self.thickness**3 / (12 * (1 - self.poisson**2))
+
+
+def _check_number(name: str, value: object, ok, expected: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise MaterialError(f"material.{name} must be a number, got {value!r}")
+    if not math.isfinite(value) or not ok(value):
+        raise MaterialError(f"material.{name} = {value!r} is invalid: must be {expected}")

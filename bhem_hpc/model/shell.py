@@ -8,7 +8,7 @@ absent load adds no term and compiles nothing. The PETSc side lives in :mod:`bhe
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -22,149 +22,26 @@ from mpi4py import MPI
 from bhem_hpc import forms
 from bhem_hpc.discretization import ConstrainedDofs, Discretization, create_discretization
 from bhem_hpc.geometry.surface import HermiteSurface
-from bhem_hpc.model.bcs import EDGES, NodalConstraint, NodalTie, target_surface
+from bhem_hpc.model.bcs import NodalConstraint, NodalTie, target_surface
+from bhem_hpc.model.hessian import HESSIAN_KINDS, HessianKind
 from bhem_hpc.model.jit import compilation_report, default_jit_params
+from bhem_hpc.model.loads import (  # noqa: F401 - re-exported: the model API
+    AreaLoad,
+    Dynamics,
+    EdgeMoment,
+    LineLoad,
+    Loads,
+    ModelError,
+    PointConstraint,
+    PointLoad,
+)
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, shell_quadrature
 
-HessianKind = Literal["exact", "pseudo"]
 #: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
 #: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
 DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4}
 ScalarType = np.float64  # the dolfinx build is real, double precision
-
-
-class ModelError(ValueError):
-    """Inconsistent problem definition (bad load, quadrature, Hessian choice, ...)."""
-
-
-@dataclass(frozen=True)
-class LineLoad:
-    """Dead load per unit rest length on a boundary edge (``EDGES``)."""
-
-    edge: str
-    traction: tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class EdgeMoment:
-    """Distributed moment per unit rest length on a boundary edge (``EDGES``), about the edge's
-    current tangent; ``moment > 0`` curls the edge towards the surface normal ``a1 x a2``."""
-
-    edge: str
-    moment: float
-
-
-@dataclass(frozen=True)
-class AreaLoad:
-    """Dead load per unit rest area, fixed in direction: ``force`` times ``profile(xi)``.
-
-    Attributes:
-        force: ``(3,)`` force per unit rest area [N/m^2] where the profile is 1.
-        profile: the load's distribution, a function of the parameters ``xi`` (a UFL 2-vector,
-            ``xi[0]``, ``xi[1]``) returning a UFL scalar, e.g. ``lambda xi: ufl.sin(ufl.pi * xi[0])``;
-            None: uniform.
-    """
-
-    force: tuple[float, float, float]
-    profile: Callable[[ufl.core.expr.Expr], ufl.core.expr.Expr] | None = None
-
-
-@dataclass(frozen=True)
-class PointLoad:
-    """Dead point force at parameters ``(xi1, xi2)`` (paper eq. 21)."""
-
-    xi1: float
-    xi2: float
-    force: tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class PointConstraint:
-    """Hold the material point ``(xi1, xi2)`` at a target (paper §6.1, augmented Lagrangian).
-
-    Attributes:
-        xi1, xi2: parameters of the point (anywhere on the surface, not only at nodes).
-        target: position ``(3,)`` or a callable of time (dynamics) / load factor (statics)
-            returning it; only ``components`` are constrained.
-        components: constrained Cartesian components.
-    """
-
-    xi1: float
-    xi2: float
-    target: Callable[[float], np.ndarray] | tuple[float, float, float]
-    components: tuple[int, ...] = (0, 1, 2)
-
-    def target_at(self, t: float) -> np.ndarray:
-        value = self.target(t) if callable(self.target) else self.target
-        return np.asarray(value, dtype=float)
-
-
-@dataclass(frozen=True)
-class Loads:
-    """External loads; each is built only when given. All scale with the load factor."""
-
-    gravity: tuple[float, float, float] | None = None
-    pressure: float | None = None
-    line_loads: tuple[LineLoad, ...] = field(default_factory=tuple)
-    point_loads: tuple[PointLoad, ...] = field(default_factory=tuple)
-    area_loads: tuple[AreaLoad, ...] = field(default_factory=tuple)
-    edge_moments: tuple[EdgeMoment, ...] = field(default_factory=tuple)
-
-    def validate(self) -> None:
-        if self.gravity is not None:
-            _check_vector("gravity", self.gravity)
-        if self.pressure is not None and not np.isfinite(self.pressure):
-            raise ModelError(f"loads.pressure must be finite, got {self.pressure!r}")
-        for i, load in enumerate(self.point_loads):
-            _check_vector(f"point_loads[{i}].force", load.force)
-        for i, load in enumerate(self.area_loads):
-            _check_vector(f"area_loads[{i}].force", load.force)
-            if load.profile is not None and not callable(load.profile):
-                raise ModelError(f"loads.area_loads[{i}].profile must be a function of xi, got {load.profile!r}")
-        self._validate_edge_loads()
-
-    def _validate_edge_loads(self) -> None:
-        for name, loads in (("line_loads", self.line_loads), ("edge_moments", self.edge_moments)):
-            for i, load in enumerate(loads):
-                if load.edge not in EDGES:
-                    raise ModelError(f"loads.{name}[{i}].edge = {load.edge!r}; expected one of {EDGES}")
-        for i, load in enumerate(self.line_loads):
-            _check_vector(f"line_loads[{i}].traction", load.traction)
-        for i, load in enumerate(self.edge_moments):
-            moment = load.moment
-            if isinstance(moment, bool) or not isinstance(moment, int | float) or not np.isfinite(moment):
-                raise ModelError(f"loads.edge_moments[{i}].moment must be a finite number, got {moment!r}")
-
-
-def _check_vector(name: str, v: Sequence[float]) -> None:
-    arr = np.asarray(v, dtype=float)
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ModelError(f"loads.{name} must be 3 finite numbers, got {v!r}")
-
-
-@dataclass(frozen=True)
-class Dynamics:
-    """Implicit Euler time stepping (paper eq. 30) with Rayleigh damping.
-
-    Attributes:
-        time_step: dt [s], > 0.
-        mass_damping: alpha [1/s] of the damping matrix alpha M + beta K, >= 0.
-        stiffness_damping: beta [s], >= 0 (K lagged at the start of the step).
-    """
-
-    time_step: float
-    mass_damping: float = 0.0
-    stiffness_damping: float = 0.0
-
-    def validate(self) -> None:
-        for name, value, ok, expected in (
-            ("time_step", self.time_step, lambda v: v > 0, "> 0"),
-            ("mass_damping", self.mass_damping, lambda v: v >= 0, ">= 0"),
-            ("stiffness_damping", self.stiffness_damping, lambda v: v >= 0, ">= 0"),
-        ):
-            if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value) or not ok(value):
-                raise ModelError(f"dynamics.{name} = {value!r} is invalid: must be a number {expected}")
 
 
 @dataclass(frozen=True)
@@ -178,8 +55,9 @@ class Term:
         role: ``"potential"`` (enters the total potential), ``"work"`` (enters the residual) or
             ``"report"`` (only reported, e.g. the kinetic energy).
         load_scaled: multiplied by the load factor (external loads).
-        pseudo_hessian: ``(test, trial) -> form`` that replaces the term's exact Hessian under
-            ``hessian="pseudo"`` (bending); None keeps the exact one.
+        hessians: by Hessian kind (``"pseudo"``, ``"projected"``), a ``(test, trial) -> form`` that
+            replaces the term's exact Hessian under that kind; a kind not listed keeps the exact one
+            (right for terms whose Hessian is positive semi-definite already: inertia, dead loads).
         conservative: a work that has a potential, ``-work[x]`` (dead loads; a follower pressure
             has none, and makes the problem non-symmetric).
         reported: listed by :meth:`ShellModel.energies`.
@@ -189,7 +67,7 @@ class Term:
     form: ufl.Form
     role: Literal["potential", "work", "report"] = "potential"
     load_scaled: bool = False
-    pseudo_hessian: Callable[[ufl.Argument, ufl.Argument], ufl.Form] | None = None
+    hessians: Mapping[str, Callable[[ufl.Argument, ufl.Argument], ufl.Form]] = field(default_factory=dict)
     conservative: bool = True
     reported: bool = False
 
@@ -207,8 +85,13 @@ class ShellModel:
         loads: external loads (only those given are built).
         constraints: nodal boundary conditions (:class:`~bhem_hpc.model.bcs.NodalConstraint`) and, on
             B-spline surfaces, ties of control points (:class:`~bhem_hpc.model.bcs.NodalTie`).
-        hessian: ``"exact"`` (UFL derivative of the residual) or ``"pseudo"`` (paper's pseudo
-            Hessian: the second derivative of the curvature strain is dropped).
+        hessian: the Jacobian Newton iterates with (the residual and so the solution do not depend
+            on it): ``"exact"`` (UFL derivative of the residual; the default for statics, where its
+            inertia tells stability), ``"pseudo"`` (the BHEM paper's: the second derivative of the
+            curvature strain is dropped) or ``"projected"`` (positive semi-definite: the pseudo
+            Hessian of bending and the membrane's geometric stiffness from the tensile part of its
+            stress only, so that every Newton step of a time step goes downhill; the default for
+            dynamics). None: the default.
         quadrature_points: Gauss points per direction and patch, or ``"reduced"`` (quadratic
             B-splines: the B-spline paper's reduced rule for membrane and bending, see
             :mod:`bhem_hpc.model.quadrature`; mass and loads keep 3 x 3 Gauss); default: the
@@ -228,7 +111,7 @@ class ShellModel:
         material: Material,
         loads: Loads | None = None,
         constraints: Sequence[NodalConstraint] = (),
-        hessian: HessianKind = "exact",
+        hessian: HessianKind | None = None,
         quadrature_points: Quadrature | None = None,
         comm: MPI.Comm = MPI.COMM_WORLD,
         initial: HermiteSurface | None = None,
@@ -236,10 +119,12 @@ class ShellModel:
         point_constraints: Sequence[PointConstraint] = (),
     ):
         loads = loads or Loads()
+        if hessian is None:
+            hessian = "exact" if dynamics is None else "adaptive"
         if quadrature_points is None:
             quadrature_points = DEFAULT_QUADRATURE[rest.discretization]
         _validate(rest, initial or rest, loads, constraints, hessian, quadrature_points, dynamics,
-                  point_constraints)  # fmt: skip
+                  point_constraints, material)  # fmt: skip
         initial = initial or rest
         self.comm = comm
         self.material = material
@@ -265,6 +150,7 @@ class ShellModel:
         self.density = self._constant(material.density)
         self.load_factor = self._constant(1.0)
         self.quadrature = shell_quadrature(self.discretization.grid_mesh, quadrature_points)
+        self._term_residual_forms: dict[str, fem.Form] | None = None
         self.dx = self.quadrature.mass
         self._compose_forms()
         self._build_point_data(loads, point_constraints)
@@ -275,25 +161,67 @@ class ShellModel:
     def _terms(self, test: ufl.Argument) -> list[Term]:
         """The model's terms, in the order their forms are summed: only what the model asks for."""
         x, x_rest, dx = self.x, self.x_rest, self.dx
-        dx_membrane, dx_bending = self.quadrature.membrane, self.quadrature.bending
-        section = (self.thickness, self.young, self.poisson)
-        terms = [
-            Term("membrane", forms.membrane_energy(x, x_rest, *section, dx_membrane), reported=True),
-            Term(
-                "bending",
-                forms.bending_energy(x, x_rest, *section, dx_bending),
-                pseudo_hessian=lambda v, u: forms.bending_pseudo_hessian(x, x_rest, *section, dx_bending, v, u),
-                reported=True,
-            ),
-        ]
+        terms = self._elastic_terms(x)
         if self.loads.gravity is not None:
             self.gravity = self._constant(np.asarray(self.loads.gravity, dtype=float))
             gravity = forms.gravity_potential(x, x_rest, self.density, self.thickness, self.gravity, dx)
             terms.append(Term("gravity", gravity, load_scaled=True, reported=True))
         terms += self._area_load_terms()
         if self.dynamics is not None:
-            terms += self._inertia_terms(section)
+            terms += self._inertia_terms()
         return terms + self._work_terms(test)
+
+    def _elastic_terms(self, position: fem.Function) -> list[Term]:
+        """Membrane and bending energies of the shell at ``position`` (the state, or the previous
+        state for stiffness damping), of the material's models, each with its replacement Hessians."""
+        return [self._membrane_term(position), self._bending_term(position)]
+
+    def _membrane_term(self, position: fem.Function) -> Term:
+        x_rest, dx, material = self.x_rest, self.quadrature.membrane, self.material
+        if material.membrane == "fbw":
+            stretch = self._constant(material.stretch_stiffness)
+            shear = self._constant(material.stretch_stiffness * material.shear_ratio)
+
+            def fbw_projected(v, u):
+                return forms.baraff_witkin_projected_hessian(position, x_rest, stretch, shear, dx, v, u)
+
+            energy = forms.baraff_witkin_energy(position, x_rest, stretch, shear, dx)
+            return Term("membrane", energy, hessians={"projected": fbw_projected, "out_of_plane": fbw_projected},
+                        reported=True)  # fmt: skip
+        section = (self.thickness, self.young, self.poisson)
+
+        def projected(v, u):
+            return forms.membrane_projected_hessian(position, x_rest, *section, dx, v, u)
+
+        def out_of_plane(v, u):
+            return forms.membrane_projected_hessian(position, x_rest, *section, dx, v, u, True)
+
+        return Term("membrane", forms.membrane_energy(position, x_rest, *section, dx),
+                    hessians={"projected": projected, "out_of_plane": out_of_plane}, reported=True)  # fmt: skip
+
+    def _bending_term(self, position: fem.Function) -> Term:
+        x_rest, dx = self.x_rest, self.quadrature.bending
+        if self.material.bending == "quadratic":  # quadratic: its exact Hessian is constant and positive
+            stiffness = self._constant(self.material.bending_stiffness)
+            return Term("bending", forms.quadratic_bending_energy(position, x_rest, stiffness, dx), reported=True)
+        section = (self.thickness, self.young, self.poisson)
+
+        def gauss_newton(v, u):
+            return forms.bending_pseudo_hessian(position, x_rest, *section, dx, v, u)
+
+        energy = forms.bending_energy(position, x_rest, *section, dx)
+        kinds = ("pseudo", "projected", "out_of_plane")
+        return Term("bending", energy, hessians=dict.fromkeys(kinds, gauss_newton), reported=True)
+
+    def _damping_stiffness(self, position: fem.Function, test, trial) -> ufl.Form:
+        """The positive semi-definite (projected) elastic Hessian ``K+`` at ``position`` as a bilinear
+        form: a damping matrix must not be indefinite, or compressed regions would gain energy."""
+        elastic = self._elastic_terms(position)
+        return _sum_forms([
+            t.hessians["projected"](test, trial) if "projected" in t.hessians
+            else ufl.derivative(ufl.derivative(t.form, position, test), position, trial)
+            for t in elastic
+        ])  # fmt: skip
 
     def _area_load_terms(self) -> list[Term]:
         """Dead area loads: potentials ``-q . x`` with ``q = force * profile(xi)``."""
@@ -308,7 +236,7 @@ class ShellModel:
             terms.append(Term(f"area_load_{i}", potential, load_scaled=True, reported=True))
         return terms
 
-    def _inertia_terms(self, section: tuple) -> list[Term]:
+    def _inertia_terms(self) -> list[Term]:
         """Implicit Euler's inertia and Rayleigh damping potentials, and the kinetic energy report."""
         dynamics, space, x, x_rest, dx = self.dynamics, self.discretization.function_space, self.x, self.x_rest, self.dx
         self.time_step = self._constant(dynamics.time_step)
@@ -327,11 +255,10 @@ class ShellModel:
             terms.append(Term("mass_damping", damping))
         if dynamics.stiffness_damping > 0:
             self.stiffness_damping = self._constant(dynamics.stiffness_damping)
-            internal_previous = forms.membrane_energy(
-                self.x_previous, x_rest, *section, self.quadrature.membrane
-            ) + forms.bending_energy(self.x_previous, x_rest, *section, self.quadrature.bending)
+            test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
             damping = forms.stiffness_damping_potential(
-                internal_previous, x, self.x_previous, self.stiffness_damping, self.time_step
+                self._damping_stiffness(self.x_previous, test, trial), x, self.x_previous, self.stiffness_damping,
+                self.time_step,
             )
             terms.append(Term("stiffness_damping", damping))
         kinetic = forms.kinetic_energy(self.velocity, x_rest, *rho_h, dx)
@@ -364,22 +291,18 @@ class ShellModel:
         return terms
 
     def _compose_forms(self) -> None:
-        """One composition of the terms: total potential, residual, exact or pseudo Jacobian, reports."""
+        """One composition of the terms: total potential, residual, Jacobian of the model's Hessian
+        kind, reports."""
         x, lf = self.x, self.load_factor
         space = self.discretization.function_space
         test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
         self.terms = self._terms(test)
         potentials = [t for t in self.terms if t.role == "potential"]
         works = [t for t in self.terms if t.role == "work"]
-        # terms whose exact Hessian is kept under hessian="pseudo" come first, in their order
-        exact = [t.scaled(lf) for t in potentials if t.pseudo_hessian is None]
-        exact_part = exact[0]
-        for form in exact[1:]:
-            exact_part = exact_part + form
-        potential = exact_part
-        for term in potentials:
-            if term.pseudo_hessian is not None:
-                potential = potential + term.scaled(lf)
+        # the summation order of the potential (it fixes the round-off of the residual): terms
+        # without a pseudo Hessian first, in their order, then the others
+        ordered = sorted(potentials, key=lambda t: "pseudo" in t.hessians)  # a stable sort
+        potential = _sum_forms([t.scaled(lf) for t in ordered])
         residual = ufl.derivative(potential, x, test)
         for work in works:
             residual = residual - lf * work.form
@@ -388,30 +311,60 @@ class ShellModel:
         dead_line_work = sum(dead) if dead else None
         # Conservative problems minimize a total potential; the line search uses it as merit function.
         total = potential if dead_line_work is None else potential - lf * dead_line_work
-        if self.hessian == "exact":
-            jacobian = ufl.derivative(residual, x, trial)
-        else:
-            jacobian = ufl.derivative(ufl.derivative(exact_part, x, test), x, trial)
-            for term in potentials:
-                if term.pseudo_hessian is not None:
-                    jacobian = jacobian + term.pseudo_hessian(test, trial)
-            for work in works:
-                jacobian = jacobian - lf * ufl.derivative(work.form, x, trial)
+        # "adaptive" iterates with the Hessian projected out of the plane and, where that is
+        # indefinite, with the projected one (HESSIAN_FALLBACK)
+        kinds = ("out_of_plane", "projected") if self.hessian == "adaptive" else (self.hessian,)
+        jacobians = {kind: self._jacobian(kind, residual, potentials, works, test, trial) for kind in kinds}
         self.symmetric = all(w.conservative for w in works)
         self.ufl_residual = residual
-        self.ufl_jacobian = jacobian
         reported = {t.name: t.form for t in self.terms if t.reported}
         jit = default_jit_params()
         with compilation_report("the shell model", jit["cache_dir"]):
-            self._compile(total, dead_line_work, residual, jacobian, reported, jit)
+            self._compile(total, dead_line_work, residual, jacobians, reported, jit)
 
-    def _compile(self, total, dead_line_work, residual, jacobian, energies: dict, jit: dict) -> None:
+    def _jacobian(self, kind: str, residual, potentials: Sequence[Term], works: Sequence[Term], test, trial):
+        """The UFL Jacobian of Hessian ``kind``: the exact one, or each term's replacement of that kind."""
+        x, lf = self.x, self.load_factor
+        if kind == "exact":
+            return ufl.derivative(residual, x, trial)
+        kept = [t.scaled(lf) for t in potentials if kind not in t.hessians]
+        parts = [ufl.derivative(ufl.derivative(_sum_forms(kept), x, test), x, trial)] if kept else []
+        for term in potentials:
+            if kind in term.hessians:
+                replaced = term.hessians[kind](test, trial)
+                parts.append(lf * replaced if term.load_scaled else replaced)
+        jacobian = _sum_forms(parts)
+        for work in works:
+            jacobian = jacobian - lf * ufl.derivative(work.form, x, trial)
+        return jacobian
+
+    def _compile(self, total, dead_line_work, residual, jacobians: dict, energies: dict, jit: dict) -> None:
         """The dolfinx forms of the composed UFL forms (JIT-compiled, or loaded from the cache)."""
         self.potential_form = fem.form(total, jit_params=jit) if self.symmetric else None
         self.line_load_work_form = None if dead_line_work is None else fem.form(dead_line_work, jit_params=jit)
         self.residual_form = fem.form(residual, jit_params=jit)
-        self.jacobian_form = fem.form(jacobian, jit_params=jit)
+        #: the Jacobian of each Hessian kind the model iterates with; ``jacobian_form``: the first, whose
+        #: steps are recomputed with the second (if any) where its LDL^T is indefinite
+        self.jacobian_forms = {kind: fem.form(j, jit_params=jit) for kind, j in jacobians.items()}
+        self.jacobian_form = next(iter(self.jacobian_forms.values()))
         self.energy_forms = {name: fem.form(e, jit_params=jit) for name, e in energies.items()}
+
+    def term_residual_forms(self) -> dict[str, fem.Form]:
+        """Each potential's gradient and each work's negative (load factor applied), compiled on first
+        use: what a failed solve reports per term."""
+        if self._term_residual_forms is None:
+            test = ufl.TestFunction(self.discretization.function_space)
+            lf = self.load_factor
+            forms_by_term = {}
+            for term in self.terms:
+                if term.role == "potential":
+                    forms_by_term[term.name] = ufl.derivative(term.scaled(lf), self.x, test)
+                elif term.role == "work":
+                    forms_by_term[term.name] = -lf * ufl.replace(term.form, {term.form.arguments()[0]: test})
+            jit = default_jit_params()
+            with compilation_report("the per-term residuals", jit["cache_dir"]):
+                self._term_residual_forms = {name: fem.form(f, jit_params=jit) for name, f in forms_by_term.items()}
+        return self._term_residual_forms
 
     def _build_point_data(self, loads: Loads, point_constraints: Sequence[PointConstraint]) -> None:
         """Point loads, point constraints' basis values, and the nodal constraints' DOFs and values."""
@@ -563,19 +516,20 @@ class ShellModel:
 def _validate(
     rest: HermiteSurface, initial: HermiteSurface, loads: Loads,
     constraints: Sequence[NodalConstraint], hessian: str, quadrature_points: Quadrature, dynamics: Dynamics | None,
-    point_constraints: Sequence[PointConstraint],
+    point_constraints: Sequence[PointConstraint], material: Material,
 ) -> None:  # fmt: skip
     """Every check of a model's definition, before anything is built (raises :class:`ModelError`)."""
     loads.validate()
     if dynamics is not None:
         dynamics.validate()
-    if hessian not in ("exact", "pseudo"):
-        raise ModelError(f"hessian = {hessian!r}; expected 'exact' or 'pseudo'")
+    if hessian not in HESSIAN_KINDS:
+        raise ModelError(f"hessian = {hessian!r}; expected one of {HESSIAN_KINDS}")
     try:
         check_quadrature(quadrature_points, rest.discretization)
     except QuadratureError as error:
         raise ModelError(str(error)) from None
     rest.check_regular(3 if quadrature_points == "reduced" else quadrature_points, name="rest surface")
+    _check_energy_models(rest, material)
     if initial.grid != rest.grid or type(initial) is not type(rest) or initial.node_shape != rest.node_shape:
         raise ModelError("initial and rest surfaces have different grids or kinds")
     for c in constraints:
@@ -587,6 +541,38 @@ def _validate(
         if target.shape != (3,) or not np.all(np.isfinite(target)):
             raise ModelError(f"point_constraints[{i}].target must give 3 finite numbers, got {target!r}")
         rest.grid.locate(np.array(pc.xi1), np.array(pc.xi2))  # raises if outside the surface
+
+
+def _check_energy_models(rest: HermiteSurface, material: Material) -> None:
+    """The material's energy models apply to the rest surface: the quadratic bending energy needs a
+    flat rest surface with an affine parametrization, the Baraff-Witkin membrane parametric
+    directions that do not degenerate."""
+    xi1, xi2 = rest.grid.node_parameters()
+    point = rest.evaluate(xi1, xi2)
+    size = float(np.ptp(point.x.reshape(-1, 3), axis=0).max())
+    if material.bending == "quadratic":
+        curved = max(float(np.abs(getattr(point, name)).max()) for name in ("a11", "a12", "a22"))
+        normal = np.cross(point.a1, point.a2)
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        bent = float(np.abs(normal - normal.reshape(-1, 3)[0]).max())
+        if curved > 1e-9 * max(size, 1e-300) or bent > 1e-9:
+            raise ModelError(f"material.bending = 'quadratic' needs a flat rest surface with an affine "
+                             f"parametrization (the rest surface's second derivatives reach {curved:.3g}, its "
+                             f"normal turns by {bent:.3g}); use material.bending = 'svk'")  # fmt: skip
+    if material.membrane == "fbw":
+        tangents = np.linalg.norm(np.cross(point.a1, point.a2), axis=-1)
+        if tangents.min() <= 1e-12 * max(size, 1e-300) ** 2:
+            raise ModelError("material.membrane = 'fbw' needs parametric (warp and weft) directions at every "
+                             "point; the rest surface degenerates (a1 x a2 = 0 somewhere); use "
+                             "material.membrane = 'svk'")  # fmt: skip
+
+
+def _sum_forms(summands: Sequence[ufl.Form]) -> ufl.Form:
+    """``summands[0] + summands[1] + ...`` in that order."""
+    total = summands[0]
+    for form in summands[1:]:
+        total = total + form
+    return total
 
 
 def _merge(selections: Sequence[ConstrainedDofs]) -> ConstrainedDofs:

@@ -19,7 +19,7 @@ import numpy as np
 
 from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.solver.newton import LINEAR_COUNTERS, ShellSolver
+from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
@@ -46,6 +46,8 @@ class StepRecord:
     dt_halvings: int = 0
     regularized_retries: int = 0
     regularized_iterations: int = 0
+    projected_iterations: int = 0  # Newton steps recomputed with the projected Hessian (adaptive)
+    trust_region_solves: int = 0  # solves recovered by the trust-region Newton fallback
     negative_pivots: int = -1  # of the last factorization (-1: unknown, not LDL^T)
     refactorizations: int = 0  # Jacobians assembled and factored
     chord_iterations: int = 0  # Newton iterations on a kept factorization
@@ -65,8 +67,8 @@ class StepRecord:
 
     @property
     def recoveries(self) -> int:
-        """Regularized retries and dt halvings."""
-        return self.regularized_retries + self.dt_halvings
+        """Regularized retries, trust-region solves and dt halvings."""
+        return self.regularized_retries + self.trust_region_solves + self.dt_halvings
 
 
 @dataclass
@@ -134,8 +136,8 @@ class TimeStepper:
         self._tick()
         report.time = self.time
         after = self.solver.counters()
-        counted = ("regularized_retries", "regularized_iterations", "assembly_s", "factorization_s", "linear_solve_s",
-                   *LINEAR_COUNTERS)  # fmt: skip
+        counted = ("regularized_retries", "regularized_iterations", *RECOVERY_COUNTERS, "assembly_s",
+                   "factorization_s", "linear_solve_s", *LINEAR_COUNTERS)  # fmt: skip
         for name in counted:
             setattr(report, name, after[name] - before[name])
         report.negative_pivots = after["negative_pivots"]

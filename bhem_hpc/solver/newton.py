@@ -41,6 +41,7 @@ from bhem_hpc.solver.petsc import (
 )
 from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, refactor_cost
+from bhem_hpc.solver.trust_region import TrustRegionNewton
 
 log = logging.getLogger(__name__)
 #: Jacobian nonzeros per DoF for the memory estimate of a factorization (Hermite ~100, B-splines
@@ -52,6 +53,8 @@ ITERATIVE_REFACTOR_COST = 8.0
 #: applies it (option ``chord_anderson_depth`` under the solver's prefix; 0: plain chord steps);
 #: of 3, 5 and 8, 5 took the fewest Newton iterations on the ball scene in contact.
 CHORD_ANDERSON_DEPTH = 5
+#: The counters of :meth:`ShellSolver.counters` that count what Newton did besides plain steps.
+RECOVERY_COUNTERS = ("projected_iterations", "trust_region_solves")
 #: The counters of :meth:`ShellSolver.counters` that count the linear solver's work.
 LINEAR_COUNTERS = ("refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations", "linear_solves")
 
@@ -152,6 +155,8 @@ class SolveReport:
     cuts: int = 0
     regularized_retries: int = 0
     regularized_iterations: int = 0
+    projected_iterations: int = 0
+    trust_region_solves: int = 0
     multiplier_updates: int = 0
     refactor_retries: int = 0
     krylov_iterations: int = 0
@@ -192,6 +197,7 @@ class ShellSolver(PetscOwner):
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
+        self.trust_region: TrustRegionNewton | None = None  # made at the first failed time step
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
         self.fallbacks: list[dict] = []
@@ -394,7 +400,10 @@ class ShellSolver(PetscOwner):
         self._energy_scale = abs(energy0)
         resolution = 1e-12 * abs(energy0)
         if indefinite:
-            slope = self._regularized_direction(y)
+            if self.problem.hessian == "out_of_plane" and "projected" in self.model.jacobian_forms:
+                slope = self._projected_direction(x, y)
+            else:
+                slope = self._regularized_direction(y)
         if abs(slope) <= 1e3 * resolution:
             return
         step = 1.0
@@ -450,6 +459,18 @@ class ShellSolver(PetscOwner):
             return 0.0
         self.anderson.mixed_step(x.getArray(readonly=True), y.getArray(readonly=True))  # the new history's first
         return -self.f.dot(y)
+
+    def _projected_direction(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
+        """Re-solve for ``y`` with the projected (positive semi-definite) Hessian assembled and factored
+        at ``x``, where the one projected out of the plane only is indefinite (strong in-plane
+        compression). Returns the new slope ``-F.y``."""
+        self.problem.hessian = "projected"
+        try:
+            slope = self._fresh_direction(x, y)
+        finally:
+            self.problem.hessian = "out_of_plane"
+        self.report.projected_iterations += 1
+        return slope
 
     def _linear_solve_ok(self, ksp: PETSc.KSP, y: PETSc.Vec, what: str) -> bool:
         """Whether a linear solve inside the line search converged; if not, no step is taken
@@ -615,6 +636,13 @@ class ShellSolver(PetscOwner):
                     self.report.newton_iterations.append(its)
                     self.report.negative_pivots.append(pivots)
                     return its
+                # (point constraints need the augmented Lagrangian's outer loop, which it lacks)
+                if attempt == 0 and not len(self.problem.alm_multipliers) and self._trust_region_recovers(start):
+                    self.problem.update_state(self.x)
+                    its = self.trust_region.iterations()
+                    self.report.newton_iterations.append(its)
+                    self.report.negative_pivots.append(self.negative_pivots())
+                    return its
                 if attempt == len(regularizations):
                     break
                 self.report.regularized_retries += 1
@@ -626,11 +654,28 @@ class ShellSolver(PetscOwner):
                     pivots,
                     regularizations[attempt],
                 )
-            self._raise(1.0, f"{len(regularizations)} regularized retries")
+            self._raise(1.0, f"trust-region Newton and {len(regularizations)} regularized retries")
         finally:
             self.problem.regularization = 0.0
             start.destroy()
         return -1  # unreachable: _raise always raises
+
+    def _trust_region_recovers(self, start: PETSc.Vec) -> bool:
+        """After a failed line-search solve: the trust-region Newton from the step's start (counted
+        in ``trust_region_solves`` when it converges; logged either way)."""
+        if self.trust_region is None:
+            self.trust_region = TrustRegionNewton(self, default_options(self.model, self.linear.kind))
+        log.info("%s: Newton failed (%s); trying trust-region Newton", self.prefix,
+                 SNES_REASONS.get(self.snes.getConvergedReason()))  # fmt: skip
+        start.copy(self.x)
+        if len(self.problem.bc_local):
+            self.x.array[self.problem.bc_local] = self.problem.bc_values
+        self.problem.regularization = 0.0
+        converged = self.trust_region.solve(self.x)
+        self.report.linear_solves += self.trust_region.iterations()
+        if converged:
+            self.report.trust_region_solves += 1
+        return converged
 
     def _converged(self) -> bool:
         """Whether the last SNES solve converged. A step-size test (the update fell below ``stol``)
@@ -652,8 +697,20 @@ class ShellSolver(PetscOwner):
             f"SNES solver '{self.prefix}' failed at load factor {factor:.4g} after {after}: "
             f"{SNES_REASONS.get(reason, reason)} after {self.snes.getIterationNumber()} Newton iterations, "
             f"|F| = {self.snes.getFunctionNorm():.3e}; last linear solve: KSP "
-            f"{KSP_REASONS.get(ksp_reason, ksp_reason)}{mumps}"
+            f"{KSP_REASONS.get(ksp_reason, ksp_reason)}{mumps}; {self._dominant_terms()}"
         )
+
+    def _dominant_terms(self) -> str:
+        """Which terms make up the residual where the solve stopped, and what the user can change."""
+        self.problem.update_state(self.x)
+        norms = self.problem.term_residual_norms()
+        ranked = sorted(norms.items(), key=lambda item: -item[1])
+        listed = ", ".join(f"{name} {norm:.2e}" for name, norm in ranked[:3])
+        if self.model.dynamics is not None:
+            advice = "a smaller dt, a finer or coarser resolution, or solver.hessian = 'projected'"
+        else:
+            advice = "more load steps (time.load_steps), or a path method"
+        return f"residual by term (largest first): {listed}; the {ranked[0][0]} term dominates; try {advice}"
 
     def _factor_matrix(self) -> PETSc.Mat | None:
         pc = self.snes.getKSP().getPC()
@@ -758,6 +815,8 @@ class ShellSolver(PetscOwner):
             "linear_solve_s": solve,
             "regularized_retries": report.regularized_retries,
             "regularized_iterations": report.regularized_iterations,
+            "projected_iterations": report.projected_iterations,
+            "trust_region_solves": report.trust_region_solves,
             "negative_pivots": report.negative_pivots[-1] if report.negative_pivots else -1,
             "refactorizations": self.reuse.refactorizations,
             "chord_iterations": self.reuse.chord_iterations,
@@ -792,6 +851,8 @@ class ShellSolver(PetscOwner):
         opts = PETSc.Options()
         for name in self._overrides:
             opts.delValue(name)
+        if self.trust_region is not None:
+            self.trust_region.close()
         for obj in (self.snes, self.x, self.f, self._trial):
             if obj is not None:
                 obj.destroy()

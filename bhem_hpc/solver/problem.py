@@ -116,6 +116,8 @@ class ShellProblem(PetscOwner):
         self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
         self.bc_values = model.constrained_initial.copy()
         self.regularization = 0.0  # the driver's diagonal regularizer r: J + r |diag J|
+        #: the Hessian kind the next Jacobian is assembled with (a key of ``model.jacobian_forms``)
+        self.hessian = next(iter(model.jacobian_forms))
         self._init_point_constraints()
 
     def _init_point_constraints(self) -> None:
@@ -180,6 +182,28 @@ class ShellProblem(PetscOwner):
             values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
         self.report.assemble_residual_s += time.perf_counter() - t0
 
+    def term_residual_norms(self) -> dict[str, float]:
+        """Collective: the 2-norm of each term's part of the residual at the current state, on the free
+        DOFs (constrained rows left out), e.g. to tell which energy dominates a failed solve."""
+        norms = {}
+        disc = self.model.discretization
+        closed = PETSc.Vec().createMPI((3 * disc.num_owned_closed, 3 * disc.num_closed), comm=self.model.comm)
+        try:
+            for name, form in self.model.term_residual_forms().items():
+                with self.f_open.localForm() as local:
+                    local.set(0.0)
+                fem_petsc.assemble_vector(self.f_open, form)
+                self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+                if self.prolongation is not None:
+                    self.prolongation.multTranspose(self.f_open, closed)
+                else:
+                    self.f_open.copy(closed)
+                closed.array[self.bc_local] = 0.0
+                norms[name] = closed.norm()
+        finally:
+            closed.destroy()
+        return norms
+
     def point_constraint_violation(self) -> np.ndarray:
         """``x(xi_p) - target`` of every point constraint (constrained components), collective.
 
@@ -205,7 +229,7 @@ class ShellProblem(PetscOwner):
     def _assemble_open_jacobian(self) -> None:
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
-        fem_petsc.assemble_matrix(target, self.model.jacobian_form)
+        fem_petsc.assemble_matrix(target, self.model.jacobian_forms[self.hessian])
         for blocks, values in self.model.point_constraint_basis:  # rho Phi Phi^T per component
             block = self.alm_penalty * np.outer(values, values)
             for comp in range(3):

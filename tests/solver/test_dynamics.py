@@ -107,3 +107,30 @@ def test_a_step_that_cannot_converge_stops_the_run_with_its_time(comm):
         with pytest.raises(StepFailure, match=r"time step 1 \(t = 0.2 s\) failed after 1 halvings.*'dyn_fail_'"):
             stepper.advance()
     np.testing.assert_array_equal(model.x.x.array, before)  # never continues from a failed state
+
+
+def test_a_failed_newton_step_is_recovered_by_trust_region_newton(comm):
+    """Line-search Newton limited to 2 iterations fails the strip's step; the trust-region Newton
+    takes over (logged and counted) and reaches the step a full Newton reaches."""
+    reference = hanging_strip(comm, patches=8, dt=0.005)
+    run(reference, 1)
+    model = hanging_strip(comm, patches=8, dt=0.005)
+    with ShellSolver(model, prefix="dyn_tr_", options={"snes_max_it": 2}) as solver:
+        stepper = TimeStepper(model, solver)
+        record = stepper.advance()
+        counters = solver.counters()
+    assert counters["trust_region_solves"] == 1 and record.trust_region_solves == 1
+    assert record.dt_halvings == 0 and record.regularized_retries == 0
+    difference = np.abs(model.x.x.array - reference.x.x.array).max()
+    assert difference < 1e-7 * np.abs(reference.x.x.array).max()
+
+
+def test_a_step_that_cannot_converge_names_the_dominant_term(comm):
+    model = hanging_strip(comm, patches=8, dt=0.005)
+    options = {"snes_max_it": 1, "tr_snes_max_it": 1}
+    with ShellSolver(model, prefix="dyn_fail_", options=options) as solver:
+        stepper = TimeStepper(model, solver, max_halvings=0)
+        with pytest.raises(StepFailure, match=r"residual by term \(largest first\): (membrane|bending|inertia|gravity) "
+                           r".*dominates; try a smaller dt"):  # fmt: skip
+            stepper.advance()
+        assert solver.counters()["trust_region_solves"] == 0

@@ -1,0 +1,95 @@
+"""Trust-region Newton (PETSc ``newtontr``): the recovery of a time step whose line-search Newton
+failed, before the regularized retries and before the step's dt is halved.
+
+Where the line-search Newton stalls (a step that the energy line search cannot shorten enough, an
+iteration limit hit while the residual still falls slowly), a trust region bounds every step by a
+radius that adapts to how well the quadratic model predicted the decrease: it needs no descent
+direction, so an indefinite Jacobian does not stop it. It shares the solver's residual, Jacobian
+matrix and linear-solver kind; its options live under its own prefix (``<solver prefix>tr_``).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING
+
+from petsc4py import PETSc
+
+from bhem_hpc.solver.petsc import PETSC_ERRORS, SNES_REASONS, PetscOwner, SolverSetupError, push_options, solve_stopped
+
+if TYPE_CHECKING:
+    from bhem_hpc.solver.newton import ShellSolver
+
+log = logging.getLogger(__name__)
+#: Newton iterations the trust region may take (it shortens steps, so it may need more than Newton)
+TRUST_REGION_MAX_IT = 100
+
+
+def _residual(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: ShellSolver) -> None:
+    solver.problem.update_state(x)
+    solver.problem.assemble_residual(x, f)
+
+
+def _jacobian(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
+    solver.problem.assemble_jacobian(pmat)
+    solver.reuse.invalidate()  # the shared matrix now holds this SNES's Jacobian
+
+
+class TrustRegionNewton(PetscOwner):
+    """A ``newtontr`` SNES on a :class:`~bhem_hpc.solver.newton.ShellSolver`'s problem.
+
+    Args:
+        solver: the line-search solver it recovers (its residual, Jacobian and tolerances).
+        defaults: the solver's PETSc defaults (linear solver, tolerances), used under this prefix
+            where the options database has no value.
+    """
+
+    def __init__(self, solver: ShellSolver, defaults: dict[str, str]):
+        self.solver = solver
+        self.prefix = solver.prefix + "tr_"
+        self._closed = False
+        opts = PETSc.Options()
+        rtol, atol, stol, _ = solver.snes.getTolerances()
+        own = {k: v for k, v in defaults.items() if not k.startswith(("snes_linesearch", "mat_mumps"))}
+        own |= {"snes_type": "newtontr", "snes_max_it": str(TRUST_REGION_MAX_IT), "snes_rtol": f"{rtol:.3e}",
+                "snes_atol": f"{atol:.3e}", "snes_stol": f"{stol:.3e}"}  # fmt: skip
+        pushed = push_options(self.prefix, own, {})
+        try:
+            self.snes = PETSc.SNES().create(solver.model.comm)
+            self.snes.setOptionsPrefix(self.prefix)
+            self.snes.setFunction(_residual, solver.f, kargs={"solver": solver})
+            self.snes.setJacobian(_jacobian, solver.jacobian, solver.jacobian, kargs={"solver": solver})
+            try:
+                self.snes.setFromOptions()
+            except PETSc.Error as exc:
+                self.snes.destroy()
+                self._closed = True
+                raise SolverSetupError(
+                    f"SNES solver '{self.prefix}': PETSc rejected its options (error code {exc.ierr}: "
+                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
+                ) from None
+        finally:
+            for name in pushed:
+                opts.delValue(name)
+
+    def solve(self, x: PETSc.Vec) -> bool:
+        """Solve from ``x`` (overwritten with the result); whether it converged."""
+        try:
+            self.snes.solve(None, x)
+        except PETSc.Error as exc:
+            raise solve_stopped(self.prefix, exc) from None
+        reason = self.snes.getConvergedReason()
+        log.info("%s: %s after %d trust-region Newton iterations, |F| = %.3e", self.prefix,
+                 SNES_REASONS.get(reason, reason), self.snes.getIterationNumber(),
+                 self.snes.getFunctionNorm())  # fmt: skip
+        return reason > 0
+
+    def iterations(self) -> int:
+        return self.snes.getIterationNumber()
+
+    def close(self) -> None:
+        """Destroy the SNES (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.snes.destroy()

@@ -152,3 +152,13 @@ def newton_tolerance(scene, reference: np.ndarray) -> float:
     (``reference``: gathered raw DOFs of one of them)."""
     size = np.ptp(reference.reshape(-1, 3)[:, :2], axis=0).max()
     return 100 * float(scene.petsc_options.get("snes_rtol", 1e-9)) * size
+
+
+def central_difference(model, q0, direction, eps, evaluate):
+    """``(evaluate(q0 + eps d) - evaluate(q0 - eps d)) / (2 eps)``, restoring the state."""
+    set_open_state_global(model, q0 + eps * direction)
+    plus = evaluate(model)
+    set_open_state_global(model, q0 - eps * direction)
+    minus = evaluate(model)
+    set_open_state_global(model, q0)
+    return (plus - minus) / (2 * eps)

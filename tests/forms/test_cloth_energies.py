@@ -6,7 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import jacobian_dense, open_state_global, potential, random_rotation, residual_open, set_open_state_global
+from helpers import (
+    central_difference,
+    jacobian_dense,
+    open_state_global,
+    potential,
+    random_rotation,
+    residual_open,
+)
 
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
@@ -30,24 +37,15 @@ def cloth_model(request, comm, rng):
     return ShellModel(rest, COTTON_FBW, hessian="exact", comm=comm, initial=_perturbed(rest, rng, 0.01)), rest
 
 
-def _central_difference(model, q0, direction, eps, evaluate):
-    set_open_state_global(model, q0 + eps * direction)
-    plus = evaluate(model)
-    set_open_state_global(model, q0 - eps * direction)
-    minus = evaluate(model)
-    set_open_state_global(model, q0)
-    return (plus - minus) / (2 * eps)
-
-
 def test_gradient_and_hessian_match_central_differences(cloth_model, rng):
     model, _ = cloth_model
     q0 = open_state_global(model)
     gradient, hessian = residual_open(model), jacobian_dense(model)
     for _ in range(3):
         d = rng.normal(size=q0.shape)
-        fd_energy = _central_difference(model, q0, d, 1e-7, potential)
+        fd_energy = central_difference(model, q0, d, 1e-7, potential)
         assert abs(fd_energy - gradient @ d) < 1e-6 * abs(gradient @ d)
-        fd_gradient = _central_difference(model, q0, d, 1e-7, residual_open)
+        fd_gradient = central_difference(model, q0, d, 1e-7, residual_open)
         assert np.linalg.norm(fd_gradient - hessian @ d) < 1e-5 * np.linalg.norm(hessian @ d)
 
 

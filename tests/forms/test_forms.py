@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import ufl
 from helpers import (
+    central_difference,
     gather_matrix,
     jacobian_dense,
     open_state_global,
@@ -42,16 +43,6 @@ def model_pair(comm, rng):
     exact = ShellModel(rest, MATERIAL, loads, hessian="exact", comm=comm, initial=state)
     pseudo = ShellModel(rest, MATERIAL, loads, hessian="pseudo", comm=comm, initial=state)
     return exact, pseudo
-
-
-def central_difference(model, q0, direction, eps, evaluate):
-    """``(evaluate(q0 + eps d) - evaluate(q0 - eps d)) / (2 eps)``, restoring the state."""
-    set_open_state_global(model, q0 + eps * direction)
-    plus = evaluate(model)
-    set_open_state_global(model, q0 - eps * direction)
-    minus = evaluate(model)
-    set_open_state_global(model, q0)
-    return (plus - minus) / (2 * eps)
 
 
 def test_gradient_matches_central_differences(model_pair, rng):

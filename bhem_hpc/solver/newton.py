@@ -221,6 +221,7 @@ class ShellSolver(PetscOwner):
         opts = PETSc.Options()
         # the caller's options stay in the database for the solver's life (some are read only at
         # the first factorization) and are removed by close(); the defaults only for setup
+        self._caller_options = dict(options or {})
         self._overrides = push_options(prefix, {}, options or {})
         pushed = push_options(prefix, default_options(model, self.linear.kind), {})
         try:  # the pushed defaults are removed again whatever happens
@@ -664,7 +665,8 @@ class ShellSolver(PetscOwner):
         """After a failed line-search solve: the trust-region Newton from the step's start (counted
         in ``trust_region_solves`` when it converges; logged either way)."""
         if self.trust_region is None:
-            self.trust_region = TrustRegionNewton(self, default_options(self.model, self.linear.kind))
+            self.trust_region = TrustRegionNewton(self, default_options(self.model, self.linear.kind),
+                                                  self._caller_options)  # fmt: skip
         log.info("%s: Newton failed (%s); trying trust-region Newton", self.prefix,
                  SNES_REASONS.get(self.snes.getConvergedReason()))  # fmt: skip
         start.copy(self.x)

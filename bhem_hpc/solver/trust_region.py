@@ -11,6 +11,7 @@ matrix and linear-solver kind; its options live under its own prefix (``<solver 
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 from petsc4py import PETSc
@@ -42,9 +43,12 @@ class TrustRegionNewton(PetscOwner):
         solver: the line-search solver it recovers (its residual, Jacobian and tolerances).
         defaults: the solver's PETSc defaults (linear solver, tolerances), used under this prefix
             where the options database has no value.
+        overrides: the caller's options of the line-search solver (e.g. a scene's); all but its
+            ``snes_*`` (and this solver's own ``tr_*``) ones apply here too, so both solve their linear
+            systems alike.
     """
 
-    def __init__(self, solver: ShellSolver, defaults: dict[str, str]):
+    def __init__(self, solver: ShellSolver, defaults: dict[str, str], overrides: Mapping[str, object]):
         self.solver = solver
         self.prefix = solver.prefix + "tr_"
         self._closed = False
@@ -53,7 +57,8 @@ class TrustRegionNewton(PetscOwner):
         own = {k: v for k, v in defaults.items() if not k.startswith(("snes_linesearch", "mat_mumps"))}
         own |= {"snes_type": "newtontr", "snes_max_it": str(TRUST_REGION_MAX_IT), "snes_rtol": f"{rtol:.3e}",
                 "snes_atol": f"{atol:.3e}", "snes_stol": f"{stol:.3e}"}  # fmt: skip
-        pushed = push_options(self.prefix, own, {})
+        inherited = {k: v for k, v in overrides.items() if not str(k).lstrip("-").startswith(("snes_", "tr_"))}
+        pushed = push_options(self.prefix, own, inherited)
         try:
             self.snes = PETSc.SNES().create(solver.model.comm)
             self.snes.setOptionsPrefix(self.prefix)

@@ -236,6 +236,7 @@ class ShellSolver(PetscOwner):
             self.report = SolveReport()
             self.problem = ShellProblem(model, self.matrix_format, self.report)
             self.jacobian = self.problem.jacobian
+            self._choose_hessian()
             self.bc_rows = self.problem.bc_rows
             self.prolongation = self.problem.prolongation
 
@@ -266,6 +267,13 @@ class ShellSolver(PetscOwner):
                     self._overrides.append(name)
                 else:
                     opts.delValue(name)
+
+    def _choose_hessian(self) -> None:
+        """The adaptive Hessian recomputes a step with the projected one where LDL^T shows negative
+        pivots; a Krylov solve shows no inertia, so the iterative path takes the projected Hessian
+        (positive semi-definite: every step still goes downhill)."""
+        if "projected" in self.model.jacobian_forms:
+            self.problem.hessian = "projected" if self.linear.kind == "iterative" else "out_of_plane"
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:
         name = self.prefix + "chord_anderson_depth"
@@ -316,6 +324,7 @@ class ShellSolver(PetscOwner):
         pc.setType("cholesky" if self.model.symmetric and self.matrix_format != "baij" else "lu")
         pc.setFactorSolverType("mumps")
         self.linear = choice
+        self._choose_hessian()
         self.reuse.refactor_cost = refactor_cost(self._dofs)
         self.reuse.invalidate()
         self.fallbacks.append({"from": "iterative", "to": "direct", "reason": reason})

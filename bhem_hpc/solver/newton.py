@@ -272,7 +272,7 @@ class ShellSolver(PetscOwner):
         """The adaptive Hessian recomputes a step with the projected one where LDL^T shows negative
         pivots; a Krylov solve shows no inertia, so the iterative path takes the projected Hessian
         (positive semi-definite: every step still goes downhill)."""
-        if "projected" in self.model.jacobian_forms:
+        if set(self.model.jacobian_forms) == {"out_of_plane", "projected"}:  # hessian = "adaptive"
             self.problem.hessian = "projected" if self.linear.kind == "iterative" else "out_of_plane"
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:

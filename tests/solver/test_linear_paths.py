@@ -187,7 +187,9 @@ def test_the_iterative_path_with_seams_constraints_points_and_contact_matches_mu
     assert iterative["solver_totals"]["krylov_iterations"] > iterative["solver_totals"]["linear_solves"] > 0
     assert max(step["contacts"] for step in iterative["steps"]) > 0  # the cylinder reached the plane
     assert all("krylov_iterations" in step for step in iterative["steps"])
-    np.testing.assert_allclose(results["iterative_dofs"], results["direct_dofs"], atol=1e-8)
+    # the two paths iterate with different Hessians (the iterative one with the projected one)
+    tolerance = newton_tolerance(load_scene(scene), results["direct_dofs"])
+    np.testing.assert_allclose(results["iterative_dofs"], results["direct_dofs"], atol=tolerance)
 
 
 @pytest.mark.parallel

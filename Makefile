@@ -9,7 +9,7 @@ RUFF_VERSION := 0.8.4
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
 
-.PHONY: setup demo test test-serial test-mpi lint bench stress study docs scaling clean
+.PHONY: setup demo test test-serial test-mpi lint bench stress study docs scaling cloth clean
 
 setup: $(VENV)/.installed
 
@@ -53,6 +53,11 @@ stress: setup
 scaling: setup
 	$(VENV)/bin/bhem-hpc bench --scaling --patches 100 200 290 --ranks 1 2 --weak 100 --dt 0.001 0.002 0.004 0.008 \
 		--fresh 200 --steps 4 --docs docs
+
+# The cotton jobs (hanging, drape-cotton, shear, locking-cotton) at the B-spline cloth paper's
+# resolutions, timed against its table: docs/cloth-comparison.md (hours on this machine).
+cloth: setup
+	$(VENV)/bin/bhem-hpc cloth --docs docs --out out/cloth
 
 # Long studies run behind the `study` marker and assert their convergence claims.
 study: setup

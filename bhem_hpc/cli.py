@@ -21,6 +21,19 @@ from bhem_hpc.model.hessian import HESSIAN_KINDS
 BENCH_DEFAULT_PATCHES = [10, 20, 30]
 
 
+def _add_cloth(sub) -> None:
+    """``bhem-hpc cloth``: the cotton jobs at the B-spline cloth paper's resolutions."""
+    cloth = sub.add_parser("cloth", help="the cotton jobs at the B-spline cloth paper's resolutions against its table")
+    cloth.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/cloth-comparison.md, .json, .png")
+    cloth.add_argument("--out", type=Path, default=Path("out/cloth"), help="the runs' output directories")
+    cloth.add_argument("--steps", type=int, default=200, help="time steps per case (from the start)")
+    cloth.add_argument("--hermite", type=int, nargs="*", default=[25, 35], help="Hermite patches per side")
+    cloth.add_argument("--bspline2", type=int, nargs="*", default=[75, 100, 125], help="knot spans per side")
+    cloth.add_argument("--bspline3", type=int, nargs="*", default=[75, 100, 125], help="knot spans per side")
+    cloth.add_argument("--jobs", nargs="+", default=None, help="jobs (default: hanging, drape-cotton, shear, "
+                       "locking-cotton)")  # fmt: skip
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bhem-hpc",
@@ -50,6 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     paths = sub.add_parser("paths", help="run the static path-following jobs against their references")
     paths.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/path-following.md and its PNGs")
     paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
+    _add_cloth(sub)
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
@@ -244,6 +258,24 @@ def _scene_overrides(args: argparse.Namespace) -> dict[str, dict]:
     return overrides
 
 
+def _cloth(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.studies.cloth_page import CLOTH_JOBS, cloth_cases, write_cloth_comparison
+
+    if args.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    sizes = {"hermite": tuple(args.hermite), "bspline2": tuple(args.bspline2), "bspline3": tuple(args.bspline3)}
+    for name, values in sizes.items():
+        if any(n < 2 or n > 400 for n in values):
+            raise ValueError(f"--{name} takes sizes in 2..400, got {list(values)}")
+    jobs = tuple(args.jobs) if args.jobs else None
+    if jobs is not None and not set(jobs) <= set(CLOTH_JOBS):
+        raise ValueError(f"--jobs takes {CLOTH_JOBS}, got {list(jobs)}")
+    cases = cloth_cases(sizes, jobs) if jobs else cloth_cases(sizes)
+    page = write_cloth_comparison(args.docs, args.out, args.steps, cases, comm)
+    if comm.rank == 0:
+        print(f"wrote {page} ({len(cases)} cases, {args.steps} steps each)")
+
+
 def _paths(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.path_page import write_path_following
 
@@ -268,6 +300,7 @@ HANDLERS = {
     "bench": _bench,
     "summary": _summary,
     "paths": _paths,
+    "cloth": _cloth,
     "cantilever": _cantilever,
 }
 

@@ -746,8 +746,9 @@ def _motion(t: _Table, constraint: bcs.NodalConstraint) -> Motion:
     comps = list(constraint.components)
     if kind == "linear":
         velocity = np.array(t.get("velocity", "3 numbers"))[comps]
+        until = t.get("until", "a number", math.inf, lambda v: v > 0, "a number > 0 (the time [s] it stops)")
         t.done()
-        return Motion(kind, lambda time, initial: initial + velocity * time)
+        return Motion(kind, lambda time, initial: initial + velocity * min(time, until))
     if kind == "rotation":
         if comps != [0, 1, 2]:
             t.fail("type", "used only on constraints of all three components", kind)

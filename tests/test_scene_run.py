@@ -272,7 +272,8 @@ motion = { type = "linear", velocity = [0.0, 0.0, 0.2] }
         load_scene(write(comm, workdir, text.replace("at = [0.37, 0.21]", "at = [2.0, 0.21]"), "bad.toml"))
 
 
-@pytest.mark.parametrize("name", ["drape", "twisting", "locking", "drape-corners", "parasol", "hanging"])
+@pytest.mark.parametrize("name", ["drape", "twisting", "locking", "drape-corners", "parasol", "hanging", "drape-cotton",
+                                  "shear", "locking-cotton"])
 def test_shipped_scenes_are_valid(name):
     scene = load_scene(Path(__file__).resolve().parents[1] / "jobs" / f"{name}.toml")
     assert scene.steps >= 100 and not scene.static

@@ -12,8 +12,9 @@ class MaterialError(ValueError):
 
 #: Membrane energies: Kirchhoff-Love St. Venant-Kirchhoff, or the FEM Baraff-Witkin cloth membrane.
 MEMBRANE_MODELS = ("svk", "fbw")
-#: Bending energies: Kirchhoff-Love St. Venant-Kirchhoff, or the quadratic (Bergou) bending energy.
-BENDING_MODELS = ("svk", "quadratic")
+#: Bending energies: Kirchhoff-Love St. Venant-Kirchhoff, the quadratic (Bergou) bending energy, or
+#: none (a membrane without bending stiffness, e.g. the membrane-locking test).
+BENDING_MODELS = ("svk", "quadratic", "none")
 
 
 @dataclass(frozen=True)
@@ -29,7 +30,8 @@ class Material:
             Baraff-Witkin cloth membrane, anisotropic along the rest surface's parametric directions:
             stretch stiffness ``Y h`` along warp and weft, shear stiffness ``shear_ratio Y h``).
         bending: ``"svk"`` (Kirchhoff-Love St. Venant-Kirchhoff) or ``"quadratic"`` (Bergou et al.'s
-            quadratic energy ``D/2 int |Delta x|^2`` for flat rest surfaces, ``D = Y h^3 / (12 (1 - nu^2))``).
+            quadratic energy ``D/2 int |Delta x|^2`` for flat rest surfaces, ``D = Y h^3 / (12 (1 - nu^2))``)
+            or ``"none"`` (no bending stiffness).
         shear_ratio: shear-to-stretch stiffness ratio of the ``"fbw"`` membrane, in (0, 1e3]; only
             with it, and required there.
     """

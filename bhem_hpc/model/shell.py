@@ -174,7 +174,8 @@ class ShellModel:
     def _elastic_terms(self, position: fem.Function) -> list[Term]:
         """Membrane and bending energies of the shell at ``position`` (the state, or the previous
         state for stiffness damping), of the material's models, each with its replacement Hessians."""
-        return [self._membrane_term(position), self._bending_term(position)]
+        bending = [] if self.material.bending == "none" else [self._bending_term(position)]
+        return [self._membrane_term(position), *bending]
 
     def _membrane_term(self, position: fem.Function) -> Term:
         x_rest, dx, material = self.x_rest, self.quadrature.membrane, self.material

@@ -195,7 +195,10 @@ def test_the_iterative_path_with_seams_constraints_points_and_contact_matches_mu
 @pytest.mark.parallel
 def test_the_krylov_iterations_of_a_time_step_hardly_grow_with_the_ranks(comm):
     """The overlapping subdomains keep the coupling across rank boundaries: block Jacobi (no
-    overlap) takes more than three times the serial iterations per solve on this cloth."""
+    overlap) takes more than three times the serial iterations per solve on this cloth (5.82 against
+    1.71). The 2-rank partition is not the same from one launch to the next (the graph partitioner),
+    and with it the iterations: 2.06 and 2.71 per solve were both measured for the same code, so the
+    bound is twice the serial count, which block Jacobi's 3.4 times still fails."""
     from mpi4py import MPI
 
     scene = load_scene(JOBS / "million-cloth.toml", {"surface": {"patches": [40, 40]}})
@@ -204,7 +207,7 @@ def test_the_krylov_iterations_of_a_time_step_hardly_grow_with_the_ranks(comm):
         positions[name], counters = step_scene(here, scene, 4, linear="iterative")
         assert counters["kind"] == "iterative" and counters["fallbacks"] == []
         per_solve[name] = counters["krylov_iterations"] / counters["linear_solves"]
-    assert per_solve["ranks"] <= 1.5 * per_solve["serial"], per_solve
+    assert per_solve["ranks"] <= 2.0 * per_solve["serial"], per_solve
     assert np.abs(positions["ranks"] - positions["serial"]).max() <= newton_tolerance(scene, positions["serial"])
 
 

@@ -11,9 +11,10 @@ HANGING = Path(__file__).resolve().parents[1] / "jobs" / "hanging.toml"
 
 
 def test_hanging_cotton_converges_in_every_step_through_the_corners_stop(comm, shared_tmp_path):
-    """The first 20 steps of jobs/hanging.toml: the corners move for 10 steps and stop, when the
-    compressed top edge wrinkles (the exact Hessian fails the first step; the projected one alone
-    needed dt halvings at steps 13-16). Measured: 7.6 Newton iterations per step, none above 12."""
+    """The first 20 steps of jobs/hanging.toml: the corners move for 10 steps and stop, compressing
+    the top edge in the sheet's plane (a perfectly flat sheet stays in it: nothing breaks the
+    symmetry). The exact Hessian fails the first step; the projected one alone needed dt halvings
+    at steps 13-16. Measured: 7.6 Newton iterations per step, none above 12."""
     out = shared_tmp_path / "hanging"
     run_scene(RunOptions(HANGING, out, steps=20, progress=False), comm)
     steps = json.loads((out / "summary.json").read_text())["steps"]

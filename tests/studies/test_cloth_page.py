@@ -77,3 +77,23 @@ def test_a_small_page_is_written_with_its_figures(shared_tmp_path, comm):
     assert all(r["newton_per_step"] >= 1 and r["quality"][0] == "wrinkles" for r in rows)
     text = page.read_text()
     assert "| hanging-hermite-6 |" in text and (shared_tmp_path / "docs" / "cloth-comparison.png").stat().st_size > 0
+
+
+def test_the_shear_jobs_edges_move_until_a_tenth_of_a_second_then_hold(shared_tmp_path, comm):
+    from pathlib import Path
+
+    from bhem_hpc.scene import SceneError
+
+    jobs = Path(__file__).resolve().parents[2] / "jobs"
+    scene = load_scene(jobs / "shear.toml")
+    motion = scene.constraints[0].motion
+    initial = np.zeros((1, 1, 3))
+    np.testing.assert_allclose(motion.values(0.05, initial)[0, 0], [-0.025, 0.0, 0.0])
+    np.testing.assert_allclose(motion.values(0.5, initial)[0, 0], [-0.05, 0.0, 0.0])
+    text = (jobs / "shear.toml").read_text().replace("until = 0.1 }", "until = -1.0 }", 1)
+    bad = shared_tmp_path / "bad.toml"
+    if comm.rank == 0:
+        bad.write_text(text)
+    comm.Barrier()
+    with pytest.raises(SceneError, match=r"until' must be a number > 0"):
+        load_scene(bad)

@@ -271,7 +271,10 @@ def _cloth(args: argparse.Namespace, comm) -> None:
     if jobs is not None and not set(jobs) <= set(CLOTH_JOBS):
         raise ValueError(f"--jobs takes {CLOTH_JOBS}, got {list(jobs)}")
     cases = cloth_cases(sizes, jobs) if jobs else cloth_cases(sizes)
-    page = write_cloth_comparison(args.docs, args.out, args.steps, cases, comm)
+    flags = " ".join(f"--{name} {' '.join(map(str, values))}".rstrip() for name, values in sizes.items())
+    command = f"bhem-hpc cloth --docs {args.docs} --steps {args.steps} {flags}" + (
+        f" --jobs {' '.join(jobs)}" if jobs else "")  # fmt: skip
+    page = write_cloth_comparison(args.docs, args.out, args.steps, cases, comm, command)
     if comm.rank == 0:
         print(f"wrote {page} ({len(cases)} cases, {args.steps} steps each)")
 

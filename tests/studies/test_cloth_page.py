@@ -20,11 +20,7 @@ from bhem_hpc.studies.cloth_page import (
 
 def test_a_case_rewrites_the_jobs_resolution_discretization_quadrature_and_material(shared_tmp_path, comm):
     case = ClothCase("hanging", "bspline2", 12, "reduced", "fbw")
-    path = shared_tmp_path / "case.toml"
-    if comm.rank == 0:
-        path.write_text(case.scene_text())
-    comm.Barrier()
-    scene = load_scene(path)
+    scene = load_scene_text(shared_tmp_path, comm, case.scene_text())
     assert (scene.surface.grid.n1, scene.surface.grid.n2) == (12, 12)
     assert scene.surface.discretization == "bspline2" and scene.quadrature == "reduced"
     assert scene.material.membrane == "fbw" and scene.material.shear_ratio == 1.0
@@ -33,12 +29,17 @@ def test_a_case_rewrites_the_jobs_resolution_discretization_quadrature_and_mater
     assert sweep.material.young == 2e4 and sweep.material.bending == "none"
 
 
-def load_scene_text(directory, comm, text):
-    path = directory / "sweep.toml"
+def write_scene(directory, comm, text):
+    """``text`` as ``directory/scene.toml`` (written on rank 0, seen by every rank)."""
+    path = directory / "scene.toml"
     if comm.rank == 0:
         path.write_text(text)
     comm.Barrier()
-    return load_scene(path)
+    return path
+
+
+def load_scene_text(directory, comm, text):
+    return load_scene(write_scene(directory, comm, text))
 
 
 def test_the_paper_matrix_of_cases():
@@ -91,9 +92,5 @@ def test_the_shear_jobs_edges_move_until_a_tenth_of_a_second_then_hold(shared_tm
     np.testing.assert_allclose(motion.values(0.05, initial)[0, 0], [-0.025, 0.0, 0.0])
     np.testing.assert_allclose(motion.values(0.5, initial)[0, 0], [-0.05, 0.0, 0.0])
     text = (jobs / "shear.toml").read_text().replace("until = 0.1 }", "until = -1.0 }", 1)
-    bad = shared_tmp_path / "bad.toml"
-    if comm.rank == 0:
-        bad.write_text(text)
-    comm.Barrier()
     with pytest.raises(SceneError, match=r"until' must be a number > 0"):
-        load_scene(bad)
+        load_scene_text(shared_tmp_path, comm, text)

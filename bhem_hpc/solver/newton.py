@@ -675,6 +675,7 @@ class ShellSolver(PetscOwner):
         in ``trust_region_solves`` when it converges; logged either way)."""
         if self.trust_region is None:
             self.trust_region = TrustRegionNewton(self, default_options(self.model, self.linear.kind),
+                                                  (_residual_callback, _jacobian_callback),
                                                   self._caller_options)  # fmt: skip
         log.info("%s: Newton failed (%s); trying trust-region Newton", self.prefix,
                  SNES_REASONS.get(self.snes.getConvergedReason()))  # fmt: skip

@@ -11,7 +11,7 @@ matrix and linear-solver kind; its options live under its own prefix (``<solver 
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 from petsc4py import PETSc
@@ -26,16 +26,6 @@ log = logging.getLogger(__name__)
 TRUST_REGION_MAX_IT = 100
 
 
-def _residual(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: ShellSolver) -> None:
-    solver.problem.update_state(x)
-    solver.problem.assemble_residual(x, f)
-
-
-def _jacobian(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
-    solver.problem.assemble_jacobian(pmat)
-    solver.reuse.invalidate()  # the shared matrix now holds this SNES's Jacobian
-
-
 class TrustRegionNewton(PetscOwner):
     """A ``newtontr`` SNES on a :class:`~bhem_hpc.solver.newton.ShellSolver`'s problem.
 
@@ -43,12 +33,15 @@ class TrustRegionNewton(PetscOwner):
         solver: the line-search solver it recovers (its residual, Jacobian and tolerances).
         defaults: the solver's PETSc defaults (linear solver, tolerances), used under this prefix
             where the options database has no value.
+        callbacks: the line-search solver's residual and Jacobian callbacks (SNES signatures, taking
+            ``solver``): the same assembly serves both SNES.
         overrides: the caller's options of the line-search solver (e.g. a scene's); all but its
             ``snes_*`` (and this solver's own ``tr_*``) ones apply here too, so both solve their linear
             systems alike.
     """
 
-    def __init__(self, solver: ShellSolver, defaults: dict[str, str], overrides: Mapping[str, object]):
+    def __init__(self, solver: ShellSolver, defaults: dict[str, str], callbacks: tuple[Callable, Callable],
+                 overrides: Mapping[str, object]):  # fmt: skip
         self.solver = solver
         self.prefix = solver.prefix + "tr_"
         self._closed = False
@@ -62,8 +55,9 @@ class TrustRegionNewton(PetscOwner):
         try:
             self.snes = PETSc.SNES().create(solver.model.comm)
             self.snes.setOptionsPrefix(self.prefix)
-            self.snes.setFunction(_residual, solver.f, kargs={"solver": solver})
-            self.snes.setJacobian(_jacobian, solver.jacobian, solver.jacobian, kargs={"solver": solver})
+            residual, jacobian = callbacks
+            self.snes.setFunction(residual, solver.f, kargs={"solver": solver})
+            self.snes.setJacobian(jacobian, solver.jacobian, solver.jacobian, kargs={"solver": solver})
             try:
                 self.snes.setFromOptions()
             except PETSc.Error as exc:

@@ -13,6 +13,7 @@ import numpy as np
 from mpi4py import MPI
 
 from bhem_hpc.blas import blas_label, openblas_core
+from bhem_hpc.errors import InputError
 from bhem_hpc.geometry import bspline
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
@@ -40,7 +41,7 @@ def benchmark(
     ``quadrature``: Gauss points per direction or ``"reduced"``; None: the discretization's default.
     """
     if patches < 1:
-        raise ValueError(f"--patches must be >= 1, got {patches!r}")
+        raise InputError(f"--patches must be >= 1, got {patches!r}")
     material = Material(young=1e4, poisson=0.3, thickness=1e-3, density=200.0)
     rest = flat_sheet(discretization, 1.0, 1.0, patches, patches)
 
@@ -139,17 +140,17 @@ def scene_benchmark(
     from bhem_hpc.solver.dynamics import TimeStepper
 
     if steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {steps!r}")
+        raise InputError(f"--steps must be >= 1, got {steps!r}")
     scene = load_scene(scene_path, overrides)
     if scene.static:
-        raise ValueError(f"{scene_path}: a static scene has no time steps to benchmark")
+        raise InputError(f"{scene_path}: a static scene has no time steps to benchmark")
     if hessian is not None:
         scene = dataclasses.replace(scene, hessian=hessian)
     if samples_per_side is not None:
         if scene.contact is None:
-            raise ValueError(f"{scene_path}: --samples needs a scene with contact effects")
+            raise InputError(f"{scene_path}: --samples needs a scene with contact effects")
         if not 1 <= samples_per_side <= 16:
-            raise ValueError(f"--samples must be in 1..16, got {samples_per_side}")
+            raise InputError(f"--samples must be in 1..16, got {samples_per_side}")
         scene = dataclasses.replace(
             scene, contact=dataclasses.replace(scene.contact, samples_per_side=samples_per_side)
         )

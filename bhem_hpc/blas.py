@@ -5,9 +5,9 @@ CPU's model number; on a model its table does not list (common on virtual machin
 generic "Intel Xeon Processor") it falls back to its generic SSE3 kernels ("Prescott"), far slower
 for an LDL^T than the AVX-512 or AVX2 ones on the same CPU. OpenBLAS reads
 ``OPENBLAS_CORETYPE`` once, when it loads; :func:`choose_openblas_kernels` sets it from the
-instruction sets the CPU reports, unless the user set it. ``import bhem_hpc`` calls it, so it takes
-effect wherever bhem_hpc is imported before numpy, PETSc or anything else that loads BLAS (the
-command line, job scripts that start with it).
+instruction sets the CPU reports, unless the user set it. :func:`use_best_kernels` applies it to this
+process: the command line calls it first; a script calls it before it imports numpy, PETSc or
+anything else that loads BLAS.
 
 No numpy here: importing it would load the BLAS this module is meant to configure.
 """
@@ -104,3 +104,11 @@ def openblas_core() -> str | None:
 def blas_label(core: str | None) -> str:
     """How a measured page names the BLAS: ``core`` as :func:`openblas_core` returned it."""
     return f"OpenBLAS with its {core} kernels" if core else "not OpenBLAS"
+
+
+def use_best_kernels() -> str | None:
+    """Set this process's ``OPENBLAS_CORETYPE`` from its CPU (unless set) and warn when OpenBLAS was
+    already loaded with generic kernels. Returns the kernels chosen (None: the user's or none wider)."""
+    chosen = choose_openblas_kernels()
+    warn_about_generic_kernels(chosen)
+    return chosen

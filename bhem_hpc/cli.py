@@ -16,6 +16,8 @@ import sys
 import traceback
 from pathlib import Path
 
+from bhem_hpc.blas import use_best_kernels
+from bhem_hpc.errors import InputError
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 
 BENCH_DEFAULT_PATCHES = [10, 20, 30]
@@ -128,18 +130,18 @@ def _render(args: argparse.Namespace, comm) -> None:
     try:
         width, height = (int(v) for v in args.size.lower().split("x"))
     except ValueError as exc:
-        raise ValueError(f"--size must be WIDTHxHEIGHT, got {args.size!r}") from exc
+        raise InputError(f"--size must be WIDTHxHEIGHT, got {args.size!r}") from exc
     if not (1 <= width <= 4096 and 1 <= height <= 4096):
-        raise ValueError(f"--size must be between 1x1 and 4096x4096, got {args.size!r}")
+        raise InputError(f"--size must be between 1x1 and 4096x4096, got {args.size!r}")
     h5 = args.directory / "surface.h5"
     if not h5.is_file():
-        raise ValueError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
+        raise InputError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
     if args.out is not None and not args.out.parent.is_dir():
-        raise ValueError(f"--out {args.out}: the folder {args.out.parent} does not exist")
+        raise InputError(f"--out {args.out}: the folder {args.out.parent} does not exist")
     try:
         surface, time = read_frame(h5, args.frame)
     except (OSError, KeyError, TypeError) as exc:
-        raise ValueError(f"{h5}: not a readable surface series ({exc})") from None
+        raise InputError(f"{h5}: not a readable surface series ({exc})") from None
     image, mask = render(surface, width, height)
     out = args.out or args.directory / f"frame_{args.frame if args.frame >= 0 else 'last'}.png"
     write_png(out, image)
@@ -155,7 +157,7 @@ def _study(args: argparse.Namespace, comm) -> None:
             print(f"wrote {path}")
         return
     if args.name is None or args.out is None:
-        raise ValueError("study needs NAME and --out DIR, or --docs DIR")
+        raise InputError("study needs NAME and --out DIR, or --docs DIR")
     rows = run_study(args.name, args.out, comm)
     if comm.rank == 0:
         print(f"study {args.name}: {len(rows)} configurations -> {args.out}/{args.name}.csv, .md, .png")
@@ -249,11 +251,11 @@ def _scene_overrides(args: argparse.Namespace) -> dict[str, dict]:
     overrides = {"solver": {k: v for k, v in (("linear", args.linear), ("factorization", args.factorization)) if v}}
     if args.patches != BENCH_DEFAULT_PATCHES:
         if len(args.patches) != 1:
-            raise ValueError(f"--scene takes one --patches size, got {args.patches}")
+            raise InputError(f"--scene takes one --patches size, got {args.patches}")
         overrides["surface"] = {"patches": [args.patches[0]] * 2}
     if args.dt:
         if len(args.dt) != 1:
-            raise ValueError(f"--scene takes one --dt, got {args.dt}")
+            raise InputError(f"--scene takes one --dt, got {args.dt}")
         overrides["time"] = {"dt": args.dt[0], "steps": 1000, "duration": None}
     return overrides
 
@@ -262,14 +264,14 @@ def _cloth(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.cloth_page import CLOTH_JOBS, cloth_cases, write_cloth_comparison
 
     if args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+        raise InputError(f"--steps must be >= 1, got {args.steps}")
     sizes = {"hermite": tuple(args.hermite), "bspline2": tuple(args.bspline2), "bspline3": tuple(args.bspline3)}
     for name, values in sizes.items():
         if any(n < 2 or n > 400 for n in values):
-            raise ValueError(f"--{name} takes sizes in 2..400, got {list(values)}")
+            raise InputError(f"--{name} takes sizes in 2..400, got {list(values)}")
     jobs = tuple(args.jobs) if args.jobs else None
     if jobs is not None and not set(jobs) <= set(CLOTH_JOBS):
-        raise ValueError(f"--jobs takes {CLOTH_JOBS}, got {list(jobs)}")
+        raise InputError(f"--jobs takes {CLOTH_JOBS}, got {list(jobs)}")
     cases = cloth_cases(sizes, jobs) if jobs else cloth_cases(sizes)
     flags = " ".join(f"--{name} {' '.join(map(str, values))}".rstrip() for name, values in sizes.items())
     command = f"bhem-hpc cloth --docs {args.docs} --steps {args.steps} {flags}" + (
@@ -320,6 +322,7 @@ def _configure_logging(verbose: bool, rank: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    use_best_kernels()  # before numpy or PETSc load OpenBLAS, which reads its kernel choice once
     argv = list(sys.argv[1:] if argv is None else argv)
     for arg in argv:  # bytes that are not UTF-8 arrive as surrogates, which MPI and PETSc cannot take
         try:
@@ -341,20 +344,22 @@ def main(argv: list[str] | None = None) -> int:
     comm = MPI.COMM_WORLD
     _configure_logging(args.verbose, comm.rank)
 
-    from bhem_hpc.model.bcs import BoundaryConditionError
-    from bhem_hpc.run import RunError
-    from bhem_hpc.scene import SceneError
-    from bhem_hpc.solver import SolverError
+    from bhem_hpc.errors import UserError
 
     try:
         HANDLERS[args.command](args, comm)
-    except (ValueError, SolverError, RunError, SceneError, BoundaryConditionError) as exc:  # StudyError, SummaryError
+    except UserError as exc:
         if comm.rank == 0:
             if args.debug:
                 traceback.print_exc()
             print(f"bhem-hpc: error: {exc}", file=sys.stderr)
         _exit_past_failed_hdf5_files()
         return 2
+    except Exception:
+        # not the input's fault: a bug, reported with its traceback (Python prints it)
+        print(f"bhem-hpc: internal error on rank {comm.rank} (a bug in bhem-hpc; please report it with "
+              "the traceback below)", file=sys.stderr)  # fmt: skip
+        raise
     return 0
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
 from bhem_hpc.io.path_table import CsvTable, plot_path, probe_columns, read_rows
@@ -42,7 +43,7 @@ SOLVER_PREFIX = "bhem_"
 SUMMARY_EVERY_S = 30.0  # wall seconds between rewrites of a running summary.json (at checkpoints)
 
 
-class RunError(RuntimeError):
+class RunError(UserError, RuntimeError):
     """The run cannot start or continue (output directory, restart, failed step)."""
 
 

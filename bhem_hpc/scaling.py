@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bhem_hpc.blas import blas_label
+from bhem_hpc.errors import UserError
 
 #: Columns of ``scaling.csv`` (a case's row of ``bhem-hpc bench --scene --json`` plus the case).
 COLUMNS = (
@@ -33,7 +34,7 @@ COLUMNS = (
 )  # fmt: skip
 
 
-class ScalingError(ValueError):
+class ScalingError(UserError, ValueError):
     """Bad arguments of the scaling command."""
 
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
@@ -56,7 +57,7 @@ def _whole_steps(duration: float, dt: float) -> bool:
     return bool(np.isfinite(steps)) and 1 <= round(steps) <= MAX_STEPS and abs(steps - round(steps)) <= 1e-6
 
 
-class SceneError(ValueError):
+class SceneError(UserError, ValueError):
     """A scene file is malformed; the message names the file, the key and the expectation."""
 
 

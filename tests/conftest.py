@@ -7,7 +7,9 @@ fail on more than one rank, so a serial session does not collect them.
 from __future__ import annotations
 
 # isort: off
-import bhem_hpc  # noqa: F401  first: it picks OpenBLAS's kernels before numpy loads the library
+from bhem_hpc.blas import use_best_kernels
+
+use_best_kernels()  # first: OpenBLAS reads its kernel choice when numpy loads it
 # isort: on
 
 import logging

@@ -17,6 +17,7 @@ from typing import ClassVar, Protocol
 import numpy as np
 
 from bhem_hpc.collision.bezier import evaluate
+from bhem_hpc.errors import UserError
 
 PATCH_FILE_FORMAT = "bhem-bezier-patches"
 #: Precision of a capsule's sampled-and-bisected time of impact, as a fraction of the step.
@@ -57,7 +58,7 @@ def _swept_box(ends: np.ndarray, velocity: np.ndarray, radius: float, dt: float)
     return np.stack([ends.min(axis=0) - radius, ends.max(axis=0) + radius])
 
 
-class ColliderError(ValueError):
+class ColliderError(UserError, ValueError):
     """An invalid collider: bad geometry, an empty or broken mesh, NaN/Inf."""
 
 

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
+
 #: Block-pivoting exchanges of all wrong rows allowed without fewer wrong rows than the best so far.
 PIVOTING_TRIES = 3
 
 
-class ComplementarityError(RuntimeError):
+class ComplementarityError(UserError, RuntimeError):
     """The active-set method did not find the solution within its bound."""
 
 

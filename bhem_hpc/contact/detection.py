@@ -27,6 +27,7 @@ from bhem_hpc.contact.collider_contacts import point_contacts, simple_collider_c
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.samples import ShellMotion, ShellSamples
 from bhem_hpc.contact.self_contact import folded_self_contacts, self_contacts
+from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.surface import PatchLayout
 
 
@@ -39,7 +40,7 @@ class ColliderEntry:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.friction) and self.friction >= 0):
-            raise ValueError(f"friction coefficient must be a finite number >= 0, got {self.friction!r}")
+            raise InputError(f"friction coefficient must be a finite number >= 0, got {self.friction!r}")
 
 
 class ContactDetector:
@@ -61,7 +62,7 @@ class ContactDetector:
         self_friction: float = 0.0,
     ):
         if not (math.isfinite(self_friction) and self_friction >= 0):
-            raise ValueError(f"self_friction must be a finite number >= 0, got {self_friction!r}")
+            raise InputError(f"self_friction must be a finite number >= 0, got {self_friction!r}")
         self.layout = layout
         self.colliders = tuple(colliders)
         self.samples = ShellSamples.build(layout, samples_per_side)

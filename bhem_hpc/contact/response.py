@@ -36,6 +36,7 @@ import numpy as np
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
 from bhem_hpc.contact.petsc import ContactProjector
+from bhem_hpc.errors import InputError
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene import CONTACT_METRICS
 from bhem_hpc.solver import ShellSolver
@@ -64,11 +65,11 @@ class ContactSettings:
 
     def validate(self) -> None:
         if self.metric not in CONTACT_METRICS:
-            raise ValueError(f"contact metric must be one of {CONTACT_METRICS}, got {self.metric!r}")
+            raise InputError(f"contact metric must be one of {CONTACT_METRICS}, got {self.metric!r}")
         if not (math.isfinite(self.push_out) and self.push_out > 0):
-            raise ValueError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
+            raise InputError(f"contact push_out must be a finite number > 0, got {self.push_out!r}")
         if not (isinstance(self.max_rounds, int) and self.max_rounds >= 1):
-            raise ValueError(f"contact max_rounds must be an integer >= 1, got {self.max_rounds!r}")
+            raise InputError(f"contact max_rounds must be an integer >= 1, got {self.max_rounds!r}")
 
 
 @dataclass
@@ -121,7 +122,7 @@ class ContactHandler:
         self.settings = settings or ContactSettings()
         self.settings.validate()
         if model.ties:
-            raise ValueError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
+            raise InputError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
         self.model = model
         self.detector = detector
         self.projector = ContactProjector(solver, options=options)

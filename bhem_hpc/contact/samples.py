@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.surface import PatchLayout
 
 
@@ -28,7 +29,7 @@ class ShellSamples:
         """A uniform lattice of ``n * per_side (+ 1)`` points per direction over the whole surface,
         boundary edges included (an unsampled free edge could swing through a plane)."""
         if not (isinstance(per_side, int) and 1 <= per_side <= 16):
-            raise ValueError(f"samples_per_side must be an integer in 1..16, got {per_side!r}")
+            raise InputError(f"samples_per_side must be an integer in 1..16, got {per_side!r}")
         grid = layout.grid
         axes = []
         for n, (lo, hi), periodic in (

@@ -10,10 +10,11 @@ import dolfinx.mesh
 import numpy as np
 from mpi4py import MPI
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.geometry.surface import HermiteSurface, ParameterGrid, PatchLayout
 
 
-class DiscretizationError(ValueError):
+class DiscretizationError(UserError, ValueError):
     """The mesh or DOF layout cannot represent the surface (non-uniform grid, bad node, ...)."""
 
 

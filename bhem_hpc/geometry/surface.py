@@ -25,6 +25,7 @@ from typing import Protocol
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.geometry import hermite
 
 KIND_NAMES = ("x", "d1", "d2", "d12")
@@ -32,7 +33,7 @@ FILE_FORMAT = "bhem-hermite-surface"
 FILE_VERSION = 1
 
 
-class SurfaceError(ValueError):
+class SurfaceError(UserError, ValueError):
     """Invalid surface data (bad grid, non-finite or degenerate geometry, bad file)."""
 
 

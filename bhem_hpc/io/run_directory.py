@@ -14,6 +14,8 @@ import os
 import shutil
 from pathlib import Path
 
+from bhem_hpc.errors import UserError
+
 #: The files a run writes; a restart in place refuses to continue through a symbolic link among them.
 RUN_FILES = (
     "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
@@ -21,7 +23,7 @@ RUN_FILES = (
 )  # fmt: skip
 
 
-class OutputDirectoryError(ValueError):
+class OutputDirectoryError(UserError, ValueError):
     """The output directory cannot be used as asked."""
 
 

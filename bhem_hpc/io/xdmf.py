@@ -18,6 +18,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io.run_directory import write_replacing
 from bhem_hpc.io.vtu import write_pvd, write_vtu
@@ -188,11 +189,11 @@ class SurfaceTimeSeries:
 
     def _continue(self, until: float) -> None:
         if not self.h5_path.is_file():
-            raise ValueError(f"{self.h5_path} does not exist: there is no series to continue")
+            raise InputError(f"{self.h5_path} does not exist: there is no series to continue")
         self.file = h5py.File(self.h5_path, "a")
         if self.file.get("topology") is None or self.file["topology"].shape != self.quads.shape:
             self.file.close()
-            raise ValueError(f"{self.h5_path} holds another grid or output density: it cannot be continued")
+            raise InputError(f"{self.h5_path} holds another grid or output density: it cannot be continued")
         frames = self.file.get("frames")
         count = len(frames) if frames is not None else 0
         tolerance = 1e-9 * max(abs(until), 1e-300)
@@ -289,10 +290,10 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
     with h5py.File(h5_path, "r") as f:
         count = len(f["frames"]) if "frames" in f else 0
         if count == 0:
-            raise ValueError(f"{h5_path}: no frames written")
+            raise InputError(f"{h5_path}: no frames written")
         index = frame if frame >= 0 else count + frame
         if not 0 <= index < count:
-            raise ValueError(f"{h5_path}: frame {frame} does not exist (0..{count - 1})")
+            raise InputError(f"{h5_path}: frame {frame} does not exist (0..{count - 1})")
         candidates = range(index, -1, -1) if frame == -1 else (index,)
         for k in candidates:
             try:
@@ -301,7 +302,7 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
             except (KeyError, OSError, RuntimeError):
                 continue
         else:
-            raise ValueError(f"{h5_path}: frame {frame} is incomplete (its write failed)")
+            raise InputError(f"{h5_path}: frame {frame} is incomplete (its write failed)")
         a = f.attrs
         grid = ParameterGrid(
             int(a["patches"][0]),

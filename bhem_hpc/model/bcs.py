@@ -13,12 +13,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.geometry.surface import KIND_NAMES, HermiteSurface, ParameterGrid
 
 EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
 
 
-class BoundaryConditionError(ValueError):
+class BoundaryConditionError(UserError, ValueError):
     """A boundary condition names nodes, kinds or components that do not exist."""
 
 

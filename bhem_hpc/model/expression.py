@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
+
 if TYPE_CHECKING:
     import ufl
 
@@ -25,7 +27,7 @@ _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 MAX_LENGTH = 1000
 
 
-class ExpressionError(ValueError):
+class ExpressionError(UserError, ValueError):
     """Text that is not an accepted expression of the parameters."""
 
 

@@ -9,10 +9,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import ufl
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.model.bcs import EDGES
 
 
-class ModelError(ValueError):
+class ModelError(UserError, ValueError):
     """Inconsistent problem definition (bad load, quadrature, Hessian choice, ...)."""
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from bhem_hpc.errors import UserError
 
-class MaterialError(ValueError):
+
+class MaterialError(UserError, ValueError):
     """A material constant is out of its physical range."""
 
 

@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
+
 if TYPE_CHECKING:
     from bhem_hpc.model.shell import ShellModel
 
@@ -16,7 +18,7 @@ PATH_METHODS = ("load", "displacement", "arc_length")
 MAX_PATH_POINTS = 100_000
 
 
-class PathSettingError(ValueError):
+class PathSettingError(UserError, ValueError):
     """Path-following settings out of range (raised before any solve)."""
 
 

@@ -34,6 +34,7 @@ import dolfinx.mesh
 import numpy as np
 import ufl
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.geometry.hermite import gauss_legendre
 
 GAUSS_POINTS = (2, 3, 4, 5)
@@ -42,7 +43,7 @@ REDUCED = "reduced"
 Quadrature = int | Literal["reduced"]
 
 
-class QuadratureError(ValueError):
+class QuadratureError(UserError, ValueError):
     """A quadrature rule that does not exist or does not apply to the discretization."""
 
 

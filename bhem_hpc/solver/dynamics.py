@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
@@ -28,7 +29,7 @@ if TYPE_CHECKING:  # a scene without contact never imports the collision code
 log = logging.getLogger(__name__)
 
 
-class StepFailure(RuntimeError):
+class StepFailure(UserError, RuntimeError):
     """A time step could not be completed; the run must stop."""
 
 

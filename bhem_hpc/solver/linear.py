@@ -29,6 +29,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from bhem_hpc.errors import UserError
+
 LINEAR_SOLVERS = ("auto", "direct", "iterative")
 #: Below this size a factorization (kept across Newton iterations and steps) costs less than Krylov
 #: solves; above it the Krylov path takes about as long or less, in a fraction of the memory
@@ -45,7 +47,7 @@ FILL_GROWTH_PER_DOUBLING = 0.16
 MEMORY_HEADROOM = 0.75
 
 
-class LinearSolverError(ValueError):
+class LinearSolverError(UserError, ValueError):
     """A linear solver that cannot be used for this problem (e.g. a factorization too large)."""
 
 

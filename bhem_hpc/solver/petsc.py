@@ -6,6 +6,8 @@ from collections.abc import Mapping
 
 from petsc4py import PETSc
 
+from bhem_hpc.errors import UserError
+
 SNES_REASONS = {v: k for k, v in vars(PETSc.SNES.ConvergedReason).items() if k.isupper()}
 KSP_REASONS = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if k.isupper()}
 #: PETSc error codes a bad option gives, in words.
@@ -19,7 +21,7 @@ PETSC_ERRORS = {
 }
 
 
-class SolverError(RuntimeError):
+class SolverError(UserError, RuntimeError):
     """A nonlinear or linear solve failed; the message names the solver and the reasons."""
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from bhem_hpc.errors import InputError
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import render_surface_png, write_surface_xdmf
 from bhem_hpc.model import bcs
@@ -65,9 +66,9 @@ def cantilever(
         The summary: tip position against the heavy elastica, Newton iterations, timings.
     """
     if not (np.isfinite(gamma) and 0 < gamma <= 1e4):
-        raise ValueError(f"--gamma must be in (0, 1e4], got {gamma!r}")
+        raise InputError(f"--gamma must be in (0, 1e4], got {gamma!r}")
     if patches < 1:
-        raise ValueError(f"--patches must be >= 1, got {patches!r}")
+        raise InputError(f"--patches must be >= 1, got {patches!r}")
     steps = load_steps or max(1, int(np.ceil(2 * np.sqrt(gamma))))
     model = cantilever_model(gamma, patches, hessian, comm)
     length, width = CANTILEVER_SIZE

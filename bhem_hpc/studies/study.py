@@ -9,13 +9,14 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+from bhem_hpc.errors import UserError
 from bhem_hpc.model.shell import DEFAULT_QUADRATURE, ShellModel
 from bhem_hpc.solver import ShellSolver
 
 RESULT_COLUMNS = ("ranks", "dofs", "nonzeros", "value", "reference", "error", "wall_s", "newton_iterations")
 
 
-class StudyError(ValueError):
+class StudyError(UserError, ValueError):
     """Unknown study, knob value out of range, or an output directory that exists."""
 
 

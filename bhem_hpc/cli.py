@@ -214,35 +214,35 @@ def _quadrature(text: str) -> int | str:
 
 
 def _bench(args: argparse.Namespace, comm) -> None:
-    from bhem_hpc import benchmarks
+    from bhem_hpc.benchmarks import performance, timing
 
     if args.scaling:
-        from bhem_hpc import scaling
+        from bhem_hpc.benchmarks import scaling
 
         scaling.run_scaling_command(args, comm)
     elif args.rays:
-        rows = [benchmarks.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
+        rows = [timing.ray_benchmark(n) for n in args.patches] if comm.rank == 0 else []
         for row in rows:
-            print(json.dumps(row) if args.json else benchmarks.format_ray_row(row))
+            print(json.dumps(row) if args.json else timing.format_ray_row(row))
     elif args.docs is not None:
         jobs = Path(__file__).resolve().parents[1] / "jobs"
-        path = benchmarks.write_performance(args.docs, jobs, args.steps or 5, comm)
+        path = performance.write_performance(args.docs, jobs, args.steps or 5, comm)
         if comm.rank == 0:
             print(f"wrote {path}")
     elif args.scene is not None:
-        row = benchmarks.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples,
+        row = timing.scene_benchmark(args.scene, args.steps or 20, args.hessian, comm, args.warmup, args.samples,
                                          _scene_overrides(args))  # fmt: skip
         if comm.rank == 0:
-            print(json.dumps(row) if args.json else benchmarks.format_scene_row(row))
+            print(json.dumps(row) if args.json else timing.format_scene_row(row))
     else:
         rows = [
-            benchmarks.benchmark(
+            timing.benchmark(
                 n, args.hessian, args.repeats, comm, discretization=args.discretization, quadrature=args.quadrature
             )
             for n in args.patches
         ]
         if comm.rank == 0:
-            table = benchmarks.format_newton_table(rows, args.hessian, args.repeats)
+            table = timing.format_newton_table(rows, args.hessian, args.repeats)
             print("\n".join(json.dumps(row) for row in rows) if args.json else table)
 
 
@@ -290,7 +290,7 @@ def _paths(args: argparse.Namespace, comm) -> None:
 
 
 def _summary(args: argparse.Namespace, comm) -> None:
-    from bhem_hpc.summary import update_readme
+    from bhem_hpc.studies.summary import update_readme
 
     if comm.rank == 0:
         update_readme(args.readme, args.docs)

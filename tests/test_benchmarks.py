@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 
-from bhem_hpc import benchmarks
+from bhem_hpc.benchmarks import performance, timing
 from bhem_hpc.studies.registry import STUDIES
 
 
@@ -41,9 +41,9 @@ def test_equal_accuracy_takes_the_fewest_spans_that_reach_each_target(shared_tmp
         calls.append((discretization, quadrature, spans))
         return {"patches": spans}
 
-    monkeypatch.setattr(benchmarks, "benchmark", fake_benchmark)
-    monkeypatch.setattr(benchmarks, "sheet_step_benchmark", lambda *args, **kwargs: {"step_s": 1.0})
-    rows = benchmarks.equal_accuracy_benchmarks(shared_tmp_path / "docs", comm)
+    monkeypatch.setattr(performance, "benchmark", fake_benchmark)
+    monkeypatch.setattr(performance, "sheet_step_benchmark", lambda *args, **kwargs: {"step_s": 1.0})
+    rows = performance.equal_accuracy_benchmarks(shared_tmp_path / "docs", comm)
     assert calls == [
         ("hermite", None, 4), ("bspline2", None, 16), ("bspline2", "reduced", 16), ("bspline3", None, 8),
         ("hermite", None, 8), ("bspline3", None, 8),
@@ -64,7 +64,7 @@ def test_performance_page_states_the_paper_claims_at_equal_dofs():
         row("bspline2", 3, 20, 2e5, 0.04),
         row("bspline2", "reduced", 20, 2e5, 0.03),
     ]
-    lines = benchmarks._discretization_table(rows, [{**rows[0], "plate_target": 0.01, "plate_error": 3e-3}])
+    lines = performance._discretization_table(rows, [{**rows[0], "plate_target": 0.01, "plate_error": 3e-3}])
     text = "\n".join(lines)
     assert "| bspline2 reduced | 20 | 1452 | 138 | 900 / 400 | 0.0300 |" in text
     assert "nonzeros per DoF 138 against 69" in text and "Newton iteration 2.00 x" in text
@@ -73,5 +73,5 @@ def test_performance_page_states_the_paper_claims_at_equal_dofs():
 
 
 def test_sheet_time_steps_are_timed(comm):
-    row = benchmarks.sheet_step_benchmark(3, "bspline2", "reduced", steps=2, comm=comm)
+    row = timing.sheet_step_benchmark(3, "bspline2", "reduced", steps=2, comm=comm)
     assert row["step_s"] > 0 and row["newton_per_step"] >= 1

@@ -9,8 +9,8 @@ import sys
 
 import pytest
 
+from bhem_hpc.benchmarks.scaling import ScalingError, scaling_cases, scaling_markdown, speedups
 from bhem_hpc.blas import blas_label, openblas_core
-from bhem_hpc.scaling import ScalingError, scaling_cases, scaling_markdown, speedups
 
 
 def test_strong_and_weak_cases():

@@ -7,7 +7,7 @@ import json
 import pytest
 from helpers import REPO
 
-from bhem_hpc.summary import BEGIN, END, SummaryError, summary_markdown, update_readme
+from bhem_hpc.studies.summary import BEGIN, END, SummaryError, summary_markdown, update_readme
 
 
 def test_readme_summary_is_the_one_generated_from_docs():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from helpers import ray_triangle_distances
 
-from bhem_hpc.benchmarks import ray_benchmark
+from bhem_hpc.benchmarks.timing import ray_benchmark
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import SurfaceTimeSeries, read_frame
 from bhem_hpc.io.render import camera_rays, render

@@ -302,7 +302,7 @@ def run_scaling_command(args, comm) -> None:
     """The ``bench --scaling`` command (one process: it launches the MPI jobs itself)."""
     if comm.size != 1:
         raise ScalingError("run `bhem-hpc bench --scaling` without mpirun: it starts an MPI job per case")
-    scene = args.scene or Path(__file__).resolve().parents[1] / "jobs" / "million-cloth.toml"
+    scene = args.scene or Path(__file__).resolve().parents[2] / "jobs" / "million-cloth.toml"
     if not Path(scene).is_file():
         raise ScalingError(f"--scene {scene}: no such scene file")
     linears = [args.linear] if args.linear and args.linear != "auto" else ["direct", "iterative"]

@@ -4,29 +4,31 @@
 factorizations (LDL^T by default, LU when the Jacobian is not symmetric). Options live under the
 solver's own prefix; defaults are pushed only where nothing is set yet, so the command line
 (``-bhem_static_snes_rtol 1e-12``, ...) and a scene's ``options`` table override them. The
-driver adds load stepping with secant predictors and increment cuts, the energy line search, the
-diagonal regularization of indefinite Jacobians and the augmented-Lagrangian multiplier updates.
+driver adds the energy line search, the descent directions of indefinite Jacobians (projected
+Hessian, diagonal regularization), the trust-region recovery and the augmented-Lagrangian
+multiplier updates. The linear strategy's options and fallback are :mod:`.linear_strategy`, load
+stepping :mod:`.load_steps`, and the timing of a Newton iteration is in the benchmarks.
 """
 
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 
 import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.anderson import AndersonMixing
-from bhem_hpc.solver.linear import (
-    LinearSolverChoice,
-    LinearSolverError,
-    available_memory,
-    choose_linear_solver,
-    mass_dominance,
+from bhem_hpc.solver.linear import LinearSolverChoice, LinearSolverError
+from bhem_hpc.solver.linear_strategy import (
+    ITERATIVE_REFACTOR_COST,
+    FactoredState,
+    choose_for_model,
+    default_options,
+    switch_to_mumps,
 )
+from bhem_hpc.solver.load_steps import solve_in_load_steps
 from bhem_hpc.solver.petsc import (
     KSP_REASONS,
     PETSC_ERRORS,
@@ -40,15 +42,11 @@ from bhem_hpc.solver.petsc import (
     unused_options,
 )
 from bhem_hpc.solver.problem import ShellProblem
+from bhem_hpc.solver.report import SolveReport
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, refactor_cost
 from bhem_hpc.solver.trust_region import TrustRegionNewton
 
 log = logging.getLogger(__name__)
-#: Jacobian nonzeros per DoF for the memory estimate of a factorization (Hermite ~100, B-splines
-#: of degree 2 and 3 ~130: a bound for sizing, not a count).
-NONZEROS_PER_DOF = 130
-#: A Jacobian assembly and its preconditioner's setup, in Krylov-solved chord iterations.
-ITERATIVE_REFACTOR_COST = 8.0
 #: Chord steps combined by Anderson mixing in problems with a potential, whose energy line search
 #: applies it (option ``chord_anderson_depth`` under the solver's prefix; 0: plain chord steps);
 #: of 3, 5 and 8, 5 took the fewest Newton iterations on the ball scene in contact.
@@ -59,63 +57,9 @@ RECOVERY_COUNTERS = ("projected_iterations", "trust_region_solves")
 LINEAR_COUNTERS = ("refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations", "linear_solves")
 
 
-def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]:
-    """Solver defaults for a model and a linear solver kind (all overridable under the prefix)."""
-    m = model.material
-    grid = model.rest_surface.grid
-    # Absolute residual floor: round-off of the internal force is ~eps * Y h * patch size.
-    force_scale = m.young * m.thickness * max(grid.h1, grid.h2)
-    nonlinear = {
-        "snes_type": "newtonls",
-        # Conservative problems: full step damped by the energy precheck (ShellSolver.damp_step);
-        # follower loads have no potential: backtracking on the residual norm.
-        "snes_linesearch_type": "basic" if model.potential_form is not None else "bt",
-        "snes_rtol": "1e-9",
-        "snes_atol": f"{1e-13 * force_scale:.3e}",
-        "snes_stol": "1e-14",
-        "snes_max_it": "30",
-    }
-    if linear == "direct":
-        return default_direct_options(model) | nonlinear
-    dynamic = model.dynamics is not None
-    krylov = {
-        # flexible GMRES for time steps (their preconditioner is not symmetric, below; it keeps the
-        # preconditioned directions, so forming the solution takes no extra application); GMRES for
-        # statics (K may be indefinite along a path)
-        "ksp_type": "fgmres" if dynamic else "gmres",
-        # inexact Newton: the nonlinear test is on the true residual. Time steps: the Anderson-mixed
-        # chord steps make up for a crude solve (1e-2 cost fewer Krylov iterations in all than 1e-3 on
-        # the million-DoF cloth scene); statics end with Newton steps, which need accurate ones
-        "ksp_rtol": "1e-2" if dynamic and model.symmetric else "1e-3",
-        "ksp_atol": f"{1e-15 * force_scale:.3e}",
-        "ksp_max_it": "1000",
-        "ksp_norm_type": "unpreconditioned",
-    }
-    if dynamic:  # M / dt^2 + K: ILU(0) of each rank's rows grown by one layer of its neighbours'
-        # (restricted additive Schwarz): without the overlap (block Jacobi) the coupling across rank
-        # boundaries is lost and the Krylov iterations grow with the rank count. One rank: block
-        # Jacobi, the same preconditioner without Schwarz's copy of the matrix.
-        schwarz = {"pc_type": "asm", "pc_asm_overlap": "1", "pc_asm_type": "restrict"}
-        pc = schwarz if model.comm.size > 1 else {"pc_type": "bjacobi"}
-        pc |= {"sub_pc_type": "ilu", "sub_pc_factor_shift_type": "nonzero"}
-    else:  # K alone: algebraic multigrid with the three displacement components coarsened together
-        pc = {"pc_type": "hypre", "pc_hypre_type": "boomeramg", "pc_hypre_boomeramg_nodal_coarsen": "6",
-              "pc_hypre_boomeramg_vec_interp_variant": "3", "pc_hypre_boomeramg_strong_threshold": "0.5"}  # fmt: skip
-    return nonlinear | krylov | pc
-
-
-def default_direct_options(model: ShellModel) -> dict[str, str]:
-    """The direct solver's options (MUMPS)."""
-    return {
-        "ksp_type": "preonly",
-        "pc_type": "cholesky" if model.symmetric else "lu",
-        "pc_factor_mat_solver_type": "mumps",
-        # Debian's MUMPS has no METIS: AMF (2) was the fastest of the built-in orderings here.
-        "mat_mumps_icntl_7": "2",
-    }
-
-
-def _residual_callback(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: ShellSolver) -> None:
+def residual_callback(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: ShellSolver) -> None:
+    """SNES function callback (``kargs={"solver": solver}``): the residual of ``solver``'s problem at
+    ``x`` into ``f``. Public for other SNES on the same problem (path following, trust region)."""
     solver.problem.update_state(x)
     solver.problem.assemble_residual(x, f)
 
@@ -124,7 +68,10 @@ def _energy_precheck(x: PETSc.Vec, y: PETSc.Vec, solver: ShellSolver) -> None:
     solver.damp_step(x, y)
 
 
-def _jacobian_callback(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
+def jacobian_callback(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
+    """SNES Jacobian callback for another SNES on ``solver``'s problem: assembles at every call (the
+    problem's state is ``x``, set by :func:`residual_callback`) and drops ``solver``'s kept
+    factorization, whose matrix it overwrites."""
     solver.problem.assemble_jacobian(pmat)
     solver.reuse.invalidate()  # another SNES (the path's) filled the shared matrix
 
@@ -141,29 +88,6 @@ def _kept_jacobian_callback(
     if solver.reuse.refactor_now(iteration, norm, solver.target_norm, solver.operator_signature()):
         solver.problem.assemble_jacobian(pmat)
         solver.remember_factored_state()
-
-
-@dataclass
-class SolveReport:
-    """What a solve did: per load step Newton iterations and timings."""
-
-    load_steps: int = 0
-    newton_iterations: list[int] = field(default_factory=list)
-    residual_norms: list[float] = field(default_factory=list)
-    negative_pivots: list[int] = field(default_factory=list)
-    backtracks: int = 0
-    cuts: int = 0
-    regularized_retries: int = 0
-    regularized_iterations: int = 0
-    projected_iterations: int = 0
-    trust_region_solves: int = 0
-    multiplier_updates: int = 0
-    refactor_retries: int = 0
-    krylov_iterations: int = 0
-    linear_solves: int = 0
-    assemble_residual_s: float = 0.0
-    assemble_jacobian_s: float = 0.0
-    wall_s: float = 0.0
 
 
 class ShellSolver(PetscOwner):
@@ -216,8 +140,7 @@ class ShellSolver(PetscOwner):
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.x = PETSc.Vec().createMPI((n_local, n_global), comm=comm)
         self.f = self.x.duplicate()
-        # the state the kept factorization's Jacobian was assembled at (position, previous position)
-        self._factored_state: tuple[np.ndarray, np.ndarray | None] | None = None
+        self.factored_state = FactoredState(model)
         opts = PETSc.Options()
         # the caller's options stay in the database for the solver's life (some are read only at
         # the first factorization) and are removed by close(); the defaults only for setup
@@ -244,7 +167,7 @@ class ShellSolver(PetscOwner):
             self._stage = PETSc.Log.Stage(f"{prefix}solve")  # one per prefix: the same stage if reused
             self.snes = PETSc.SNES().create(comm)
             self.snes.setOptionsPrefix(prefix)
-            self.snes.setFunction(_residual_callback, self.f, kargs={"solver": self})
+            self.snes.setFunction(residual_callback, self.f, kargs={"solver": self})
             self.snes.setJacobian(_kept_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
             self._trial: PETSc.Vec | None = None  # the energy line search's trial state
             if model.potential_form is not None:
@@ -292,20 +215,9 @@ class ShellSolver(PetscOwner):
         return 3 * self.model.discretization.num_closed
 
     def _choose_linear(self, requested: str) -> LinearSolverChoice:
-        model = self.model
-        material = model.material
-        nodes = model.rest_surface.nodal[..., 0, :]  # nodes (Hermite) or control points (B-splines)
-        edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
-        element = float(np.median(np.concatenate([e.ravel() for e in edges])))  # patch edge length
-        dt = float(model.time_step.value) if model.dynamics is not None else None
-        dominance = mass_dominance(material.density, material.young, material.poisson, element, dt)
-        choice = self._linear_choice(requested, dominance, available_memory(model.comm))
+        choice = choose_for_model(self.model, requested)
         log.info("%s: %s linear solver (%s)", self.prefix, choice.kind, choice.reason)
         return choice
-
-    def _linear_choice(self, requested: str, dominance: float, available: float) -> LinearSolverChoice:
-        return choose_linear_solver(requested, self._dofs, NONZEROS_PER_DOF * self._dofs, dominance, available,
-                                    self.model.dynamics is not None)  # fmt: skip
 
     def _fall_back_to_direct(self, reason: str) -> bool:
         """Switch a failing Krylov solver to MUMPS (when a factorization fits); logged and recorded
@@ -313,16 +225,11 @@ class ShellSolver(PetscOwner):
         if self.linear.kind != "iterative" or self.fallbacks:
             return False
         try:
-            choice = self._linear_choice("direct", self.linear.mass_dominance, self.linear.available_bytes)
+            choice = choose_for_model(self.model, "direct", self.linear.available_bytes)
         except LinearSolverError as exc:
             log.warning("%s: the Krylov solve failed (%s) and %s", self.prefix, reason, exc)
             return False
-        ksp = self.snes.getKSP()
-        ksp.setType("preonly")
-        pc = ksp.getPC()
-        # MUMPS' LDL^T takes AIJ or SBAIJ; the blocked matrix of the Krylov path gets its LU
-        pc.setType("cholesky" if self.model.symmetric and self.matrix_format != "baij" else "lu")
-        pc.setFactorSolverType("mumps")
+        switch_to_mumps(self.snes.getKSP(), self.model.symmetric, self.matrix_format)
         self.linear = choice
         self._choose_hessian()
         self.reuse.refactor_cost = refactor_cost(self._dofs)
@@ -524,72 +431,13 @@ class ShellSolver(PetscOwner):
 
     # -- solves ---------------------------------------------------------------------------------
     def solve(self, load_steps: int = 1, max_cuts: int = 10) -> SolveReport:
-        """Solve for equilibrium, ramping loads and prescribed values from 0 to 1.
-
-        The load factor advances in increments of at most ``1 / load_steps``; a load step whose
-        Newton solve fails is retried from the last equilibrium with half the increment (at most
-        ``max_cuts`` halvings in a row), and the increment grows back after successes. Each step
-        starts from a secant prediction along the last two equilibria.
+        """Solve for equilibrium, ramping loads and prescribed values from 0 to 1 in load steps
+        (:func:`~bhem_hpc.solver.load_steps.solve_in_load_steps`, which documents the arguments).
 
         Raises:
             SolverError: naming the solver, the load factor and the SNES/KSP reasons.
         """
-        if isinstance(load_steps, bool) or not isinstance(load_steps, int) or load_steps < 1:
-            raise SolverError(f"solver '{self.prefix}': load_steps must be an integer >= 1, got {load_steps!r}")
-        start = time.perf_counter()
-        max_increment = 1.0 / load_steps
-        increment = max_increment
-        self.problem.state_to_vector(self.x)
-        accepted = self.x.copy()
-        history: list[tuple[float, PETSc.Vec]] = []
-        factor, cuts = 0.0, 0
-        while factor < 1.0 - 1e-12:
-            trial = min(1.0, factor + increment)
-            accepted.copy(self.x)
-            if history:
-                # Secant predictor: continue the path of the last two equilibria (captures the
-                # in-plane pull-in that a Newton step linearized at the last state misses).
-                last_factor, last = history[-1]
-                self.x.axpy((trial - factor) / (factor - last_factor), accepted - last)
-            if not self.solve_at(trial):
-                cuts += 1
-                self.report.cuts += 1
-                if cuts > max_cuts:
-                    self._raise(trial, f"{max_cuts} halvings of the load increment")
-                log.info(
-                    "%s: Newton failed at load factor %.4g (%s); halving the increment to %.3g",
-                    self.prefix,
-                    trial,
-                    SNES_REASONS.get(self.snes.getConvergedReason()),
-                    increment / 2,
-                )
-                increment /= 2
-                continue
-            cuts = 0
-            its = self.snes.getIterationNumber()
-            self.report.newton_iterations.append(its)
-            self.report.residual_norms.append(self.snes.getFunctionNorm())
-            self.report.negative_pivots.append(self.negative_pivots())
-            self.report.load_steps += 1
-            log.info(
-                "%s: load factor %.4g: %d Newton iterations, |F| = %.3e",
-                self.prefix,
-                trial,
-                its,
-                self.snes.getFunctionNorm(),
-            )
-            if history:
-                history[0][1].destroy()
-            history = [(factor, accepted)]
-            accepted = self.x.copy()
-            factor = trial
-            increment = min(max_increment, 2 * increment)
-        for _, vec in history:
-            vec.destroy()
-        accepted.destroy()
-        self.problem.update_state(self.x)
-        self.report.wall_s += time.perf_counter() - start
-        return self.report
+        return solve_in_load_steps(self, load_steps, max_cuts)
 
     def solve_at(self, load_factor: float) -> bool:
         """One Newton solve (SNES) at ``load_factor`` from the current iterate ``self.x``: loads scaled
@@ -664,18 +512,18 @@ class ShellSolver(PetscOwner):
                     pivots,
                     regularizations[attempt],
                 )
-            self._raise(1.0, f"trust-region Newton and {len(regularizations)} regularized retries")
+            self.raise_failure(1.0, f"trust-region Newton and {len(regularizations)} regularized retries")
         finally:
             self.problem.regularization = 0.0
             start.destroy()
-        return -1  # unreachable: _raise always raises
+        return -1  # unreachable: raise_failure always raises
 
     def _trust_region_recovers(self, start: PETSc.Vec) -> bool:
         """After a failed line-search solve: the trust-region Newton from the step's start (counted
         in ``trust_region_solves`` when it converges; logged either way)."""
         if self.trust_region is None:
             self.trust_region = TrustRegionNewton(self, default_options(self.model, self.linear.kind),
-                                                  (_residual_callback, _jacobian_callback),
+                                                  (residual_callback, jacobian_callback),
                                                   self._caller_options)  # fmt: skip
         log.info("%s: Newton failed (%s); trying trust-region Newton", self.prefix,
                  SNES_REASONS.get(self.snes.getConvergedReason()))  # fmt: skip
@@ -698,11 +546,12 @@ class ShellSolver(PetscOwner):
             return False
         return reason > 0 and bool(np.isfinite(norm))
 
-    def _raise(self, factor: float, after: str) -> None:
+    def raise_failure(self, factor: float, after: str) -> None:
+        """Raise the :class:`SolverError` of a solve that failed at load ``factor`` after ``after``."""
         reason = self.snes.getConvergedReason()
         ksp_reason = self.snes.getKSP().getConvergedReason()
         mumps = ""
-        factor_matrix = self._factor_matrix()
+        factor_matrix = self.factor_matrix()
         if factor_matrix is not None:
             mumps = f", MUMPS INFOG(1) = {factor_matrix.getMumpsInfog(1)}"
         raise SolverError(
@@ -724,7 +573,8 @@ class ShellSolver(PetscOwner):
             advice = "more load steps (time.load_steps), or a path method"
         return f"residual by term (largest first): {listed}; the {ranked[0][0]} term dominates; try {advice}"
 
-    def _factor_matrix(self) -> PETSc.Mat | None:
+    def factor_matrix(self) -> PETSc.Mat | None:
+        """The MUMPS factor of the last factorization (for its INFOG/RINFOG figures); None for other solvers."""
         pc = self.snes.getKSP().getPC()
         if pc.getType() not in ("cholesky", "lu") or pc.getFactorSolverType() != "mumps":
             return None
@@ -737,83 +587,38 @@ class ShellSolver(PetscOwner):
         """Negative pivots of the last LDL^T factorization (MUMPS INFOG(12)); -1 if unknown."""
         return negative_pivots(self.snes.getKSP())
 
-    def time_newton_iteration(self) -> dict[str, float]:
-        """One Newton iteration at the current state, phase by phase (for benchmarks).
-
-        Assembles the residual and the Jacobian, factorizes (numeric factorization; the symbolic
-        analysis is reused once done) and solves, without updating the state.
-
-        Returns:
-            Seconds per phase (``assemble_residual_s``, ``assemble_jacobian_s``, ``factor_s``,
-            ``solve_s``, ``newton_iteration_s``) and ``factor_gflop`` (MUMPS RINFOG(3)).
-        """
-        comm = self.model.comm
-        ksp = self.snes.getKSP()
-        pc = ksp.getPC()
-        step = self.x.duplicate()
+    def inertia_at_state(self) -> int:
+        """Collective: assemble and factor the Jacobian at the model's current state (no step taken)
+        and return its negative pivots (-1: the linear solver does not report them)."""
         self.problem.state_to_vector(self.x)
-
-        def timed(action) -> float:
-            comm.Barrier()
-            t0 = time.perf_counter()
-            action()
-            comm.Barrier()
-            return time.perf_counter() - t0
-
-        def residual() -> None:
-            self.problem.update_state(self.x)
-            self.problem.assemble_residual(self.x, self.f)
-
-        times = {
-            "assemble_residual_s": timed(residual),
-            "assemble_jacobian_s": timed(lambda: self.problem.assemble_jacobian(self.jacobian)),
-        }
+        self.problem.update_state(self.x)
+        self.problem.assemble_jacobian(self.jacobian)
+        self.reuse.invalidate()  # the kept factorization is replaced by this one
+        ksp = self.snes.getKSP()
         ksp.setOperators(self.jacobian)
-        times["factor_s"] = timed(pc.setUp)
-        times["solve_s"] = timed(lambda: ksp.solve(self.f, step))
-        times["newton_iteration_s"] = sum(times.values())
-        factor_matrix = self._factor_matrix()
-        times["factor_gflop"] = factor_matrix.getMumpsRinfog(3) / 1e9 if factor_matrix is not None else float("nan")
-        times["negative_pivots"] = self.negative_pivots()
-        step.destroy()
-        return times
+        ksp.getPC().setUp()
+        return self.negative_pivots()
 
     def remember_factored_state(self) -> None:
-        """Note what the Jacobian just assembled depends on: the position (open DOFs, as assembled)
-        and, in dynamics, the previous position (stiffness damping)."""
-        model = self.model
-        self._factored_state = (
-            model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None
-        )
+        """Note the state the Jacobian just assembled depends on (see :class:`FactoredState`)."""
+        self.factored_state.remember()
 
     def reuse_checkpoint(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         """Collective: raw DOFs of the state the kept factorization was made at and the policy's
         state (empty when none is kept), for :meth:`restore_reuse_checkpoint`."""
-        if not self.reuse.valid or self._factored_state is None:
+        if not self.reuse.valid:
             return {}, {}
-        disc = self.model.discretization
-        position, previous = self._factored_state
-        arrays = {"factorization_state_dofs": disc.gather_raw_dofs(position)}
-        if previous is not None:
-            arrays["factorization_previous_dofs"] = disc.gather_raw_dofs(previous)
-        return arrays, self.reuse.state()
+        arrays = self.factored_state.checkpoint()
+        return (arrays, self.reuse.state()) if arrays else ({}, {})
 
     def restore_reuse_checkpoint(self, arrays: dict[str, np.ndarray], state: dict[str, float]) -> None:
         """Collective: remake the kept factorization of a checkpoint (assembled and factored at its
         state), so a continued run decides and computes as the uninterrupted one."""
-        model, disc = self.model, self.model.discretization
-        saved = (model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None)
-        model.x.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_state_dofs"])
-        if model.dynamics is not None:
-            model.x_previous.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_previous_dofs"])
-        self.remember_factored_state()
-        self.problem.assemble_jacobian(self.jacobian)
-        ksp = self.snes.getKSP()
-        ksp.setOperators(self.jacobian)
-        ksp.setUp()
-        model.x.x.array[:] = saved[0]
-        if saved[1] is not None:
-            model.x_previous.x.array[:] = saved[1]
+        with self.factored_state.restored(arrays):
+            self.problem.assemble_jacobian(self.jacobian)
+            ksp = self.snes.getKSP()
+            ksp.setOperators(self.jacobian)
+            ksp.setUp()
         self.reuse.restore(state, self.operator_signature())
 
     def counters(self) -> dict[str, float]:

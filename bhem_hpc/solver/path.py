@@ -31,7 +31,8 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.path import ArcLength, PathSettingError, Probe, ProbeSet, check_levels
-from bhem_hpc.solver.newton import ShellSolver, _jacobian_callback, _residual_callback, default_options
+from bhem_hpc.solver.linear_strategy import default_options
+from bhem_hpc.solver.newton import ShellSolver, jacobian_callback, residual_callback
 from bhem_hpc.solver.petsc import (
     PETSC_ERRORS,
     SNES_REASONS,
@@ -191,8 +192,8 @@ class PathFollower(PetscOwner):
             snes = PETSc.SNES().create(self.model.comm)
             snes.setOptionsPrefix(self.prefix)
             snes.setType("python")
-            snes.setFunction(_residual_callback, self.solver.f, kargs={"solver": self.solver})
-            snes.setJacobian(_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self.solver})
+            snes.setFunction(residual_callback, self.solver.f, kargs={"solver": self.solver})
+            snes.setJacobian(jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self.solver})
             try:
                 snes.setFromOptions()
             except PETSc.Error as exc:

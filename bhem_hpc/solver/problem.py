@@ -10,7 +10,6 @@ product is reused).
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
 
 import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
@@ -19,9 +18,7 @@ from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.petsc import PetscOwner
-
-if TYPE_CHECKING:
-    from bhem_hpc.solver.newton import SolveReport
+from bhem_hpc.solver.report import SolveReport
 
 
 def _blocked_aij(

@@ -245,9 +245,9 @@ def test_a_stalled_krylov_solve_falls_back_to_mumps_and_is_recorded(comm):
 
 
 def test_a_stalled_krylov_solve_without_a_fallback_fails_the_step(comm, monkeypatch):
-    import bhem_hpc.solver.newton as newton
+    import bhem_hpc.solver.linear_strategy as linear_strategy
 
-    monkeypatch.setattr(newton, "available_memory", lambda comm: 1.0)  # no factorization fits
+    monkeypatch.setattr(linear_strategy, "available_memory", lambda comm: 1.0)  # no factorization fits
     scene = load_scene(JOBS / "drape.toml")
     model = build_model(scene, comm)
     # the trust-region recovery is held to one iteration too (with one Krylov iteration per step it
@@ -283,9 +283,9 @@ def test_scene_solver_keys_are_checked_and_a_direct_solver_that_cannot_fit_is_re
     text = SEAMED.format(linear="direct").replace('[solver]', '[solver]\nfactorization = "sometimes"')
     with pytest.raises(SceneError, match=r"key 'solver.factorization' must be 'reuse' or 'fresh'"):
         load_scene(write(comm, shared_tmp_path / "sometimes.toml", text))
-    import bhem_hpc.solver.newton as newton
+    import bhem_hpc.solver.linear_strategy as linear_strategy
 
-    monkeypatch.setattr(newton, "available_memory", lambda comm: 1e6)  # 1 MB
+    monkeypatch.setattr(linear_strategy, "available_memory", lambda comm: 1e6)  # 1 MB
     scene = write(comm, shared_tmp_path / "direct.toml", SEAMED.format(linear="direct"))
     with pytest.raises(RunError, match=r"direct.toml: key 'solver.linear' = 'direct': the direct solver cannot run: "
                                        r"a factorization needs about 0.0 GB, 0.0 GB are available"):  # fmt: skip

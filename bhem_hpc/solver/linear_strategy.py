@@ -1,0 +1,155 @@
+"""The linear strategy of the Newton driver, apart from Newton: which linear solver (MUMPS or a
+Krylov method) with which options, and the switch to MUMPS when a Krylov solve fails. The refactor
+policy (:mod:`.reuse`) and the Anderson mixing of chord steps (:mod:`.anderson`) are the other two
+parts; :class:`~bhem_hpc.solver.newton.ShellSolver` combines them.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+from petsc4py import PETSc
+
+from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.linear import LinearSolverChoice, available_memory, choose_linear_solver, mass_dominance
+
+log = logging.getLogger(__name__)
+#: Jacobian nonzeros per DoF for the memory estimate of a factorization (Hermite ~100, B-splines
+#: of degree 2 and 3 ~130: a bound for sizing, not a count).
+NONZEROS_PER_DOF = 130
+#: A Jacobian assembly and its preconditioner's setup, in Krylov-solved chord iterations.
+ITERATIVE_REFACTOR_COST = 8.0
+
+
+def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]:
+    """Solver defaults for a model and a linear solver kind (all overridable under the prefix)."""
+    m = model.material
+    grid = model.rest_surface.grid
+    # Absolute residual floor: round-off of the internal force is ~eps * Y h * patch size.
+    force_scale = m.young * m.thickness * max(grid.h1, grid.h2)
+    nonlinear = {
+        "snes_type": "newtonls",
+        # Conservative problems: full step damped by the energy precheck (ShellSolver.damp_step);
+        # follower loads have no potential: backtracking on the residual norm.
+        "snes_linesearch_type": "basic" if model.potential_form is not None else "bt",
+        "snes_rtol": "1e-9",
+        "snes_atol": f"{1e-13 * force_scale:.3e}",
+        "snes_stol": "1e-14",
+        "snes_max_it": "30",
+    }
+    if linear == "direct":
+        return default_direct_options(model) | nonlinear
+    dynamic = model.dynamics is not None
+    krylov = {
+        # flexible GMRES for time steps (their preconditioner is not symmetric, below; it keeps the
+        # preconditioned directions, so forming the solution takes no extra application); GMRES for
+        # statics (K may be indefinite along a path)
+        "ksp_type": "fgmres" if dynamic else "gmres",
+        # inexact Newton: the nonlinear test is on the true residual. Time steps: the Anderson-mixed
+        # chord steps make up for a crude solve (1e-2 cost fewer Krylov iterations in all than 1e-3 on
+        # the million-DoF cloth scene); statics end with Newton steps, which need accurate ones
+        "ksp_rtol": "1e-2" if dynamic and model.symmetric else "1e-3",
+        "ksp_atol": f"{1e-15 * force_scale:.3e}",
+        "ksp_max_it": "1000",
+        "ksp_norm_type": "unpreconditioned",
+    }
+    if dynamic:  # M / dt^2 + K: ILU(0) of each rank's rows grown by one layer of its neighbours'
+        # (restricted additive Schwarz): without the overlap (block Jacobi) the coupling across rank
+        # boundaries is lost and the Krylov iterations grow with the rank count. One rank: block
+        # Jacobi, the same preconditioner without Schwarz's copy of the matrix.
+        schwarz = {"pc_type": "asm", "pc_asm_overlap": "1", "pc_asm_type": "restrict"}
+        pc = schwarz if model.comm.size > 1 else {"pc_type": "bjacobi"}
+        pc |= {"sub_pc_type": "ilu", "sub_pc_factor_shift_type": "nonzero"}
+    else:  # K alone: algebraic multigrid with the three displacement components coarsened together
+        pc = {"pc_type": "hypre", "pc_hypre_type": "boomeramg", "pc_hypre_boomeramg_nodal_coarsen": "6",
+              "pc_hypre_boomeramg_vec_interp_variant": "3", "pc_hypre_boomeramg_strong_threshold": "0.5"}  # fmt: skip
+    return nonlinear | krylov | pc
+
+
+def default_direct_options(model: ShellModel) -> dict[str, str]:
+    """The direct solver's options (MUMPS)."""
+    return {
+        "ksp_type": "preonly",
+        "pc_type": "cholesky" if model.symmetric else "lu",
+        "pc_factor_mat_solver_type": "mumps",
+        # Debian's MUMPS has no METIS: AMF (2) was the fastest of the built-in orderings here.
+        "mat_mumps_icntl_7": "2",
+    }
+
+
+def choose_for_model(model: ShellModel, requested: str, available: float | None = None) -> LinearSolverChoice:
+    """The linear solver for ``model``: ``requested`` (``"direct"``, ``"iterative"`` or ``"auto"``),
+    judged by its size, how much the mass term dominates its stiffness and the memory ``available``
+    (bytes; default: what this machine has free).
+
+    Raises:
+        LinearSolverError: an unknown ``requested`` or a direct solver that would not fit.
+    """
+    dofs = 3 * model.discretization.num_closed
+    material = model.material
+    nodes = model.rest_surface.nodal[..., 0, :]  # nodes (Hermite) or control points (B-splines)
+    edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
+    element = float(np.median(np.concatenate([e.ravel() for e in edges])))  # patch edge length
+    dt = float(model.time_step.value) if model.dynamics is not None else None
+    dominance = mass_dominance(material.density, material.young, material.poisson, element, dt)
+    available = available_memory(model.comm) if available is None else available
+    return choose_linear_solver(requested, dofs, NONZEROS_PER_DOF * dofs, dominance, available,
+                                model.dynamics is not None)  # fmt: skip
+
+
+def switch_to_mumps(ksp: PETSc.KSP, symmetric: bool, matrix_format: str) -> None:
+    """Make ``ksp`` a MUMPS direct solve: LDL^T of a symmetric AIJ or SBAIJ matrix, else LU (the
+    blocked matrix of the Krylov path)."""
+    ksp.setType("preonly")
+    pc = ksp.getPC()
+    pc.setType("cholesky" if symmetric and matrix_format != "baij" else "lu")
+    pc.setFactorSolverType("mumps")
+
+
+class FactoredState:
+    """The state a kept factorization's Jacobian was assembled at: the position (open DOFs, as
+    assembled) and, in dynamics, the previous position (stiffness damping). A checkpoint stores it
+    so that a continued run remakes the same factorization."""
+
+    def __init__(self, model: ShellModel):
+        self.model = model
+        self.arrays: tuple[np.ndarray, np.ndarray | None] | None = None
+
+    def _current(self) -> tuple[np.ndarray, np.ndarray | None]:
+        model = self.model
+        return model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None
+
+    def remember(self) -> None:
+        """The Jacobian was just assembled at the model's current state."""
+        self.arrays = self._current()
+
+    def checkpoint(self) -> dict[str, np.ndarray]:
+        """Collective: the remembered state as raw DOFs (empty when none is remembered)."""
+        if self.arrays is None:
+            return {}
+        disc = self.model.discretization
+        position, previous = self.arrays
+        arrays = {"factorization_state_dofs": disc.gather_raw_dofs(position)}
+        if previous is not None:
+            arrays["factorization_previous_dofs"] = disc.gather_raw_dofs(previous)
+        return arrays
+
+    @contextmanager
+    def restored(self, arrays: dict[str, np.ndarray]) -> Iterator[None]:
+        """Collective: within the block the model is at the checkpoint's factored state (remembered);
+        afterwards back at its own."""
+        model, disc = self.model, self.model.discretization
+        saved = self._current()
+        model.x.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_state_dofs"])
+        if model.dynamics is not None:
+            model.x_previous.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_previous_dofs"])
+        self.remember()
+        try:
+            yield
+        finally:
+            model.x.x.array[:] = saved[0]
+            if saved[1] is not None:
+                model.x_previous.x.array[:] = saved[1]

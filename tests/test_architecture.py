@@ -22,6 +22,7 @@ PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "sol
         ("bhem_hpc.collision", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.detection", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.forms", ("dolfinx", "petsc4py", "mpi4py", "basix")),
+        ("bhem_hpc.solver.contributions", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
     ],
 )
 def test_geometry_forms_and_collision_import_without_petsc(module, forbidden):

@@ -472,6 +472,14 @@ class ShellModel:
         """Unknowns of the solver: 3 per closed DOF (Hermite nodal vector or control point)."""
         return 3 * self.discretization.num_closed
 
+    @property
+    def global_open_blocks(self) -> np.ndarray:
+        """The global index of each of this rank's open blocks (owned, then ghosts), ``(blocks,)``:
+        the names of Hessian blocks that may couple blocks of different ranks."""
+        index_map = self.x.function_space.dofmap.index_map
+        return np.asarray(index_map.local_to_global(np.arange(index_map.size_local + index_map.num_ghosts,
+                                                              dtype=np.int32)), dtype=np.int64)  # fmt: skip
+
     def point_positions(self, bases: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """Collective: positions ``(points, 3)`` at the current state of material points given by their
         ``discretization.point_basis`` (each on the rank owning its patch, so summed over ranks)."""

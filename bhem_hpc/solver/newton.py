@@ -13,13 +13,14 @@ stepping :mod:`.load_steps`, and the timing of a Newton iteration is in the benc
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.anderson import AndersonMixing
+from bhem_hpc.solver.contributions import Contribution
 from bhem_hpc.solver.linear import LinearSolverChoice, LinearSolverError
 from bhem_hpc.solver.linear_strategy import (
     ITERATIVE_REFACTOR_COST,
@@ -39,6 +40,7 @@ from bhem_hpc.solver.petsc import (
     negative_pivots,
     push_options,
     solve_stopped,
+    stage_seconds,
     unused_options,
 )
 from bhem_hpc.solver.problem import ShellProblem
@@ -103,6 +105,9 @@ class ShellSolver(PetscOwner):
             (:class:`FactorizationReuse`); ``"fresh"``: assemble and factor at every Newton iteration.
         linear: ``"direct"`` (MUMPS), ``"iterative"`` (preconditioned GMRES) or ``"auto"``
             (:func:`~bhem_hpc.solver.linear.choose_linear_solver`: by size, mass dominance and memory).
+        contributions: energy contributions besides the model's terms
+            (:class:`~bhem_hpc.solver.contributions.Contribution`); a :class:`StepBounded` one caps
+            every line-search step.
 
     Raises:
         LinearSolverError: an unknown ``linear`` or a direct solver that would not fit in memory.
@@ -110,7 +115,7 @@ class ShellSolver(PetscOwner):
 
     def __init__(
         self, model: ShellModel, prefix: str = "bhem_static_", options: Mapping[str, object] | None = None,
-        factorization: str = "reuse", linear: str = "auto",
+        factorization: str = "reuse", linear: str = "auto", contributions: Sequence[Contribution] = (),
     ):  # fmt: skip
         if factorization not in FACTORIZATION_POLICIES:
             raise ValueError(f"factorization must be one of {FACTORIZATION_POLICIES}, got {factorization!r}")
@@ -157,7 +162,7 @@ class ShellSolver(PetscOwner):
             blocked = opts.getString(prefix + "pc_type", "") in ("bjacobi", "asm") and disc.closed_is_open
             self.matrix_format = "sbaij" if serial_sbaij else "baij" if blocked else "aij"
             self.report = SolveReport()
-            self.problem = ShellProblem(model, self.matrix_format, self.report)
+            self.problem = ShellProblem(model, self.matrix_format, self.report, contributions)
             self.jacobian = self.problem.jacobian
             self._choose_hessian()
             self.bc_rows = self.problem.bc_rows
@@ -308,6 +313,7 @@ class ShellSolver(PetscOwner):
         indefinite = self.negative_pivots() > 0 or slope > 0
         accepted, self._accepted_energy = self._accepted_energy, None
         if not indefinite and abs(slope) <= 1e-9 * self._energy_scale:
+            self._bound_step(x, y)
             return  # below the round-off of the potential met earlier in this solve: no assembly needed
         if accepted is not None and x.equal(self._trial):
             energy0 = accepted  # SNES took the step this line search accepted last: the same state
@@ -321,6 +327,7 @@ class ShellSolver(PetscOwner):
                 slope = self._projected_direction(x, y)
             else:
                 slope = self._regularized_direction(y)
+        slope *= self._bound_step(x, y)
         if abs(slope) <= 1e3 * resolution:
             return
         step = 1.0
@@ -342,6 +349,21 @@ class ShellSolver(PetscOwner):
         self.report.backtracks += int(step < 1.0)
         if step < 1.0:
             y.scale(step)
+
+    def _bound_step(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
+        """Shorten the step ``x -> x - y`` to what the step-bounded contributions admit (a barrier
+        is never crossed, not even by a trial of the line search). Returns the factor applied."""
+        if not self.problem.has_step_bounds:
+            return 1.0
+        self.problem.update_state(x)
+        direction = y.copy()
+        direction.scale(-1.0)
+        bound = self.problem.max_step(direction)
+        direction.destroy()
+        if bound < 1.0:
+            y.scale(bound)
+            self.report.bounded_steps += 1
+        return bound
 
     def _mix_chord_step(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
         """Replace a chord step ``y`` by its Anderson mixing with the earlier chord steps on the same
@@ -494,8 +516,7 @@ class ShellSolver(PetscOwner):
                     self.report.newton_iterations.append(its)
                     self.report.negative_pivots.append(pivots)
                     return its
-                # (point constraints need the augmented Lagrangian's outer loop, which it lacks)
-                if attempt == 0 and not len(self.problem.alm_multipliers) and self._trust_region_recovers(start):
+                if attempt == 0 and self._trust_region_applies() and self._trust_region_recovers(start):
                     self.problem.update_state(self.x)
                     its = self.trust_region.iterations()
                     self.report.newton_iterations.append(its)
@@ -517,6 +538,11 @@ class ShellSolver(PetscOwner):
             self.problem.regularization = 0.0
             start.destroy()
         return -1  # unreachable: raise_failure always raises
+
+    def _trust_region_applies(self) -> bool:
+        """The trust-region recovery lacks the augmented Lagrangian's outer loop (point constraints)
+        and the contributions' step bounds (its steps could cross a barrier)."""
+        return not len(self.problem.alm_multipliers) and not self.problem.has_step_bounds
 
     def _trust_region_recovers(self, start: PETSc.Vec) -> bool:
         """After a failed line-search solve: the trust-region Newton from the step's start (counted
@@ -643,16 +669,9 @@ class ShellSolver(PetscOwner):
         }
 
     def linear_solver_seconds(self) -> tuple[float, float]:
-        """Cumulative ``(preconditioner setup, linear solves)`` seconds of this solver's SNES solves
-        on this process (its PETSc log stage): the setup is the factorization (MUMPS, or the
-        incomplete one of a Krylov solver's preconditioner), the solves ``KSPSolve`` (triangular
-        solves, Krylov iterations). PETSc sets the preconditioner up before its ``KSPSolve``
-        event begins, so the two do not overlap."""
-
-        def seconds(name: str) -> float:
-            return PETSc.Log.Event(name).getPerfInfo(self._stage.id)["time"]
-
-        return seconds("PCSetUp"), seconds("KSPSolve")
+        """Cumulative ``(preconditioner setup, linear solves)`` seconds of this solver's SNES solves on
+        this process (:func:`~bhem_hpc.solver.petsc.stage_seconds` of ``PCSetUp`` and ``KSPSolve``)."""
+        return stage_seconds(self._stage, "PCSetUp"), stage_seconds(self._stage, "KSPSolve")
 
     # -- lifetime -------------------------------------------------------------------------------
     def unused_options(self) -> list[str]:

@@ -120,3 +120,11 @@ def library_versions() -> dict[str, str]:
         "ufl": ufl.__version__,
         "petsc4py": petsc4py.__version__,
     }
+
+
+def stage_seconds(stage: PETSc.Log.Stage, event: str) -> float:
+    """Cumulative seconds of a PETSc log ``event`` within ``stage`` on this process. For a solver's
+    stage, ``PCSetUp`` is the factorization (MUMPS, or a Krylov preconditioner's incomplete one) and
+    ``KSPSolve`` the solves (triangular solves, Krylov iterations): PETSc sets the preconditioner up
+    before its ``KSPSolve`` event begins, so the two do not overlap."""
+    return PETSc.Log.Event(event).getPerfInfo(stage.id)["time"]

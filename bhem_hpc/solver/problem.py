@@ -1,15 +1,17 @@
 """The shell problem in PETSc form, apart from any solver (as dolfinx separates ``NonlinearProblem``).
 
 :class:`ShellProblem` owns the residual and Jacobian on the closed DOFs, the boundary-condition rows,
-the seam prolongation, point loads and point constraints (augmented Lagrangian) and the total
-potential. On a surface with periodic directions it assembles on the open grid and iterates on
-the closed DOFs ``x_c``: ``F_c = P^T F(P x_c)``, ``J_c = P^T J P`` (PETSc ``PtAP``, whose symbolic
-product is reused).
+the seam prolongation and the total potential: the model's UFL terms plus a list of energy
+contributions outside UFL (:mod:`.contributions`: point loads, the augmented-Lagrangian point
+constraints, and any the caller adds). On a surface with periodic directions it assembles on the
+open grid and iterates on the closed DOFs ``x_c``: ``F_c = P^T F(P x_c)``, ``J_c = P^T J P``
+(PETSc ``PtAP``, whose symbolic product is reused).
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 
 import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
@@ -17,8 +19,23 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.contributions import (
+    Contribution,
+    ContributionState,
+    PointConstraints,
+    PointLoads,
+    StepBounded,
+)
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.report import SolveReport
+
+
+def _pattern_arrays(rows: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A contribution's Hessian pattern as PETSc's block row and column index arrays ``(k, 1)``."""
+    rows, columns = np.asarray(rows).reshape(-1), np.asarray(columns).reshape(-1)
+    if rows.shape != columns.shape:
+        raise ValueError(f"a Hessian pattern needs as many rows as columns, got {rows.shape} and {columns.shape}")
+    return rows.astype(PETSc.IntType)[:, None], columns.astype(PETSc.IntType)[:, None]
 
 
 def _blocked_aij(
@@ -64,9 +81,12 @@ class ShellProblem(PetscOwner):
             LDL^T without seams; ``"baij"``: 3 x 3 blocks as assembled, for Krylov solvers with block
             preconditioners without seams; otherwise ``"aij"``).
         report: where assembly times are added up.
+        contributions: energy contributions besides the model's terms, point loads and point
+            constraints (:class:`~bhem_hpc.solver.contributions.Contribution`).
     """
 
-    def __init__(self, model: ShellModel, matrix_format: str, report: SolveReport):
+    def __init__(self, model: ShellModel, matrix_format: str, report: SolveReport,
+                 contributions: Sequence[Contribution] = ()):  # fmt: skip
         self.model = model
         self.matrix_format = matrix_format
         self.report = report
@@ -75,15 +95,24 @@ class ShellProblem(PetscOwner):
         comm = model.comm
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.f_open = fem_petsc.create_vector(model.residual_form)
-        self.point_loads = self.f_open.duplicate()
-        self._point_loads_version = -1
-        self._update_point_loads()
+        self.point_constraints = self._point_constraints()
+        self.contributions: list[Contribution] = [
+            PointLoads(lambda: model.point_load_open, lambda: model.point_loads_version),
+            self.point_constraints,
+            *contributions,
+        ]
+        for contribution in self.contributions:
+            if not isinstance(contribution, Contribution):
+                raise TypeError(f"{contribution!r} is not an energy contribution (bhem_hpc.solver.contributions)")
+        self._patterns = [_pattern_arrays(*c.hessian_pattern()) for c in self.contributions]
         # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
         # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
         # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
         self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
+        self._add_contribution_pattern(self.jacobian_blocked)
         fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
         self.jacobian_blocked.assemble()
+        self.jacobian_blocked.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         if matrix_format == "baij":  # Krylov solvers and block preconditioners take it as assembled
             self.jacobian_open, self.jacobian_blocked = self.jacobian_blocked, None
         else:
@@ -115,30 +144,44 @@ class ShellProblem(PetscOwner):
         self.regularization = 0.0  # the driver's diagonal regularizer r: J + r |diag J|
         #: the Hessian kind the next Jacobian is assembled with (a key of ``model.jacobian_forms``)
         self.hessian = next(iter(model.jacobian_forms))
-        self._init_point_constraints()
 
-    def _init_point_constraints(self) -> None:
-        """Augmented Lagrangian for point constraints: multipliers, penalty, targets, masks."""
+    def _point_constraints(self) -> PointConstraints:
+        """Augmented Lagrangian for the model's point constraints: penalty ``1e3 Y h``, tolerance
+        ``1e-10`` of the rest surface's bounding-box diagonal."""
         model = self.model
         count = len(model.point_constraints)
-        self.alm_multipliers = np.zeros((count, 3))
-        self.alm_mask = np.zeros((count, 3))
+        mask = np.zeros((count, 3))
         for k, pc in enumerate(model.point_constraints):
-            self.alm_mask[k, list(pc.components)] = 1.0
-        self.alm_targets = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
-        self.alm_penalty = 1e3 * model.material.young * model.material.thickness
+            mask[k, list(pc.components)] = 1.0
         nodes = model.rest_surface.evaluate(*model.rest_surface.grid.node_parameters()).x
         lo, hi = nodes.min(axis=(0, 1)), nodes.max(axis=(0, 1))
-        self.alm_tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
+        penalty = 1e3 * model.material.young * model.material.thickness
+        tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
+        constraints = PointConstraints(model.point_constraint_basis, model.global_open_blocks, mask, penalty,
+                                       tolerance, model.comm.rank)  # fmt: skip
+        constraints.targets[:] = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)
+        return constraints
 
-    def _update_point_loads(self) -> None:
-        """Copy the model's point loads (again when :meth:`ShellModel.set_load` changed one)."""
-        if self._point_loads_version == self.model.point_loads_version:
+    @property
+    def alm_multipliers(self) -> np.ndarray:
+        """The point constraints' multipliers ``(points, 3)`` (empty without point constraints)."""
+        return self.point_constraints.multipliers
+
+    def _add_contribution_pattern(self, matrix: PETSc.Mat) -> None:
+        """Make room in the (unassembled) blocked matrix for the contributions' Hessian blocks, so
+        that their assembly never allocates: zeros at their fixed pattern."""
+        pairs = [(rows, columns) for rows, columns in self._patterns if len(rows)]
+        if not self.model.comm.allreduce(len(pairs)):
             return
-        with self.point_loads.localForm() as local:
-            local.array[:] = self.model.point_load_open
-        self.point_loads.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        self._point_loads_version = self.model.point_loads_version
+        # on every rank: a rank may receive new nonzeros in its rows from another rank's blocks
+        matrix.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        for rows, columns in pairs:
+            matrix.setValuesBlockedRCV(rows, columns, np.zeros((len(rows), 1, 9)), addv=PETSc.InsertMode.ADD)
+
+    def contribution_state(self) -> ContributionState:
+        """What the contributions see: the model's current position on this rank's open blocks."""
+        model = self.model
+        return ContributionState(model.x.x.array.reshape(-1, 3), float(model.load_factor.value), model.point_positions)
 
     def update_state(self, x: PETSc.Vec) -> None:
         """Write closed DOFs ``x`` into the model's position Function (with ghosts)."""
@@ -156,20 +199,18 @@ class ShellProblem(PetscOwner):
         x.array[:] = self.model.discretization.open_to_closed(self.model.x.x.array)
 
     def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
-        """``f = P^T (F_int - F_ext)`` with constrained rows replaced by ``x - x_bc``."""
+        """``f = P^T (F_int - F_ext + sum of the contributions' gradients)`` with constrained rows
+        replaced by ``x - x_bc``."""
         t0 = time.perf_counter()
-        self._update_point_loads()
         with self.f_open.localForm() as local:
             local.set(0.0)
         fem_petsc.assemble_vector(self.f_open, self.model.residual_form)
-        if len(self.alm_multipliers):
-            force = (self.alm_multipliers + self.alm_penalty * self.point_constraint_violation()) * self.alm_mask
-            with self.f_open.localForm() as local:
-                blocked = local.array.reshape(-1, 3)
-                for k, (blocks, values) in enumerate(self.model.point_constraint_basis):
-                    blocked[blocks] += values[:, None] * force[k]
+        state = self.contribution_state()
+        with self.f_open.localForm() as local:
+            gradient = local.array.reshape(-1, 3)
+            for contribution in self.contributions:
+                contribution.add_gradient(state, gradient)
         self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        self.f_open.axpy(-float(self.model.load_factor.value), self.point_loads)
         if self.prolongation is not None:
             self.prolongation.multTranspose(self.f_open, f)
         else:
@@ -185,11 +226,17 @@ class ShellProblem(PetscOwner):
         norms = {}
         disc = self.model.discretization
         closed = PETSc.Vec().createMPI((3 * disc.num_owned_closed, 3 * disc.num_closed), comm=self.model.comm)
+        state = self.contribution_state()
+        parts = [(name, form, None) for name, form in self.model.term_residual_forms().items()]
+        parts += [(c.name, None, c) for c in self.contributions]
         try:
-            for name, form in self.model.term_residual_forms().items():
+            for name, form, contribution in parts:
                 with self.f_open.localForm() as local:
                     local.set(0.0)
-                fem_petsc.assemble_vector(self.f_open, form)
+                    if contribution is not None:
+                        contribution.add_gradient(state, local.array.reshape(-1, 3))
+                if form is not None:
+                    fem_petsc.assemble_vector(self.f_open, form)
                 self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
                 if self.prolongation is not None:
                     self.prolongation.multTranspose(self.f_open, closed)
@@ -201,37 +248,48 @@ class ShellProblem(PetscOwner):
             closed.destroy()
         return norms
 
-    def point_constraint_violation(self) -> np.ndarray:
-        """``x(xi_p) - target`` of every point constraint (constrained components), collective.
-
-        Returns:
-            Array of shape ``(points, 3)``; unconstrained components are 0.
-        """
-        positions = self.model.point_positions(self.model.point_constraint_basis)
-        return (positions - self.alm_targets) * self.alm_mask
-
     def potential_energy(self) -> float:
-        """Total potential at the model's current state (internal - external work), collective."""
-        self._update_point_loads()
+        """Total potential at the model's current state (internal - external work, plus the
+        contributions' energies), collective."""
         local = fem.assemble_scalar(self.model.potential_form)
-        local -= float(self.model.load_factor.value) * float(
-            np.dot(self.point_loads.array_r, self.model.x.vector.array_r)
-        )
-        if len(self.alm_multipliers):
-            c = self.point_constraint_violation()
-            alm = float(np.sum(self.alm_multipliers * c) + 0.5 * self.alm_penalty * np.sum(c * c))
-            local += alm if self.model.comm.rank == 0 else 0.0
+        state = self.contribution_state()
+        local += sum(contribution.energy(state) for contribution in self.contributions)
         return self.model.comm.allreduce(local)
+
+    @property
+    def has_step_bounds(self) -> bool:
+        """Whether a contribution bounds the line search (:class:`StepBounded`)."""
+        return any(isinstance(c, StepBounded) for c in self.contributions)
+
+    def max_step(self, direction: PETSc.Vec) -> float:
+        """Collective: the largest fraction of the step ``x -> x + direction`` (closed DOFs) that every
+        step-bounded contribution admits from the current state (1: none bounds it)."""
+        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
+        if not bounded:
+            return 1.0
+        open_direction = self.model.x.vector.duplicate()
+        try:
+            if self.prolongation is not None:
+                self.prolongation.mult(direction, open_direction)
+            else:
+                direction.copy(open_direction)
+            open_direction.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            with open_direction.localForm() as local:
+                blocks = local.array.reshape(-1, 3).copy()
+        finally:
+            open_direction.destroy()
+        state = self.contribution_state()
+        return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
 
     def _assemble_open_jacobian(self) -> None:
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
         fem_petsc.assemble_matrix(target, self.model.jacobian_forms[self.hessian])
-        for blocks, values in self.model.point_constraint_basis:  # rho Phi Phi^T per component
-            block = self.alm_penalty * np.outer(values, values)
-            for comp in range(3):
-                rows = (3 * blocks + comp).astype(PETSc.IntType)
-                target.setValuesLocal(rows, rows, block, addv=PETSc.InsertMode.ADD)
+        state = self.contribution_state()
+        for contribution, (rows, columns) in zip(self.contributions, self._patterns, strict=True):
+            if len(rows):
+                values = np.asarray(contribution.hessian(state), dtype=float).reshape(len(rows), 1, 9)
+                target.setValuesBlockedRCV(rows, columns, values, addv=PETSc.InsertMode.ADD)
         target.assemble()
         if self.jacobian_blocked is not None:
             self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
@@ -259,12 +317,13 @@ class ShellProblem(PetscOwner):
         point's initial position, as prescribed nodal values are.
         """
         initial = self.model.initial_surface
+        targets = self.point_constraints.targets
         for k, pc in enumerate(self.model.point_constraints):
             if ramp and not callable(pc.target):
                 start = initial.evaluate(np.array(pc.xi1), np.array(pc.xi2)).x
-                self.alm_targets[k] = start + t * (pc.target_at(t) - start)
+                targets[k] = start + t * (pc.target_at(t) - start)
             else:
-                self.alm_targets[k] = pc.target_at(t)
+                targets[k] = pc.target_at(t)
 
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the (closed) Jacobian as a full matrix (SBAIJ stores the upper triangle)."""
@@ -278,10 +337,8 @@ class ShellProblem(PetscOwner):
     def update_multipliers(self) -> bool:
         """After a converged solve: whether every held point is within tolerance of its target; if
         not, the augmented-Lagrangian multipliers are updated for the next solve."""
-        violation = self.point_constraint_violation()
-        if np.abs(violation).max() <= self.alm_tolerance:
+        if self.point_constraints.update_multipliers(self.contribution_state()):
             return True
-        self.alm_multipliers += self.alm_penalty * violation
         self.report.multiplier_updates += 1
         return False
 
@@ -290,7 +347,7 @@ class ShellProblem(PetscOwner):
         if self._closed:
             return
         self._closed = True
-        objects = [self.f_open, self.point_loads, self.jacobian_open]
+        objects = [self.f_open, self.jacobian_open]
         if self.jacobian_blocked is not None:
             objects.append(self.jacobian_blocked)
         if self.prolongation is not None:

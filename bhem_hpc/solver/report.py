@@ -20,6 +20,7 @@ class SolveReport:
     projected_iterations: int = 0
     trust_region_solves: int = 0
     multiplier_updates: int = 0
+    bounded_steps: int = 0  # line-search steps shortened by a contribution's bound
     refactor_retries: int = 0
     krylov_iterations: int = 0
     linear_solves: int = 0

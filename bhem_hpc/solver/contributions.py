@@ -1,0 +1,191 @@
+"""Energy contributions outside UFL: each gives its energy, gradient and a positive semi-definite
+Hessian on the open DOF layout, and may bound the line-search step (no PETSc here).
+
+:class:`~bhem_hpc.solver.problem.ShellProblem` adds every contribution of its list to the UFL
+terms of the model: energies summed over the ranks, gradients into the residual before the ghost
+exchange, Hessian blocks into the Jacobian at a sparsity fixed when the problem is made, and the
+smallest step bound of the :class:`StepBounded` ones caps each line search (what a contact barrier
+with continuous collision detection needs). Point loads and the augmented-Lagrangian point
+constraints are contributions; a caller adds its own (``ShellProblem(..., contributions=[...])``,
+``ShellSolver(..., contributions=[...])``) without touching the solver.
+
+Layout: the open DOFs are 3-vectors in blocks; a rank sees its owned and ghost blocks
+(``positions``, ``gradient`` and ``direction`` arrays of shape ``(local blocks, 3)``), and Hessian
+blocks are named by global block index (:attr:`~bhem_hpc.model.shell.ShellModel.global_open_blocks`),
+so a contribution may couple blocks that live on different ranks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+#: A material point's ``(local open blocks, basis values)`` on the rank that owns its patch
+#: (empty elsewhere), as ``discretization.point_basis`` gives it.
+PointBasis = tuple[np.ndarray, np.ndarray]
+
+
+@dataclass(frozen=True)
+class ContributionState:
+    """The iterate as a contribution sees it on this rank.
+
+    Attributes:
+        positions: open DOF values of this rank's owned and ghost blocks, shape ``(blocks, 3)``.
+        load_factor: the load factor (1 in time steps).
+        point_positions: collective; positions ``(points, 3)`` of material points given by their
+            :data:`PointBasis` (every rank gets all of them).
+    """
+
+    positions: np.ndarray
+    load_factor: float
+    point_positions: Callable[[Sequence[PointBasis]], np.ndarray]
+
+
+@runtime_checkable
+class Contribution(Protocol):
+    """An energy term of the problem outside UFL. Every method is called on every rank in the same
+    order (they may be collective); each returns or adds this rank's share only."""
+
+    name: str
+
+    def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """The 3x3 blocks this rank adds to the Hessian: global open block ``(rows, columns)``,
+        shape ``(k,)`` each, fixed for the problem's life (empty: no Hessian)."""
+        ...
+
+    def energy(self, state: ContributionState) -> float:
+        """This rank's share of the energy (the problem sums the shares over the ranks)."""
+        ...
+
+    def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
+        """Add this rank's share of the gradient into ``gradient`` ``(blocks, 3)`` (owned and ghost
+        blocks; ghost entries go to their owners)."""
+        ...
+
+    def hessian(self, state: ContributionState) -> np.ndarray:
+        """The blocks of :meth:`hessian_pattern`, shape ``(k, 3, 3)`` (row-major blocks), positive
+        semi-definite as a whole so that every Newton step stays a descent step."""
+        ...
+
+
+@runtime_checkable
+class StepBounded(Contribution, Protocol):
+    """A contribution that bounds the line search (a barrier that must not be crossed)."""
+
+    def max_step(self, state: ContributionState, direction: np.ndarray) -> float:
+        """Collective: the largest ``a`` in ``(0, 1]`` such that ``positions + t direction`` is
+        admissible for every ``t <= a`` (``direction``: ``(blocks, 3)``; the same on every rank)."""
+        ...
+
+
+def _no_pattern() -> tuple[np.ndarray, np.ndarray]:
+    return np.zeros(0, np.int64), np.zeros(0, np.int64)
+
+
+class PointLoads:
+    """Dead point forces ``f`` scaled by the load factor ``lambda``: energy ``-lambda f.x``.
+
+    Args:
+        read: returns the load vector on this rank's open blocks, ``(blocks, 3)``: every point
+            force on the rank that owns its patch (ghost entries included, not yet summed to owners).
+        version: returns a number that changes whenever the load vector must be read again.
+    """
+
+    name = "point loads"
+
+    def __init__(self, read: Callable[[], np.ndarray], version: Callable[[], int]):
+        self._read, self._version = read, version
+        self._seen = -1
+        self._forces = np.zeros((0, 3))
+
+    @property
+    def forces(self) -> np.ndarray:
+        """The current load vector ``(blocks, 3)`` (read again after a change of the loads)."""
+        if self._seen != self._version():
+            self._forces = np.asarray(self._read(), dtype=float).reshape(-1, 3)
+            self._seen = self._version()
+        return self._forces
+
+    def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        return _no_pattern()
+
+    def energy(self, state: ContributionState) -> float:
+        return -state.load_factor * float(np.dot(self.forces.ravel(), state.positions.ravel()))
+
+    def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
+        gradient -= state.load_factor * self.forces
+
+    def hessian(self, state: ContributionState) -> np.ndarray:
+        return np.zeros((0, 3, 3))
+
+
+class PointConstraints:
+    """Material points held at targets (chosen components) by an augmented Lagrangian: energy
+    ``sum_k lambda_k.c_k + rho/2 |c_k|^2`` with ``c_k = (x(xi_k) - target_k) * mask_k``; the
+    multipliers ``lambda`` are updated between solves (:meth:`update_multipliers`).
+
+    Args:
+        bases: each point's :data:`PointBasis`.
+        global_blocks: global open block index of each local block, ``(blocks,)``.
+        masks: ``(points, 3)``, 1 for the held components.
+        penalty: ``rho`` [N/m].
+        tolerance: the largest violation [m] a converged constraint may keep.
+        rank: this process's rank (rank 0 adds the energy, which every rank computes alike).
+    """
+
+    name = "point constraints"
+
+    def __init__(self, bases: Sequence[PointBasis], global_blocks: np.ndarray, masks: np.ndarray,
+                 penalty: float, tolerance: float, rank: int):  # fmt: skip
+        self.bases = list(bases)
+        self.global_blocks = np.asarray(global_blocks, dtype=np.int64)
+        self.mask = np.asarray(masks, dtype=float).reshape(-1, 3)
+        self.multipliers = np.zeros_like(self.mask)
+        self.targets = np.zeros_like(self.mask)
+        self.penalty = float(penalty)
+        self.tolerance = float(tolerance)
+        self.rank = rank
+
+    def violation(self, state: ContributionState) -> np.ndarray:
+        """Collective: ``c``, shape ``(points, 3)`` (free components 0)."""
+        return (state.point_positions(self.bases) - self.targets) * self.mask
+
+    def update_multipliers(self, state: ContributionState) -> bool:
+        """Collective, after a converged solve: whether every held point is within tolerance of its
+        target; if not, the multipliers take the step ``rho c`` for the next solve."""
+        violation = self.violation(state)
+        if np.abs(violation).max(initial=0.0) <= self.tolerance:
+            return True
+        self.multipliers += self.penalty * violation
+        return False
+
+    def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        rows, columns = [], []
+        for blocks, _ in self.bases:
+            held = self.global_blocks[np.asarray(blocks, dtype=np.int64)]
+            rows.append(np.repeat(held, len(held)))
+            columns.append(np.tile(held, len(held)))
+        if not rows:
+            return _no_pattern()
+        return np.concatenate(rows), np.concatenate(columns)
+
+    def energy(self, state: ContributionState) -> float:
+        c = self.violation(state)
+        energy = float(np.sum(self.multipliers * c) + 0.5 * self.penalty * np.sum(c * c))
+        return energy if self.rank == 0 else 0.0
+
+    def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
+        force = (self.multipliers + self.penalty * self.violation(state)) * self.mask
+        for (blocks, values), f in zip(self.bases, force, strict=True):
+            gradient[blocks] += values[:, None] * f
+
+    def hessian(self, state: ContributionState) -> np.ndarray:
+        """``rho phi_i phi_j`` on every component, held or not: one 3x3 block pattern for every mask,
+        exact for the held components and a positive (stiffer than exact) term for the free ones."""
+        blocks = [self.penalty * np.outer(values, values).ravel() for _, values in self.bases]
+        if not blocks:
+            return np.zeros((0, 3, 3))
+        return np.concatenate(blocks)[:, None, None] * np.eye(3)

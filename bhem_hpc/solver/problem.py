@@ -287,8 +287,9 @@ class ShellProblem(PetscOwner):
         fem_petsc.assemble_matrix(target, self.model.jacobian_forms[self.hessian])
         state = self.contribution_state()
         for contribution, (rows, columns) in zip(self.contributions, self._patterns, strict=True):
+            values = contribution.hessian(state)  # on every rank: it may be collective
             if len(rows):
-                values = np.asarray(contribution.hessian(state), dtype=float).reshape(len(rows), 1, 9)
+                values = np.asarray(values, dtype=float).reshape(len(rows), 1, 9)
                 target.setValuesBlockedRCV(rows, columns, values, addv=PETSc.InsertMode.ADD)
         target.assemble()
         if self.jacobian_blocked is not None:

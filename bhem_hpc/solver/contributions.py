@@ -100,12 +100,14 @@ class PointLoads:
         self._read, self._version = read, version
         self._seen = -1
         self._forces = np.zeros((0, 3))
+        self._any = False  # whether this rank holds a nonzero force
 
     @property
     def forces(self) -> np.ndarray:
         """The current load vector ``(blocks, 3)`` (read again after a change of the loads)."""
         if self._seen != self._version():
             self._forces = np.asarray(self._read(), dtype=float).reshape(-1, 3)
+            self._any = bool(np.any(self._forces))
             self._seen = self._version()
         return self._forces
 
@@ -113,10 +115,13 @@ class PointLoads:
         return _no_pattern()
 
     def energy(self, state: ContributionState) -> float:
-        return -state.load_factor * float(np.dot(self.forces.ravel(), state.positions.ravel()))
+        forces = self.forces
+        return -state.load_factor * float(np.dot(forces.ravel(), state.positions.ravel())) if self._any else 0.0
 
     def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
-        gradient -= state.load_factor * self.forces
+        forces = self.forces
+        if self._any:
+            gradient -= state.load_factor * forces
 
     def hessian(self, state: ContributionState) -> np.ndarray:
         return np.zeros((0, 3, 3))
@@ -173,11 +178,15 @@ class PointConstraints:
         return np.concatenate(rows), np.concatenate(columns)
 
     def energy(self, state: ContributionState) -> float:
+        if not self.bases:  # the same on every rank: no collective skipped
+            return 0.0
         c = self.violation(state)
         energy = float(np.sum(self.multipliers * c) + 0.5 * self.penalty * np.sum(c * c))
         return energy if self.rank == 0 else 0.0
 
     def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
+        if not self.bases:
+            return
         force = (self.multipliers + self.penalty * self.violation(state)) * self.mask
         for (blocks, values), f in zip(self.bases, force, strict=True):
             gradient[blocks] += values[:, None] * f

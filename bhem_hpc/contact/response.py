@@ -35,10 +35,10 @@ import numpy as np
 
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
+from bhem_hpc.contact.metrics import CONTACT_METRICS
 from bhem_hpc.contact.petsc import ContactProjector
 from bhem_hpc.errors import InputError
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.scene import CONTACT_METRICS
 from bhem_hpc.solver import ShellSolver
 
 log = logging.getLogger(__name__)

@@ -1,223 +1,63 @@
-"""Scene files (TOML): parsing and validation, before anything is built (numpy + stdlib only).
-
-Every error names the file, the key and what was expected. The format is documented in
-README.md ("Scene files"); :func:`load_scene` returns a :class:`Scene` whose parts map one to one
-onto the library's objects (surface, :class:`~bhem_hpc.model.material.Material`, constraints with
-motions, :class:`~bhem_hpc.model.shell.Loads`-like effects, time, solver and output settings).
+"""Scene files (TOML): :func:`load_scene` parses and checks a whole file before anything is built
+(numpy + stdlib only). The tables are parsed by the modules of what they make: surfaces
+(:mod:`.surfaces`), motions (:mod:`.motions`), colliders (:mod:`.colliders`); this module reads the
+rest (material, time, solver, output, effects and loads, constraints, probes, path, contact).
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bhem_hpc.errors import UserError
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
-from bhem_hpc.model.expression import ExpressionError, finite_on, numpy_expression, parse_expression
+from bhem_hpc.model.expression import ExpressionError, finite_on, parse_expression
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
+from bhem_hpc.scene.colliders import parse_colliders
+from bhem_hpc.scene.motions import check_motion_conflicts, parse_motion
+from bhem_hpc.scene.records import Effects, Scene, SceneConstraint, SceneContact, ScenePoint
+from bhem_hpc.scene.surfaces import parse_surface
+from bhem_hpc.scene.table import VALUE_KINDS, SceneError, Table, is_number
 from bhem_hpc.solver.linear import LINEAR_SOLVERS
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES
 
-SURFACE_KINDS = ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
 CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")
+
+
 EDGE_SUPPORTS = ("simply_supported", "hinged", "symmetry", "diaphragm")  # whole edges by name
-MOTION_TYPES = ("linear", "rotation", "keyframes")
+
+
 CORNERS = ("min_min", "min_max", "max_min", "max_max")
+
+
 # Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = (
     "gravity", "pressure", "damping", "point_loads", "line_loads", "area_loads", "edge_moments", "contact",
     "self_collision", "friction",
 )  # fmt: skip
+
+
 CONTACT_EFFECTS = ("contact", "self_collision", "friction")
-#: Metrics of the contact impulses (:class:`bhem_hpc.contact.ContactSettings`).
-CONTACT_METRICS = ("mass", "jacobian")
-COLLIDER_TYPES = ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
 
 
 #: Bounds checked before anything is allocated: time steps of one run, needles of one grid.
 MAX_STEPS = 10_000_000
-MAX_NEEDLES = 100_000
+
+
 MIN_DT, MAX_DT = 1e-12, 1e3  # s
-MAX_PATCHES = 1_000_000  # patches (knot spans) of one surface: about 12 million Hermite DoFs
 
 
 def _whole_steps(duration: float, dt: float) -> bool:
     """``duration`` is a whole number of steps ``dt`` (to 1e-6 of a step), at least one, bounded."""
     steps = duration / dt
     return bool(np.isfinite(steps)) and 1 <= round(steps) <= MAX_STEPS and abs(steps - round(steps)) <= 1e-6
-
-
-class SceneError(UserError, ValueError):
-    """A scene file is malformed; the message names the file, the key and the expectation."""
-
-
-@dataclass(frozen=True)
-class Motion:
-    """A prescribed motion of a constraint's values, as a function of time."""
-
-    kind: str
-    values: Callable[[float, np.ndarray], np.ndarray]  # (t, initial values) -> values
-
-
-@dataclass(frozen=True)
-class SceneConstraint:
-    constraint: bcs.NodalConstraint
-    motion: Motion | None = None
-    key: str = ""
-
-
-@dataclass(frozen=True)
-class ScenePoint:
-    """A material point held at a target: fixed (``target``) or moving (``motion``)."""
-
-    xi1: float
-    xi2: float
-    components: tuple[int, ...]
-    target: tuple[float, float, float]
-    motion: Motion | None = None
-
-    def target_at(self, t: float) -> np.ndarray:
-        """Full 3-vector target at time ``t`` (unconstrained components keep ``target``)."""
-        out = np.array(self.target, dtype=float)
-        if self.motion is not None:
-            comps = list(self.components)
-            out[comps] = np.asarray(self.motion.values(t, out[comps][None, None, :]), dtype=float).reshape(-1)
-        return out
-
-
-@dataclass(frozen=True)
-class Effects:
-    gravity: tuple[float, float, float] | None = None
-    pressure: float | None = None
-    mass_damping: float = 0.0
-    stiffness_damping: float = 0.0
-    point_loads: tuple[tuple[float, float, tuple[float, float, float]], ...] = ()
-    line_loads: tuple[tuple[str, tuple[float, float, float]], ...] = ()
-    area_loads: tuple[tuple[tuple[float, float, float], str | None], ...] = ()  # (force, profile expression)
-    edge_moments: tuple[tuple[str, float], ...] = ()
-
-
-@dataclass(frozen=True)
-class SceneContact:
-    """Contact effects of a scene: colliders (built), settings and friction coefficients."""
-
-    colliders: tuple[Any, ...]  # bhem_hpc.contact.detection.ColliderEntry
-    push_out: float
-    samples_per_side: int
-    self_collision: bool
-    self_friction: float
-    metric: str = "mass"  # the impulse metric: "mass" (M + S) or "jacobian" (dt^2 J + S)
-
-
-@dataclass(frozen=True)
-class Scene:
-    path: Path
-    surface: S.HermiteSurface
-    material: Material
-    constraints: tuple[SceneConstraint, ...]
-    effects: Effects
-    static: bool
-    dt: float
-    steps: int
-    load_steps: int
-    hessian: str
-    quadrature: int | str | None  # Gauss points per direction, 'reduced', None: the default
-    linear: str = "auto"  # linear solver: auto | direct | iterative
-    factorization: str = "reuse"  # reuse | fresh
-    petsc_options: dict[str, Any] = field(default_factory=dict)
-    point_constraints: tuple[ScenePoint, ...] = ()
-    output_every: int = 1
-    output_density: int = 4
-    raw: dict[str, Any] = field(default_factory=dict)
-    contact: SceneContact | None = None
-    path_plan: PathPlan | None = None  # static scenes: how the equilibrium path is followed
-    probes: tuple[Probe, ...] = ()
-
-
-class _Table:
-    """Typed access to one TOML table with errors that name file and key."""
-
-    def __init__(self, path: Path, name: str, data: Any):
-        self.path, self.name = path, name
-        if not isinstance(data, dict):
-            self.fail("", "a table", data)
-        self.data = data
-        self.used: set[str] = set()
-
-    def key(self, key: str) -> str:
-        return f"{self.name}.{key}" if self.name else key
-
-    def fail(self, key: str, expected: str, got: Any) -> None:
-        where = self.key(key) if key else self.name
-        raise SceneError(f"{self.path}: key '{where}' must be {expected}, got {got!r}")
-
-    def missing(self, key: str, expected: str) -> None:
-        raise SceneError(f"{self.path}: missing key '{self.key(key)}' ({expected})")
-
-    def get(
-        self, key: str, kind: str, default: Any = ..., check: Callable[[Any], bool] | None = None, expected: str = ""
-    ):
-        self.used.add(key)
-        if key not in self.data:
-            if default is ...:
-                self.missing(key, expected or kind)
-            return default
-        value = self.data[key]
-        ok = _KINDS[kind](value)
-        if ok and check is not None:
-            ok = check(value)
-        if not ok:
-            self.fail(key, expected or kind, value)
-        return value
-
-    def table(self, key: str, default: Any = ...) -> _Table | None:
-        self.used.add(key)
-        if key not in self.data:
-            if default is ...:
-                self.missing(key, "a table")
-            return default
-        return _Table(self.path, self.key(key), self.data[key])
-
-    def done(self) -> None:
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            raise SceneError(f"{self.path}: unknown key '{self.key(unknown[0])}' (known: {sorted(self.used)})")
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _vector(n: int) -> Callable[[Any], bool]:
-    return lambda v: isinstance(v, list) and len(v) == n and all(_is_number(c) for c in v)
-
-
-_KINDS: dict[str, Callable[[Any], bool]] = {
-    "a number": _is_number,
-    "an integer": _is_int,
-    "a string": lambda v: isinstance(v, str),
-    "an integer or a string": lambda v: _is_int(v) or isinstance(v, str),
-    "a boolean": lambda v: isinstance(v, bool),
-    "3 numbers": _vector(3),
-    "2 numbers": _vector(2),
-    "2 integers": lambda v: isinstance(v, list) and len(v) == 2 and all(_is_int(c) for c in v),
-    "a list": lambda v: isinstance(v, list),
-    "a table": lambda v: isinstance(v, dict),
-}
 
 
 def _read_toml(path: Path) -> dict:
@@ -258,8 +98,8 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
     """
     path = Path(path)
     raw = _override(_read_toml(path), overrides or {}, path)
-    top = _Table(path, "", raw)
-    surface = _surface(top.table("surface"), path)
+    top = Table(path, "", raw)
+    surface = parse_surface(top.table("surface"), path)
     material = _material(top.table("material"))
     effects = _effects(top.table("effects", None), path, surface.grid)
     time_table = top.table("time")
@@ -347,109 +187,7 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
     )
 
 
-def _surface(t: _Table, path: Path) -> S.HermiteSurface | B.BSplineSurface:
-    kind = t.get("kind", "a string", check=lambda v: v in SURFACE_KINDS, expected=f"one of {SURFACE_KINDS}")
-    discretization = t.get(
-        "discretization", "a string", "hermite", lambda v: v in B.DISCRETIZATIONS, f"one of {B.DISCRETIZATIONS}"
-    )
-    try:
-        surface = _surface_file(t, path, discretization) if kind == "file" else _surface_shape(t, kind, discretization)
-    except S.SurfaceError as exc:
-        raise SceneError(f"{path}: table 'surface': {exc}") from exc
-    t.done()
-    return surface
-
-
-def _surface_file(t: _Table, path: Path, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
-    """``kind = "file"``: a Hermite nodal data file, or a B-spline file of the named degree."""
-    file = t.get("path", "a string")
-    target = _regular_file(t, "path", file, path)
-    if discretization == "hermite":
-        return S.HermiteSurface.load(target)
-    surface = B.BSplineSurface.load(target)
-    if surface.discretization != discretization:
-        raise SceneError(
-            f"{path}: key 'surface.discretization' is {discretization!r} but {target} holds a {surface.discretization}"
-        )
-    return surface
-
-
-def _regular_file(t: _Table, key: str, file: str, scene: Path) -> Path:
-    """``file`` relative to the scene's folder (or absolute): an existing regular file, never a
-    FIFO or device that would block or stream forever."""
-    target = (scene.parent / file).resolve()
-    if not target.is_file():
-        what = "not a regular file" if target.exists() else "missing"
-        t.fail(key, f"an existing regular file, relative to the scene ({target} is {what})", file)
-    return target
-
-
-def _surface_shape(t: _Table, kind: str, discretization: str) -> S.HermiteSurface | B.BSplineSurface:
-    """A surface made by a constructor: Hermite nodal data or B-spline control points by interpolation."""
-    positive = {"check": lambda v: v > 0, "expected": "a number > 0"}
-    patches = t.get(
-        "patches", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_PATCHES,
-        expected=f"2 integers >= 1, at most {MAX_PATCHES} patches in all",
-    )  # fmt: skip
-    spline = () if discretization == "hermite" else (int(discretization[-1]),)
-    shapes = S if discretization == "hermite" else B
-    if kind == "rectangle":
-        return _rectangle(t, patches, spline)
-    if kind == "cylinder":
-        closed = t.get("closed", "a boolean", True)
-        angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
-        low, high = t.get("angles", "2 numbers", [0.0, angle], _angle_range, ANGLE_RANGE)
-        if closed and not math.isclose(high - low, 2 * math.pi):
-            t.fail("closed", "false for an open sector (angles less than 2 pi apart)", closed)
-        radius, length = t.get("radius", "a number", **positive), t.get("length", "a number", **positive)
-        return shapes.cylinder(radius, length, patches[0], patches[1], *spline, closed=closed,
-                               angle=high - low if not closed else 2 * math.pi, seam_angle=low)  # fmt: skip
-    turn = {"closed": t.get("closed", "a boolean", None)}  # default: closed for a full turn
-    if kind == "sphere_zone":
-        polar = t.get("polar", "2 numbers")
-        azimuth = t.get("azimuth", "2 numbers", [0.0, 2 * math.pi], _angle_range, ANGLE_RANGE)
-        return shapes.sphere_zone(t.get("radius", "a number", **positive), polar[0], polar[1], *patches, *spline,
-                                  azimuth=tuple(azimuth), **turn)  # fmt: skip
-    if kind == "annulus_sector":
-        radii = t.get("radii", "2 numbers")
-        angles = t.get("angles", "2 numbers", check=_angle_range, expected=ANGLE_RANGE)
-        return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline, **turn)
-    radii = t.get("radii", "2 numbers")
-    return shapes.torus(radii[0], radii[1], *patches, *spline)
-
-
-ANGLE_RANGE = "2 numbers (min, max), at most 2 pi apart [rad]"
-
-
-def _angle_range(angles: list[float]) -> bool:
-    return 0 < angles[1] - angles[0] <= 2 * math.pi + 1e-12
-
-
-def _rectangle(t: _Table, patches: list[int], spline: tuple[int, ...]) -> S.HermiteSurface | B.BSplineSurface:
-    """A flat rectangle, or one raised by ``z = height(xi1, xi2)`` (parameters from 0 to the size),
-    e.g. a shallow arch or panel: ``height = "0.01 * sin(pi * xi1)"``."""
-    size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
-    origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
-    height = t.get("height", "a string", None)
-    if height is None and spline:
-        return B.flat_rectangle(size[0], size[1], patches[0], patches[1], *spline, origin)
-    if height is None:
-        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin)
-    try:
-        z = numpy_expression(height)
-    except ExpressionError as exc:
-        t.fail("height", f"an expression of xi1 and xi2 ({exc})", height)
-    grid, flat = S.rectangle_shape(size[0], size[1], patches[0], patches[1], origin)
-
-    def shape(a, b):
-        return flat(a, b) + np.stack([0 * a, 0 * a, z(a, b)], axis=-1)
-
-    if not finite_on(height, *grid.node_parameters()):
-        t.fail("height", "an expression finite on the whole rectangle", height)
-    return B.from_callable(shape, grid, spline[0]) if spline else S.from_callable(shape, grid)
-
-
-def _material(t: _Table) -> Material:
+def _material(t: Table) -> Material:
     values = {k: t.get(k, "a number") for k in ("young", "poisson", "thickness")}
     values["density"] = t.get("density", "a number", 0.0)
     values["membrane"] = t.get("membrane", "a string", "svk", lambda v: v in MEMBRANE_MODELS,
@@ -463,7 +201,7 @@ def _material(t: _Table) -> Material:
         raise SceneError(f"{t.path}: {exc}") from exc
 
 
-def _effects(t: _Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
+def _effects(t: Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
     if t is None:
         return Effects()
     for key in t.data:
@@ -494,18 +232,18 @@ def _effects(t: _Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
     )
 
 
-def _loads(t: _Table, path: Path, grid: S.ParameterGrid) -> dict[str, tuple]:
+def _loads(t: Table, path: Path, grid: S.ParameterGrid) -> dict[str, tuple]:
     """``effects.point_loads``, ``line_loads``, ``edge_moments`` and ``area_loads``, by name."""
 
     def items(name: str):
         for i, item in enumerate(t.get(name, "a list", [])):
-            load = _Table(path, f"effects.{name}[{i}]", item)
+            load = Table(path, f"effects.{name}[{i}]", item)
             yield load
             load.done()
 
     moment = "a number (moment per length [N])"
 
-    def edge(load: _Table) -> str:
+    def edge(load: Table) -> str:
         return load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
 
     return {
@@ -518,7 +256,7 @@ def _loads(t: _Table, path: Path, grid: S.ParameterGrid) -> dict[str, tuple]:
     }
 
 
-def _area_load(load: _Table, grid: S.ParameterGrid) -> tuple[tuple[float, float, float], str | None]:
+def _area_load(load: Table, grid: S.ParameterGrid) -> tuple[tuple[float, float, float], str | None]:
     force = tuple(load.get("force", "3 numbers", expected="3 numbers (force per rest area [N/m^2])"))
     profile = load.get("profile", "a string", None)
     if profile is not None:
@@ -531,12 +269,12 @@ def _area_load(load: _Table, grid: S.ParameterGrid) -> tuple[tuple[float, float,
     return force, profile
 
 
-def _probes(top: _Table, surface) -> tuple[Probe, ...]:
+def _probes(top: Table, surface) -> tuple[Probe, ...]:
     """``[[probes]]``: named material points ``at = [xi1, xi2]`` inside the parameter domain."""
     probes = []
     grid = surface.grid
     for i, item in enumerate(top.get("probes", "a list", [])):
-        t = _Table(top.path, f"probes[{i}]", item)
+        t = Table(top.path, f"probes[{i}]", item)
         name = t.get("name", "a string", check=lambda v: v.isidentifier(), expected="a name (letters, digits, _)")
         inside = f"2 numbers (xi1, xi2) in {list(grid.xi1_range)} x {list(grid.xi2_range)}"
         at = t.get("at", "2 numbers", check=lambda v: grid.xi1_range[0] <= v[0] <= grid.xi1_range[1]
@@ -548,7 +286,7 @@ def _probes(top: _Table, surface) -> tuple[Probe, ...]:
     return tuple(probes)
 
 
-def _path_plan(top: _Table, static: bool, load_steps: int, probes: tuple[Probe, ...], path: Path) -> PathPlan | None:
+def _path_plan(top: Table, static: bool, load_steps: int, probes: tuple[Probe, ...], path: Path) -> PathPlan | None:
     """``[path]`` of a static scene (default: load control to 1 in ``time.load_steps`` levels)."""
     t = top.table("path", None)
     if not static:
@@ -581,7 +319,7 @@ def _path_plan(top: _Table, static: bool, load_steps: int, probes: tuple[Probe, 
     return plan
 
 
-def _levels(t: _Table, key: str, target_key: str, default_target: float | None = 1.0) -> tuple[float, ...]:
+def _levels(t: Table, key: str, target_key: str, default_target: float | None = 1.0) -> tuple[float, ...]:
     """``key = [...]``, or ``steps = n`` equal steps to ``target_key`` (default ``default_target``)."""
     if key in t.data:
         values = t.get(key, "a list")
@@ -592,7 +330,7 @@ def _levels(t: _Table, key: str, target_key: str, default_target: float | None =
     return tuple(float(target) * k / steps for k in range(1, steps + 1))
 
 
-def _arc_length(t: _Table) -> ArcLength:
+def _arc_length(t: Table) -> ArcLength:
     initial = t.get("initial_step", "a number", expected="a number > 0 (first arc length [m])")
     low_high = t.get("load_factor_range", "2 numbers", [-math.inf, 1.0])
     settings = ArcLength(
@@ -609,7 +347,7 @@ def _arc_length(t: _Table) -> ArcLength:
     return settings
 
 
-def _nodes(t: _Table, surface: S.HermiteSurface | B.BSplineSurface) -> np.ndarray:
+def _nodes(t: Table, surface: S.HermiteSurface | B.BSplineSurface) -> np.ndarray:
     """Nodes of a constraint from exactly one of 'nodes', 'edge', 'corners'."""
     given = [k for k in ("nodes", "edge", "corners") if k in t.data]
     if len(given) != 1:
@@ -629,16 +367,16 @@ def _nodes(t: _Table, surface: S.HermiteSurface | B.BSplineSurface) -> np.ndarra
     nodes = t.get(
         "nodes",
         "a list",
-        check=lambda v: all(_KINDS["2 integers"](n) for n in v) and len(v) > 0,
+        check=lambda v: all(VALUE_KINDS["2 integers"](n) for n in v) and len(v) > 0,
         expected="a non-empty list of [i1, i2] integer pairs",
     )
     return np.array(nodes, dtype=np.int64)
 
 
-def _constraints(top: _Table, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> tuple[SceneConstraint, ...]:
+def _constraints(top: Table, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> tuple[SceneConstraint, ...]:
     out = []
     for i, item in enumerate(top.get("constraints", "a list", [])):
-        t = _Table(path, f"constraints[{i}]", item)
+        t = Table(path, f"constraints[{i}]", item)
         kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
         if kind == "symmetry":  # two sets of kinds and components: no motion
             symmetry = _edge_support(t, kind, surface, path)
@@ -651,14 +389,14 @@ def _constraints(top: _Table, surface: S.HermiteSurface | B.BSplineSurface, path
         except bcs.BoundaryConditionError as exc:
             raise SceneError(f"{path}: table '{t.name}': {exc}") from exc
         motion_table = t.table("motion", None)
-        motion = _motion(motion_table, constraint) if motion_table is not None else None
+        motion = parse_motion(motion_table, constraint) if motion_table is not None else None
         t.done()
         out.append(SceneConstraint(constraint, motion, t.name))
-    _check_motion_conflicts(out, path)
+    check_motion_conflicts(out, path)
     return tuple(out)
 
 
-def _constraint(t: _Table, kind: str, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> bcs.NodalConstraint:
+def _constraint(t: Table, kind: str, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> bcs.NodalConstraint:
     """One ``[[constraints]]`` table of ``type`` ``kind``. On B-splines the nodes are control points:
     ``clamp`` holds the two outer rows (position and slope), ``simply_supported`` the boundary row
     (the edge curve)."""
@@ -693,7 +431,7 @@ def _constraint(t: _Table, kind: str, surface: S.HermiteSurface | B.BSplineSurfa
     return bcs.NodalConstraint(nodes, kinds, tuple(components))
 
 
-def _edge_support(t: _Table, kind: str, surface, path: Path) -> bcs.NodalConstraint | list[bcs.NodalConstraint]:
+def _edge_support(t: Table, kind: str, surface, path: Path) -> bcs.NodalConstraint | list[bcs.NodalConstraint]:
     """``simply_supported`` / ``hinged`` / ``symmetry`` / ``diaphragm`` on a named ``edge`` (the last
     two in the plane normal to the axis ``normal``)."""
     edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
@@ -711,11 +449,11 @@ def _edge_support(t: _Table, kind: str, surface, path: Path) -> bcs.NodalConstra
         raise SceneError(f"{path}: key '{t.key('edge')}' = {edge!r}: {exc}") from exc
 
 
-def _point_constraints(top: _Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:
+def _point_constraints(top: Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:
     out = []
     grid = surface.grid
     for i, item in enumerate(top.get("point_constraints", "a list", [])):
-        t = _Table(path, f"point_constraints[{i}]", item)
+        t = Table(path, f"point_constraints[{i}]", item)
         at = t.get("at", "2 numbers", expected="[xi1, xi2] parameters of the material point")
         try:
             grid.locate(np.array(at[0]), np.array(at[1]))
@@ -736,96 +474,13 @@ def _point_constraints(top: _Table, surface: S.HermiteSurface, path: Path) -> tu
         motion = None
         if motion_table is not None:
             shape = bcs.NodalConstraint(np.zeros((1, 2), dtype=np.int64), (0,), components)
-            motion = _motion(motion_table, shape)
+            motion = parse_motion(motion_table, shape)
         t.done()
         out.append(ScenePoint(float(at[0]), float(at[1]), components, target, motion))
     return tuple(out)
 
 
-def _motion(t: _Table, constraint: bcs.NodalConstraint) -> Motion:
-    kind = t.get("type", "a string", check=lambda v: v in MOTION_TYPES, expected=f"one of {MOTION_TYPES}")
-    comps = list(constraint.components)
-    if kind == "linear":
-        velocity = np.array(t.get("velocity", "3 numbers"))[comps]
-        until = t.get("until", "a number", math.inf, lambda v: v > 0, "a number > 0 (the time [s] it stops)")
-        t.done()
-        return Motion(kind, lambda time, initial: initial + velocity * min(time, until))
-    if kind == "rotation":
-        if comps != [0, 1, 2]:
-            t.fail("type", "used only on constraints of all three components", kind)
-        axis = np.array(
-            t.get("axis", "3 numbers", check=lambda v: np.linalg.norm(v) > 0, expected="a nonzero 3-vector")
-        )
-        center = np.array(t.get("center", "3 numbers", [0.0, 0.0, 0.0]))
-        speed = t.get("angular_speed", "a number")
-        axis = axis / np.linalg.norm(axis)
-        is_position = np.array([k == 0 for k in constraint.kinds])[None, :, None]
-        t.done()
-
-        def rotate(time: float, initial: np.ndarray) -> np.ndarray:
-            rotation = _rotation(axis, speed * time)
-            moved_positions = (initial - center) @ rotation.T + center
-            return np.where(is_position, moved_positions, initial @ rotation.T)
-
-        return Motion(kind, rotate)
-    times = np.array(
-        t.get(
-            "times",
-            "a list",
-            check=lambda v: len(v) >= 2 and all(_is_number(x) for x in v) and all(np.diff(v) > 0),
-            expected="at least 2 increasing numbers",
-        )
-    )
-    values = t.get(
-        "values", "a list", check=lambda v: len(v) == len(times), expected=f"{len(times)} entries, one per time"
-    )
-    try:
-        frames = [
-            np.broadcast_to(np.array(v, dtype=float), (len(constraint.nodes), len(constraint.kinds), len(comps)))
-            for v in values
-        ]
-    except (ValueError, TypeError):
-        t.fail(
-            "values",
-            f"entries broadcastable to (nodes={len(constraint.nodes)}, kinds={len(constraint.kinds)}, "
-            f"components={len(comps)})",
-            values,
-        )
-    stacked = np.stack(frames)
-    t.done()
-
-    def keyframes(time: float, initial: np.ndarray) -> np.ndarray:
-        k = int(np.clip(np.searchsorted(times, time, side="right") - 1, 0, len(times) - 2))
-        w = float(np.clip((time - times[k]) / (times[k + 1] - times[k]), 0.0, 1.0))
-        return (1 - w) * stacked[k] + w * stacked[k + 1]
-
-    return Motion(kind, keyframes)
-
-
-def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
-
-
-def _check_motion_conflicts(constraints: list[SceneConstraint], path: Path) -> None:
-    """A DOF may be driven by at most one moving constraint and must not also be held fixed."""
-    owner: dict[tuple[int, int, int, int], tuple[str, bool]] = {}
-    for sc in constraints:
-        c = sc.constraint
-        for node in np.asarray(c.nodes):
-            for kind in c.kinds:
-                for comp in c.components:
-                    dof = (int(node[0]), int(node[1]), kind, comp)
-                    moving = sc.motion is not None
-                    if dof in owner and (moving or owner[dof][1]):
-                        raise SceneError(
-                            f"{path}: {sc.key} and {owner[dof][0]} both constrain node {tuple(dof[:2])}, "
-                            f"kind {S.KIND_NAMES[kind]}, component {comp}, and one of them moves it"
-                        )
-                    owner.setdefault(dof, (sc.key, moving))
-
-
-def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
+def _contact(top: Table, path: Path, static: bool) -> SceneContact | None:
     """``effects.contact`` / ``self_collision`` / ``friction`` and the ``[[colliders]]`` list."""
     effects = top.data.get("effects", {}) if isinstance(top.data.get("effects"), dict) else {}
     listed = [k for k in CONTACT_EFFECTS if k in effects]
@@ -838,106 +493,35 @@ def _contact(top: _Table, path: Path, static: bool) -> SceneContact | None:
         raise SceneError(f"{path}: contact effects {listed} need a dynamic scene ('time.static' is true)")
     if "contact" not in effects:
         raise SceneError(f"{path}: effects {listed} need 'effects.contact' as well")
+    from bhem_hpc.contact.metrics import CONTACT_METRICS  # the contact package loads only for contact scenes
+
     settings = effects["contact"]
     if settings is True:
         settings = {}
-    et = _Table(path, "effects.contact", settings)
+    et = Table(path, "effects.contact", settings)
     push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
     samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
     metric = et.get("metric", "a string", "mass", lambda v: v in CONTACT_METRICS, f"one of {CONTACT_METRICS}")
     et.done()
     friction = effects.get("friction", 0.0)
-    if not (_is_number(friction) and friction >= 0):
+    if not (is_number(friction) and friction >= 0):
         raise SceneError(
             f"{path}: key 'effects.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
         )
     self_collision, self_friction = _self_collision(effects.get("self_collision", False), friction, path)
     if not colliders_raw and not self_collision:
         raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
-    colliders = _collider_entries(colliders_raw, friction, path)
+    colliders = parse_colliders(colliders_raw, friction, path)
     return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric)
 
 
 def _self_collision(value: Any, friction: float, path: Path) -> tuple[bool, float]:
     """``effects.self_collision``: a boolean, or a table with its own ``friction``."""
     if isinstance(value, dict):
-        st = _Table(path, "effects.self_collision", value)
+        st = Table(path, "effects.self_collision", value)
         self_friction = st.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0")
         st.done()
         return True, self_friction
     if not isinstance(value, bool):
         raise SceneError(f"{path}: key 'effects.self_collision' must be a boolean or a table, got {value!r}")
     return value, friction
-
-
-def _collider_entries(items: list, friction: float, path: Path) -> tuple:
-    """The ``[[colliders]]`` list as collider entries (each with its friction coefficient)."""
-    from bhem_hpc.collision.colliders import ColliderError
-    from bhem_hpc.contact.detection import ColliderEntry
-
-    entries = []
-    for i, item in enumerate(items):
-        t = _Table(path, f"colliders[{i}]", item)
-        kind = t.get("type", "a string", check=lambda v: v in COLLIDER_TYPES, expected=f"one of {COLLIDER_TYPES}")
-        mu = t.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0 (Coulomb coefficient)")
-        try:
-            entries += [ColliderEntry(collider, mu) for collider in _colliders(t, kind, path)]
-        except ColliderError as exc:
-            raise SceneError(f"{path}: key '{t.name}': {exc}") from exc
-        t.done()
-    return tuple(entries)
-
-
-def _colliders(t: _Table, kind: str, path: Path) -> list[Any]:
-    from bhem_hpc.collision import colliders as C
-
-    velocity = t.get("velocity", "3 numbers", [0.0, 0.0, 0.0])
-    if kind == "plane":
-        return [C.Plane(t.get("point", "3 numbers"), t.get("normal", "3 numbers"), velocity)]
-    if kind == "sphere":
-        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-        return [C.Sphere(t.get("center", "3 numbers"), float(radius), velocity)]
-    if kind == "cylinder":
-        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-        return [C.Cylinder(t.get("point", "3 numbers"), t.get("axis", "3 numbers"), float(radius), velocity)]
-    if kind == "capsule":
-        radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-        return [C.Capsule(t.get("a", "3 numbers"), t.get("b", "3 numbers"), float(radius), velocity)]
-    if kind == "needles":
-        return _needles(t, velocity)
-    return _file_collider(t, kind, path, velocity)
-
-
-def _needles(t: _Table, velocity: list[float]) -> list[Any]:
-    """A grid of vertical needles (capsules) standing on the plane ``z = origin[2]``."""
-    from bhem_hpc.collision import colliders as C
-
-    origin = np.asarray(t.get("origin", "3 numbers"), dtype=float)
-    spacing = t.get("spacing", "2 numbers")
-    count = t.get(
-        "count", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_NEEDLES,
-        expected=f"2 integers >= 1, at most {MAX_NEEDLES} needles in all",
-    )  # fmt: skip
-    length = t.get("length", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-    radius = t.get("radius", "a number", check=lambda v: v > 0, expected="a number > 0 [m]")
-    out = []
-    for i in range(count[0]):
-        for j in range(count[1]):
-            foot = origin + np.array([i * spacing[0], j * spacing[1], 0.0])
-            out.append(C.Capsule(foot, foot + np.array([0.0, 0.0, length]), float(radius), velocity))
-    return out
-
-
-def _file_collider(t: _Table, kind: str, path: Path, velocity: list[float]) -> list[Any]:
-    """A triangle mesh (``mesh``) or Bezier patch model read from ``file``, scaled and translated."""
-    from bhem_hpc.collision import colliders as C
-
-    file = t.get("file", "a string")
-    target = _regular_file(t, "file", file, path)
-    scale = t.get("scale", "a number", 1.0, lambda v: v > 0, "a number > 0")
-    translate = np.asarray(t.get("translate", "3 numbers", [0.0, 0.0, 0.0]), dtype=float)
-    if kind == "mesh":
-        mesh = C.TriangleMesh.read(target, velocity)
-        return [C.TriangleMesh(mesh.vertices * scale + translate, mesh.triangles, mesh.velocity, str(target))]
-    model = C.PatchModel.load(target)
-    return [C.PatchModel(model.nets * scale + translate, np.asarray(velocity, dtype=float))]

@@ -1,0 +1,17 @@
+"""Scene files (TOML): parsing and validation, before anything is built (numpy + stdlib only).
+
+Every error names the file, the key and what was expected. The format is documented in
+README.md ("Scene files"); :func:`load_scene` returns a :class:`Scene` whose parts map one to one
+onto the library's objects (surface, :class:`~bhem_hpc.model.material.Material`, constraints with
+motions, :class:`~bhem_hpc.model.shell.Loads`-like effects, time, solver and output settings).
+
+Each kind of table parses itself and registers itself by name (pbrt-v4's ``Create``): surface
+kinds in :data:`~.surfaces.SURFACES`, motion types in :data:`~.motions.MOTIONS`, collider types in
+:data:`~.colliders.COLLIDERS`; :mod:`.table` gives them typed access with errors that name the key.
+"""
+
+from bhem_hpc.scene.loader import load_scene
+from bhem_hpc.scene.records import Effects, Motion, Scene, SceneConstraint, SceneContact, ScenePoint
+from bhem_hpc.scene.table import SceneError
+
+__all__ = ["Effects", "Motion", "Scene", "SceneConstraint", "SceneContact", "ScenePoint", "SceneError", "load_scene"]

@@ -1,0 +1,135 @@
+"""The ``[surface]`` table: each surface kind parses its own keys and registers itself in
+:data:`SURFACES` (``kind = "rectangle"``, ...; ``"file"`` reads nodal data or a B-spline file)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from bhem_hpc.geometry import bspline as B
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.model.expression import ExpressionError, finite_on, numpy_expression
+from bhem_hpc.scene.table import Registry, SceneError, Table, regular_file
+
+#: Parsers of the surface kinds: ``(table, scene path, discretization) -> surface``.
+SURFACES = Registry("surface kind")
+MAX_PATCHES = 1_000_000  # patches (knot spans) of one surface: about 12 million Hermite DoFs
+ANGLE_RANGE = "2 numbers (min, max), at most 2 pi apart [rad]"
+Shape = S.HermiteSurface | B.BSplineSurface
+
+
+def parse_surface(t: Table, path: Path) -> Shape:
+    """The surface of the ``[surface]`` table ``t`` of the scene file ``path``."""
+    kinds = SURFACES.names
+    kind = t.get("kind", "a string", check=lambda v: v in kinds, expected=f"one of {kinds}")
+    discretization = t.get(
+        "discretization", "a string", "hermite", lambda v: v in B.DISCRETIZATIONS, f"one of {B.DISCRETIZATIONS}"
+    )
+    try:
+        surface = SURFACES[kind](t, path, discretization)
+    except S.SurfaceError as exc:
+        raise SceneError(f"{path}: table 'surface': {exc}") from exc
+    t.done()
+    return surface
+
+
+def _patches(t: Table, discretization: str) -> tuple[list[int], tuple[int, ...], object]:
+    """``patches`` of a constructed surface, the spline degree (empty: Hermite) and the module of
+    constructors (Hermite nodal data, or B-spline control points by interpolation)."""
+    patches = t.get(
+        "patches", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_PATCHES,
+        expected=f"2 integers >= 1, at most {MAX_PATCHES} patches in all",
+    )  # fmt: skip
+    spline = () if discretization == "hermite" else (int(discretization[-1]),)
+    return patches, spline, S if discretization == "hermite" else B
+
+
+def _positive(t: Table, key: str) -> float:
+    return t.get(key, "a number", check=lambda v: v > 0, expected="a number > 0")
+
+
+def _angle_range(angles: list[float]) -> bool:
+    return 0 < angles[1] - angles[0] <= 2 * math.pi + 1e-12
+
+
+@SURFACES.register("rectangle")
+def _rectangle(t: Table, path: Path, discretization: str) -> Shape:
+    """A flat rectangle, or one raised by ``z = height(xi1, xi2)`` (parameters from 0 to the size),
+    e.g. a shallow arch or panel: ``height = "0.01 * sin(pi * xi1)"``."""
+    patches, spline, _ = _patches(t, discretization)
+    size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
+    origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
+    height = t.get("height", "a string", None)
+    if height is None and spline:
+        return B.flat_rectangle(size[0], size[1], patches[0], patches[1], *spline, origin)
+    if height is None:
+        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin)
+    try:
+        z = numpy_expression(height)
+    except ExpressionError as exc:
+        t.fail("height", f"an expression of xi1 and xi2 ({exc})", height)
+    grid, flat = S.rectangle_shape(size[0], size[1], patches[0], patches[1], origin)
+
+    def shape(a, b):
+        return flat(a, b) + np.stack([0 * a, 0 * a, z(a, b)], axis=-1)
+
+    if not finite_on(height, *grid.node_parameters()):
+        t.fail("height", "an expression finite on the whole rectangle", height)
+    return B.from_callable(shape, grid, spline[0]) if spline else S.from_callable(shape, grid)
+
+
+@SURFACES.register("cylinder")
+def _cylinder(t: Table, path: Path, discretization: str) -> Shape:
+    patches, spline, shapes = _patches(t, discretization)
+    closed = t.get("closed", "a boolean", True)
+    angle = t.get("angle", "a number", 2 * math.pi, lambda v: 0 < v <= 2 * math.pi, "in (0, 2 pi]")
+    low, high = t.get("angles", "2 numbers", [0.0, angle], _angle_range, ANGLE_RANGE)
+    if closed and not math.isclose(high - low, 2 * math.pi):
+        t.fail("closed", "false for an open sector (angles less than 2 pi apart)", closed)
+    radius, length = _positive(t, "radius"), _positive(t, "length")
+    return shapes.cylinder(radius, length, patches[0], patches[1], *spline, closed=closed,
+                           angle=high - low if not closed else 2 * math.pi, seam_angle=low)  # fmt: skip
+
+
+@SURFACES.register("sphere_zone")
+def _sphere_zone(t: Table, path: Path, discretization: str) -> Shape:
+    patches, spline, shapes = _patches(t, discretization)
+    turn = {"closed": t.get("closed", "a boolean", None)}  # default: closed for a full turn
+    polar = t.get("polar", "2 numbers")
+    azimuth = t.get("azimuth", "2 numbers", [0.0, 2 * math.pi], _angle_range, ANGLE_RANGE)
+    return shapes.sphere_zone(_positive(t, "radius"), polar[0], polar[1], *patches, *spline,
+                              azimuth=tuple(azimuth), **turn)  # fmt: skip
+
+
+@SURFACES.register("annulus_sector")
+def _annulus_sector(t: Table, path: Path, discretization: str) -> Shape:
+    patches, spline, shapes = _patches(t, discretization)
+    turn = {"closed": t.get("closed", "a boolean", None)}
+    radii = t.get("radii", "2 numbers")
+    angles = t.get("angles", "2 numbers", check=_angle_range, expected=ANGLE_RANGE)
+    return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline, **turn)
+
+
+@SURFACES.register("torus")
+def _torus(t: Table, path: Path, discretization: str) -> Shape:
+    patches, spline, shapes = _patches(t, discretization)
+    t.get("closed", "a boolean", None)  # accepted as for the other surfaces of revolution (always closed)
+    radii = t.get("radii", "2 numbers")
+    return shapes.torus(radii[0], radii[1], *patches, *spline)
+
+
+@SURFACES.register("file")
+def _surface_file(t: Table, path: Path, discretization: str) -> Shape:
+    """``kind = "file"``: a Hermite nodal data file, or a B-spline file of the named degree."""
+    file = t.get("path", "a string")
+    target = regular_file(t, "path", file, path)
+    if discretization == "hermite":
+        return S.HermiteSurface.load(target)
+    surface = B.BSplineSurface.load(target)
+    if surface.discretization != discretization:
+        raise SceneError(
+            f"{path}: key 'surface.discretization' is {discretization!r} but {target} holds a {surface.discretization}"
+        )
+    return surface

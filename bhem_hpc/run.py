@@ -23,6 +23,7 @@ from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, 
 from bhem_hpc.io.path_table import CsvTable, plot_path, probe_columns, read_rows
 from bhem_hpc.io.run_directory import (
     OutputDirectoryError,
+    OutputLock,
     check_output_directory,
     start_output_directory,
     write_replacing,
@@ -160,12 +161,40 @@ def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:
 def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     """Run a scene; returns the summary written to ``out/summary.json``.
 
-    Everything is checked before the output directory is touched; a run that fails after it started
+    One run at a time writes ``out``: it holds ``out``'s lock (:class:`OutputLock`) from its checks
+    to its end. Everything is checked before the output directory is touched; a run that fails after it started
     writing leaves ``summary.json`` with ``status: "failed"``, the error and the last completed
     step. A restart whose ``--out`` is its ``--restart`` directory continues that run's series and
     step records; a restart into another directory starts its series with the restart frame.
     """
     scene, checkpoint, continuing = _prepare(options, comm)
+    lock = _lock_output(options.out, comm)
+    try:
+        _check_output(options, continuing, comm)
+        return _run_locked(options, scene, checkpoint, continuing, comm)
+    finally:
+        if lock is not None:
+            lock.release()
+
+
+def _lock_output(out: Path, comm: MPI.Comm) -> OutputLock | None:
+    """Rank 0 takes the output directory's lock (None on the other ranks); every rank raises
+    :class:`RunError` when another run holds it."""
+    lock, error = None, None
+    if comm.rank == 0:
+        lock = OutputLock(out)
+        try:
+            lock.acquire()
+        except OutputDirectoryError as exc:
+            error = str(exc)
+    error = comm.bcast(error)
+    if error:
+        raise RunError(error)
+    return lock
+
+
+def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, continuing: bool, comm: MPI.Comm) -> dict:
+    """The run itself, once its output directory is locked and checked (see :func:`run_scene`)."""
     steps = _steps_to_run(scene, options, checkpoint)
     scene_text = options.scene.read_bytes()  # before the output directory (which may hold it) is replaced
 
@@ -239,9 +268,9 @@ def _report_unused_options(solver: ShellSolver, summary: dict, comm: MPI.Comm) -
 
 
 def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, bool]:
-    """Every check before anything is built: the scene, ``--steps``, the restart and the output
-    directory. Returns the scene, the restart checkpoint (or None) and whether the restart
-    continues the run in its own directory."""
+    """Every check before anything is built but the output directory's (done under its lock): the
+    scene, ``--steps`` and the restart. Returns the scene, the restart checkpoint (or None) and
+    whether the restart continues the run in its own directory."""
     scene = load_scene(options.scene)
     if options.steps is not None and options.steps < 1:
         raise RunError(f"--steps must be >= 1, got {options.steps}")
@@ -250,7 +279,6 @@ def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, b
     if options.restart is not None:
         checkpoint = _read_restart(options.restart, scene)
         continuing = _is_same_directory(options.restart, options.out)
-    _check_output(options, continuing, comm)
     return scene, checkpoint, continuing
 
 

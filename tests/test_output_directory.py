@@ -94,8 +94,8 @@ def test_a_static_run_replacing_a_dynamic_one_leaves_only_its_own_files(comm, sh
     summary = run(static_scene, out, comm, force=True)
     assert summary["status"] == "completed" and summary["static"]
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
-         "last.png", "path.csv", "path.png"]
+        [".bhem-run", "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5",
+         "summary.json", "last.png", "path.csv", "path.png"]
     )
     _, attrs = read_checkpoint(out / "checkpoint.h5")
     assert attrs["static"] and attrs["step"] == 1  # the static run's own checkpoint

@@ -20,6 +20,7 @@ from mpi4py import MPI
 from bhem_hpc.errors import UserError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
+from bhem_hpc.io.interruption import Interruption, RunInterrupted
 from bhem_hpc.io.path_table import CsvTable, plot_path, probe_columns, read_rows
 from bhem_hpc.io.run_directory import (
     OutputDirectoryError,
@@ -232,12 +233,14 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, cont
         if scene.static:
             final = _run_static(scene, options, steps, model, solver, series, summary, (checkpoint, continuing), comm)
         else:
-            final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm)
+            with Interruption() as interruption:
+                final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm,
+                                     interruption)  # fmt: skip
         where = f"load factor {summary['load_factor']:.4g}" if scene.static else f"t = {summary.get('time', 0):.4g} s"
         title = f"{options.scene.name}, {where}"
         _on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
     except Exception as exc:
-        summary.update(status="failed", error=str(exc))
+        summary.update(status="interrupted" if isinstance(exc, RunInterrupted) else "failed", error=str(exc))
         if comm.rank == 0 and options.out.is_dir():
             try:
                 _write_summary(options.out, summary)
@@ -541,8 +544,11 @@ class _PathOutput:
         _on_rank0(self.comm, draw, "path.png")
 
 
-def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm) -> HermiteSurface:
-    """Step a dynamic scene, writing frames and checkpoints; returns the final surface."""
+def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm,
+                 interruption: Interruption) -> HermiteSurface:  # fmt: skip
+    """Step a dynamic scene, writing frames and checkpoints; returns the final surface. A stop
+    signal (``interruption``) ends it after the step in progress, written, with
+    :class:`RunInterrupted`."""
     contact = build_contact(scene, model, solver)
     if contact is not None:
         summary["contact"] = {
@@ -568,7 +574,9 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
         for k in range(steps):
             record = stepper.advance()
             t_out = time.perf_counter()
-            wrote = stepper.step % scene.output_every == 0 or k == steps - 1  # the last step always writes
+            stop = interruption.requested(comm)  # every rank stops after the same step
+            # the last step always writes, and so does one a signal stops after
+            wrote = stepper.step % scene.output_every == 0 or k == steps - 1 or stop is not None
             if wrote:
                 arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
                 attrs = {f"reuse_{k}": v for k, v in reuse.items()}
@@ -584,6 +592,12 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
                 _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
                 last_summary = time.perf_counter()
             progress(record, stepper)
+            if stop is not None:
+                summary["time"] = stepper.time
+                raise RunInterrupted(
+                    f"{options.scene}: stopped by {stop} after step {stepper.step} (t = {stepper.time:.6g} s); its "
+                    f"state is the last frame and the checkpoint: continue with --restart {options.out}"
+                )
     except StepFailure as exc:
         raise RunError(str(exc)) from exc
     finally:

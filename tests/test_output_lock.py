@@ -139,3 +139,34 @@ def test_the_slurm_script_never_forces(comm):
         assert "--force" not in (work / "srun-args").read_text()
 
     _serial(comm, check)
+
+
+def test_sigterm_ends_a_run_at_a_step_boundary_with_its_state_written(comm):
+    """``kill`` (or ``timeout``) during a run: status ``interrupted``, every step recorded, the last
+    step written as a frame and a checkpoint, and a restart in place continues from it."""
+    from bhem_hpc.io import read_checkpoint, read_frame
+
+    def check(work: Path) -> None:
+        scene = work / "long.toml"
+        scene.write_text(BASE.replace("steps = 6", "steps = 100000"))
+        out = work / "out"
+        child = subprocess.Popen(_run(scene, out), env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                 text=True)  # fmt: skip
+        _wait_for(out / "checkpoint.h5", child)
+        time.sleep(1.0)
+        child.send_signal(signal.SIGTERM)
+        _, err = child.communicate(timeout=120)
+        assert child.returncode == 2, err[-2000:]
+        assert len(err.strip().splitlines()) == 1 and "stopped by SIGTERM after step" in err, err
+        summary = json.loads((out / "summary.json").read_text())
+        _, attrs = read_checkpoint(out / "checkpoint.h5")
+        assert summary["status"] == "interrupted" and len(summary["steps"]) == attrs["step"] > 0
+        _, last_time = read_frame(out / "surface.h5", -1)
+        assert last_time == attrs["time"]
+        assert not (work / ".out.lock").exists()
+        again = subprocess.run(_run(scene, out, "--restart", str(out), "--steps", "2"), env=ENV,
+                               capture_output=True, text=True, timeout=300)  # fmt: skip
+        assert again.returncode == 0, again.stderr[-2000:]
+        assert len(json.loads((out / "summary.json").read_text())["steps"]) == attrs["step"] + 2
+
+    _serial(comm, check)

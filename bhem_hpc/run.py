@@ -282,7 +282,24 @@ def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, b
     if options.restart is not None:
         checkpoint = _read_restart(options.restart, scene)
         continuing = _is_same_directory(options.restart, options.out)
+        _check_path_left(scene, checkpoint)
     return scene, checkpoint, continuing
+
+
+def _check_path_left(scene: Scene, checkpoint: dict) -> None:
+    """A restart of a static path whose checkpoint is its last point has nothing to run: refused
+    before the output directory (and its finished summary) is touched."""
+    plan = scene.path_plan
+    if not scene.static or plan is None:
+        return
+    done, factor = int(checkpoint["attrs"]["step"]), float(checkpoint["attrs"]["load_factor"])
+    complete = done >= plan.point_count
+    if plan.arc_length is not None:
+        low, high = plan.arc_length.load_factor_range
+        complete = complete or not low < factor < high
+    if complete:
+        raise RunError(f"{checkpoint['path']}: the path is complete: the checkpoint is its last point (step {done}, "
+                       f"load factor {factor:.6g})")  # fmt: skip
 
 
 def _start_output(
@@ -481,13 +498,6 @@ def _follow(plan: PathPlan, follower, done: int, count: int, arc_step: float | N
     from dataclasses import replace
 
     settings = plan.arc_length
-    complete = done >= plan.point_count
-    if settings is not None:
-        low, high = settings.load_factor_range
-        complete = complete or not low < follower.load_factor < high
-    if complete:
-        raise RunError(f"the path is complete: the checkpoint is its last point (step {done}, "
-                       f"load factor {follower.load_factor:.6g})")  # fmt: skip
     if plan.method == "load":
         follower.load_control(plan.levels[done : done + count], plan.max_cuts)
     elif plan.method == "displacement":

@@ -66,8 +66,10 @@ def test_an_arc_length_scene_writes_its_path_and_continues_from_a_checkpoint(com
     assert len(rows(half)) == 6
     run(ARCH_SCENE, half, comm, restart=half)
     assert rows(half) == table
+    finished = (half / "summary.json").read_text()
     with pytest.raises(RunError, match=r"the path is complete: the checkpoint is its last point"):
         run(ARCH_SCENE, half, comm, restart=half)
+    assert (half / "summary.json").read_text() == finished  # refusing leaves the finished run as it was
 
 
 def test_a_failing_path_step_keeps_the_converged_part(comm, shared_tmp_path):
@@ -118,6 +120,8 @@ def test_probes_of_a_dynamic_run(comm, shared_tmp_path):
         (lambda t: t.replace('method = "arc_length"', 'method = "riks"'), r"key 'path.method' must be one of"),
         (lambda t: t.replace("initial_step = 1.0e-4", "initial_step = -1.0"), r"path.initial_step = -1.0 is invalid"),
         (lambda t: t.replace("max_steps = 200", "max_steps = 0"), r"path.max_steps = 0 is invalid"),
+        (lambda t: t.replace("load_factor_range = [-1.0, 7.0]", "load_factor_range = [2.0, 7.0]"),
+         r"path.load_factor_range = \[2, 7\] is invalid: it must contain the start, load factor 0"),
         (lambda t: t.replace("at = [0.5, 0.025]", "at = [1.5, 0.025]"), r"key 'probes\[0\].at' must be 2 numbers"),
         (lambda t: t.replace('profile = "sin(pi * xi1)"', 'profile = "sin(pi * x)"'), r"unknown name 'x'"),
         (lambda t: t.replace('height = "', 'height = "1 / 0 * '), r"key 'surface.height' must be an expression finite"),

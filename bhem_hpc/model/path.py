@@ -118,6 +118,9 @@ class ArcLength:
         low, high = self.load_factor_range
         _number(f"{prefix}load_factor_range[0]", low, lambda v: v < high, "below load_factor_range[1]")
         _number(f"{prefix}load_factor_range[1]", high, lambda v: v > low, "above load_factor_range[0]")
+        if not low < 0.0 < high:  # the path starts at load factor 0 and ends once it leaves the range
+            raise PathSettingError(f"{prefix}load_factor_range = [{low:g}, {high:g}] is invalid: it must contain the "
+                                   "start, load factor 0 (the path ends once it leaves the range)")  # fmt: skip
         if self.direction not in (1, -1):
             raise PathSettingError(f"{prefix}direction = {self.direction!r} is invalid: must be 1 or -1")
 

@@ -287,17 +287,10 @@ def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, b
 
 
 def _check_path_left(scene: Scene, checkpoint: dict) -> None:
-    """A restart of a static path whose checkpoint is its last point has nothing to run: refused
-    before the output directory (and its finished summary) is touched."""
-    plan = scene.path_plan
-    if not scene.static or plan is None:
-        return
-    done, factor = int(checkpoint["attrs"]["step"]), float(checkpoint["attrs"]["load_factor"])
-    complete = done >= plan.point_count
-    if plan.arc_length is not None:
-        low, high = plan.arc_length.load_factor_range
-        complete = complete or not low < factor < high
-    if complete:
+    """A restart of a finished static path is refused before the output (and its summary) is touched."""
+    attrs = checkpoint["attrs"]
+    done, factor = int(attrs["step"]), float(attrs.get("load_factor", 0.0))  # dynamic checkpoints have none
+    if scene.static and scene.path_plan is not None and scene.path_plan.is_complete(done, factor):
         raise RunError(f"{checkpoint['path']}: the path is complete: the checkpoint is its last point (step {done}, "
                        f"load factor {factor:.6g})")  # fmt: skip
 

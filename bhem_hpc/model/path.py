@@ -159,6 +159,16 @@ class PathPlan:
             return self.arc_length.max_steps
         return len(self.levels if self.method == "load" else self.values)
 
+    def is_complete(self, done: int, load_factor: float) -> bool:
+        """Whether a path with ``done`` points after the start, the last at ``load_factor``, has
+        nothing left to run (all its points, or arc length outside its load-factor range)."""
+        if done >= self.point_count:
+            return True
+        if self.arc_length is None:
+            return False
+        low, high = self.arc_length.load_factor_range
+        return not low < load_factor < high
+
     @property
     def time_is_load_factor(self) -> bool:
         """Whether frames are timed by the load factor (load control with rising levels from 0);

@@ -151,6 +151,7 @@ class ShellSolver(PetscOwner):
         # the first factorization) and are removed by close(); the defaults only for setup
         self._caller_options = dict(options or {})
         self._overrides = push_options(prefix, {}, options or {})
+        self._own_options: list[str] = []  # defaults kept in the database: not the user's to spell right
         pushed = push_options(prefix, default_options(model, self.linear.kind), {})
         try:  # the pushed defaults are removed again whatever happens
             ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
@@ -193,6 +194,7 @@ class ShellSolver(PetscOwner):
             for name in pushed:
                 if name.startswith(prefix + "mat_mumps_"):  # read at the first factorization
                     self._overrides.append(name)
+                    self._own_options.append(name)
                 else:
                     opts.delValue(name)
 
@@ -676,8 +678,9 @@ class ShellSolver(PetscOwner):
     # -- lifetime -------------------------------------------------------------------------------
     def unused_options(self) -> list[str]:
         """Options under this solver's prefix (command line or caller's) that PETSc never read:
-        misspelled or not applicable. Ask after the solves, before :meth:`close`."""
-        return unused_options(self.prefix)
+        misspelled or not applicable (this solver's own defaults left out: a run that never factors
+        leaves its MUMPS defaults unread). Ask after the solves, before :meth:`close`."""
+        return [name for name in unused_options(self.prefix) if name not in self._own_options]
 
     def close(self) -> None:
         """Destroy the PETSc objects this solver owns, its problem's too (idempotent)."""

@@ -164,3 +164,10 @@ def test_post_buckling_needs_and_gets_the_regularizer(comm):
         assert solver.inertia_at_state() == 0  # a minimum, not a saddle
     amplitude = np.abs(model.state_surface().nodal[:, :, 0, 2]).max()
     assert abs(amplitude / (np.sqrt(4 * LENGTH * shortening) / np.pi) - 1) < 0.05
+
+
+def test_a_solver_that_never_factors_reports_only_the_callers_unused_options(comm):
+    """Its own MUMPS defaults, read only at a first factorization, are not the user's misspelling."""
+    model = clamped_strip_model(comm, Loads())
+    with ShellSolver(model, prefix="unused_", options={"snes_rtoll": 1e-3}, linear="direct") as solver:
+        assert solver.unused_options() == ["unused_snes_rtoll"]

@@ -88,10 +88,16 @@ def _canonical_json(value: dict) -> str:
 
 
 def _check_output(options: RunOptions, continuing: bool, comm: MPI.Comm) -> None:
+    _on_rank0_directory(comm, lambda: check_output_directory(options.out, options.force, continuing))
+
+
+def _on_rank0_directory(comm: MPI.Comm, action) -> None:
+    """Run an output-directory ``action`` on rank 0; its :class:`OutputDirectoryError` becomes a
+    :class:`RunError` on every rank."""
     error = None
     if comm.rank == 0:
         try:
-            check_output_directory(options.out, options.force, continuing)
+            action()
         except OutputDirectoryError as exc:
             error = str(exc)
     error = comm.bcast(error)
@@ -181,16 +187,8 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
 def _lock_output(out: Path, comm: MPI.Comm) -> OutputLock | None:
     """Rank 0 takes the output directory's lock (None on the other ranks); every rank raises
     :class:`RunError` when another run holds it."""
-    lock, error = None, None
-    if comm.rank == 0:
-        lock = OutputLock(out)
-        try:
-            lock.acquire()
-        except OutputDirectoryError as exc:
-            error = str(exc)
-    error = comm.bcast(error)
-    if error:
-        raise RunError(error)
+    lock = OutputLock(out) if comm.rank == 0 else None
+    _on_rank0_directory(comm, lambda: lock.acquire())
     return lock
 
 

@@ -185,13 +185,17 @@ class ShellProblem(PetscOwner):
 
     def update_state(self, x: PETSc.Vec) -> None:
         """Write closed DOFs ``x`` into the model's position Function (with ghosts)."""
-        target = self.model.x.vector
+        self._to_open(x, self.model.x.vector, offset=True)
+
+    def _to_open(self, closed: PETSc.Vec, target: PETSc.Vec, offset: bool) -> None:
+        """``target = P closed`` (plus the tied slaves' rest offsets with ``offset``: a state, not a
+        direction), ghosts updated."""
         if self.prolongation is not None:
-            self.prolongation.mult(x, target)
-            if self.prolongation_offset is not None:
+            self.prolongation.mult(closed, target)
+            if offset and self.prolongation_offset is not None:
                 target.axpy(1.0, self.prolongation_offset)
         else:
-            x.copy(target)
+            closed.copy(target)
         target.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
     def state_to_vector(self, x: PETSc.Vec) -> None:
@@ -269,11 +273,7 @@ class ShellProblem(PetscOwner):
             return 1.0
         open_direction = self.model.x.vector.duplicate()
         try:
-            if self.prolongation is not None:
-                self.prolongation.mult(direction, open_direction)
-            else:
-                direction.copy(open_direction)
-            open_direction.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self._to_open(direction, open_direction, offset=False)
             with open_direction.localForm() as local:
                 blocks = local.array.reshape(-1, 3).copy()
         finally:

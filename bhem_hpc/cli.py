@@ -172,7 +172,8 @@ def _run(args: argparse.Namespace, comm) -> None:
         steps = summary["steps"]
         newton = sum(s["newton_iterations"] for s in steps)
         if summary["static"]:
-            events = [f"{s['event']} point at load factor {s['load_factor']:.6g}" for s in steps if s.get("event")]
+            events = [f"{e['kind']} point at load factor {e['load_factor']:.6g} (between path points {s['step'] - 1} "
+                      f"and {s['step']})" for s in steps for e in s.get("events", ())]  # fmt: skip
             print(
                 f"{args.scene}: {len(steps)} path point(s) to load factor {summary['load_factor']:.6g}, "
                 f"{summary['dofs']} DoFs, {comm.size} rank(s), {newton} Newton iterations"

@@ -21,7 +21,7 @@ from bhem_hpc.errors import UserError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
-from bhem_hpc.io.path_table import CsvTable, plot_path, probe_columns, read_rows
+from bhem_hpc.io.path_table import CsvTable, JsonLinesTable, plot_path, probe_columns, read_json_rows, read_rows
 from bhem_hpc.io.run_directory import (
     OutputDirectoryError,
     OutputLock,
@@ -228,10 +228,11 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, cont
     series = None
     try:
         series = _start_output(options, scene, scene_text, summary, checkpoint if continuing else None, comm)
-        if scene.static:
-            final = _run_static(scene, options, steps, model, solver, series, summary, (checkpoint, continuing), comm)
-        else:
-            with Interruption() as interruption:
+        with Interruption() as interruption:
+            if scene.static:
+                final = _run_static(scene, options, steps, model, solver, series, summary, (checkpoint, continuing),
+                                    comm, interruption)  # fmt: skip
+            else:
                 final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm,
                                      interruption)  # fmt: skip
         where = f"load factor {summary['load_factor']:.4g}" if scene.static else f"t = {summary.get('time', 0):.4g} s"
@@ -345,13 +346,22 @@ def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: dict | None) ->
 
 
 def _previous_steps(out: Path, checkpoint: dict) -> list[dict]:
-    """The step records of the run being continued, up to its checkpoint."""
-    try:
-        previous = json.loads((out / "summary.json").read_text())["steps"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return []
-    last = int(checkpoint["attrs"]["step"])
-    return [row for row in previous if isinstance(row, dict) and row.get("step", last + 1) <= last]
+    """The step records of the run being continued, up to its checkpoint (from ``steps.jsonl``,
+    which has every step's record before that step's checkpoint is written)."""
+    return read_json_rows(out / "steps.jsonl", int(checkpoint["attrs"]["step"]))
+
+
+class _StepRecords:
+    """``summary.json``'s step records, each also appended to ``steps.jsonl`` (collective
+    :meth:`add`; call it before the step's checkpoint, so that a restart finds it)."""
+
+    def __init__(self, out: Path, summary: dict, comm: MPI.Comm):
+        self.summary, self.comm = summary, comm
+        self.table = JsonLinesTable(out / "steps.jsonl", summary["steps"]) if comm.rank == 0 else None
+
+    def add(self, row: dict) -> None:
+        self.summary["steps"].append(row)
+        _on_rank0(self.comm, lambda: self.table.add(row), "steps.jsonl")
 
 
 def _write_summary(out: Path, summary: dict) -> None:
@@ -444,11 +454,12 @@ def _energies(model: ShellModel) -> dict[str, float]:
     return {k: float(v) for k, v in e.items()}
 
 
-def _run_static(scene, options, steps, model, solver, series, summary, restart, comm) -> HermiteSurface:
+def _run_static(scene, options, steps, model, solver, series, summary, restart, comm,
+                interruption: Interruption) -> HermiteSurface:  # fmt: skip
     """Follow ``steps`` more points of a static scene's path (:class:`~bhem_hpc.model.path.PathPlan`),
-    writing per converged point a frame, a checkpoint, a row of ``path.csv`` and of the summary;
-    ``path.png`` at the end (also when a step fails: the converged part stays in every file).
-    Returns the final surface."""
+    writing per converged point a frame, a row of ``path.csv`` and of the summary, and a checkpoint;
+    ``path.png`` at the end (also when a step fails or a signal stops the run after a point: the
+    converged part stays in every file). Returns the final surface."""
     from bhem_hpc.solver.path import PathError, PathFollower
 
     checkpoint, continuing = restart
@@ -464,10 +475,13 @@ def _run_static(scene, options, steps, model, solver, series, summary, restart, 
     motions = prescribed_motions(scene)
     if motions:  # a motion's time is the load factor: rotations turn the nodal vectors along the path
         solver.prescribed = lambda factor: model.prescribed_values([m.at(factor) for m in motions])
-    output = _PathOutput(options.out, model, scene, series, summary, comm, first_step if continuing else None)
+    output = _PathOutput(options.out, model, scene, series, summary, comm, first_step if continuing else None,
+                         interruption, options.scene)  # fmt: skip
     follower = PathFollower(solver, scene.probes, SOLVER_PREFIX + "path_", plan.options, *start, previous,
                             first_step, on_point=output.write)  # fmt: skip
     output.follower = follower
+    if checkpoint is not None:  # the next point's checkpoint names its previous point: the path's direction
+        output.previous_raw = checkpoint["arrays"]["position_dofs" if continuing else "previous_position_dofs"]
     try:
         if not continuing:  # a new series starts with the path's start (or the restart point)
             output.write(follower.path[0])
@@ -503,9 +517,12 @@ def _follow(plan: PathPlan, follower, done: int, count: int, arc_step: float | N
 class _PathOutput:
     """The files of a static run, one update per converged path point (collective :meth:`write`)."""
 
-    def __init__(self, out: Path, model: ShellModel, scene: Scene, series, summary: dict, comm, continued_step):
+    def __init__(self, out: Path, model: ShellModel, scene: Scene, series, summary: dict, comm, continued_step,
+                 interruption: Interruption, scene_path: Path):  # fmt: skip
         self.out, self.model, self.plan, self.series = out, model, scene.path_plan, series
         self.summary, self.comm = summary, comm
+        self.records = _StepRecords(out, summary, comm)
+        self.interruption, self.scene_path = interruption, scene_path
         self.probes = [p.name for p in scene.probes]
         keep = read_rows(out / "path.csv", continued_step) if continued_step is not None else []
         self.table = CsvTable(out / "path.csv", keep) if comm.rank == 0 else None
@@ -516,7 +533,8 @@ class _PathOutput:
         self.started = time.perf_counter()
 
     def write(self, point) -> None:
-        """Frame, checkpoint (with the previous point's DOFs), path.csv and summary rows."""
+        """Frame, path.csv and summary rows, then the checkpoint (with the previous point's DOFs);
+        a stop signal then ends the run (:class:`RunInterrupted`)."""
         time_value = point.load_factor if self.plan.time_is_load_factor else point.arc_length
         raw = self.model.discretization.gather_raw_dofs(self.model.x.x.array)
         previous = raw if self.previous_raw is None else self.previous_raw
@@ -524,18 +542,28 @@ class _PathOutput:
         attrs = {"load_factor": point.load_factor, "arc_length": point.arc_length}
         if self.follower is not None and np.isfinite(self.follower.arc_step):
             attrs["arc_step"] = self.follower.arc_step
-        self.surface = _write_state(self.out, self.series, self.model, time_value, point.step, self.summary,
-                                    self.comm, extra, attrs)  # fmt: skip
+        self.surface = _write_frame(self.series, self.model, time_value, self.comm)
         self.previous_raw = raw
         self.last_time = time_value
         row = {"step": point.step, "load_factor": point.load_factor, "arc_length": point.arc_length,
-               "newton_iterations": point.newton_iterations, "negative_pivots": point.negative_pivots,
-               "stable": point.stable, "event": point.event}  # fmt: skip
+               "newton_iterations": point.newton_iterations, "failed_attempts": point.failed_attempts,
+               "negative_pivots": point.negative_pivots,
+               "stable": point.stable, "event": point.event,
+               "event_load_factor": point.events[0].load_factor if point.events else ""}  # fmt: skip
         row |= {f"energy_{k}": float(v) for k, v in point.energies.items()} | probe_columns(point.probes)
         _on_rank0(self.comm, lambda: self.table.add(row), "path.csv")
         now = time.perf_counter()
-        self.summary["steps"].append(row | {"wall_s": now - self.started})
-        self.started = now
+        self.records.add(row | {"events": [e.as_dict() for e in point.events], "wall_s": now - self.started})
+        self.started = now  # the checkpoint's time counts to the next point
+        _checkpoint(self.out / "checkpoint.h5", self.model, self.surface, (time_value, point.step), self.summary,
+                    self.comm, extra, attrs)  # fmt: skip
+        stop = self.interruption.requested(self.comm)
+        if stop is not None:
+            raise RunInterrupted(
+                f"{self.scene_path}: stopped by {stop} after path point {point.step} (load factor "
+                f"{point.load_factor:.6g}); its state is the last frame and the checkpoint: continue with "
+                f"--restart {self.out}"
+            )
 
     def plot(self, title: str) -> None:
         def draw() -> None:
@@ -570,7 +598,9 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
         _on_rank0(comm, lambda: series.write(stepper.time, surface), "a frame")
         probes.write(stepper)
     progress = _progress(steps, options.progress and comm.rank == 0)
+    records = _StepRecords(options.out, summary, comm)
     last_summary = time.perf_counter()
+    checkpoint_s = 0.0  # a checkpoint's write time counts to the next step's output_s
     try:
         for k in range(steps):
             record = stepper.advance()
@@ -579,19 +609,22 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
             # the last step always writes, and so does one a signal stops after
             wrote = stepper.step % scene.output_every == 0 or k == steps - 1 or stop is not None
             if wrote:
-                arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
-                attrs = {f"reuse_{k}": v for k, v in reuse.items()}
-                surface = _write_state(options.out, series, model, stepper.time, stepper.step, summary, comm,
-                                       arrays, attrs)  # fmt: skip
+                surface = _write_frame(series, model, stepper.time, comm)
             probes.write(stepper)
             energies = _energies(model) if wrote else None  # a few assemblies: with the frames only
-            output_s = time.perf_counter() - t_out
-            summary["steps"].append(_step_summary(record, output_s, energies))
-            # the step records up to a checkpoint, at most every SUMMARY_EVERY_S: a killed or
-            # requeued job's continuation keeps them
+            records.add(_step_summary(record, time.perf_counter() - t_out + checkpoint_s, energies))
+            t_checkpoint = time.perf_counter()
+            if wrote:  # after the step's rows: a restart from it finds them all
+                arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
+                attrs = {f"reuse_{k}": v for k, v in reuse.items()}
+                _checkpoint(options.out / "checkpoint.h5", model, surface, (stepper.time, stepper.step), summary,
+                            comm, arrays, attrs)  # fmt: skip
+            # summary.json shows the records so far, at most every SUMMARY_EVERY_S (a restart reads
+            # them from steps.jsonl)
             if wrote and comm.bcast(time.perf_counter() - last_summary >= SUMMARY_EVERY_S):
                 _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
                 last_summary = time.perf_counter()
+            checkpoint_s = time.perf_counter() - t_checkpoint
             progress(record, stepper)
             if stop is not None:
                 summary["time"] = stepper.time
@@ -647,15 +680,10 @@ def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
     model.velocity.x.array[:] = disc.scatter_raw_dofs(arrays["velocity_dofs"])
 
 
-def _write_state(
-    out: Path, series, model: ShellModel, time_value: float, step: int, summary: dict, comm: MPI.Comm,
-    arrays: dict | None = None, attrs: dict | None = None,
-) -> HermiteSurface:  # fmt: skip
-    """Write the current state as a frame and a checkpoint (with extra ``arrays`` and ``attrs``);
-    returns it as a surface (every rank)."""
+def _write_frame(series, model: ShellModel, time_value: float, comm: MPI.Comm) -> HermiteSurface:
+    """Write the current state as a frame of the series; returns it as a surface (every rank)."""
     surface = model.state_surface()
     _on_rank0(comm, lambda: series.write(time_value, surface), "a frame of surface.h5")
-    _checkpoint(out / "checkpoint.h5", model, surface, (time_value, step), summary, comm, arrays or {}, attrs or {})
     return surface
 
 

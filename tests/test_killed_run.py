@@ -17,15 +17,25 @@ from helpers import BASE
 from bhem_hpc.io import read_checkpoint
 
 
+def _child_env() -> dict[str, str]:
+    """The environment of a child run: without the parent's MPI (a child is a singleton)."""
+    return {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+
+
+def _run_command(scene: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "bhem_hpc.cli", "run", str(scene), "--out", str(out), "--no-progress"]
+
+
 def test_killed_run_leaves_readable_output(comm):
     failure = None
     if comm.rank == 0:  # one child process, started without the parent's MPI environment
         work = Path(tempfile.mkdtemp(prefix="bhem-kill-"))
         scene = work / "long.toml"
         scene.write_text(BASE.replace("steps = 6", "steps = 100000").replace("every = 2", "every = 1"))
-        env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
-        command = [sys.executable, "-m", "bhem_hpc.cli", "run", str(scene), "--out", str(work / "out"), "--no-progress"]
-        child = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        env = _child_env()
+        child = subprocess.Popen(
+            _run_command(scene, work / "out"), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        )
         deadline = time.monotonic() + 120
         xdmf = work / "out" / "surface.xdmf"
         frames = 0
@@ -69,8 +79,13 @@ def test_a_full_disk_ends_the_run_cleanly_with_its_last_frames_readable(comm):
             "resource.setrlimit(resource.RLIMIT_FSIZE, (150_000, 150_000))\n"
             "from bhem_hpc import cli\nsys.exit(cli.main(sys.argv[1:]))\n"
         )
-        env = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
+        env = _child_env()
         out = work / "out"
+        # one step without the limit first: the forms' JIT cache (a clean checkout has none) is
+        # written in files the limit would cut
+        subprocess.run(
+            [*_run_command(scene, work / "warm"), "--steps", "1"], env=env, capture_output=True, timeout=300, check=True
+        )
         command = [sys.executable, "-c", code, "run", str(scene), "--out", str(out), "--no-progress"]
         child = subprocess.run(command, env=env, capture_output=True, timeout=300)
         try:
@@ -87,6 +102,91 @@ def test_a_full_disk_ends_the_run_cleanly_with_its_last_frames_readable(comm):
             _, attrs = read_checkpoint(out / "checkpoint.h5")
             assert attrs["time"] == last_time
             assert not list(out.glob("*.tmp"))
+        except AssertionError as exc:
+            failure = str(exc)
+    failure = comm.bcast(failure)
+    assert failure is None, failure
+
+
+def _timeless(row: dict) -> dict:
+    """A step record without its wall times (which no two runs share)."""
+    return {k: v for k, v in row.items() if not (k.endswith("_s") or k == "wall_s")}
+
+
+def _killed_and_restarted(scene: Path, out: Path, kill_after_rows: list[int], table: str, env: dict) -> None:
+    """Run ``scene`` into ``out``, SIGKILL it once ``out/table`` has each count of rows in turn
+    (restarting in place after each kill), then let the last restart finish."""
+    run = _run_command(scene, out)
+    for k, rows in enumerate(kill_after_rows):
+        command = run + (["--restart", str(out)] if k else [])
+        child = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and child.poll() is None:
+            path = out / table
+            if path.exists() and path.read_text().count("\n") >= rows:
+                break
+            time.sleep(0.01)
+        child.send_signal(signal.SIGKILL)
+        child.wait()
+        assert (out / "checkpoint.h5").exists(), child.stderr.read().decode()[-2000:]
+    finished = subprocess.run(run + ["--restart", str(out)], env=env, capture_output=True, timeout=600)
+    assert finished.returncode == 0, finished.stderr.decode()[-3000:]
+
+
+def test_a_run_killed_at_any_moment_and_restarted_in_place_has_the_records_of_one_that_was_not(comm):
+    """Dynamic: SIGKILL at three moments (whatever the run was doing), each time restarted in place:
+    summary.json's step records, steps.jsonl and probes.csv equal an uninterrupted run's (the
+    restart is bit-exact, so do the records but for their wall times)."""
+    import csv
+    import json
+
+    failure = None
+    if comm.rank == 0:
+        work = Path(tempfile.mkdtemp(prefix="bhem-records-"))
+        scene = work / "s.toml"
+        scene.write_text(BASE.replace("steps = 6", "steps = 40").replace("every = 2", "every = 3")
+                         + '\n[[probes]]\nname = "tip"\nat = [0.4, 0.3]\n')  # fmt: skip
+        env = _child_env()
+        reference = subprocess.run(_run_command(scene, work / "whole"), env=env, capture_output=True, timeout=600)
+        try:
+            assert reference.returncode == 0, reference.stderr.decode()[-3000:]
+            _killed_and_restarted(scene, work / "killed", [5, 17, 29], "steps.jsonl", env)
+            summaries = [json.loads((work / d / "summary.json").read_text()) for d in ("whole", "killed")]
+            lines = [(work / d / "steps.jsonl").read_text().splitlines() for d in ("whole", "killed")]
+            records = [[_timeless(json.loads(line)) for line in text] for text in lines]
+            assert [r["step"] for r in records[1]] == list(range(1, 41))
+            assert records[1] == records[0]
+            assert [_timeless(r) for r in summaries[1]["steps"]] == records[0]
+            assert summaries[1]["status"] == "completed"
+            probes = [list(csv.DictReader(open(work / d / "probes.csv"))) for d in ("whole", "killed")]
+            assert len(probes[0]) == 41 and probes[1] == probes[0]
+        except AssertionError as exc:
+            failure = str(exc)
+    failure = comm.bcast(failure)
+    assert failure is None, failure
+
+
+def test_a_path_killed_at_any_moment_and_restarted_in_place_has_every_row(comm):
+    """Static (the shallow arch's arc length): SIGKILL twice, restarted in place: path.csv and the
+    step records equal an uninterrupted path's."""
+    import csv
+    import json
+
+    from helpers import REPO
+
+    failure = None
+    if comm.rank == 0:
+        work = Path(tempfile.mkdtemp(prefix="bhem-path-records-"))
+        scene = REPO / "jobs" / "shallow-arch.toml"
+        env = _child_env()
+        reference = subprocess.run(_run_command(scene, work / "whole"), env=env, capture_output=True, timeout=600)
+        try:
+            assert reference.returncode == 0, reference.stderr.decode()[-3000:]
+            _killed_and_restarted(scene, work / "killed", [6, 15], "path.csv", env)
+            table = [list(csv.DictReader(open(work / d / "path.csv"))) for d in ("whole", "killed")]
+            assert len(table[0]) > 16 and table[1] == table[0]
+            steps = [json.loads((work / d / "summary.json").read_text())["steps"] for d in ("whole", "killed")]
+            assert [_timeless(r) for r in steps[1]] == [_timeless(r) for r in steps[0]]
         except AssertionError as exc:
             failure = str(exc)
     failure = comm.bcast(failure)

@@ -95,7 +95,7 @@ def test_a_static_run_replacing_a_dynamic_one_leaves_only_its_own_files(comm, sh
     assert summary["status"] == "completed" and summary["static"]
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [".bhem-run", "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5",
-         "summary.json", "last.png", "path.csv", "path.png"]
+         "summary.json", "last.png", "path.csv", "path.png", "steps.jsonl"]
     )
     _, attrs = read_checkpoint(out / "checkpoint.h5")
     assert attrs["static"] and attrs["step"] == 1  # the static run's own checkpoint

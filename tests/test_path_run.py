@@ -53,6 +53,14 @@ def test_an_arc_length_scene_writes_its_path_and_continues_from_a_checkpoint(com
     rises = (ARCH.rise + np.array([float(r["mid_uz"]) for r in table])) / ARCH.gyration_radius
     assert np.abs(factors - shallow_arch_load(rises, ARCH.initial_rise)).max() < 2e-3 * 5.78
     assert [r["event"] for r in table if r["event"]] == ["limit", "limit"]
+    # the limits located at the load factor's extrema (Marguerre: rise^2 = (e^2 - 4) / 3), not at
+    # the next point (5.66 and 1.46 there), and the path ended exactly at its range's bound
+    extreme_rise = np.sqrt((ARCH.initial_rise**2 - 4) / 3)
+    expected = [shallow_arch_load(sign * extreme_rise, ARCH.initial_rise) for sign in (1, -1)]
+    located = [float(r["event_load_factor"]) for r in table if r["event"]]
+    assert np.abs(np.array(located) - expected).max() < 2e-3 * 5.78, (located, expected)
+    assert [e["kind"] for s in summary["steps"] for e in s["events"]] == ["limit", "limit"]
+    assert factors[-1] == 7.0 and factors[-2] < 7.0
     assert summary["status"] == "completed" and len(summary["steps"]) == len(table)
     assert (full / "path.png").stat().st_size > 10_000
     import h5py
@@ -60,10 +68,14 @@ def test_an_arc_length_scene_writes_its_path_and_continues_from_a_checkpoint(com
     with h5py.File(full / "surface.h5") as f:  # a frame per point, timed by the arc length
         times = [float(f[f"frames/{k}"].attrs["time"]) for k in range(len(f["frames"]))]
     assert times == [float(r["arc_length"]) for r in table]
-    # stopped after 5 points and continued in place: the same path, bit for bit
+    # stopped after 5 points (λ rising) and after 12 (falling, past the first limit), continued in
+    # place: the same path, bit for bit
     half = shared_tmp_path / "half"
     run(ARCH_SCENE, half, comm, steps=5)
     assert len(rows(half)) == 6
+    run(ARCH_SCENE, half, comm, restart=half, steps=7)
+    assert [r["event"] for r in rows(half) if r["event"]] == ["limit"]
+    assert float(rows(half)[-1]["load_factor"]) < float(rows(half)[-2]["load_factor"])
     run(ARCH_SCENE, half, comm, restart=half)
     assert rows(half) == table
     finished = (half / "summary.json").read_text()

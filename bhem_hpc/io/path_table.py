@@ -1,16 +1,21 @@
 """Tables of recorded states: ``path.csv`` of a static run (one row per converged path point, with a
-PNG of the load against the probes' displacements) and ``probes.csv`` of a dynamic run (one row per
-time step). Serial: call on one rank. A table is written by rename when its first row comes (with
-the rows of the run it continues), then each row is appended as one line: a run that stops keeps
-every row it completed, and a long run does not rewrite its whole table per step.
+PNG of the load against the probes' displacements), ``probes.csv`` of a dynamic run (one row per
+time step) and ``steps.jsonl`` of either (a step's record of ``summary.json``, one JSON object per
+line). Serial: call on one rank. A table is written by rename when its first row comes (with the
+rows of the run it continues), then each row is appended as one line: a run that stops keeps every
+row it completed, and a long run does not rewrite its whole table per step. A run writes a step's
+rows before the checkpoint of that step, so a restart from any checkpoint finds all of its rows
+(and drops the later ones, of steps it computes again).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from bhem_hpc.io.run_directory import write_replacing
 
@@ -26,12 +31,12 @@ def probe_columns(probes: Mapping[str, Mapping[str, Sequence[float]]]) -> dict[s
     return row
 
 
-class CsvTable:
-    """A CSV file whose columns are those of its first row; rows are kept in memory (for plots).
+class _AppendedTable:
+    """A file of one line per row; rows are kept in memory (for plots and summaries).
 
     Args:
         path: the file.
-        keep: rows of an earlier run to start with (a continued run), as read by :func:`read_rows`.
+        keep: rows of an earlier run to start with (a continued run), as read back from the file.
     """
 
     def __init__(self, path: Path, keep: Sequence[dict] = ()):
@@ -40,12 +45,7 @@ class CsvTable:
         self._written = False
 
     def _lines(self, rows: Sequence[Mapping[str, object]], header: bool) -> str:
-        buffer = io.StringIO()
-        writer = csv.DictWriter(buffer, fieldnames=list(self.rows[0]), extrasaction="ignore", lineterminator="\n")
-        if header:
-            writer.writeheader()
-        writer.writerows(rows)
-        return buffer.getvalue()
+        raise NotImplementedError
 
     def add(self, row: Mapping[str, object]) -> None:
         self.rows.append(dict(row))
@@ -57,23 +57,61 @@ class CsvTable:
             self._written = True
 
 
-def read_rows(path: Path, last_step: int) -> list[dict]:
-    """Rows of an earlier ``path.csv`` or ``probes.csv`` up to step ``last_step`` (none if it is
-    missing or unreadable)."""
-    try:
-        text = path.read_text()
-        text = text[: text.rfind("\n") + 1]  # without a line a stopped run left incomplete
-        rows = list(csv.DictReader(io.StringIO(text, newline="")))
-    except (OSError, csv.Error, UnicodeDecodeError):
-        return []
+class CsvTable(_AppendedTable):
+    """A CSV file whose columns are those of its first row."""
+
+    def _lines(self, rows: Sequence[Mapping[str, object]], header: bool) -> str:
+        buffer = io.StringIO()
+        writer = csv.DictWriter(buffer, fieldnames=list(self.rows[0]), extrasaction="ignore", lineterminator="\n")
+        if header:
+            writer.writeheader()
+        writer.writerows(rows)
+        return buffer.getvalue()
+
+
+class JsonLinesTable(_AppendedTable):
+    """A file of one JSON object per line (rows of any keys: a step's record)."""
+
+    def _lines(self, rows: Sequence[Mapping[str, object]], header: bool) -> str:
+        return "".join(json.dumps(row, separators=(",", ":")) + "\n" for row in rows)
+
+
+def _complete_lines(path: Path) -> str:
+    """The text of ``path`` without a last line a stopped run left incomplete (OSError, UnicodeDecodeError)."""
+    text = path.read_text()
+    return text[: text.rfind("\n") + 1]
+
+
+def _up_to_step(rows: Sequence[Any], last_step: int) -> list[dict]:
+    """The rows with ``step <= last_step``; none if any row has no readable step."""
     kept = []
     for row in rows:
         try:
             if int(row["step"]) <= last_step:
-                kept.append(row)
+                kept.append(dict(row))
         except (KeyError, TypeError, ValueError):
             return []
     return kept
+
+
+def read_rows(path: Path, last_step: int) -> list[dict]:
+    """Rows of an earlier ``path.csv`` or ``probes.csv`` up to step ``last_step`` (none if it is
+    missing or unreadable)."""
+    try:
+        rows = list(csv.DictReader(io.StringIO(_complete_lines(path), newline="")))
+    except (OSError, csv.Error, UnicodeDecodeError):
+        return []
+    return _up_to_step(rows, last_step)
+
+
+def read_json_rows(path: Path, last_step: int) -> list[dict]:
+    """Rows of an earlier ``steps.jsonl`` up to step ``last_step`` (none if it is missing or
+    unreadable)."""
+    try:
+        rows = [json.loads(line) for line in _complete_lines(path).splitlines()]
+    except (OSError, UnicodeDecodeError, ValueError):
+        return []
+    return _up_to_step(rows, last_step)
 
 
 def plot_path(rows: Sequence[Mapping[str, object]], probes: Sequence[str], png: Path, title: str) -> Path:

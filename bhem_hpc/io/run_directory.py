@@ -30,7 +30,7 @@ from bhem_hpc.errors import UserError
 #: The files a run writes; a restart in place refuses to continue through a symbolic link among them.
 RUN_FILES = (
     "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
-    "last.png", "path.csv", "path.png", "probes.csv",
+    "last.png", "path.csv", "path.png", "probes.csv", "steps.jsonl",
 )  # fmt: skip
 
 

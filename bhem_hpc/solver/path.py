@@ -16,16 +16,20 @@ a quadratic in ``dlambda``: the root that turns least from the step's direction)
 convergence on ``|R|`` with its tolerances and reports its reasons.
 
 Every converged point records its stability from the inertia of an LDL^T factorization of ``K``
-at that point (MUMPS' negative-pivot count, INFOG(12)), which also gives the path's tangent there: a
-change of inertia between two points is flagged as a limit point where the tangent's load factor
-turns back, otherwise as a bifurcation.
+at that point (MUMPS' negative-pivot count, INFOG(12)), which also gives the path's tangent there,
+and the events since the last point (:mod:`.path_events`: limit points at the interpolated extremum
+of lambda, bifurcations). A displacement or arc-length step that converges on another branch (its
+tangent turned back, it lies farther from its predictor than the predictor's length, or its inertia
+jumped by more than one eigenvalue) is cut back like a failed one; an arc-length step that leaves
+the load-factor range is replaced by the equilibrium at the bound.
 """
 
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from petsc4py import PETSc
@@ -33,6 +37,7 @@ from petsc4py import PETSc
 from bhem_hpc.model.path import ArcLength, PathSettingError, Probe, ProbeSet, check_levels
 from bhem_hpc.solver.linear_strategy import default_options
 from bhem_hpc.solver.newton import ShellSolver, jacobian_callback, residual_callback
+from bhem_hpc.solver.path_events import PathEvent, PathSample, events_between
 from bhem_hpc.solver.petsc import (
     PETSC_ERRORS,
     SNES_REASONS,
@@ -68,8 +73,12 @@ class PathPoint:
         newton_iterations: of the converged solve (cut-back attempts not counted).
         negative_pivots: negative eigenvalues of the tangent (MUMPS INFOG(12) of its LDL^T; -1 when
             the factorization does not report it, e.g. LU).
-        event: ``"limit"`` or ``"bifurcation"`` where the inertia changed since the previous
-            point, else ``""``.
+        event: ``"limit"`` if the load factor passed an extremum since the previous point, else
+            ``"bifurcation"`` if the inertia changed otherwise, else ``""``.
+        events: those events, located (:mod:`.path_events`: a limit at the interpolated extremum).
+        failed_attempts: solves of this step that failed or jumped to another branch before it
+            converged (each followed by a cut-back).
+        wall_s: wall seconds from the previous point to this one (its attempts and measurement).
         energies: the model's energies (:meth:`ShellModel.energies`).
         probes: per probe name its ``position`` ``(3,)`` and ``displacement`` ``(3,)`` from the
             model's initial surface.
@@ -81,6 +90,9 @@ class PathPoint:
     newton_iterations: int
     negative_pivots: int
     event: str = ""
+    events: tuple[PathEvent, ...] = ()
+    failed_attempts: int = 0
+    wall_s: float = 0.0
     energies: dict[str, float] = field(default_factory=dict)
     probes: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
@@ -88,6 +100,32 @@ class PathPoint:
     def stable(self) -> bool | None:
         """Whether the tangent is positive definite (None when the inertia is unknown)."""
         return None if self.negative_pivots < 0 else self.negative_pivots == 0
+
+
+@dataclass(frozen=True)
+class _Candidate:
+    """A converged state measured as a path point, before it is accepted (see ``_measure``)."""
+
+    step_length: float  # root-mean-square change from the last point
+    negative_pivots: int
+    sign: float  # orientation of K^-1 q along the step
+    slope_size: float  # |dlambda/ds| = sqrt(n) / |K^-1 q|
+
+
+class _Jumps:
+    """The branch jumps among a step's attempts, for its failure message."""
+
+    def __init__(self) -> None:
+        self.count, self.first = 0, ""
+
+    def add(self, why: str) -> bool:
+        """Count ``why`` if it names a jump ("" does not); returns whether it did."""
+        if why:
+            self.count, self.first = self.count + 1, self.first or why
+        return bool(why)
+
+    def __str__(self) -> str:
+        return f" ({self.count} attempt(s) jumped to another branch: {self.first})" if self.count else ""
 
 
 class _BorderedStep:
@@ -166,6 +204,7 @@ class PathFollower(PetscOwner):
         self.jacobian = self.problem.jacobian
         self.q = self.x.duplicate()
         self.tangent = self.x.duplicate()  # K^-1 q at the last point, signed along the path
+        self._trial_tangent = self.x.duplicate()  # the same at a candidate point
         self.work = [self.x.duplicate() for _ in range(3)]
         self._residual_scratch = self.x.duplicate()
         self._last = self.x.copy()  # the DOFs of the last recorded point
@@ -175,12 +214,15 @@ class PathFollower(PetscOwner):
         self.load_factor = float(start_load_factor)
         self.set_load_factor(self.load_factor)
         self._sign = 1.0  # the sign of dlambda/ds at the last point
+        self._sample = PathSample(0.0, 0.0, 0.0, -1)  # the last point, for the events after it
         self.path: list[PathPoint] = []
         self._first_step = first_step
         self._start_arc_length = float(start_arc_length)
         self.arc_step = float("nan")  # the adapted arc length of the next step (arc-length continuation)
         self._rms = float(np.sqrt(self.x.getSize()))  # arc lengths are root-mean-square DOF changes
-        self._record(0, continuing=previous is not None)
+        self._continuing = previous is not None  # the path's direction is the step that led to its start
+        self._failed_attempts, self._since = 0, time.perf_counter()
+        self._record(0, continuing=self._continuing)
 
     # -- setup ------------------------------------------------------------------------------------
     def _create_snes(self, options: dict[str, object]) -> PETSc.SNES:
@@ -253,49 +295,76 @@ class PathFollower(PetscOwner):
         open_vector.destroy()
         return closed
 
-    def _record(self, iterations: int, continuing: bool = False) -> PathPoint:
-        """Record the current state as a path point: its tangent and inertia from one factorization
-        of ``K`` there, the event if the inertia changed, the energies and the probes."""
+    def _measure(self, continuing: bool = False) -> _Candidate:
+        """The current state as a candidate point: the step from the last point, the tangent and
+        inertia from one factorization of ``K`` here (the tangent into :attr:`_trial_tangent`,
+        oriented along the step; none: increasing lambda)."""
         increment = self.x.copy()
         increment.axpy(-1.0, self._last)
         step_length = increment.norm() / self._rms if self.path else 0.0
-        pivots, sign = self._tangent_at_current(increment if self.path or continuing else None)
+        ksp = self.solve_load_tangent(self.x, self._trial_tangent)
+        oriented = self.path or continuing
+        sign = 1.0 if not oriented or self._trial_tangent.dot(increment) >= 0 else -1.0
         increment.destroy()
+        self._trial_tangent.scale(sign)
+        return _Candidate(step_length, negative_pivots(ksp), sign, self._rms / max(self._trial_tangent.norm(), 1e-300))
+
+    def _branch_jump(self, candidate: _Candidate, predictor: PETSc.Vec, minimal_step: bool,
+                     origin: PETSc.Vec | None = None) -> str:  # fmt: skip
+        """Why a converged step left the branch it started on ("" if it did not): its tangent turned
+        back against the last point's, it lies farther from its predictor ``x_pred - origin`` (the
+        step's start, by default the last point) than the predictor's own length, or (above the
+        smallest step) its inertia changed by more than one eigenvalue."""
+        if self.path and self._trial_tangent.dot(self.tangent) < 0:
+            return "the path's tangent reversed"
+        length = predictor.norm()
+        away = self.x.copy()
+        away.axpy(-1.0, self._last if origin is None else origin)
+        away.axpy(-1.0, predictor)
+        distance = away.norm()
+        away.destroy()
+        if length > 0 and distance > length:
+            return f"it lies {distance / length:.2f} predictor lengths from its predictor"
+        last, now = self.path[-1].negative_pivots if self.path else -1, candidate.negative_pivots
+        if not minimal_step and last >= 0 and now >= 0 and abs(now - last) > 1:
+            return f"its inertia jumped from {last} to {now} negative pivots"
+        return ""
+
+    def _record(self, iterations: int, continuing: bool = False, candidate: _Candidate | None = None) -> PathPoint:
+        """Record the current state as a path point (measured unless ``candidate`` is its
+        measurement): its tangent becomes the path's, its events since the last point (limit points
+        at the interpolated extremum of lambda, bifurcations), energies and probes."""
+        candidate = candidate or self._measure(continuing)
+        self.tangent, self._trial_tangent = self._trial_tangent, self.tangent
         self.x.copy(self._last)
         self.problem.update_state(self.x)
-        event = ""
-        if self.path and pivots >= 0 and self.path[-1].negative_pivots >= 0 and pivots != self.path[-1].negative_pivots:
-            event = "limit" if sign != self._sign else "bifurcation"  # a limit point turns lambda back
-        self._sign = sign
+        arc_length = (self.path[-1].arc_length if self.path else self._start_arc_length) + candidate.step_length
+        sample = PathSample(arc_length, self.load_factor, candidate.sign * candidate.slope_size,
+                            candidate.negative_pivots)  # fmt: skip
+        events = events_between(self._sample, sample) if self.path else ()
+        self._sign, self._sample = candidate.sign, sample
         point = PathPoint(
             step=self._first_step + len(self.path),
             load_factor=self.load_factor,
-            arc_length=(self.path[-1].arc_length if self.path else self._start_arc_length) + step_length,
+            arc_length=arc_length,
             newton_iterations=iterations,
-            negative_pivots=pivots,
-            event=event,
+            negative_pivots=candidate.negative_pivots,
+            event=next((e.kind for e in events if e.kind == "limit"), events[0].kind if events else ""),
+            events=events,
+            failed_attempts=self._failed_attempts,
+            wall_s=time.perf_counter() - self._since,
             energies=self.model.energies(),
             probes=self.probe_set.record(),
         )
-        if event:
-            log.info("%s: %s point at load factor %.6g (negative pivots %d -> %d)", self.prefix, event,
-                     self.load_factor, self.path[-1].negative_pivots, pivots)  # fmt: skip
+        for event in events:
+            log.info("%s: %s point at load factor %.6g (between path points %d and %d)", self.prefix, event.kind,
+                     event.load_factor, point.step - 1, point.step)  # fmt: skip
         self.path.append(point)
+        self._failed_attempts = 0
         if self.on_point is not None and len(self.path) > 1:
             self.on_point(point)
+        self._since = time.perf_counter()  # the next step's clock starts after this point's output
         return point
-
-    def _tangent_at_current(self, increment: PETSc.Vec | None) -> tuple[int, float]:
-        """Factorize ``K`` at the current state, solve ``K t = q`` into :attr:`tangent` and orient it
-        along ``increment`` (the step that led here; none: increasing lambda).
-
-        Returns:
-            The negative pivots of the factorization (-1 if unknown) and the sign of dlambda/ds.
-        """
-        ksp = self.solve_load_tangent(self.x, self.tangent)
-        sign = 1.0 if increment is None or self.tangent.dot(increment) >= 0 else -1.0
-        self.tangent.scale(sign)
-        return negative_pivots(ksp), sign
 
     # -- load control -----------------------------------------------------------------------------
     def load_control(self, levels: Sequence[float], max_cuts: int = 8) -> list[PathPoint]:
@@ -325,6 +394,7 @@ class PathFollower(PetscOwner):
                         self.set_load_factor(trial)
                         continue
                     accepted.copy(self.x)
+                    self._failed_attempts += 1
                     cuts += 1
                     if cuts > max_cuts:
                         self.set_load_factor(reached)
@@ -364,38 +434,53 @@ class PathFollower(PetscOwner):
         return self.path
 
     def _advance_displacement(self, c: PETSc.Vec, offset: float, value: float, max_cuts: int) -> None:
+        """Reach the displacement ``value`` from the last point, halving the remaining change when a
+        solve fails or lands on another branch; records the point."""
         reached = c.dot(self.x) - offset
-        cuts, iterations = 0, 0
-        base = self.x.copy()
+        cuts, iterations, jumps = 0, 0, _Jumps()
+        base, predictor = self.x.copy(), self.x.duplicate()
         previous_factor = self.load_factor
-        while True:
-            trial = value if cuts == 0 else reached + (value - reached) / 2**cuts
-            base_value = c.dot(base)
+        try:
+            while True:
+                trial = value if cuts == 0 else reached + (value - reached) / 2**cuts
+                base_value = c.dot(base)
 
-            def constraint(a: PETSc.Vec, b: PETSc.Vec, trial=trial, base_value=base_value) -> float | None:
-                slope = c.dot(b)
-                if slope == 0.0:
-                    return None
-                return (trial + offset - base_value - c.dot(a)) / slope
+                def constraint(a: PETSc.Vec, b: PETSc.Vec, trial=trial, base_value=base_value) -> float | None:
+                    slope = c.dot(b)
+                    if slope == 0.0:
+                        return None
+                    return (trial + offset - base_value - c.dot(a)) / slope
 
-            self._predict_displacement(c, base, trial + offset - base_value)
-            if self._constrained_solve(base, constraint):
-                iterations = self._snes.getIterationNumber()
-                reached = trial
-                self.x.copy(base)
-                previous_factor = self.load_factor
-                if trial == value:
-                    break
-                cuts = max(cuts - 1, 0)
-                continue
-            base.copy(self.x)
-            self.set_load_factor(previous_factor)
-            cuts += 1
-            if cuts > max_cuts:
-                base.destroy()
-                self._fail(f"displacement {value:.6g} not reached (from {reached:.6g})", self._snes)
-        base.destroy()
-        self._record(iterations)
+                self._predict_displacement(c, base, trial + offset - base_value)
+                self.x.copy(predictor)
+                predictor.axpy(-1.0, base)
+                candidate = None
+                if self._constrained_solve(base, constraint):
+                    candidate = self._measure()
+                    if jumps.add(self._branch_jump(candidate, predictor, cuts == max_cuts, origin=base)):
+                        log.info("%s: the displacement step to %.6g jumped to another branch (%s): cut back",
+                                 self.prefix, trial, jumps.first)  # fmt: skip
+                        candidate = None
+                if candidate is not None:
+                    iterations = self._snes.getIterationNumber()
+                    reached = trial
+                    self.x.copy(base)
+                    previous_factor = self.load_factor
+                    if trial == value:
+                        break
+                    cuts = max(cuts - 1, 0)
+                    continue
+                base.copy(self.x)
+                self.set_load_factor(previous_factor)
+                self._failed_attempts += 1
+                cuts += 1
+                if cuts > max_cuts:
+                    advice = "; arc length (method = 'arc_length') follows a snap-back" if jumps.count else ""
+                    self._fail(f"displacement {value:.6g} not reached (from {reached:.6g}){jumps}{advice}", self._snes)
+        finally:
+            base.destroy()
+            predictor.destroy()
+        self._record(iterations, candidate=candidate)
 
     def _check_fixed_supports(self) -> None:
         model = self.model
@@ -451,9 +536,11 @@ class PathFollower(PetscOwner):
         settings.validate()
         self._check_fixed_supports()
         low, high = settings.load_factor_range
-        if len(self.path) == 1 and self._sign != settings.direction:  # from the start: the given direction
+        # from the start of a path (not a continued one): the given direction
+        if len(self.path) == 1 and not self._continuing and self._sign != settings.direction:
             self.tangent.scale(-1.0)
             self._sign = float(settings.direction)
+            self._sample = replace(self._sample, slope=-self._sample.slope)
         self.arc_step = settings.initial_step
         base = self.x.copy()
         predictor = self.x.duplicate()
@@ -469,31 +556,65 @@ class PathFollower(PetscOwner):
 
     def _arc_length_step(self, base: PETSc.Vec, predictor: PETSc.Vec, settings: ArcLength) -> None:
         """One arc-length step of :attr:`arc_step` from ``base`` (the last point) along
-        :attr:`tangent`, halving it on failure; adapts :attr:`arc_step` to the Newton iterations
-        taken and records the point."""
+        :attr:`tangent`, halving it when it fails or jumps to another branch; adapts
+        :attr:`arc_step` to the Newton iterations taken and records the point (at the range's bound
+        if the step crossed it)."""
         start_factor = self.load_factor
         step_length = self.arc_step
+        jumps = _Jumps()
         for cuts in range(settings.max_cuts + 1):
-            # |du| = ds sqrt(n): ds is a root-mean-square DOF change, the same on any mesh; dlambda = sign * scale
+            # |du| = ds sqrt(n): ds is a root-mean-square change, the same on any mesh; dlambda = sign * scale
             scale = step_length * self._rms / max(self.tangent.norm(), 1e-300)
             self.tangent.copy(predictor)
             predictor.scale(scale)
             base.copy(self.x)
             self.x.axpy(1.0, predictor)
             self.set_load_factor(start_factor + self._sign * scale)
+            smallest = cuts == settings.max_cuts or step_length / 2 < settings.min_step
             if self._constrained_solve(base, self._arc_constraint(step_length * self._rms, predictor)):
                 iterations = self._snes.getIterationNumber()
-                self.x.copy(base)
-                growth = np.clip(np.sqrt(settings.target_iterations / max(iterations, 1)), 0.5, 2.0)
-                self.arc_step = float(np.clip(step_length * growth, settings.min_step, settings.max_step))
-                self._record(iterations)
-                return
+                candidate = self._measure()
+                if not jumps.add(self._branch_jump(candidate, predictor, smallest)):
+                    growth = np.clip(np.sqrt(settings.target_iterations / max(iterations, 1)), 0.5, 2.0)
+                    self.arc_step = float(np.clip(step_length * growth, settings.min_step, settings.max_step))
+                    bounded = self._end_at_bound(base, start_factor, settings.load_factor_range)
+                    self.x.copy(base)
+                    self._record(self._snes.getIterationNumber() if bounded else iterations,
+                                 candidate=None if bounded else candidate)  # fmt: skip
+                    return
+                log.info("%s: an arc-length step of %.3g jumped to another branch (%s): cut back", self.prefix,
+                         step_length, jumps.first)  # fmt: skip
             base.copy(self.x)
             self.set_load_factor(start_factor)
-            if cuts == settings.max_cuts or step_length / 2 < settings.min_step:
+            self._failed_attempts += 1
+            if smallest:
                 break
             step_length /= 2
-        self._fail(f"arc-length step of {step_length:.3g} not converged", self._snes)
+        self._fail(f"arc-length step of {step_length:.3g} not converged{jumps}", self._snes)
+
+    def _end_at_bound(self, base: PETSc.Vec, start_factor: float, load_factor_range: tuple[float, float]) -> bool:
+        """If the converged step left ``load_factor_range``, replace it by the equilibrium at the
+        bound it crossed (from ``base``, the last point, predicted by interpolating the step);
+        returns whether it did. A bound solve that fails keeps the step beyond it, with a warning."""
+        factor = self.load_factor
+        low, high = load_factor_range
+        if low < factor < high:
+            return False
+        bound = high if factor >= high else low
+        overshoot, beyond = self.x.copy(), factor
+        fraction = (bound - start_factor) / (factor - start_factor)
+        self.x.scale(fraction)  # base + fraction (x - base)
+        self.x.axpy(1.0 - fraction, base)
+        self.set_load_factor(bound)
+        if self._constrained_solve(base, lambda a, b: bound - self.load_factor):
+            overshoot.destroy()
+            return True
+        log.warning("%s: the equilibrium at the load-factor bound %.6g did not converge: the path ends at %.6g",
+                    self.prefix, bound, beyond)  # fmt: skip
+        overshoot.copy(self.x)
+        overshoot.destroy()
+        self.set_load_factor(beyond)
+        return False
 
     def _arc_constraint(self, step_length: float, predictor: PETSc.Vec):
         """``dlambda`` with ``|a + dlambda b| = ds``: of the two roots, the one whose increment is
@@ -518,7 +639,7 @@ class PathFollower(PetscOwner):
         if self._closed:
             return
         self._closed = True
-        for vec in [self.q, self.tangent, *self.work, self._residual_scratch, self._last]:
+        for vec in [self.q, self.tangent, self._trial_tangent, *self.work, self._residual_scratch, self._last]:
             vec.destroy()
         self._snes.destroy()
         opts = PETSc.Options()

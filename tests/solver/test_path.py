@@ -241,6 +241,24 @@ def test_a_thin_cylindrical_panel_snaps_through_and_back_as_on_a_finer_mesh(comm
     assert fine["turning deflection"] - fine["snap-back deflection"] > 2.0  # mm: a snap-back
 
 
+def test_displacement_control_cuts_back_a_step_that_jumps_past_a_snap_back_and_then_fails(comm):
+    """The thin panel's centre deflection turns back at about 17.1 mm (the snap-back): the step from
+    17.0 to 17.25 mm converges only on the branch after it (at a negative load). It is cut back,
+    never accepted: the path stops at 17.0 mm with an error that names the jump and arc length."""
+    from bhem_hpc.solver.path import PathError
+    from bhem_hpc.studies.paths import CylindricalPanel
+
+    panel = CylindricalPanel()
+    with ShellSolver(panel.model(8, comm)) as solver:
+        with PathFollower(solver, [Probe("centre", *panel.centre())]) as follower:
+            with pytest.raises(PathError, match=r"-17.25 not reached .*jumped to another branch.*arc length"):
+                follower.displacement_control("centre", 1, -np.arange(0.25, 20.01, 0.25), max_cuts=4)
+            deflections = [-p.probes["centre"]["displacement"][1] for p in follower.path]
+            factors = [p.load_factor for p in follower.path]
+    assert deflections[-1] == pytest.approx(17.0, abs=1e-9) and len(deflections) == 69
+    assert min(factors[1:]) > 0  # every accepted point on the loaded branch before the snap-back
+
+
 def test_loads_change_through_the_api_and_the_solve_continues(comm):
     """set_load on a point load and an area load: the next solve, from the current state, lands where
     a model built with the new loads lands; the DOF count and displacement accessors."""

@@ -21,6 +21,11 @@ from bhem_hpc.errors import InputError
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 
 BENCH_DEFAULT_PATCHES = [10, 20, 30]
+#: Patches per side a benchmark sheet may have (a scene's limit: 10^6 patches).
+MAX_BENCH_PATCHES = 1000
+#: Memory one Newton iteration with MUMPS takes per Hermite patch, about (measured: 68 kB per patch
+#: between 30 x 30 and 60 x 60; the factor's fill grows with the size).
+NEWTON_BYTES_PER_PATCH = 100_000
 
 
 def _add_cloth(sub) -> None:
@@ -76,7 +81,8 @@ def _parser() -> argparse.ArgumentParser:
     summary.add_argument("--readme", type=Path, default=Path("README.md"), help="the README to update")
     bench = sub.add_parser("bench", help="time one Newton iteration on an N x N sheet")
     bench.add_argument("--patches", type=int, nargs="+", default=BENCH_DEFAULT_PATCHES)
-    bench.add_argument("--hessian", choices=HESSIAN_KINDS, default="exact")
+    bench.add_argument("--hessian", choices=HESSIAN_KINDS, default=None,
+                       help="the Jacobian (default: exact for one iteration, the scene's with --scene)")
     bench.add_argument(
         "--discretization", choices=("hermite", "bspline2", "bspline3"), default="hermite", help="with --patches"
     )
@@ -214,8 +220,26 @@ def _quadrature(text: str) -> int | str:
     return text if text == "reduced" else int(text)
 
 
+def _check_bench(args: argparse.Namespace) -> None:
+    """Counts and sizes of ``bench`` refused before anything is allocated."""
+    for name, value, low in (("--repeats", args.repeats, 1), ("--steps", args.steps, 1), ("--warmup", args.warmup, 0),
+                             ("--samples", args.samples, 1)):  # fmt: skip
+        if value is not None and not low <= value <= 100_000:
+            raise InputError(f"{name} must be an integer in {low}..100000, got {value}")
+    if any(not 1 <= n <= MAX_BENCH_PATCHES for n in args.patches):
+        raise InputError(f"--patches takes sizes in 1..{MAX_BENCH_PATCHES} (patches per side), got {args.patches}")
+    direct = not (args.scaling or args.rays or args.scene is not None or args.docs is not None)
+    memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    needed = NEWTON_BYTES_PER_PATCH * max(args.patches) ** 2
+    if direct and needed > memory:
+        raise InputError(f"--patches {max(args.patches)} needs about {needed / 2**30:.0f} GiB for one Newton "
+                         f"iteration with MUMPS; this machine has {memory / 2**30:.0f} GiB")  # fmt: skip
+
+
 def _bench(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.benchmarks import performance, timing
+
+    _check_bench(args)
 
     if args.scaling:
         from bhem_hpc.benchmarks import scaling
@@ -236,14 +260,15 @@ def _bench(args: argparse.Namespace, comm) -> None:
         if comm.rank == 0:
             print(json.dumps(row) if args.json else timing.format_scene_row(row))
     else:
+        hessian = args.hessian or "exact"
         rows = [
             timing.benchmark(
-                n, args.hessian, args.repeats, comm, discretization=args.discretization, quadrature=args.quadrature
+                n, hessian, args.repeats, comm, discretization=args.discretization, quadrature=args.quadrature
             )
             for n in args.patches
         ]
         if comm.rank == 0:
-            table = timing.format_newton_table(rows, args.hessian, args.repeats)
+            table = timing.format_newton_table(rows, hessian, args.repeats)
             print("\n".join(json.dumps(row) for row in rows) if args.json else table)
 
 
@@ -315,6 +340,11 @@ def _configure_logging(verbose: bool, rank: int) -> None:
     """Warnings only unless ``--verbose``; the form compiler's command lines only with ``--verbose``."""
     level = logging.INFO if verbose and rank == 0 else logging.WARNING
     logging.basicConfig(level=level, format=f"[rank {rank}] %(levelname)s %(name)s: %(message)s", force=True)
+    # setuptools, which compiles the finite elements' code on a first run, sets the root logger's
+    # level to INFO: below the chosen level only this package's loggers (at their own levels) print
+    logging.getLogger("bhem_hpc").setLevel(level)
+    for handler in logging.getLogger().handlers:
+        handler.addFilter(lambda record: record.levelno >= level or record.name.startswith("bhem_hpc"))
     for noisy in ("ffcx", "UFL"):
         logging.getLogger(noisy).setLevel(logging.INFO if verbose else logging.ERROR)
     # the one line that says forms were compiled, and how long it took (with --verbose, the compiler's too)
@@ -344,6 +374,13 @@ def main(argv: list[str] | None = None) -> int:
 
     comm = MPI.COMM_WORLD
     _configure_logging(args.verbose, comm.rank)
+    from bhem_hpc.scene.petsc_options import command_line_options, option_problem
+
+    for name, value in command_line_options(petsc_args):  # before any solver reads them
+        if (problem := option_problem(name, value)) is not None:
+            if comm.rank == 0:
+                print(f"bhem-hpc: error: PETSc option -{name} must be {problem}, got {value!r}", file=sys.stderr)
+            return 2
 
     from bhem_hpc.errors import UserError
 

@@ -15,3 +15,7 @@ class UserError(Exception):
 
 class InputError(UserError, ValueError):
     """A command-line argument, a file or a value outside what it may be (no more specific family)."""
+
+
+class RunError(UserError, RuntimeError):
+    """A run cannot start or continue (output directory, restart, failed step)."""

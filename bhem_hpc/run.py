@@ -6,7 +6,6 @@ checked (scene, output directory, restart compatibility) is checked before the f
 
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -17,11 +16,11 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc.errors import UserError
+from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
-from bhem_hpc.io import SurfaceTimeSeries, read_checkpoint, render_surface_png, write_checkpoint
+from bhem_hpc.io import SurfaceTimeSeries, render_surface_png, write_checkpoint
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
-from bhem_hpc.io.path_table import CsvTable, JsonLinesTable, plot_path, probe_columns, read_json_rows, read_rows
+from bhem_hpc.io.path_table import CsvTable, JsonLinesTable, plot_path, probe_columns, read_rows
 from bhem_hpc.io.run_directory import (
     OutputDirectoryError,
     OutputLock,
@@ -32,21 +31,25 @@ from bhem_hpc.io.run_directory import (
 from bhem_hpc.model.expression import ufl_expression
 from bhem_hpc.model.path import PathPlan, ProbeSet
 from bhem_hpc.model.shell import AreaLoad, Dynamics, EdgeMoment, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
+from bhem_hpc.restart import (
+    canonical_json,
+    check_path_left,
+    check_same_probes,
+    physics_hash,
+    previous_steps,
+    read_restart,
+    solution_method,
+)
 from bhem_hpc.scene import Scene, load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
-from bhem_hpc.solver.reuse import FactorizationReuse
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
 SUMMARY_EVERY_S = 30.0  # wall seconds between rewrites of a running summary.json (at checkpoints)
-
-
-class RunError(UserError, RuntimeError):
-    """The run cannot start or continue (output directory, restart, failed step)."""
 
 
 @dataclass(frozen=True)
@@ -57,34 +60,6 @@ class RunOptions:
     restart: Path | None = None
     force: bool = False
     progress: bool = True
-
-
-#: ``[solver]`` keys that choose how the equations are solved, not which: a run may continue from a
-#: checkpoint with other values (e.g. the iterative solver where a factorization ran out of memory).
-SOLUTION_METHOD_KEYS = ("linear", "factorization", "options")
-
-
-def physics_hash(scene: Scene) -> str:
-    """Identity of a scene's physics (everything but time span, path settings, probes, output and
-    the solution method's :data:`SOLUTION_METHOD_KEYS`), for restarts."""
-    raw = {k: v for k, v in scene.raw.items() if k not in ("output", "path", "probes")}
-    raw["solver"] = {k: v for k, v in raw.get("solver", {}).items() if k not in SOLUTION_METHOD_KEYS}
-    raw["time"] = {k: v for k, v in raw.get("time", {}).items() if k not in ("steps", "duration", "load_steps")}
-    canonical = _canonical_json(raw)
-    grid = scene.surface.grid
-    canonical += repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
-    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
-
-
-def solution_method(scene: Scene) -> dict:
-    """The scene's :data:`SOLUTION_METHOD_KEYS` that it sets (summary.json keeps them, checkpoints
-    as :func:`_canonical_json`)."""
-    return {k: v for k, v in scene.raw.get("solver", {}).items() if k in SOLUTION_METHOD_KEYS}
-
-
-def _canonical_json(value: dict) -> str:
-    """``value`` as JSON that is equal for equal contents (keys sorted)."""
-    return json.dumps(value, sort_keys=True, default=str)
 
 
 def _check_output(options: RunOptions, continuing: bool, comm: MPI.Comm) -> None:
@@ -223,7 +198,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, cont
         "static": scene.static,
         "linear_solver": solver.linear.as_dict(),
         "factorization": scene.factorization,
-        "steps": _previous_steps(options.out, checkpoint) if continuing else [],
+        "steps": previous_steps(options.out, checkpoint) if continuing else [],
     }
     series = None
     try:
@@ -279,19 +254,12 @@ def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, b
     checkpoint = None
     continuing = False
     if options.restart is not None:
-        checkpoint = _read_restart(options.restart, scene)
+        checkpoint = read_restart(options.restart, scene)
         continuing = _is_same_directory(options.restart, options.out)
-        _check_path_left(scene, checkpoint)
+        check_path_left(scene, checkpoint)
+        if continuing:
+            check_same_probes(scene, options.restart)
     return scene, checkpoint, continuing
-
-
-def _check_path_left(scene: Scene, checkpoint: dict) -> None:
-    """A restart of a finished static path is refused before the output (and its summary) is touched."""
-    attrs = checkpoint["attrs"]
-    done, factor = int(attrs["step"]), float(attrs.get("load_factor", 0.0))  # dynamic checkpoints have none
-    if scene.static and scene.path_plan is not None and scene.path_plan.is_complete(done, factor):
-        raise RunError(f"{checkpoint['path']}: the path is complete: the checkpoint is its last point (step {done}, "
-                       f"load factor {factor:.6g})")  # fmt: skip
 
 
 def _start_output(
@@ -345,12 +313,6 @@ def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: dict | None) ->
     return scene.steps - done
 
 
-def _previous_steps(out: Path, checkpoint: dict) -> list[dict]:
-    """The step records of the run being continued, up to its checkpoint (from ``steps.jsonl``,
-    which has every step's record before that step's checkpoint is written)."""
-    return read_json_rows(out / "steps.jsonl", int(checkpoint["attrs"]["step"]))
-
-
 class _StepRecords:
     """``summary.json``'s step records, each also appended to ``steps.jsonl`` (collective
     :meth:`add`; call it before the step's checkpoint, so that a restart finds it)."""
@@ -366,87 +328,6 @@ class _StepRecords:
 
 def _write_summary(out: Path, summary: dict) -> None:
     write_replacing(out / "summary.json", (json.dumps(summary, indent=1) + "\n").encode())
-
-
-def _read_restart(directory: Path, scene: Scene) -> dict:
-    """The checkpoint in ``directory``, checked to be whole, finite and of this scene's physics."""
-    path = directory / "checkpoint.h5"
-    if not path.is_file():
-        raise RunError(f"--restart {directory}: no checkpoint.h5 there")
-    try:
-        arrays, attrs = read_checkpoint(path)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise RunError(f"{path}: not a readable checkpoint ({exc})") from None
-    if attrs.get("physics_hash") != physics_hash(scene):
-        raise RunError(
-            f"--restart {directory}: the checkpoint is from a different scene or resolution "
-            f"(physics hash {attrs.get('physics_hash')} != {physics_hash(scene)})"
-        )
-    problem = _checkpoint_problem(arrays, attrs, scene)
-    if problem:
-        raise RunError(f"{path}: {problem}")
-    method = _canonical_json(solution_method(scene))
-    if attrs.get("solution_method") != method:
-        log.warning(
-            "--restart %s: continuing with solver settings %s instead of the checkpoint's %s; the continued "
-            "steps agree with an uninterrupted run within the Newton tolerance, not bit for bit",
-            directory, method, attrs.get("solution_method", "(not recorded)"),
-        )  # fmt: skip
-    return {"arrays": arrays, "attrs": attrs, "path": path}
-
-
-def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
-    """What is wrong with a checkpoint's contents, or None."""
-    names = ("position_dofs", "velocity_dofs", "position_nodal")
-    missing = [name for name in names if name not in arrays]
-    if missing:
-        return f"dataset {missing[0]!r} is missing"
-    position, velocity, nodal = (np.asarray(arrays[name]) for name in names)
-    if position.shape != velocity.shape or position.ndim < 2 or position.shape[-1] != 3:
-        return f"position and velocity DOFs have shapes {position.shape} and {velocity.shape}"
-    if nodal.shape != scene.surface.nodal.shape:
-        return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
-    if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
-        return "it holds non-finite or non-numeric values"
-    problem = _reuse_problem(arrays, attrs, position.shape, scene.static)
-    if problem:
-        return problem
-    return _path_problem(arrays, attrs, position.shape) if scene.static else _clock_problem(attrs)
-
-
-def _reuse_problem(arrays: dict, attrs: dict, shape: tuple, static: bool) -> str | None:
-    """What is wrong with a checkpoint's kept-factorization state (if it has one), or None."""
-    if "factorization_state_dofs" not in arrays:
-        return None
-    for name in ("factorization_state_dofs",) + (() if static else ("factorization_previous_dofs",)):
-        kept = np.asarray(arrays.get(name, np.zeros(0)))
-        if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
-            return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
-    counters = [attrs.get(f"reuse_{k}") for k in FactorizationReuse.STATE_KEYS]
-    if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
-        return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
-    return None
-
-
-def _path_problem(arrays: dict, attrs: dict, shape: tuple) -> str | None:
-    """What is wrong with a static run's path data in a checkpoint (and its clock), or None."""
-    previous = np.asarray(arrays.get("previous_position_dofs", np.zeros(0)))
-    if previous.shape != shape or previous.dtype.kind != "f" or not np.all(np.isfinite(previous)):
-        return "dataset 'previous_position_dofs' (the path's previous point) is missing or damaged"
-    factor = attrs.get("load_factor")
-    if isinstance(factor, bool) or not isinstance(factor, int | float | np.floating) or not np.isfinite(factor):
-        return f"its 'load_factor' attribute {factor!r} is not a number"
-    return _clock_problem(attrs)
-
-
-def _clock_problem(attrs: dict) -> str | None:
-    try:
-        time_value, step = float(attrs["time"]), int(attrs["step"])
-    except (KeyError, TypeError, ValueError):
-        return "its 'time' and 'step' attributes are missing or not numbers"
-    if not (np.isfinite(time_value) and time_value >= 0 and step >= 0):
-        return f"time {time_value!r} and step {step!r} are not a valid point of a run"
-    return None
 
 
 def _energies(model: ShellModel) -> dict[str, float]:
@@ -701,7 +582,7 @@ def _checkpoint(
     velocity = model.discretization.gather_raw_dofs(velocity_array)
     data = {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal} | arrays
     meta = {"time": clock[0], "step": clock[1], "physics_hash": summary["physics_hash"],
-            "solution_method": _canonical_json(summary["solution_method"]),
+            "solution_method": canonical_json(summary["solution_method"]),
             "static": model.dynamics is None} | attrs  # fmt: skip
     _on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
 

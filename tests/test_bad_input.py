@@ -153,7 +153,7 @@ def test_scene_files_are_regular_files_beside_the_scene(comm, shared_tmp_path, m
     ("option", "message"),
     [
         ('snes_type = "nosuch"', r"PETSc rejected its options \(error code 86: an unknown type name"),
-        ('snes_rtol = "abc"', r"PETSc rejected its options \(error code 63"),
+        ('snes_divergence_tolerance = "abc"', r"PETSc rejected its options \(error code 63"),
         ('pc_factor_mat_solver_type = "nosolver"', r"stopped the solve with error code 92 \(no such factorization"),
     ],
 )

@@ -170,3 +170,27 @@ def test_sigterm_ends_a_run_at_a_step_boundary_with_its_state_written(comm):
         assert len(json.loads((out / "summary.json").read_text())["steps"]) == attrs["step"] + 2
 
     _serial(comm, check)
+
+
+def test_sigterm_ends_a_static_path_after_a_point_with_its_rows_and_plot(comm):
+    """The same for a path (the cylindrical panel's arc length): ``interrupted`` after a converged
+    point whose frame, checkpoint and path.csv row are written, and path.png drawn."""
+    from bhem_hpc.io import read_checkpoint
+
+    def check(work: Path) -> None:
+        out = work / "out"
+        child = subprocess.Popen(_run(REPO / "jobs" / "cylindrical-panel.toml", out), env=ENV,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        _wait_for(out / "checkpoint.h5", child)
+        time.sleep(0.5)
+        child.send_signal(signal.SIGTERM)
+        _, err = child.communicate(timeout=120)
+        assert child.returncode == 2, err[-2000:]
+        assert len(err.strip().splitlines()) == 1 and "stopped by SIGTERM after path point" in err, err
+        summary = json.loads((out / "summary.json").read_text())
+        _, attrs = read_checkpoint(out / "checkpoint.h5")
+        rows = (out / "path.csv").read_text().splitlines()
+        assert summary["status"] == "interrupted" and len(summary["steps"]) == attrs["step"] + 1 == len(rows) - 1
+        assert (out / "path.png").stat().st_size > 10_000
+
+    _serial(comm, check)

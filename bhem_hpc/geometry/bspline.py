@@ -322,8 +322,11 @@ class BSplineSurface:
         """Read a file written by :meth:`save`; errors name the file and the key."""
         keys = ("degree", "control")
         grid, arrays = load_surface_file(path, FILE_FORMAT, FILE_VERSION, keys, "B-spline surface file")
+        degree = np.asarray(arrays["degree"])
+        if degree.shape != () or degree.dtype.kind not in "iu":
+            raise SurfaceError(f"{path}: key 'degree' must be an integer, got {degree.tolist()!r}")
         try:
-            return cls(grid, int(arrays["degree"]), arrays["control"])
+            return cls(grid, int(degree), arrays["control"])
         except (SurfaceError, ValueError, TypeError) as exc:
             raise SurfaceError(f"{path}: key 'control' or 'degree': {exc}") from exc
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import ast
 import math
 import operator
+import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -25,10 +26,19 @@ _BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul,
            ast.Pow: operator.pow}  # fmt: skip
 _UNARY = {ast.USub: operator.neg, ast.UAdd: operator.pos}
 MAX_LENGTH = 1000
+#: Deepest nesting of an expression's syntax tree (its evaluation recurses through it).
+MAX_DEPTH = 100
+#: Points per direction evaluated at once by :func:`finite_on_tensor` (bounds its memory).
+_CHUNK = 1 << 20
 
 
 class ExpressionError(UserError, ValueError):
     """Text that is not an accepted expression of the parameters."""
+
+
+def _quoted(text: str) -> str:
+    """The expression for a message: whole if short, else its start and its length."""
+    return repr(text) if len(text) <= 60 else f"{text[:40]!r}... ({len(text)} characters)"
 
 
 def _check_node(node: ast.AST, text: str) -> None:
@@ -38,7 +48,10 @@ def _check_node(node: ast.AST, text: str) -> None:
         refused = None if type(node) in (*_BINARY, *_UNARY) else f"operator {type(node).__name__}"
     elif isinstance(node, ast.Constant):
         number = isinstance(node.value, int | float) and not isinstance(node.value, bool)
-        refused = None if number else f"{node.value!r}, which is not a number,"
+        if not number:
+            refused = f"{node.value!r}, which is not a number,"
+        elif isinstance(node.value, int) and abs(node.value) > sys.float_info.max:
+            refused = f"an integer of {len(str(abs(node.value)))} digits (beyond floating point)"
     elif isinstance(node, ast.Name):
         refused = None if node.id in ("xi1", "xi2", "pi", *FUNCTIONS) else f"the unknown name {node.id!r}"
     elif isinstance(node, ast.Call):
@@ -48,7 +61,7 @@ def _check_node(node: ast.AST, text: str) -> None:
         refused = f"{type(node).__name__} syntax"
     if refused:
         raise ExpressionError(
-            f"{text!r} holds {refused}; accepted: numbers, xi1, xi2, pi, + - * / **, {', '.join(FUNCTIONS)}"
+            f"{_quoted(text)} holds {refused}; accepted: numbers, xi1, xi2, pi, + - * / **, {', '.join(FUNCTIONS)}"
         )
 
 
@@ -59,7 +72,13 @@ def parse_expression(text: str) -> ast.expr:
     try:
         tree = ast.parse(text.strip(), mode="eval").body
     except (SyntaxError, RecursionError, ValueError, MemoryError) as exc:
-        raise ExpressionError(f"{text!r} is not an expression ({type(exc).__name__})") from None
+        raise ExpressionError(f"{_quoted(text)} is not an expression ({type(exc).__name__})") from None
+    depth, level = 0, [tree]
+    while level:  # breadth first, without recursion
+        depth += 1
+        if depth > MAX_DEPTH:
+            raise ExpressionError(f"{_quoted(text)} nests more than {MAX_DEPTH} levels deep")
+        level = [child for node in level for child in ast.iter_child_nodes(node)]
     for node in ast.walk(tree):
         _check_node(node, text)
     return tree
@@ -109,3 +128,34 @@ def numpy_expression(text: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray
 def finite_on(text: str, xi1: np.ndarray, xi2: np.ndarray) -> bool:
     """Whether the expression is finite at the parameters ``xi1``, ``xi2``."""
     return bool(np.all(np.isfinite(numpy_expression(text)(xi1, xi2))))
+
+
+def finite_on_tensor(text: str, xi1: np.ndarray, xi2: np.ndarray) -> bool:
+    """Whether the expression is finite at every pair of the 1-D parameter arrays ``xi1 (m1,)`` and
+    ``xi2 (m2,)`` (a tensor grid, evaluated in slabs of bounded size)."""
+    evaluate = numpy_expression(text)
+    rows = max(1, _CHUNK // max(len(xi2), 1))
+    for start in range(0, len(xi1), rows):
+        a, b = np.meshgrid(xi1[start : start + rows], xi2, indexing="ij")
+        if not np.all(np.isfinite(evaluate(a, b))):
+            return False
+    return True
+
+
+def patch_samples(lo: float, hi: float, intervals: int) -> np.ndarray:
+    """Parameters ``(m,)`` along one direction of ``intervals`` equal patches of ``[lo, hi]``: the
+    patch boundaries and, inside every patch, the points of the 1- to 5-point Gauss rules (where
+    any quadrature of a shell evaluates a load or shape)."""
+    inside = np.concatenate([np.polynomial.legendre.leggauss(n)[0] for n in range(1, 6)])
+    h = (hi - lo) / intervals
+    centres = lo + h * (np.arange(intervals) + 0.5)
+    points = (centres[:, None] + 0.5 * h * inside[None, :]).ravel()
+    return np.concatenate([lo + h * np.arange(intervals + 1), points])
+
+
+def finite_on_patches(text: str, ranges: tuple[tuple[float, float], tuple[float, float]],
+                      intervals: tuple[int, int]) -> bool:  # fmt: skip
+    """Whether the expression is finite on a grid of patches (``ranges`` of xi1 and xi2, patch
+    counts ``intervals``) at every point :func:`patch_samples` gives: also between the nodes."""
+    samples = [patch_samples(lo, hi, n) for (lo, hi), n in zip(ranges, intervals, strict=True)]
+    return finite_on_tensor(text, *samples)

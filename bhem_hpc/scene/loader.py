@@ -16,12 +16,13 @@ import numpy as np
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
-from bhem_hpc.model.expression import ExpressionError, finite_on, parse_expression
+from bhem_hpc.model.expression import ExpressionError, finite_on_patches, parse_expression
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
 from bhem_hpc.scene.colliders import parse_colliders
 from bhem_hpc.scene.motions import check_motion_conflicts, parse_motion
+from bhem_hpc.scene.petsc_options import option_problem
 from bhem_hpc.scene.records import Effects, Scene, SceneConstraint, SceneContact, ScenePoint
 from bhem_hpc.scene.surfaces import parse_surface
 from bhem_hpc.scene.table import VALUE_KINDS, SceneError, Table, is_number
@@ -49,6 +50,8 @@ CONTACT_EFFECTS = ("contact", "self_collision", "friction")
 
 #: Bounds checked before anything is allocated: time steps of one run, needles of one grid.
 MAX_STEPS = 10_000_000
+#: Longest probe name (it names columns of path.csv and probes.csv and the curves of path.png).
+MAX_NAME_LENGTH = 64
 
 
 MIN_DT, MAX_DT = 1e-12, 1e3  # s
@@ -142,10 +145,7 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
         if quadrature == "reduced" and surface.discretization != "bspline2":
             solver.fail("quadrature", f"2, 3, 4 or 5: 'reduced' needs surface.discretization = 'bspline2', "
                         f"not {surface.discretization!r}", quadrature)  # fmt: skip
-        options = solver.get("options", "a table", {})
-        for k, v in options.items():
-            if not isinstance(v, str | int | float | bool):
-                solver.fail(f"options.{k}", "a string, number or boolean", v)
+        options = _petsc_options(solver)
         solver.done()
     output = top.table("output", None)
     every, density = 1, 4
@@ -246,9 +246,14 @@ def _loads(t: Table, path: Path, grid: S.ParameterGrid) -> dict[str, tuple]:
     def edge(load: Table) -> str:
         return load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
 
+    inside = f"2 numbers (xi1, xi2) in {list(grid.xi1_range)} x {list(grid.xi2_range)}"
+
+    def at(load: Table) -> tuple[float, float]:
+        return tuple(load.get("at", "2 numbers", check=lambda v: grid.xi1_range[0] <= v[0] <= grid.xi1_range[1]
+                              and grid.xi2_range[0] <= v[1] <= grid.xi2_range[1], expected=inside))  # fmt: skip
+
     return {
-        "point_loads": tuple((*load.get("at", "2 numbers"), tuple(load.get("force", "3 numbers")))
-                             for load in items("point_loads")),  # fmt: skip
+        "point_loads": tuple((*at(load), tuple(load.get("force", "3 numbers"))) for load in items("point_loads")),
         "line_loads": tuple((edge(load), tuple(load.get("traction", "3 numbers"))) for load in items("line_loads")),
         "edge_moments": tuple((edge(load), float(load.get("moment", "a number", expected=moment)))
                               for load in items("edge_moments")),  # fmt: skip
@@ -264,9 +269,20 @@ def _area_load(load: Table, grid: S.ParameterGrid) -> tuple[tuple[float, float, 
             parse_expression(profile)
         except ExpressionError as exc:
             load.fail("profile", f"an expression of xi1 and xi2 ({exc})", profile)
-        if not finite_on(profile, *grid.node_parameters()):
+        if not finite_on_patches(profile, (grid.xi1_range, grid.xi2_range), (grid.n1, grid.n2)):
             load.fail("profile", "an expression finite on the whole surface", profile)
     return force, profile
+
+
+def _petsc_options(t: Table) -> dict:
+    """``options``: PETSc options (without prefix) of the table's solver, their values checked."""
+    options = t.get("options", "a table", {})
+    for k, v in options.items():
+        if not isinstance(v, str | int | float | bool):
+            t.fail(f"options.{k}", "a string, number or boolean", v)
+        if (problem := option_problem(k, v)) is not None:
+            t.fail(f"options.{k}", problem, v)
+    return options
 
 
 def _probes(top: Table, surface) -> tuple[Probe, ...]:
@@ -275,7 +291,8 @@ def _probes(top: Table, surface) -> tuple[Probe, ...]:
     grid = surface.grid
     for i, item in enumerate(top.get("probes", "a list", [])):
         t = Table(top.path, f"probes[{i}]", item)
-        name = t.get("name", "a string", check=lambda v: v.isidentifier(), expected="a name (letters, digits, _)")
+        name = t.get("name", "a string", check=lambda v: v.isidentifier() and len(v) <= MAX_NAME_LENGTH,
+                     expected=f"a name (letters, digits, _; at most {MAX_NAME_LENGTH} characters)")  # fmt: skip
         inside = f"2 numbers (xi1, xi2) in {list(grid.xi1_range)} x {list(grid.xi2_range)}"
         at = t.get("at", "2 numbers", check=lambda v: grid.xi1_range[0] <= v[0] <= grid.xi1_range[1]
                    and grid.xi2_range[0] <= v[1] <= grid.xi2_range[1], expected=inside)  # fmt: skip
@@ -297,10 +314,7 @@ def _path_plan(top: Table, static: bool, load_steps: int, probes: tuple[Probe, .
         return PathPlan("load", tuple(np.arange(1, load_steps + 1) / load_steps))
     method = t.get("method", "a string", check=lambda v: v in PATH_METHODS, expected=f"one of {PATH_METHODS}")
     max_cuts = t.get("max_cuts", "an integer", 8, lambda v: 0 <= v <= 50, "an integer in 0..50")
-    options = t.get("options", "a table", {})
-    for k, v in options.items():
-        if not isinstance(v, str | int | float | bool):
-            t.fail(f"options.{k}", "a string, number or boolean", v)
+    options = _petsc_options(t)
     try:
         if method == "load":
             plan = PathPlan("load", _levels(t, "levels", "target"), max_cuts=max_cuts, options=options)

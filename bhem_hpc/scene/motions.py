@@ -77,6 +77,8 @@ def _keyframes(t: Table, constraint: bcs.NodalConstraint, comps: list[int]) -> M
             values,
         )
     stacked = np.stack(frames)
+    if not np.all(np.isfinite(stacked)):
+        t.fail("values", "finite numbers", values)
 
     def keyframes(time: float, initial: np.ndarray) -> np.ndarray:
         k = int(np.clip(np.searchsorted(times, time, side="right") - 1, 0, len(times) - 2))

@@ -10,7 +10,7 @@ import numpy as np
 
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
-from bhem_hpc.model.expression import ExpressionError, finite_on, numpy_expression
+from bhem_hpc.model.expression import ExpressionError, finite_on_patches, numpy_expression
 from bhem_hpc.scene.table import Registry, SceneError, Table, regular_file
 
 #: Parsers of the surface kinds: ``(table, scene path, discretization) -> surface``.
@@ -46,8 +46,24 @@ def _patches(t: Table, discretization: str) -> tuple[list[int], tuple[int, ...],
     return patches, spline, S if discretization == "hermite" else B
 
 
+#: Lengths a surface may have, in the scene's length unit (beyond them its derivatives and metric
+#: under- or overflow in floating point).
+LENGTH_RANGE = (1e-9, 1e9)
+_LENGTHS = f"in [{LENGTH_RANGE[0]:g}, {LENGTH_RANGE[1]:g}]"
+
+
+def _is_length(value: float) -> bool:
+    return LENGTH_RANGE[0] <= value <= LENGTH_RANGE[1]
+
+
 def _positive(t: Table, key: str) -> float:
-    return t.get(key, "a number", check=lambda v: v > 0, expected="a number > 0")
+    """A length of the surface (radius, length)."""
+    return t.get(key, "a number", check=_is_length, expected=f"a number {_LENGTHS}")
+
+
+def _lengths(t: Table, key: str) -> list[float]:
+    """Two lengths of the surface (size, radii)."""
+    return t.get(key, "2 numbers", check=lambda v: all(_is_length(x) for x in v), expected=f"2 numbers {_LENGTHS}")
 
 
 def _angle_range(angles: list[float]) -> bool:
@@ -59,7 +75,7 @@ def _rectangle(t: Table, path: Path, discretization: str) -> Shape:
     """A flat rectangle, or one raised by ``z = height(xi1, xi2)`` (parameters from 0 to the size),
     e.g. a shallow arch or panel: ``height = "0.01 * sin(pi * xi1)"``."""
     patches, spline, _ = _patches(t, discretization)
-    size = t.get("size", "2 numbers", check=lambda v: min(v) > 0, expected="2 numbers > 0")
+    size = _lengths(t, "size")
     origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
     height = t.get("height", "a string", None)
     if height is None and spline:
@@ -75,7 +91,7 @@ def _rectangle(t: Table, path: Path, discretization: str) -> Shape:
     def shape(a, b):
         return flat(a, b) + np.stack([0 * a, 0 * a, z(a, b)], axis=-1)
 
-    if not finite_on(height, *grid.node_parameters()):
+    if not finite_on_patches(height, (grid.xi1_range, grid.xi2_range), (grid.n1, grid.n2)):
         t.fail("height", "an expression finite on the whole rectangle", height)
     return B.from_callable(shape, grid, spline[0]) if spline else S.from_callable(shape, grid)
 
@@ -107,7 +123,7 @@ def _sphere_zone(t: Table, path: Path, discretization: str) -> Shape:
 def _annulus_sector(t: Table, path: Path, discretization: str) -> Shape:
     patches, spline, shapes = _patches(t, discretization)
     turn = {"closed": t.get("closed", "a boolean", None)}
-    radii = t.get("radii", "2 numbers")
+    radii = _lengths(t, "radii")
     angles = t.get("angles", "2 numbers", check=_angle_range, expected=ANGLE_RANGE)
     return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline, **turn)
 
@@ -116,7 +132,7 @@ def _annulus_sector(t: Table, path: Path, discretization: str) -> Shape:
 def _torus(t: Table, path: Path, discretization: str) -> Shape:
     patches, spline, shapes = _patches(t, discretization)
     t.get("closed", "a boolean", None)  # accepted as for the other surfaces of revolution (always closed)
-    radii = t.get("radii", "2 numbers")
+    radii = _lengths(t, "radii")
     return shapes.torus(radii[0], radii[1], *patches, *spline)
 
 

@@ -10,6 +10,18 @@ from typing import Any
 
 from bhem_hpc.errors import UserError
 
+#: Characters of a refused value an error message shows (a long one is cut in the middle).
+SHOWN_VALUE_LENGTH = 120
+
+
+def _shown(value: Any) -> str:
+    """``repr(value)``, cut to :data:`SHOWN_VALUE_LENGTH` characters around an ellipsis with its length."""
+    text = repr(value)
+    if len(text) <= SHOWN_VALUE_LENGTH:
+        return text
+    half = SHOWN_VALUE_LENGTH // 2
+    return f"{text[:half]}...{text[-half // 2:]} ({len(text)} characters)"
+
 
 class SceneError(UserError, ValueError):
     """A scene file is malformed; the message names the file, the key and the expectation."""
@@ -30,7 +42,7 @@ class Table:
 
     def fail(self, key: str, expected: str, got: Any) -> None:
         where = self.key(key) if key else self.name
-        raise SceneError(f"{self.path}: key '{where}' must be {expected}, got {got!r}")
+        raise SceneError(f"{self.path}: key '{where}' must be {expected}, got {_shown(got)}")
 
     def missing(self, key: str, expected: str) -> None:
         raise SceneError(f"{self.path}: missing key '{self.key(key)}' ({expected})")

@@ -1,0 +1,165 @@
+"""Restarts of a run: a checkpoint's identity (the scene's physics and solution method), its checks
+against the scene before anything is built, and the records a run continued in place keeps.
+Serial functions (every rank may call them on the same files).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from bhem_hpc.errors import RunError
+from bhem_hpc.io import read_checkpoint
+from bhem_hpc.io.path_table import read_json_rows
+from bhem_hpc.scene import Scene
+from bhem_hpc.solver.reuse import FactorizationReuse
+
+log = logging.getLogger(__name__)
+
+
+#: ``[solver]`` keys that choose how the equations are solved, not which: a run may continue from a
+#: checkpoint with other values (e.g. the iterative solver where a factorization ran out of memory).
+SOLUTION_METHOD_KEYS = ("linear", "factorization", "options")
+
+
+def physics_hash(scene: Scene) -> str:
+    """Identity of a scene's physics (everything but time span, path settings, probes, output and
+    the solution method's :data:`SOLUTION_METHOD_KEYS`), for restarts."""
+    raw = {k: v for k, v in scene.raw.items() if k not in ("output", "path", "probes")}
+    raw["solver"] = {k: v for k, v in raw.get("solver", {}).items() if k not in SOLUTION_METHOD_KEYS}
+    raw["time"] = {k: v for k, v in raw.get("time", {}).items() if k not in ("steps", "duration", "load_steps")}
+    canonical = canonical_json(raw)
+    grid = scene.surface.grid
+    canonical += repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
+    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+
+
+def solution_method(scene: Scene) -> dict:
+    """The scene's :data:`SOLUTION_METHOD_KEYS` that it sets (summary.json keeps them, checkpoints
+    as :func:`_canonical_json`)."""
+    return {k: v for k, v in scene.raw.get("solver", {}).items() if k in SOLUTION_METHOD_KEYS}
+
+
+def canonical_json(value: dict) -> str:
+    """``value`` as JSON that is equal for equal contents (keys sorted)."""
+    return json.dumps(value, sort_keys=True, default=str)
+
+
+def read_restart(directory: Path, scene: Scene) -> dict:
+    """The checkpoint in ``directory``, checked to be whole, finite and of this scene's physics."""
+    path = directory / "checkpoint.h5"
+    if not path.is_file():
+        raise RunError(f"--restart {directory}: no checkpoint.h5 there")
+    try:
+        arrays, attrs = read_checkpoint(path)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise RunError(f"{path}: not a readable checkpoint ({exc})") from None
+    if attrs.get("physics_hash") != physics_hash(scene):
+        raise RunError(
+            f"--restart {directory}: the checkpoint is from a different scene or resolution "
+            f"(physics hash {attrs.get('physics_hash')} != {physics_hash(scene)})"
+        )
+    problem = _checkpoint_problem(arrays, attrs, scene)
+    if problem:
+        raise RunError(f"{path}: {problem}")
+    method = canonical_json(solution_method(scene))
+    if attrs.get("solution_method") != method:
+        log.warning(
+            "--restart %s: continuing with solver settings %s instead of the checkpoint's %s; the continued "
+            "steps agree with an uninterrupted run within the Newton tolerance, not bit for bit",
+            directory, method, attrs.get("solution_method", "(not recorded)"),
+        )  # fmt: skip
+    return {"arrays": arrays, "attrs": attrs, "path": path}
+
+
+def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
+    """What is wrong with a checkpoint's contents, or None."""
+    names = ("position_dofs", "velocity_dofs", "position_nodal")
+    missing = [name for name in names if name not in arrays]
+    if missing:
+        return f"dataset {missing[0]!r} is missing"
+    position, velocity, nodal = (np.asarray(arrays[name]) for name in names)
+    if position.shape != velocity.shape or position.ndim < 2 or position.shape[-1] != 3:
+        return f"position and velocity DOFs have shapes {position.shape} and {velocity.shape}"
+    if nodal.shape != scene.surface.nodal.shape:
+        return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
+    if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
+        return "it holds non-finite or non-numeric values"
+    problem = _reuse_problem(arrays, attrs, position.shape, scene.static)
+    if problem:
+        return problem
+    return _path_problem(arrays, attrs, position.shape) if scene.static else _clock_problem(attrs)
+
+
+def _reuse_problem(arrays: dict, attrs: dict, shape: tuple, static: bool) -> str | None:
+    """What is wrong with a checkpoint's kept-factorization state (if it has one), or None."""
+    if "factorization_state_dofs" not in arrays:
+        return None
+    for name in ("factorization_state_dofs",) + (() if static else ("factorization_previous_dofs",)):
+        kept = np.asarray(arrays.get(name, np.zeros(0)))
+        if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
+            return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
+    counters = [attrs.get(f"reuse_{k}") for k in FactorizationReuse.STATE_KEYS]
+    if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
+        return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
+    return None
+
+
+def _path_problem(arrays: dict, attrs: dict, shape: tuple) -> str | None:
+    """What is wrong with a static run's path data in a checkpoint (and its clock), or None."""
+    previous = np.asarray(arrays.get("previous_position_dofs", np.zeros(0)))
+    if previous.shape != shape or previous.dtype.kind != "f" or not np.all(np.isfinite(previous)):
+        return "dataset 'previous_position_dofs' (the path's previous point) is missing or damaged"
+    factor = attrs.get("load_factor")
+    if isinstance(factor, bool) or not isinstance(factor, int | float | np.floating) or not np.isfinite(factor):
+        return f"its 'load_factor' attribute {factor!r} is not a number"
+    return _clock_problem(attrs)
+
+
+def _clock_problem(attrs: dict) -> str | None:
+    try:
+        time_value, step = float(attrs["time"]), int(attrs["step"])
+    except (KeyError, TypeError, ValueError):
+        return "its 'time' and 'step' attributes are missing or not numbers"
+    if not (np.isfinite(time_value) and time_value >= 0 and step >= 0):
+        return f"time {time_value!r} and step {step!r} are not a valid point of a run"
+    return None
+
+
+def check_path_left(scene: Scene, checkpoint: dict) -> None:
+    """A restart of a finished static path is refused before the output (and its summary) is touched."""
+    attrs = checkpoint["attrs"]
+    done, factor = int(attrs["step"]), float(attrs.get("load_factor", 0.0))  # dynamic checkpoints have none
+    if scene.static and scene.path_plan is not None and scene.path_plan.is_complete(done, factor):
+        raise RunError(f"{checkpoint['path']}: the path is complete: the checkpoint is its last point (step {done}, "
+                       f"load factor {factor:.6g})")  # fmt: skip
+
+
+def previous_steps(out: Path, checkpoint: dict) -> list[dict]:
+    """The step records of the run being continued, up to its checkpoint (from ``steps.jsonl``,
+    which has every step's record before that step's checkpoint is written)."""
+    return read_json_rows(out / "steps.jsonl", int(checkpoint["attrs"]["step"]))
+
+
+def check_same_probes(scene: Scene, directory: Path) -> None:
+    """A run continued in place keeps its probes: the table it continues (``path.csv`` of a static
+    run, ``probes.csv`` of a dynamic one) must have a column set for each of the scene's probes and
+    no other, else its rows would mix two sets of columns."""
+    table = directory / ("path.csv" if scene.static else "probes.csv")
+    try:
+        with open(table, newline="") as f:
+            header = next(csv.reader(f), [])
+    except OSError:
+        header = None
+    if header is None and not scene.static:
+        return  # a dynamic run without probes.csv starts one
+    before = sorted(column[: -len("_ux")] for column in header or () if column.endswith("_ux"))
+    now = sorted(p.name for p in scene.probes)
+    if before != now:
+        raise RunError(f"--restart {directory}: the scene's probes {now} are not those of the run it continues "
+                       f"({table.name}: {before}); keep them, or continue into another --out")  # fmt: skip

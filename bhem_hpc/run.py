@@ -385,9 +385,10 @@ def _follow(plan: PathPlan, follower, done: int, count: int, arc_step: float | N
 
     settings = plan.arc_length
     if plan.method == "load":
-        follower.load_control(plan.levels[done : done + count], plan.max_cuts)
+        follower.load_control(plan.levels[done : done + count], max_cuts=plan.max_cuts)
     elif plan.method == "displacement":
-        follower.displacement_control(plan.probe, plan.component, plan.values[done : done + count], plan.max_cuts)
+        follower.displacement_control(plan.probe, plan.component, plan.values[done : done + count],
+                                      max_cuts=plan.max_cuts)  # fmt: skip
     else:
         step = arc_step if arc_step is not None and np.isfinite(arc_step) else settings.initial_step
         step = float(np.clip(step, settings.min_step, settings.max_step))

@@ -112,7 +112,7 @@ def test_bench_sizes_and_counts_are_refused_before_allocating(comm, capsys, argu
 def _bspline_files(directory: Path) -> dict[str, str]:
     """B-spline surface files, each broken in one way, and the message each must give."""
     good = directory / "good.npz"
-    B.flat_rectangle(0.4, 0.3, 3, 2, 2).save(good)
+    B.flat_rectangle(0.4, 0.3, 3, 2, degree=2).save(good)
     data = dict(np.load(good))
     broken = {"version-list": ({"version": np.array([1, 1])}, r"key 'version' must be an integer, got \[1, 1\]"),
               "version-text": ({"version": np.array("abc")}, r"key 'version' must be an integer, got 'abc'"),

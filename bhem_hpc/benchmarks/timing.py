@@ -52,7 +52,7 @@ def benchmark(
     if discretization == "hermite":
         state = S.from_callable(position, rest.grid)
     else:
-        state = bspline.from_callable(position, rest.grid, rest.degree)
+        state = bspline.from_callable(position, rest.grid, degree=rest.degree)
     model = ShellModel(
         rest,
         material,

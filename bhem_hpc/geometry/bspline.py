@@ -356,7 +356,7 @@ def collocation(spans: int, degree: int, periodic: bool, lo: float, hi: float) -
     return matrix
 
 
-def from_callable(position: Field, grid: ParameterGrid, degree: int) -> BSplineSurface:
+def from_callable(position: Field, grid: ParameterGrid, *, degree: int) -> BSplineSurface:
     """The B-spline surface interpolating ``x(xi1, xi2)`` at the tensor Greville points of ``grid``.
 
     Args:
@@ -382,11 +382,17 @@ def interpolate_at_greville(a1: np.ndarray, a2: np.ndarray, values: np.ndarray) 
 
 
 def flat_rectangle(
-    length1: float, length2: float, n1: int, n2: int, degree: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    length1: float,
+    length2: float,
+    n1: int,
+    n2: int,
+    *,
+    degree: int,
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> BSplineSurface:
     """A flat ``length1 x length2`` sheet (:func:`~bhem_hpc.geometry.surface.rectangle_shape`)."""
     grid, position = rectangle_shape(length1, length2, n1, n2, origin)
-    return from_callable(position, grid, degree)
+    return from_callable(position, grid, degree=degree)
 
 
 def cylinder(
@@ -394,6 +400,7 @@ def cylinder(
     length: float,
     n_along: int,
     n_around: int,
+    *,
     degree: int,
     closed: bool = True,
     angle: float = 2 * math.pi,
@@ -401,32 +408,32 @@ def cylinder(
 ) -> BSplineSurface:
     """A cylinder about the z axis (:func:`~bhem_hpc.geometry.surface.cylinder_shape`), periodic when ``closed``."""
     grid, position = cylinder_shape(radius, length, n_along, n_around, closed, angle, seam_angle)
-    return from_callable(position, grid, degree)
+    return from_callable(position, grid, degree=degree)
 
 
 def sphere_zone(
-    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, degree: int,
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, *, degree: int,
     azimuth: tuple[float, float] = (0.0, 2 * math.pi), closed: bool | None = None,
 ) -> BSplineSurface:  # fmt: skip
     """Zone or sector of a sphere (:func:`~bhem_hpc.geometry.surface.sphere_zone_shape`)."""
     grid, position = sphere_zone_shape(radius, polar_min, polar_max, n_polar, n_azimuth, azimuth, closed)
-    return from_callable(position, grid, degree)
+    return from_callable(position, grid, degree=degree)
 
 
 def annulus_sector(
-    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, degree: int,
-    closed: bool | None = None,
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, *,
+    degree: int, closed: bool | None = None,
 ) -> BSplineSurface:  # fmt: skip
     """Flat annulus sector (:func:`~bhem_hpc.geometry.surface.annulus_sector_shape`); a full turn is
     closed unless ``closed=False`` (a slit annulus)."""
     grid, position = annulus_sector_shape(r_inner, r_outer, angle_min, angle_max, n_radial, n_angular, closed)
-    return from_callable(position, grid, degree)
+    return from_callable(position, grid, degree=degree)
 
 
-def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, degree: int) -> BSplineSurface:
+def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, *, degree: int) -> BSplineSurface:
     """Torus about z, closed in both parameters (:func:`~bhem_hpc.geometry.surface.torus_shape`)."""
     grid, position = torus_shape(major_radius, minor_radius, n_major, n_minor)
-    return from_callable(position, grid, degree)
+    return from_callable(position, grid, degree=degree)
 
 
 #: The surface kinds a scene or a file can name, by their discretization.

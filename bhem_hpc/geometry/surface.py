@@ -501,7 +501,7 @@ def torus_shape(major_radius: float, minor_radius: float, n_major: int, n_minor:
 
 
 def flat_rectangle(
-    length1: float, length2: float, n1: int, n2: int, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    length1: float, length2: float, n1: int, n2: int, *, origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> HermiteSurface:
     """A flat ``length1 x length2`` sheet in the plane z = origin[2]; xi = in-plane coordinates."""
     grid, position = rectangle_shape(length1, length2, n1, n2, origin)
@@ -523,6 +523,7 @@ def cylinder(
     length: float,
     n_along: int,
     n_around: int,
+    *,
     closed: bool = True,
     angle: float = 2 * math.pi,
     seam_angle: float = 0.0,
@@ -543,7 +544,7 @@ def cylinder(
 
 
 def sphere_zone(
-    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int,
+    radius: float, polar_min: float, polar_max: float, n_polar: int, n_azimuth: int, *,
     azimuth: tuple[float, float] = (0.0, 2 * math.pi), closed: bool | None = None,
 ) -> HermiteSurface:  # fmt: skip
     """Zone or sector of a sphere (:func:`sphere_zone_shape`), checked to be regular."""
@@ -563,7 +564,7 @@ def sphere_zone(
 
 
 def annulus_sector(
-    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int,
+    r_inner: float, r_outer: float, angle_min: float, angle_max: float, n_radial: int, n_angular: int, *,
     closed: bool | None = None,
 ) -> HermiteSurface:  # fmt: skip
     """Flat annulus sector (:func:`annulus_sector_shape`); a full turn is closed (periodic in xi2)

@@ -144,9 +144,12 @@ def along_kind(edge: str) -> int:
     return 2 if edge.startswith("xi1") else 1
 
 
-def simply_supported(grid: ParameterGrid, edge: str) -> NodalConstraint:
-    """Hinged edge: position and the derivative along the edge fixed, rotation about it free."""
-    return NodalConstraint(edge_nodes(grid, edge), (0, along_kind(edge)))
+def simply_supported(surface, edge: str) -> NodalConstraint:
+    """A simply supported edge of any surface, taken like the other edge helpers (the same as
+    :func:`support_edge`)."""
+    if isinstance(surface, ParameterGrid):
+        raise TypeError("simply_supported takes the surface, as the other edge helpers do, not its ParameterGrid")
+    return support_edge(surface, edge)
 
 
 def prescribe(
@@ -196,7 +199,7 @@ def support_edge(surface, edge: str) -> NodalConstraint:
     (Hermite: position and the derivative along the edge; B-splines: the boundary control points)."""
     if surface.kind_count == 1:
         return NodalConstraint(edge_nodes(surface.grid, edge, surface.node_shape), (0,))
-    return simply_supported(surface.grid, edge)
+    return NodalConstraint(edge_nodes(surface.grid, edge), (0, along_kind(edge)))
 
 
 AXES = ("x", "y", "z")

@@ -35,14 +35,14 @@ def parse_surface(t: Table, path: Path) -> Shape:
     return surface
 
 
-def _patches(t: Table, discretization: str) -> tuple[list[int], tuple[int, ...], object]:
-    """``patches`` of a constructed surface, the spline degree (empty: Hermite) and the module of
-    constructors (Hermite nodal data, or B-spline control points by interpolation)."""
+def _patches(t: Table, discretization: str) -> tuple[list[int], dict[str, int], object]:
+    """``patches`` of a constructed surface, the constructors' ``degree`` keyword (none: Hermite)
+    and their module (Hermite nodal data, or B-spline control points by interpolation)."""
     patches = t.get(
         "patches", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_PATCHES,
         expected=f"2 integers >= 1, at most {MAX_PATCHES} patches in all",
     )  # fmt: skip
-    spline = () if discretization == "hermite" else (int(discretization[-1]),)
+    spline = {} if discretization == "hermite" else {"degree": int(discretization[-1])}
     return patches, spline, S if discretization == "hermite" else B
 
 
@@ -79,9 +79,9 @@ def _rectangle(t: Table, path: Path, discretization: str) -> Shape:
     origin = tuple(t.get("origin", "3 numbers", [0.0, 0.0, 0.0]))
     height = t.get("height", "a string", None)
     if height is None and spline:
-        return B.flat_rectangle(size[0], size[1], patches[0], patches[1], *spline, origin)
+        return B.flat_rectangle(size[0], size[1], patches[0], patches[1], origin=origin, **spline)
     if height is None:
-        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin)
+        return S.flat_rectangle(size[0], size[1], patches[0], patches[1], origin=origin)
     try:
         z = numpy_expression(height)
     except ExpressionError as exc:
@@ -93,7 +93,7 @@ def _rectangle(t: Table, path: Path, discretization: str) -> Shape:
 
     if not finite_on_patches(height, (grid.xi1_range, grid.xi2_range), (grid.n1, grid.n2)):
         t.fail("height", "an expression finite on the whole rectangle", height)
-    return B.from_callable(shape, grid, spline[0]) if spline else S.from_callable(shape, grid)
+    return B.from_callable(shape, grid, **spline) if spline else S.from_callable(shape, grid)
 
 
 @SURFACES.register("cylinder")
@@ -105,7 +105,7 @@ def _cylinder(t: Table, path: Path, discretization: str) -> Shape:
     if closed and not math.isclose(high - low, 2 * math.pi):
         t.fail("closed", "false for an open sector (angles less than 2 pi apart)", closed)
     radius, length = _positive(t, "radius"), _positive(t, "length")
-    return shapes.cylinder(radius, length, patches[0], patches[1], *spline, closed=closed,
+    return shapes.cylinder(radius, length, patches[0], patches[1], **spline, closed=closed,
                            angle=high - low if not closed else 2 * math.pi, seam_angle=low)  # fmt: skip
 
 
@@ -115,7 +115,7 @@ def _sphere_zone(t: Table, path: Path, discretization: str) -> Shape:
     turn = {"closed": t.get("closed", "a boolean", None)}  # default: closed for a full turn
     polar = t.get("polar", "2 numbers")
     azimuth = t.get("azimuth", "2 numbers", [0.0, 2 * math.pi], _angle_range, ANGLE_RANGE)
-    return shapes.sphere_zone(_positive(t, "radius"), polar[0], polar[1], *patches, *spline,
+    return shapes.sphere_zone(_positive(t, "radius"), polar[0], polar[1], *patches, **spline,
                               azimuth=tuple(azimuth), **turn)  # fmt: skip
 
 
@@ -125,7 +125,7 @@ def _annulus_sector(t: Table, path: Path, discretization: str) -> Shape:
     turn = {"closed": t.get("closed", "a boolean", None)}
     radii = _lengths(t, "radii")
     angles = t.get("angles", "2 numbers", check=_angle_range, expected=ANGLE_RANGE)
-    return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, *spline, **turn)
+    return shapes.annulus_sector(radii[0], radii[1], angles[0], angles[1], *patches, **spline, **turn)
 
 
 @SURFACES.register("torus")
@@ -133,7 +133,7 @@ def _torus(t: Table, path: Path, discretization: str) -> Shape:
     patches, spline, shapes = _patches(t, discretization)
     t.get("closed", "a boolean", None)  # accepted as for the other surfaces of revolution (always closed)
     radii = _lengths(t, "radii")
-    return shapes.torus(radii[0], radii[1], *patches, *spline)
+    return shapes.torus(radii[0], radii[1], *patches, **spline)
 
 
 @SURFACES.register("file")

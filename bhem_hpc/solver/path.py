@@ -367,7 +367,7 @@ class PathFollower(PetscOwner):
         return point
 
     # -- load control -----------------------------------------------------------------------------
-    def load_control(self, levels: Sequence[float], max_cuts: int = 8) -> list[PathPoint]:
+    def load_control(self, levels: Sequence[float], *, max_cuts: int = 8) -> list[PathPoint]:
         """Equilibria at exactly the load factors ``levels``, in order, each from the previous one.
 
         A level whose solve fails is approached through intermediate load factors (halving the
@@ -407,9 +407,9 @@ class PathFollower(PetscOwner):
 
     # -- displacement control ---------------------------------------------------------------------
     def displacement_control(
-        self, probe: str, component: int, values: Sequence[float], max_cuts: int = 8
+        self, probe: str, component: int | str, values: Sequence[float], *, max_cuts: int = 8
     ) -> list[PathPoint]:
-        """Equilibria where the probe's displacement component (0, 1, 2 = x, y, z, from the path's
+        """Equilibria where the probe's displacement component (``"x"``, ``"y"``, ``"z"`` or 0, 1, 2; from the path's
         start) takes ``values``, in order; the load factor is the unknown.
 
         Raises:
@@ -419,8 +419,9 @@ class PathFollower(PetscOwner):
         names = [p.name for p in self.probes]
         if probe not in names:
             raise PathSettingError(f"displacement control names probe {probe!r}; the probes are {names}")
-        if component not in (0, 1, 2):
-            raise PathSettingError(f"displacement control component = {component!r}; expected 0, 1 or 2")
+        component = {"x": 0, "y": 1, "z": 2}.get(component, component) if isinstance(component, str) else component
+        if isinstance(component, bool) or component not in (0, 1, 2):
+            raise PathSettingError(f"displacement control component = {component!r}; expected 'x', 'y', 'z' or 0, 1, 2")
         targets = check_levels("displacement values", values)
         self._check_fixed_supports()
         index = names.index(probe)

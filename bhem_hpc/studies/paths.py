@@ -70,7 +70,7 @@ class ShallowArch(Strip):
         else:
             from bhem_hpc.geometry import bspline
 
-            rest = bspline.from_callable(shape, grid, int(discretization[-1]))
+            rest = bspline.from_callable(shape, grid, degree=int(discretization[-1]))
         load = AreaLoad((0.0, 0.0, -self.unit_load), lambda xi: ufl.sin(ufl.pi * xi[0] / length))
         supports = [bcs.support_edge(rest, "xi1_min"), bcs.support_edge(rest, "xi1_max")]
         material = Material(self.young, 0.0, self.thickness, 1.0)
@@ -107,7 +107,7 @@ class CompressedStrip(Strip):
         rest = S.from_callable(lambda a, b: np.stack([a, b, bow * np.sin(np.pi * a / length)], -1), grid)
         end = bcs.edge_nodes(grid, "xi1_max")
         supports = [
-            bcs.simply_supported(grid, "xi1_min"),
+            bcs.simply_supported(rest, "xi1_min"),
             bcs.NodalConstraint(end, (0,), (1, 2)),  # the loaded end slides along x
             bcs.NodalConstraint(end, (2,), (0, 1, 2)),  # and keeps its direction: a hinge
         ]

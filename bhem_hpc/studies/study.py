@@ -130,4 +130,4 @@ def flat_sheet(discretization: str, length1: float, length2: float, n1: int, n2:
         return S.flat_rectangle(length1, length2, n1, n2)
     if discretization not in bspline.DISCRETIZATIONS:
         raise StudyError(f"knob discretization = {discretization!r}; expected one of {bspline.DISCRETIZATIONS}")
-    return bspline.flat_rectangle(length1, length2, n1, n2, int(discretization[-1]))
+    return bspline.flat_rectangle(length1, length2, n1, n2, degree=int(discretization[-1]))

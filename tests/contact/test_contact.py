@@ -360,7 +360,7 @@ def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm
         velocity_surface = S.HermiteSurface(grid, velocity)
     else:
         degree = int(discretization[-1])
-        rest, layout = B.from_callable(position, grid, degree), B.BSplinePatches(grid, degree)
+        rest, layout = B.from_callable(position, grid, degree=degree), B.BSplinePatches(grid, degree)
         xi1 = B.greville(grid.n1, degree, False, *grid.xi1_range)
         control = np.broadcast_to(arm_velocity(xi1)[:, None, :], rest.control.shape)
         velocity_surface = B.BSplineSurface(grid, degree, control.copy())

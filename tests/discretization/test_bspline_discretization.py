@@ -32,7 +32,7 @@ def boundary_controls(surface: B.BSplineSurface, rows: int) -> np.ndarray:
 
 @pytest.mark.parametrize("degree", B.DEGREES)
 def test_layouts_round_trip(comm, degree, rng):
-    rest = B.torus(1.0, 0.3, 6, 5, degree)
+    rest = B.torus(1.0, 0.3, 6, 5, degree=degree)
     disc = BSplineDiscretization(rest.grid, degree, comm)
     surface = B.BSplineSurface(rest.grid, degree, rest.control + 0.01 * rng.normal(size=rest.control.shape))
     np.testing.assert_allclose(disc.open_to_surface(disc.surface_to_open(surface)).control, surface.control, atol=1e-13)
@@ -65,7 +65,7 @@ def closed_energy_and_gradient(solver: ShellSolver, values: np.ndarray) -> tuple
 def test_closed_gradient_and_hessian_match_central_differences(comm, degree, quadrature, rng):
     """``E^T F(E x_c)`` and ``E^T J E`` against differences of the potential and of the residual in
     control-point directions, on a curved rest shape and a random state."""
-    rest = B.sphere_zone(0.8, 0.4, 1.6, 4, 5, degree)
+    rest = B.sphere_zone(0.8, 0.4, 1.6, 4, 5, degree=degree)
     state = B.BSplineSurface(rest.grid, degree, rest.control + 0.03 * rng.normal(size=rest.control.shape))
     model = ShellModel(rest, MATERIAL, Loads(gravity=(0.0, 0.0, -9.81)), comm=comm, initial=state,
                        quadrature_points=quadrature)  # fmt: skip
@@ -100,7 +100,11 @@ def test_closed_gradient_and_hessian_match_central_differences(comm, degree, qua
     [(2, False, None), (3, False, None), (2, True, None), (3, True, None), (2, False, "reduced"), (2, True, "reduced")],
 )
 def test_rigid_motions_have_no_energy(comm, degree, closed, quadrature, rng):
-    rest = B.cylinder(1.0, 1.5, 4, 6, degree) if closed else B.annulus_sector(0.3, 1.0, 0.0, 2.0, 4, 5, degree)
+    rest = (
+        B.cylinder(1.0, 1.5, 4, 6, degree=degree)
+        if closed
+        else B.annulus_sector(0.3, 1.0, 0.0, 2.0, 4, 5, degree=degree)
+    )
     moved = rest.transformed(random_rotation(rng), rng.normal(size=3))
     model = ShellModel(rest, MATERIAL, comm=comm, initial=moved, quadrature_points=quadrature)
     energies = model.energies()
@@ -113,7 +117,7 @@ def test_rigid_motions_have_no_energy(comm, degree, closed, quadrature, rng):
 
 def plate_deflection(degree: int, spans: int, support: str, comm, quadrature: int | str | None = None) -> float:
     """Centre deflection of a square plate under uniform load in ``q a^4 / D`` (small deflection)."""
-    rest = B.flat_rectangle(1.0, 1.0, spans, spans, degree)
+    rest = B.flat_rectangle(1.0, 1.0, spans, spans, degree=degree)
     c1, c2 = rest.node_shape
     if support == "clamped":  # the two outer rows of control points: position and slope
         constraints = [NodalConstraint(boundary_controls(rest, 2), (0,))]
@@ -161,7 +165,7 @@ def test_cantilever_master_curve_within_one_percent(comm, degree):
     length, width, gamma = 1.0, 0.1, 20.0
     material = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
     gravity = gamma * material.young * material.thickness**2 / (12 * material.density * length**3)
-    rest = B.flat_rectangle(length, width, 32, 1, degree)
+    rest = B.flat_rectangle(length, width, 32, 1, degree=degree)
     clamped = np.array([[i, j] for i in range(2) for j in range(rest.node_shape[1])])
     model = ShellModel(rest, material, Loads(gravity=(0.0, 0.0, -gravity)), [NodalConstraint(clamped, (0,))], comm=comm)
     with ShellSolver(model, prefix="bscant_") as solver:
@@ -173,7 +177,7 @@ def test_cantilever_master_curve_within_one_percent(comm, degree):
 
 def test_a_free_sheet_falls_exactly(comm):
     """Implicit Euler under gravity alone: every control point drops by ``g dt^2 N (N + 1) / 2``."""
-    rest = B.flat_rectangle(0.5, 0.3, 3, 2, 2)
+    rest = B.flat_rectangle(0.5, 0.3, 3, 2, degree=2)
     model = ShellModel(rest, MATERIAL, Loads(gravity=(0.0, 0.0, -9.81)), comm=comm, dynamics=Dynamics(0.01))
     with ShellSolver(model, prefix="bsfall_") as solver:
         stepper = TimeStepper(model, solver)
@@ -185,7 +189,7 @@ def test_a_free_sheet_falls_exactly(comm):
 
 
 def test_spline_constraints_refuse_derivative_kinds(comm):
-    rest = B.flat_rectangle(1.0, 1.0, 3, 3, 2)
+    rest = B.flat_rectangle(1.0, 1.0, 3, 3, degree=2)
     with pytest.raises(ValueError, match=r"constraint kinds \(1,\) must be a non-empty subset of \('x',\)"):
         ShellModel(rest, MATERIAL, constraints=[NodalConstraint(np.array([[0, 0]]), (1,))], comm=comm)
     with pytest.raises(ValueError, match=r"names node \(5, 0\), which does not exist"):
@@ -215,7 +219,7 @@ def test_point_load_anywhere_matches_beam_theory(comm, degree, bound):
     beam = Material(young=1e6, poisson=0.0, thickness=0.01, density=1000.0)
     length, width, force, a = 1.0, 0.1, 1e-6, 0.37
     ei = beam.young * width * beam.thickness**3 / 12
-    rest = B.flat_rectangle(length, width, 16, 1, degree)
+    rest = B.flat_rectangle(length, width, 16, 1, degree=degree)
     clamped = np.array([[i, j] for i in range(2) for j in range(rest.node_shape[1])])
     loads = Loads(point_loads=(PointLoad(a, width / 2, (0.0, 0.0, -force)),))
     model = ShellModel(rest, beam, loads, [NodalConstraint(clamped, (0,))], comm=comm)
@@ -231,7 +235,7 @@ def test_point_load_anywhere_matches_beam_theory(comm, degree, bound):
 def test_raw_dofs_do_not_depend_on_the_rank_count(comm, degree, rng):
     """Checkpoints hold raw DOFs: gathered on all ranks they equal the serial ones bit for bit, so
     a run restarts on any rank count."""
-    rest = B.torus(1.0, 0.3, 6, 5, degree)
+    rest = B.torus(1.0, 0.3, 6, 5, degree=degree)
     control = rest.control + 0.01 * comm.bcast(rng.normal(size=rest.control.shape) if comm.rank == 0 else None)
     surface = B.BSplineSurface(rest.grid, degree, control)
     serial = BSplineDiscretization(rest.grid, degree, MPI.COMM_SELF)

@@ -33,7 +33,9 @@ def _perturbed(rest, rng, amplitude):
 
 @pytest.fixture(params=["hermite", "bspline2"])
 def cloth_model(request, comm, rng):
-    rest = S.flat_rectangle(0.3, 0.2, 3, 2) if request.param == "hermite" else B.flat_rectangle(0.3, 0.2, 4, 3, 2)
+    rest = (
+        S.flat_rectangle(0.3, 0.2, 3, 2) if request.param == "hermite" else B.flat_rectangle(0.3, 0.2, 4, 3, degree=2)
+    )
     return ShellModel(rest, COTTON_FBW, hessian="exact", comm=comm, initial=_perturbed(rest, rng, 0.01)), rest
 
 
@@ -79,7 +81,7 @@ def _plate_deflection(comm, spans: int) -> float:
     uniform load: the centre deflection over the closed form ``0.00406235 q a^4 / D``."""
     side, load = 1.0, 1e-5  # a deflection of 4e-4 thicknesses: the linear plate
     material = Material(young=1e5, poisson=0.3, thickness=1e-2, bending="quadratic")
-    rest = B.flat_rectangle(side, side, spans, spans, 2)
+    rest = B.flat_rectangle(side, side, spans, spans, degree=2)
     supports = [bcs.support_edge(rest, edge) for edge in bcs.EDGES]
     model = ShellModel(rest, material, Loads(area_loads=(AreaLoad((0.0, 0.0, -load)),)), supports, comm=comm)
     with ShellSolver(model, prefix="plate_") as solver:

@@ -55,7 +55,7 @@ def test_polynomials_of_the_degree_are_reproduced_exactly(degree, rng):
         return out
 
     grid = ParameterGrid(4, 3, (-0.5, 1.5), (0.0, 0.9))
-    surface = B.from_callable(lambda a, b: poly(a, b), grid, degree)
+    surface = B.from_callable(lambda a, b: poly(a, b), grid, degree=degree)
     a, b = np.meshgrid(rng.uniform(-0.5, 1.5, 13), rng.uniform(0.0, 0.9, 11), indexing="ij")
     point = surface.evaluate(a, b)
     for value, (d1, d2) in ((point.x, (0, 0)), (point.a1, (1, 0)), (point.a2, (0, 1)), (point.a11, (2, 0)),
@@ -65,7 +65,7 @@ def test_polynomials_of_the_degree_are_reproduced_exactly(degree, rng):
 
 @pytest.mark.parametrize(("degree", "periodic"), CASES)
 def test_derivatives_match_central_differences(degree, periodic, rng):
-    surface = B.torus(1.0, 0.3, 6, 5, degree) if periodic else B.sphere_zone(0.7, 0.3, 2.2, 5, 8, degree)
+    surface = B.torus(1.0, 0.3, 6, 5, degree=degree) if periodic else B.sphere_zone(0.7, 0.3, 2.2, 5, 8, degree=degree)
     g = surface.grid
     a = g.xi1_range[0] + (0.1 + 0.8 * rng.random(10)) * (g.xi1_range[1] - g.xi1_range[0])
     b = g.xi2_range[0] + (0.1 + 0.8 * rng.random(10)) * (g.xi2_range[1] - g.xi2_range[0])
@@ -110,7 +110,7 @@ def test_smoothness_across_knots_and_the_seam(degree, periodic, rng):
 def test_interpolation_converges_at_least_at_the_degree_plus_one_rate(degree):
     errors = []
     for n in (6, 12, 24):
-        surface = B.cylinder(1.0, 1.0, 2, n, degree)
+        surface = B.cylinder(1.0, 1.0, 2, n, degree=degree)
         z, phi = np.meshgrid(np.linspace(0.0, 1.0, 5), np.linspace(0.0, 2 * np.pi, 401), indexing="ij")
         errors.append(np.abs(np.linalg.norm(surface.evaluate(z, phi).x[..., :2], axis=-1) - 1.0).max())
     rates = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
@@ -119,7 +119,11 @@ def test_interpolation_converges_at_least_at_the_degree_plus_one_rate(degree):
 
 @pytest.mark.parametrize(("degree", "periodic"), CASES)
 def test_bezier_nets_are_exact_and_elevated_to_bicubic(degree, periodic, rng):
-    surface = B.torus(1.0, 0.3, 6, 5, degree) if periodic else B.annulus_sector(0.2, 0.9, 0.0, 2.0, 4, 5, degree)
+    surface = (
+        B.torus(1.0, 0.3, 6, 5, degree=degree)
+        if periodic
+        else B.annulus_sector(0.2, 0.9, 0.0, 2.0, 4, 5, degree=degree)
+    )
     g = surface.grid
     nets = surface.bezier_nets()
     assert nets.shape == (g.n1 * g.n2, 4, 4, 3)
@@ -147,7 +151,7 @@ def test_clamped_ends_depend_on_the_boundary_control_points_only(rng):
 
 
 def test_files_round_trip_and_bad_input_is_refused(tmp_path):
-    surface = B.torus(1.0, 0.3, 6, 5, 3)
+    surface = B.torus(1.0, 0.3, 6, 5, degree=3)
     surface.save(tmp_path / "torus.npz")
     back = B.BSplineSurface.load(tmp_path / "torus.npz")
     assert back.grid == surface.grid and back.degree == 3
@@ -158,7 +162,7 @@ def test_files_round_trip_and_bad_input_is_refused(tmp_path):
     with pytest.raises(SurfaceError, match=r"shape \(6, 5, 3\)"):
         B.BSplineSurface(grid, 2, np.zeros((6, 4, 3)))
     with pytest.raises(SurfaceError, match="needs at least 4 knot spans"):
-        B.cylinder(1.0, 1.0, 2, 3, 3)
+        B.cylinder(1.0, 1.0, 2, 3, degree=3)
     data = dict(np.load(tmp_path / "torus.npz"))
     np.savez(tmp_path / "short.npz", **{**data, "control": data["control"][:-1]})
     with pytest.raises(SurfaceError, match="short.npz: key 'control'"):

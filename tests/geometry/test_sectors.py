@@ -15,9 +15,9 @@ from bhem_hpc.model import bcs
 
 @pytest.mark.parametrize("shapes", [S, B])
 def test_a_slit_full_turn_has_two_edges_at_the_same_place(shapes):
-    spline = () if shapes is S else (3,)
-    annulus = shapes.annulus_sector(0.5, 1.0, 0.0, 2 * math.pi, 2, 12, *spline, closed=False)
-    sphere = shapes.sphere_zone(1.0, 0.3, 1.2, 3, 12, *spline, closed=False)
+    spline = {} if shapes is S else {"degree": 3}
+    annulus = shapes.annulus_sector(0.5, 1.0, 0.0, 2 * math.pi, 2, 12, **spline, closed=False)
+    sphere = shapes.sphere_zone(1.0, 0.3, 1.2, 3, 12, **spline, closed=False)
     for surface in (annulus, sphere):
         assert not surface.grid.periodic2
         low, high = bcs.edge_nodes(surface.grid, "xi2_min", surface.node_shape), bcs.edge_nodes(
@@ -46,7 +46,7 @@ def test_sectors_by_angle_ranges():
     [
         (lambda: S.annulus_sector(0.5, 1.0, 0.0, 1.0, 2, 4, closed=True), r"a closed annulus sector needs a full turn"),
         (lambda: S.sphere_zone(1.0, 0.3, 1.2, 2, 4, azimuth=(0.0, 7.0)), r"angle range of \(0, 2\*pi\]"),
-        (lambda: B.sphere_zone(1.0, 0.3, 1.2, 2, 4, 2, azimuth=(1.0, 1.0)), r"angle range of \(0, 2\*pi\]"),
+        (lambda: B.sphere_zone(1.0, 0.3, 1.2, 2, 4, degree=2, azimuth=(1.0, 1.0)), r"angle range of \(0, 2\*pi\]"),
     ],
 )
 def test_bad_angle_ranges_are_refused(make, message):

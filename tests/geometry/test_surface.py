@@ -167,3 +167,22 @@ def test_shipped_nodal_files_load():
     np.testing.assert_allclose(np.linalg.norm(zone.nodal[:, :, 0], axis=-1), 0.5, rtol=1e-14)
     cyl = S.HermiteSurface.load(root / "cylinder_12x24.npz")
     assert cyl.grid.node_shape == (13, 24)
+
+
+def test_constructor_options_are_keywords_and_edge_helpers_take_the_surface():
+    """A B-spline constructor's degree and options, and a Hermite one's options, are keyword-only (a
+    flag in the degree's place is refused at the call); every edge helper takes the surface."""
+    from bhem_hpc.geometry import bspline as B
+    from bhem_hpc.model import bcs
+
+    with pytest.raises(TypeError, match="positional argument"):
+        B.cylinder(1.0, 1.0, 4, 4, False, 1.0)
+    with pytest.raises(TypeError, match="positional argument"):
+        S.cylinder(1.0, 1.0, 4, 4, False, 1.0)
+    roof = B.cylinder(1.0, 1.0, 4, 4, degree=3, closed=False, angle=1.0)
+    assert roof.degree == 3 and not roof.grid.periodic2
+    hermite = S.flat_rectangle(1.0, 1.0, 2, 2)
+    supported, reference = bcs.simply_supported(hermite, "xi1_min"), bcs.support_edge(hermite, "xi1_min")
+    assert np.array_equal(supported.nodes, reference.nodes) and supported.kinds == reference.kinds == (0, 2)
+    with pytest.raises(TypeError, match="takes the surface"):
+        bcs.simply_supported(hermite.grid, "xi1_min")

@@ -40,7 +40,7 @@ def test_interior_membrane_points_lie_on_knot_lines_in_alternating_patterns():
 def test_energies_of_a_uniform_state_match_the_full_rule(comm):
     """A uniformly stretched flat sheet: constant energy density, which every weight set
     integrates exactly."""
-    rest = B.flat_rectangle(1.0, 0.7, 6, 5, 2)
+    rest = B.flat_rectangle(1.0, 0.7, 6, 5, degree=2)
     state = B.BSplineSurface(rest.grid, 2, rest.control * np.array([1.05, 0.98, 1.0]))
     full = ShellModel(rest, MATERIAL, comm=comm, initial=state).energies()
     reduced = ShellModel(rest, MATERIAL, comm=comm, initial=state, quadrature_points="reduced").energies()
@@ -52,11 +52,11 @@ def test_energies_of_a_uniform_state_match_the_full_rule(comm):
 def test_point_counts(comm):
     """n x n spans: interior spans 4 + 4 points, side spans 3 x 2 + 1, corner spans 3 x 3 + 1."""
     n = 7
-    model = ShellModel(B.flat_rectangle(1.0, 1.0, n, n, 2), MATERIAL, comm=comm, quadrature_points="reduced")
+    model = ShellModel(B.flat_rectangle(1.0, 1.0, n, n, degree=2), MATERIAL, comm=comm, quadrature_points="reduced")
     interior, sides, corners = (n - 2) ** 2, 4 * (n - 2), 4
     assert model.quadrature.membrane_points == 4 * interior + 6 * sides + 9 * corners
     assert model.quadrature.bending_points == 4 * interior + sides + corners
-    gauss = ShellModel(B.flat_rectangle(1.0, 1.0, n, n, 2), MATERIAL, comm=comm)
+    gauss = ShellModel(B.flat_rectangle(1.0, 1.0, n, n, degree=2), MATERIAL, comm=comm)
     assert gauss.quadrature.membrane_points == gauss.quadrature.bending_points == 9 * n * n
 
 
@@ -64,6 +64,6 @@ def test_the_reduced_rule_is_refused_where_it_does_not_apply(comm):
     with pytest.raises(ModelError, match="'reduced' is the rule of quadratic B-splines; the surface is 'hermite'"):
         ShellModel(S.flat_rectangle(1.0, 1.0, 2, 2), MATERIAL, comm=comm, quadrature_points="reduced")
     with pytest.raises(ModelError, match="the surface is 'bspline3'"):
-        ShellModel(B.flat_rectangle(1.0, 1.0, 3, 3, 3), MATERIAL, comm=comm, quadrature_points="reduced")
+        ShellModel(B.flat_rectangle(1.0, 1.0, 3, 3, degree=3), MATERIAL, comm=comm, quadrature_points="reduced")
     with pytest.raises(ModelError, match=r"expected one of \(2, 3, 4, 5\) or 'reduced'"):
-        ShellModel(B.flat_rectangle(1.0, 1.0, 3, 3, 2), MATERIAL, comm=comm, quadrature_points="full")
+        ShellModel(B.flat_rectangle(1.0, 1.0, 3, 3, degree=2), MATERIAL, comm=comm, quadrature_points="full")

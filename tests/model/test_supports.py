@@ -24,13 +24,13 @@ def roof_deflection(comm, quarter: bool, load: float = 0.09, degree: int | None 
     E 4.32e8, nu 0, self-weight ``load`` per area), scaled to the weight 90 (linear for small loads);
     Hermite patches, or B-splines of ``degree``."""
     shapes = S if degree is None else B
-    spline = () if degree is None else (degree,)
+    spline = {} if degree is None else {"degree": degree}
     if quarter:
-        rest = shapes.cylinder(25.0, 25.0, 8, 8, *spline, closed=False, angle=40 * DEG, seam_angle=50 * DEG)
+        rest = shapes.cylinder(25.0, 25.0, 8, 8, **spline, closed=False, angle=40 * DEG, seam_angle=50 * DEG)
         supports = [bcs.diaphragm_edge(rest, "xi1_min", "z"), *bcs.symmetry_edge(rest, "xi1_max", "z"),
                     *bcs.symmetry_edge(rest, "xi2_max", "x")]  # fmt: skip
     else:
-        rest = shapes.cylinder(25.0, 50.0, 16, 16, *spline, closed=False, angle=80 * DEG, seam_angle=50 * DEG)
+        rest = shapes.cylinder(25.0, 50.0, 16, 16, **spline, closed=False, angle=80 * DEG, seam_angle=50 * DEG)
         supports = [bcs.diaphragm_edge(rest, "xi1_min", "z"), bcs.diaphragm_edge(rest, "xi1_max", "z")]
     loads = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
     model = ShellModel(rest, Material(4.32e8, 0.0, 0.25, 1.0), loads, supports, comm=comm)

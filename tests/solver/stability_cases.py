@@ -104,7 +104,7 @@ def plane_drop_case(comm):
 
 def twist_case(comm):
     """The centre node's first derivatives rotate 4 pi about z in 2 s (paper Fig. 18 scene)."""
-    rest = S.flat_rectangle(0.6, 0.6, 12, 12, (-0.3, -0.3, 0.0))
+    rest = S.flat_rectangle(0.6, 0.6, 12, 12, origin=(-0.3, -0.3, 0.0))
     centre = np.array([[6, 6]])
     held = bcs.NodalConstraint(centre, (0, 1, 2), (0, 1, 2), None)
     model = ShellModel(

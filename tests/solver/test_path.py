@@ -25,7 +25,7 @@ def arch_path(comm, method: str, discretization: str = "hermite") -> tuple[np.nd
         if method == "arc_length":
             follower.arc_length(ArcLength(1e-4, max_step=2.5e-4, max_steps=200, load_factor_range=(-1.0, 7.0)))
         elif method == "displacement":
-            follower.displacement_control("mid", 2, -np.linspace(0, 2 * ARCH.rise, 21)[1:])
+            follower.displacement_control("mid", "z", -np.linspace(0, 2 * ARCH.rise, 21)[1:])  # or 2
         else:
             follower.load_control(np.linspace(0.5, 5.5, 11))
         points = follower.path
@@ -132,6 +132,7 @@ def test_a_step_that_cannot_converge_keeps_the_path_so_far(comm):
         (lambda f: f.load_control([1.0, float("nan")]), r"load levels must be a non-empty list of finite"),
         (lambda f: f.displacement_control("tip", 2, [0.1]), r"probe 'tip'; the probes are \['mid'\]"),
         (lambda f: f.displacement_control("mid", 3, [0.1]), r"component = 3"),
+        (lambda f: f.displacement_control("mid", "w", [0.1]), r"component = 'w'; expected 'x', 'y', 'z' or 0, 1, 2"),
     ],
 )
 def test_bad_settings_are_refused_before_any_solve(comm, call, message):

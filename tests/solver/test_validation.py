@@ -21,7 +21,7 @@ def plate_centre_deflection(comm, patches: int, support: str, pressure: bool = F
     """Centre deflection in units of q a^4 / D of a unit square plate, q small (w ~ 1e-6 h)."""
     rest = S.flat_rectangle(1.0, 1.0, patches, patches)
     make = bcs.clamp if support == "clamped" else None
-    constraints = [make(bcs.edge_nodes(rest.grid, e)) if make else bcs.simply_supported(rest.grid, e) for e in EDGES]
+    constraints = [make(bcs.edge_nodes(rest.grid, e)) if make else bcs.simply_supported(rest, e) for e in EDGES]
     q = 1e-6 * PLATE.bending_stiffness
     loads = Loads(pressure=-q) if pressure else Loads(gravity=(0.0, 0.0, -q / (PLATE.density * PLATE.thickness)))
     model = ShellModel(rest, PLATE, loads, constraints, comm=comm)

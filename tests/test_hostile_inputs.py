@@ -166,3 +166,13 @@ def test_the_workstation_script_names_a_bad_rank_count(comm, shared_tmp_path, ra
         expected = f"RANKS must be an integer in 1..100000, got '{ranks}'"
         assert done.returncode == 2 and done.stderr.strip().endswith(expected), done.stderr
         assert not (shared_tmp_path / "o").exists()
+
+
+def test_bench_of_a_scene_whose_first_step_fails_names_the_scene(comm, shared_tmp_path, capsys):
+    scene = shared_tmp_path / "hopeless.toml"
+    if comm.rank == 0:  # a tolerance no Newton iteration reaches
+        scene.write_text(BASE + "\n[solver]\noptions = { snes_rtol = 1e-300, snes_atol = 1e-300, snes_stol = 0, "
+                         "snes_max_it = 2 }\n")  # fmt: skip
+    comm.Barrier()
+    line = one_error_line(comm, capsys, cli.main(["bench", "--scene", str(scene), "--steps", "1", "--warmup", "0"]))
+    assert comm.rank != 0 or (f"{scene}: cannot be benchmarked: time step 1" in line and "failed after" in line), line

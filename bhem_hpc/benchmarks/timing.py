@@ -179,7 +179,7 @@ def scene_benchmark(
 
     from bhem_hpc.run import SOLVER_PREFIX, build_contact, build_model, prescribed_motions
     from bhem_hpc.scene import load_scene
-    from bhem_hpc.solver.dynamics import TimeStepper
+    from bhem_hpc.solver.dynamics import StepFailure, TimeStepper
 
     if steps < 1:
         raise InputError(f"--steps must be >= 1, got {steps!r}")
@@ -201,9 +201,12 @@ def scene_benchmark(
                      factorization=scene.factorization, linear=scene.linear) as solver:  # fmt: skip
         contact = build_contact(scene, model, solver)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
-        for _ in range(max(warmup, 1)):
-            stepper.advance()
-        reports = [stepper.advance() for _ in range(steps)]
+        try:
+            for _ in range(max(warmup, 1)):
+                stepper.advance()
+            reports = [stepper.advance() for _ in range(steps)]
+        except StepFailure as exc:
+            raise InputError(f"{scene_path}: cannot be benchmarked: {exc}") from None
         assemble = sum(r.assembly_s for r in reports)
         factor = sum(r.factorization_s for r in reports)
         linear_solve = sum(r.linear_solve_s for r in reports)

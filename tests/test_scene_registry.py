@@ -6,6 +6,7 @@ import pytest
 
 from bhem_hpc.scene import SceneError, load_scene
 from bhem_hpc.scene.colliders import COLLIDERS
+from bhem_hpc.scene.constraints import CONSTRAINTS
 from bhem_hpc.scene.motions import MOTIONS
 from bhem_hpc.scene.surfaces import SURFACES
 from bhem_hpc.scene.table import Registry
@@ -15,6 +16,7 @@ def test_every_kind_is_registered_in_the_order_users_read():
     assert SURFACES.names == ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
     assert MOTIONS.names == ("linear", "rotation", "keyframes")
     assert COLLIDERS.names == ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
+    assert CONSTRAINTS.names == ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")
 
 
 def test_a_kind_registered_twice_is_refused():

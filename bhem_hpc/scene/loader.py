@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 from bhem_hpc.model.expression import ExpressionError, finite_on_patches, parse_expression
@@ -21,22 +20,13 @@ from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
 from bhem_hpc.scene.colliders import parse_colliders
-from bhem_hpc.scene.motions import check_motion_conflicts, parse_motion
+from bhem_hpc.scene.constraints import parse_constraints, parse_point_constraints
 from bhem_hpc.scene.petsc_options import option_problem
-from bhem_hpc.scene.records import Effects, Scene, SceneConstraint, SceneContact, ScenePoint
+from bhem_hpc.scene.records import Effects, Scene, SceneContact
 from bhem_hpc.scene.surfaces import parse_surface
-from bhem_hpc.scene.table import VALUE_KINDS, SceneError, Table, is_number
+from bhem_hpc.scene.table import SceneError, Table, is_number
 from bhem_hpc.solver.linear import LINEAR_SOLVERS
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES
-
-CONSTRAINT_TYPES = ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")
-
-
-EDGE_SUPPORTS = ("simply_supported", "hinged", "symmetry", "diaphragm")  # whole edges by name
-
-
-CORNERS = ("min_min", "min_max", "max_min", "max_max")
-
 
 # Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = (
@@ -153,8 +143,8 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
         every = output.get("every", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
         density = output.get("density", "an integer", 4, lambda v: 1 <= v <= 32, "an integer in 1..32")
         output.done()
-    constraints = _constraints(top, surface, path)
-    points = _point_constraints(top, surface, path)
+    constraints = parse_constraints(top, surface, path)
+    points = parse_point_constraints(top, surface, path)
     contact = _contact(top, path, static)
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
@@ -359,139 +349,6 @@ def _arc_length(t: Table) -> ArcLength:
     )
     settings.validate(prefix="")
     return settings
-
-
-def _nodes(t: Table, surface: S.HermiteSurface | B.BSplineSurface) -> np.ndarray:
-    """Nodes of a constraint from exactly one of 'nodes', 'edge', 'corners'."""
-    given = [k for k in ("nodes", "edge", "corners") if k in t.data]
-    if len(given) != 1:
-        raise SceneError(f"{t.path}: table '{t.name}' needs exactly one of 'nodes', 'edge', 'corners'")
-    m1, m2 = surface.node_shape
-    try:
-        if given[0] == "edge":
-            return bcs.edge_nodes(surface.grid, t.get("edge", "a string"), surface.node_shape)
-        if given[0] == "corners":
-            names = t.get(
-                "corners", "a list", check=lambda v: all(c in CORNERS for c in v), expected=f"names from {CORNERS}"
-            )
-            pick = {"min": 0}
-            return np.array([[pick.get(a, m1 - 1), pick.get(b, m2 - 1)] for a, b in (c.split("_") for c in names)])
-    except bcs.BoundaryConditionError as exc:
-        raise SceneError(f"{t.path}: key '{t.key(given[0])}': {exc}") from exc
-    nodes = t.get(
-        "nodes",
-        "a list",
-        check=lambda v: all(VALUE_KINDS["2 integers"](n) for n in v) and len(v) > 0,
-        expected="a non-empty list of [i1, i2] integer pairs",
-    )
-    return np.array(nodes, dtype=np.int64)
-
-
-def _constraints(top: Table, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> tuple[SceneConstraint, ...]:
-    out = []
-    for i, item in enumerate(top.get("constraints", "a list", [])):
-        t = Table(path, f"constraints[{i}]", item)
-        kind = t.get("type", "a string", check=lambda v: v in CONSTRAINT_TYPES, expected=f"one of {CONSTRAINT_TYPES}")
-        if kind == "symmetry":  # two sets of kinds and components: no motion
-            symmetry = _edge_support(t, kind, surface, path)
-            t.done()
-            out += [SceneConstraint(c, None, t.name) for c in symmetry]
-            continue
-        constraint = _constraint(t, kind, surface, path)
-        try:
-            constraint.validate(surface.grid, surface.node_shape, surface.kind_count)
-        except bcs.BoundaryConditionError as exc:
-            raise SceneError(f"{path}: table '{t.name}': {exc}") from exc
-        motion_table = t.table("motion", None)
-        motion = parse_motion(motion_table, constraint) if motion_table is not None else None
-        t.done()
-        out.append(SceneConstraint(constraint, motion, t.name))
-    check_motion_conflicts(out, path)
-    return tuple(out)
-
-
-def _constraint(t: Table, kind: str, surface: S.HermiteSurface | B.BSplineSurface, path: Path) -> bcs.NodalConstraint:
-    """One ``[[constraints]]`` table of ``type`` ``kind``. On B-splines the nodes are control points:
-    ``clamp`` holds the two outer rows (position and slope), ``simply_supported`` the boundary row
-    (the edge curve)."""
-    spline = surface.kind_count == 1
-    if kind in EDGE_SUPPORTS:
-        return _edge_support(t, kind, surface, path)
-    nodes = _nodes(t, surface)
-    if kind == "clamp":
-        kinds: tuple[int, ...] = (0,) if spline else (0, 1, 2, 3)
-        if spline:
-            try:
-                nodes = bcs.with_inner_row(nodes, surface.node_shape)
-            except bcs.BoundaryConditionError as exc:
-                raise SceneError(f"{path}: table '{t.name}': {exc}") from exc
-    elif kind == "pin":
-        kinds = (0,)
-    else:
-        names = t.get(
-            "kinds",
-            "a list",
-            check=lambda v: len(v) > 0 and all(k in S.KIND_NAMES for k in v),
-            expected=f"a non-empty list of names from {S.KIND_NAMES}",
-        )
-        kinds = tuple(S.KIND_NAMES.index(k) for k in names)
-    components = t.get(
-        "components",
-        "a list",
-        [0, 1, 2],
-        lambda v: len(v) > 0 and all(c in (0, 1, 2) for c in v),
-        "a non-empty subset of [0, 1, 2]",
-    )
-    return bcs.NodalConstraint(nodes, kinds, tuple(components))
-
-
-def _edge_support(t: Table, kind: str, surface, path: Path) -> bcs.NodalConstraint | list[bcs.NodalConstraint]:
-    """``simply_supported`` / ``hinged`` / ``symmetry`` / ``diaphragm`` on a named ``edge`` (the last
-    two in the plane normal to the axis ``normal``)."""
-    edge = t.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
-    normal = None
-    if kind in ("symmetry", "diaphragm"):
-        normal = t.get("normal", "a string", check=lambda v: v in bcs.AXES, expected=f"one of {bcs.AXES} (the plane's "
-                       "normal)")  # fmt: skip
-    try:
-        if normal is None:
-            return bcs.hinged_edge(surface, edge)
-        if kind == "diaphragm":
-            return bcs.diaphragm_edge(surface, edge, normal)
-        return bcs.symmetry_edge(surface, edge, normal)
-    except bcs.BoundaryConditionError as exc:
-        raise SceneError(f"{path}: key '{t.key('edge')}' = {edge!r}: {exc}") from exc
-
-
-def _point_constraints(top: Table, surface: S.HermiteSurface, path: Path) -> tuple[ScenePoint, ...]:
-    out = []
-    grid = surface.grid
-    for i, item in enumerate(top.get("point_constraints", "a list", [])):
-        t = Table(path, f"point_constraints[{i}]", item)
-        at = t.get("at", "2 numbers", expected="[xi1, xi2] parameters of the material point")
-        try:
-            grid.locate(np.array(at[0]), np.array(at[1]))
-        except S.SurfaceError as exc:
-            raise SceneError(f"{path}: key '{t.key('at')}': {exc}") from exc
-        components = tuple(
-            t.get(
-                "components",
-                "a list",
-                [0, 1, 2],
-                lambda v: len(v) > 0 and all(c in (0, 1, 2) for c in v),
-                "a non-empty subset of [0, 1, 2]",
-            )
-        )
-        start = surface.evaluate(np.array(at[0]), np.array(at[1])).x
-        target = tuple(t.get("target", "3 numbers", list(start)))
-        motion_table = t.table("motion", None)
-        motion = None
-        if motion_table is not None:
-            shape = bcs.NodalConstraint(np.zeros((1, 2), dtype=np.int64), (0,), components)
-            motion = parse_motion(motion_table, shape)
-        t.done()
-        out.append(ScenePoint(float(at[0]), float(at[1]), components, target, motion))
-    return tuple(out)
 
 
 def _contact(top: Table, path: Path, static: bool) -> SceneContact | None:

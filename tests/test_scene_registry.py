@@ -7,6 +7,7 @@ import pytest
 from bhem_hpc.scene import SceneError, load_scene
 from bhem_hpc.scene.colliders import COLLIDERS
 from bhem_hpc.scene.constraints import CONSTRAINTS
+from bhem_hpc.scene.loads import LOADS
 from bhem_hpc.scene.motions import MOTIONS
 from bhem_hpc.scene.surfaces import SURFACES
 from bhem_hpc.scene.table import Registry
@@ -17,6 +18,7 @@ def test_every_kind_is_registered_in_the_order_users_read():
     assert MOTIONS.names == ("linear", "rotation", "keyframes")
     assert COLLIDERS.names == ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
     assert CONSTRAINTS.names == ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")
+    assert LOADS.names == ("point_loads", "line_loads", "area_loads", "edge_moments")
 
 
 def test_a_kind_registered_twice_is_refused():

@@ -15,12 +15,12 @@ import numpy as np
 
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
-from bhem_hpc.model.expression import ExpressionError, finite_on_patches, parse_expression
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
 from bhem_hpc.scene.colliders import parse_colliders
 from bhem_hpc.scene.constraints import parse_constraints, parse_point_constraints
+from bhem_hpc.scene.loads import LOADS, parse_loads
 from bhem_hpc.scene.petsc_options import option_problem
 from bhem_hpc.scene.records import Effects, Scene, SceneContact
 from bhem_hpc.scene.surfaces import parse_surface
@@ -29,10 +29,7 @@ from bhem_hpc.solver.linear import LINEAR_SOLVERS
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES
 
 # Effects a scene may list; contact effects import the collision code only when listed.
-EFFECTS = (
-    "gravity", "pressure", "damping", "point_loads", "line_loads", "area_loads", "edge_moments", "contact",
-    "self_collision", "friction",
-)  # fmt: skip
+EFFECTS = ("gravity", "pressure", "damping", *LOADS.names, "contact", "self_collision", "friction")
 
 
 CONTACT_EFFECTS = ("contact", "self_collision", "friction")
@@ -211,7 +208,7 @@ def _effects(t: Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
         mass_damping = damping.get("mass", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [1/s]")
         stiffness_damping = damping.get("stiffness", "a number", 0.0, lambda v: v >= 0, "a number >= 0 [s]")
         damping.done()
-    loads = _loads(t, path, grid)
+    loads = parse_loads(t, path, grid)
     t.done()
     return Effects(
         gravity=tuple(gravity) if gravity is not None else None,
@@ -220,48 +217,6 @@ def _effects(t: Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
         stiffness_damping=stiffness_damping,
         **loads,
     )
-
-
-def _loads(t: Table, path: Path, grid: S.ParameterGrid) -> dict[str, tuple]:
-    """``effects.point_loads``, ``line_loads``, ``edge_moments`` and ``area_loads``, by name."""
-
-    def items(name: str):
-        for i, item in enumerate(t.get(name, "a list", [])):
-            load = Table(path, f"effects.{name}[{i}]", item)
-            yield load
-            load.done()
-
-    moment = "a number (moment per length [N])"
-
-    def edge(load: Table) -> str:
-        return load.get("edge", "a string", check=lambda v: v in bcs.EDGES, expected=f"one of {bcs.EDGES}")
-
-    inside = f"2 numbers (xi1, xi2) in {list(grid.xi1_range)} x {list(grid.xi2_range)}"
-
-    def at(load: Table) -> tuple[float, float]:
-        return tuple(load.get("at", "2 numbers", check=lambda v: grid.xi1_range[0] <= v[0] <= grid.xi1_range[1]
-                              and grid.xi2_range[0] <= v[1] <= grid.xi2_range[1], expected=inside))  # fmt: skip
-
-    return {
-        "point_loads": tuple((*at(load), tuple(load.get("force", "3 numbers"))) for load in items("point_loads")),
-        "line_loads": tuple((edge(load), tuple(load.get("traction", "3 numbers"))) for load in items("line_loads")),
-        "edge_moments": tuple((edge(load), float(load.get("moment", "a number", expected=moment)))
-                              for load in items("edge_moments")),  # fmt: skip
-        "area_loads": tuple(_area_load(load, grid) for load in items("area_loads")),
-    }
-
-
-def _area_load(load: Table, grid: S.ParameterGrid) -> tuple[tuple[float, float, float], str | None]:
-    force = tuple(load.get("force", "3 numbers", expected="3 numbers (force per rest area [N/m^2])"))
-    profile = load.get("profile", "a string", None)
-    if profile is not None:
-        try:
-            parse_expression(profile)
-        except ExpressionError as exc:
-            load.fail("profile", f"an expression of xi1 and xi2 ({exc})", profile)
-        if not finite_on_patches(profile, (grid.xi1_range, grid.xi2_range), (grid.n1, grid.n2)):
-            load.fail("profile", "an expression finite on the whole surface", profile)
-    return force, profile
 
 
 def _petsc_options(t: Table) -> dict:

@@ -9,6 +9,7 @@ import csv
 import hashlib
 import json
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,26 @@ from bhem_hpc.scene import Scene
 from bhem_hpc.solver.reuse import FactorizationReuse
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RestartPoint:
+    """A checkpoint read for a restart and checked against its scene (:func:`read_restart`).
+
+    Attributes:
+        path: the checkpoint file.
+        arrays: its datasets by name (raw DOFs ``position_dofs``, ``velocity_dofs``, ...).
+        attrs: its attributes (``time``, ``step``, ``physics_hash``, a path's ``load_factor``, ...).
+    """
+
+    path: Path
+    arrays: dict[str, np.ndarray]
+    attrs: dict[str, object]
+
+    @property
+    def step(self) -> int:
+        """The step (time step or path point) the checkpoint was written after."""
+        return int(self.attrs["step"])
 
 
 #: ``[solver]`` keys that choose how the equations are solved, not which: a run may continue from a
@@ -50,7 +71,7 @@ def canonical_json(value: dict) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def read_restart(directory: Path, scene: Scene) -> dict:
+def read_restart(directory: Path, scene: Scene) -> RestartPoint:
     """The checkpoint in ``directory``, checked to be whole, finite and of this scene's physics."""
     path = directory / "checkpoint.h5"
     if not path.is_file():
@@ -74,7 +95,7 @@ def read_restart(directory: Path, scene: Scene) -> dict:
             "steps agree with an uninterrupted run within the Newton tolerance, not bit for bit",
             directory, method, attrs.get("solution_method", "(not recorded)"),
         )  # fmt: skip
-    return {"arrays": arrays, "attrs": attrs, "path": path}
+    return RestartPoint(path, arrays, attrs)
 
 
 def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
@@ -131,19 +152,18 @@ def _clock_problem(attrs: dict) -> str | None:
     return None
 
 
-def check_path_left(scene: Scene, checkpoint: dict) -> None:
+def check_path_left(scene: Scene, checkpoint: RestartPoint) -> None:
     """A restart of a finished static path is refused before the output (and its summary) is touched."""
-    attrs = checkpoint["attrs"]
-    done, factor = int(attrs["step"]), float(attrs.get("load_factor", 0.0))  # dynamic checkpoints have none
+    done, factor = checkpoint.step, float(checkpoint.attrs.get("load_factor", 0.0))  # dynamic checkpoints have none
     if scene.static and scene.path_plan is not None and scene.path_plan.is_complete(done, factor):
-        raise RunError(f"{checkpoint['path']}: the path is complete: the checkpoint is its last point (step {done}, "
+        raise RunError(f"{checkpoint.path}: the path is complete: the checkpoint is its last point (step {done}, "
                        f"load factor {factor:.6g})")  # fmt: skip
 
 
-def previous_steps(out: Path, checkpoint: dict) -> list[dict]:
+def previous_steps(out: Path, checkpoint: RestartPoint) -> list[dict]:
     """The step records of the run being continued, up to its checkpoint (from ``steps.jsonl``,
     which has every step's record before that step's checkpoint is written)."""
-    return read_json_rows(out / "steps.jsonl", int(checkpoint["attrs"]["step"]))
+    return read_json_rows(out / "steps.jsonl", checkpoint.step)
 
 
 def check_same_probes(scene: Scene, directory: Path) -> None:

@@ -6,7 +6,6 @@ checked (scene, output directory, restart compatibility) is checked before the f
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import time
@@ -28,10 +27,12 @@ from bhem_hpc.io.run_directory import (
     start_output_directory,
     write_replacing,
 )
+from bhem_hpc.io.run_summary import RunSummary
 from bhem_hpc.model.expression import ufl_expression
 from bhem_hpc.model.path import PathPlan, ProbeSet
 from bhem_hpc.model.shell import AreaLoad, Dynamics, EdgeMoment, LineLoad, Loads, PointConstraint, PointLoad, ShellModel
 from bhem_hpc.restart import (
+    RestartPoint,
     canonical_json,
     check_path_left,
     check_same_probes,
@@ -82,6 +83,21 @@ def _on_rank0_directory(comm: MPI.Comm, action) -> None:
 
 def _is_same_directory(a: Path, b: Path) -> bool:
     return a.exists() and b.exists() and os.path.samefile(a, b)
+
+
+@dataclass
+class _Run:
+    """What the stages of one run share: its options and scene, the model and solver (collective,
+    every rank), the summary, and, once started, the time series (rank 0) and the stop signals."""
+
+    options: RunOptions
+    scene: Scene
+    model: ShellModel
+    solver: ShellSolver
+    summary: RunSummary
+    comm: MPI.Comm
+    series: SurfaceTimeSeries | None = None
+    interruption: Interruption | None = None
 
 
 def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
@@ -167,7 +183,8 @@ def _lock_output(out: Path, comm: MPI.Comm) -> OutputLock | None:
     return lock
 
 
-def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, continuing: bool, comm: MPI.Comm) -> dict:
+def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | None, continuing: bool,
+                comm: MPI.Comm) -> dict:  # fmt: skip
     """The run itself, once its output directory is locked and checked (see :func:`run_scene`)."""
     steps = _steps_to_run(scene, options, checkpoint)
     scene_text = options.scene.read_bytes()  # before the output directory (which may hold it) is replaced
@@ -176,9 +193,9 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, cont
     disc = model.discretization
     if checkpoint is not None:  # the DOF layout of this model (rank count for B-splines) must match
         expected = disc.gather_raw_dofs(model.x.x.array).shape
-        if checkpoint["arrays"]["position_dofs"].shape != expected:
+        if checkpoint.arrays["position_dofs"].shape != expected:
             raise RunError(
-                f"{checkpoint['path']}: its DOFs have shape {checkpoint['arrays']['position_dofs'].shape}, "
+                f"{checkpoint.path}: its DOFs have shape {checkpoint.arrays['position_dofs'].shape}, "
                 f"this run's {expected}"
             )
     try:
@@ -186,60 +203,57 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: dict | None, cont
                              factorization=scene.factorization, linear=scene.linear)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{options.scene}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
-    summary: dict = {
-        "scene": str(options.scene),
-        "status": "running",
-        "physics_hash": physics_hash(scene),
-        "solution_method": solution_method(scene),
-        "dofs": 3 * disc.num_closed,
-        "nonzeros": solver.problem.matrix_nonzeros(),
-        "ranks": comm.size,
-        "versions": library_versions(),
-        "static": scene.static,
-        "linear_solver": solver.linear.as_dict(),
-        "factorization": scene.factorization,
-        "steps": previous_steps(options.out, checkpoint) if continuing else [],
-    }
-    series = None
+    summary = RunSummary(
+        scene=str(options.scene),
+        physics_hash=physics_hash(scene),
+        solution_method=solution_method(scene),
+        dofs=3 * disc.num_closed,
+        nonzeros=solver.problem.matrix_nonzeros(),
+        ranks=comm.size,
+        versions=library_versions(),
+        static=scene.static,
+        linear_solver=solver.linear.as_dict(),
+        factorization=scene.factorization,
+        steps=previous_steps(options.out, checkpoint) if continuing else [],
+    )
+    run = _Run(options, scene, model, solver, summary, comm)
     try:
-        series = _start_output(options, scene, scene_text, summary, checkpoint if continuing else None, comm)
-        with Interruption() as interruption:
+        run.series = _start_output(run, scene_text, checkpoint if continuing else None)
+        with Interruption() as run.interruption:
             if scene.static:
-                final = _run_static(scene, options, steps, model, solver, series, summary, (checkpoint, continuing),
-                                    comm, interruption)  # fmt: skip
+                final = _run_static(run, steps, checkpoint, continuing)
             else:
-                final = _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm,
-                                     interruption)  # fmt: skip
-        where = f"load factor {summary['load_factor']:.4g}" if scene.static else f"t = {summary.get('time', 0):.4g} s"
+                final = _run_dynamic(run, steps, checkpoint)
+        where = f"load factor {summary.load_factor:.4g}" if scene.static else f"t = {summary.time or 0:.4g} s"
         title = f"{options.scene.name}, {where}"
         _on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
     except Exception as exc:
-        summary.update(status="interrupted" if isinstance(exc, RunInterrupted) else "failed", error=str(exc))
+        summary.status, summary.error = "interrupted" if isinstance(exc, RunInterrupted) else "failed", str(exc)
         if comm.rank == 0 and options.out.is_dir():
             try:
-                _write_summary(options.out, summary)
+                summary.write(options.out)
             except OSError:
                 log.error("could not record the failure in %s/summary.json", options.out)
         raise
     finally:
-        if series is not None:
-            series.close()
+        if run.series is not None:
+            run.series.close()
         _report_unused_options(solver, summary, comm)
-        summary["linear_solver_fallbacks"] = solver.fallbacks
-        summary["solver_totals"] = {
+        summary.linear_solver_fallbacks = solver.fallbacks
+        summary.solver_totals = {
             k: v for k, v in solver.counters().items() if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)
         }
         solver.close()
-    summary["status"] = "completed"
-    _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
-    return summary
+    summary.status = "completed"
+    _on_rank0(comm, lambda: summary.write(options.out), "summary.json")
+    return summary.as_dict()
 
 
-def _report_unused_options(solver: ShellSolver, summary: dict, comm: MPI.Comm) -> None:
+def _report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:
     """Options under the run's prefix that PETSc never read (a misspelling, or an option that does
     not apply): a warning and ``summary.json``'s ``unused_petsc_options``."""
     unused = solver.unused_options()
-    summary["unused_petsc_options"] = unused
+    summary.unused_petsc_options = unused
     if unused and comm.rank == 0:
         log.warning("PETSc options never used (misspelled or not applicable): %s", ", ".join(unused))
 
@@ -262,23 +276,22 @@ def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, b
     return scene, checkpoint, continuing
 
 
-def _start_output(
-    options: RunOptions, scene: Scene, scene_text: bytes, summary: dict, continued: dict | None, comm: MPI.Comm
-) -> SurfaceTimeSeries | None:
+def _start_output(run: _Run, scene_text: bytes, continued: RestartPoint | None) -> SurfaceTimeSeries | None:
     """Rank 0: a fresh output directory (or the continued one), the scene, a running summary and the
     time series (continuing ``continued``'s checkpoint time, if given); None on other ranks."""
+    out, scene = run.options.out, run.scene
 
     def start() -> SurfaceTimeSeries:
         if continued is None:
-            start_output_directory(options.out)
-        write_replacing(options.out / "scene.toml", scene_text)
-        _write_summary(options.out, summary)
+            start_output_directory(out)
+        write_replacing(out / "scene.toml", scene_text)
+        run.summary.write(out)
         return SurfaceTimeSeries(
-            options.out / "surface.xdmf", scene.surface, scene.material, scene.output_density,
-            continue_at=None if continued is None else float(continued["attrs"]["time"]),
+            out / "surface.xdmf", scene.surface, scene.material, scene.output_density,
+            continue_at=None if continued is None else float(continued.attrs["time"]),
         )  # fmt: skip
 
-    return _on_rank0(comm, start, f"the output directory {options.out}")
+    return _on_rank0(run.comm, start, f"the output directory {out}")
 
 
 def _on_rank0(comm: MPI.Comm, action, what: str):
@@ -298,13 +311,13 @@ def _on_rank0(comm: MPI.Comm, action, what: str):
     return result
 
 
-def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: dict | None) -> int:
+def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: RestartPoint | None) -> int:
     """``--steps``, or the steps left to the scene's end (all of them without a restart)."""
     if scene.static:  # --steps bounds the path points of this run
         return options.steps if options.steps is not None else scene.path_plan.point_count
     if options.steps is not None or checkpoint is None:
         return options.steps if options.steps is not None else scene.steps
-    done = int(checkpoint["attrs"]["step"])
+    done = checkpoint.step
     if done >= scene.steps:
         raise RunError(
             f"--restart {options.restart}: the checkpoint is at step {done}, the scene's last "
@@ -317,17 +330,13 @@ class _StepRecords:
     """``summary.json``'s step records, each also appended to ``steps.jsonl`` (collective
     :meth:`add`; call it before the step's checkpoint, so that a restart finds it)."""
 
-    def __init__(self, out: Path, summary: dict, comm: MPI.Comm):
+    def __init__(self, out: Path, summary: RunSummary, comm: MPI.Comm):
         self.summary, self.comm = summary, comm
-        self.table = JsonLinesTable(out / "steps.jsonl", summary["steps"]) if comm.rank == 0 else None
+        self.table = JsonLinesTable(out / "steps.jsonl", summary.steps) if comm.rank == 0 else None
 
     def add(self, row: dict) -> None:
-        self.summary["steps"].append(row)
+        self.summary.steps.append(row)
         _on_rank0(self.comm, lambda: self.table.add(row), "steps.jsonl")
-
-
-def _write_summary(out: Path, summary: dict) -> None:
-    write_replacing(out / "summary.json", (json.dumps(summary, indent=1) + "\n").encode())
 
 
 def _energies(model: ShellModel) -> dict[str, float]:
@@ -335,19 +344,18 @@ def _energies(model: ShellModel) -> dict[str, float]:
     return {k: float(v) for k, v in e.items()}
 
 
-def _run_static(scene, options, steps, model, solver, series, summary, restart, comm,
-                interruption: Interruption) -> HermiteSurface:  # fmt: skip
+def _run_static(run: _Run, steps: int, checkpoint: RestartPoint | None, continuing: bool) -> HermiteSurface:
     """Follow ``steps`` more points of a static scene's path (:class:`~bhem_hpc.model.path.PathPlan`),
     writing per converged point a frame, a row of ``path.csv`` and of the summary, and a checkpoint;
     ``path.png`` at the end (also when a step fails or a signal stops the run after a point: the
     converged part stays in every file). Returns the final surface."""
     from bhem_hpc.solver.path import PathError, PathFollower
 
-    checkpoint, continuing = restart
+    scene, options, model, solver, summary = run.scene, run.options, run.model, run.solver, run.summary
     plan: PathPlan = scene.path_plan
     start, first_step, previous, arc_step = (0.0, 0.0), 0, None, None
     if checkpoint is not None:
-        arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
+        arrays, attrs = checkpoint.arrays, checkpoint.attrs
         disc = model.discretization
         model.x.x.array[:] = disc.scatter_raw_dofs(arrays["position_dofs"])
         previous = disc.open_to_closed(disc.scatter_raw_dofs(arrays["previous_position_dofs"]))
@@ -356,13 +364,12 @@ def _run_static(scene, options, steps, model, solver, series, summary, restart, 
     motions = prescribed_motions(scene)
     if motions:  # a motion's time is the load factor: rotations turn the nodal vectors along the path
         solver.prescribed = lambda factor: model.prescribed_values([m.at(factor) for m in motions])
-    output = _PathOutput(options.out, model, scene, series, summary, comm, first_step if continuing else None,
-                         interruption, options.scene)  # fmt: skip
+    output = _PathOutput(run, first_step if continuing else None)
     follower = PathFollower(solver, scene.probes, SOLVER_PREFIX + "path_", plan.options, *start, previous,
                             first_step, on_point=output.write)  # fmt: skip
     output.follower = follower
     if checkpoint is not None:  # the next point's checkpoint names its previous point: the path's direction
-        output.previous_raw = checkpoint["arrays"]["position_dofs" if continuing else "previous_position_dofs"]
+        output.previous_raw = checkpoint.arrays["position_dofs" if continuing else "previous_position_dofs"]
     try:
         if not continuing:  # a new series starts with the path's start (or the restart point)
             output.write(follower.path[0])
@@ -372,9 +379,7 @@ def _run_static(scene, options, steps, model, solver, series, summary, restart, 
     finally:
         output.plot(options.scene.name)
         follower.close()
-    summary["time"] = output.last_time
-    summary["load_factor"] = follower.load_factor
-    summary["path_method"] = plan.method
+    summary.time, summary.load_factor, summary.path_method = output.last_time, follower.load_factor, plan.method
     return output.surface
 
 
@@ -399,15 +404,15 @@ def _follow(plan: PathPlan, follower, done: int, count: int, arc_step: float | N
 class _PathOutput:
     """The files of a static run, one update per converged path point (collective :meth:`write`)."""
 
-    def __init__(self, out: Path, model: ShellModel, scene: Scene, series, summary: dict, comm, continued_step,
-                 interruption: Interruption, scene_path: Path):  # fmt: skip
-        self.out, self.model, self.plan, self.series = out, model, scene.path_plan, series
-        self.summary, self.comm = summary, comm
-        self.records = _StepRecords(out, summary, comm)
-        self.interruption, self.scene_path = interruption, scene_path
+    def __init__(self, run: _Run, continued_step: int | None):
+        out, scene = run.options.out, run.scene
+        self.out, self.model, self.plan, self.series = out, run.model, scene.path_plan, run.series
+        self.summary, self.comm = run.summary, run.comm
+        self.records = _StepRecords(out, run.summary, run.comm)
+        self.interruption, self.scene_path = run.interruption, run.options.scene
         self.probes = [p.name for p in scene.probes]
         keep = read_rows(out / "path.csv", continued_step) if continued_step is not None else []
-        self.table = CsvTable(out / "path.csv", keep) if comm.rank == 0 else None
+        self.table = CsvTable(out / "path.csv", keep) if run.comm.rank == 0 else None
         self.previous_raw = None
         self.follower = None
         self.surface = None
@@ -455,20 +460,18 @@ class _PathOutput:
         _on_rank0(self.comm, draw, "path.png")
 
 
-def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoint, comm,
-                 interruption: Interruption) -> HermiteSurface:  # fmt: skip
+def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> HermiteSurface:
     """Step a dynamic scene, writing frames and checkpoints; returns the final surface. A stop
-    signal (``interruption``) ends it after the step in progress, written, with
+    signal (``run.interruption``) ends it after the step in progress, written, with
     :class:`RunInterrupted`."""
+    scene, options, model, solver, summary = run.scene, run.options, run.model, run.solver, run.summary
+    series, comm, interruption = run.series, run.comm, run.interruption
     contact = build_contact(scene, model, solver)
     if contact is not None:
-        summary["contact"] = {
-            "colliders": len(scene.contact.colliders),
-            "sample_points": contact.detector.num_samples,
-        }
+        summary.contact = {"colliders": len(scene.contact.colliders), "sample_points": contact.detector.num_samples}
     stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
     if checkpoint is not None:
-        arrays, attrs = checkpoint["arrays"], checkpoint["attrs"]
+        arrays, attrs = checkpoint.arrays, checkpoint.attrs
         if "factorization_state_dofs" in arrays:
             state = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
             solver.restore_reuse_checkpoint(arrays, state)
@@ -504,12 +507,12 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
             # summary.json shows the records so far, at most every SUMMARY_EVERY_S (a restart reads
             # them from steps.jsonl)
             if wrote and comm.bcast(time.perf_counter() - last_summary >= SUMMARY_EVERY_S):
-                _on_rank0(comm, lambda: _write_summary(options.out, summary), "summary.json")
+                _on_rank0(comm, lambda: summary.write(options.out), "summary.json")
                 last_summary = time.perf_counter()
             checkpoint_s = time.perf_counter() - t_checkpoint
             progress(record, stepper)
             if stop is not None:
-                summary["time"] = stepper.time
+                summary.time = stepper.time
                 raise RunInterrupted(
                     f"{options.scene}: stopped by {stop} after step {stepper.step} (t = {stepper.time:.6g} s); its "
                     f"state is the last frame and the checkpoint: continue with --restart {options.out}"
@@ -520,7 +523,7 @@ def _run_dynamic(scene, options, steps, model, solver, series, summary, checkpoi
         progress(None, stepper)
         if contact is not None:
             contact.close()
-    summary["time"] = stepper.time
+    summary.time = stepper.time
     return surface
 
 
@@ -570,7 +573,7 @@ def _write_frame(series, model: ShellModel, time_value: float, comm: MPI.Comm) -
 
 
 def _checkpoint(
-    path: Path, model: ShellModel, surface: HermiteSurface, clock: tuple[float, int], summary: dict,
+    path: Path, model: ShellModel, surface: HermiteSurface, clock: tuple[float, int], summary: RunSummary,
     comm: MPI.Comm, arrays: dict, attrs: dict,
 ) -> None:  # fmt: skip
     """Write the state at ``clock`` = (time, step) (a static run: zero velocity, the path point's
@@ -582,8 +585,8 @@ def _checkpoint(
     velocity_array = model.velocity.x.array if model.dynamics is not None else np.zeros_like(model.x.x.array)
     velocity = model.discretization.gather_raw_dofs(velocity_array)
     data = {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal} | arrays
-    meta = {"time": clock[0], "step": clock[1], "physics_hash": summary["physics_hash"],
-            "solution_method": canonical_json(summary["solution_method"]),
+    meta = {"time": clock[0], "step": clock[1], "physics_hash": summary.physics_hash,
+            "solution_method": canonical_json(summary.solution_method),
             "static": model.dynamics is None} | attrs  # fmt: skip
     _on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
 

@@ -206,20 +206,21 @@ def test_misspelled_petsc_options_are_reported(comm, shared_tmp_path):
     ]
 
 
-def test_a_running_summary_keeps_the_step_records_up_to_each_checkpoint(comm, shared_tmp_path, monkeypatch):
+def test_a_running_summary_shows_the_step_records_up_to_each_checkpoint(comm, shared_tmp_path, monkeypatch):
     """With the rewrite interval at 0 s, summary.json is rewritten at every checkpoint (every 2
-    steps here) with the records so far, so a killed job's continuation keeps them."""
+    steps here) with the records so far (a restart reads them from steps.jsonl)."""
     import bhem_hpc.run as R
+    from bhem_hpc.io.run_summary import RunSummary
 
     monkeypatch.setattr(R, "SUMMARY_EVERY_S", 0.0)
     written = []
-    original = R._write_summary
+    original = RunSummary.write
 
-    def spy(out: Path, summary: dict) -> None:
-        written.append((summary["status"], len(summary["steps"])))
-        original(out, summary)
+    def spy(summary: RunSummary, out: Path) -> None:
+        written.append((summary.status, len(summary.steps)))
+        original(summary, out)
 
-    monkeypatch.setattr(R, "_write_summary", spy)
+    monkeypatch.setattr(RunSummary, "write", spy)
     scene = write(comm, shared_tmp_path / "scene.toml", BASE)
     run(scene, shared_tmp_path / "out", comm)
     if comm.rank == 0:

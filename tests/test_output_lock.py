@@ -141,25 +141,31 @@ def test_the_slurm_script_never_forces(comm):
     _serial(comm, check)
 
 
+def _terminated(scene: Path, out: Path, message: str, after_s: float) -> tuple[dict, dict]:
+    """Run ``scene`` into ``out`` and SIGTERM it ``after_s`` after its first checkpoint: its exit
+    code is 2 and its one error line holds ``message``. Returns its summary and checkpoint attributes."""
+    from bhem_hpc.io import read_checkpoint
+
+    child = subprocess.Popen(_run(scene, out), env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    _wait_for(out / "checkpoint.h5", child)
+    time.sleep(after_s)
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=120)
+    assert child.returncode == 2, err[-2000:]
+    assert len(err.strip().splitlines()) == 1 and message in err, err
+    return json.loads((out / "summary.json").read_text()), read_checkpoint(out / "checkpoint.h5")[1]
+
+
 def test_sigterm_ends_a_run_at_a_step_boundary_with_its_state_written(comm):
     """``kill`` (or ``timeout``) during a run: status ``interrupted``, every step recorded, the last
     step written as a frame and a checkpoint, and a restart in place continues from it."""
-    from bhem_hpc.io import read_checkpoint, read_frame
+    from bhem_hpc.io import read_frame
 
     def check(work: Path) -> None:
         scene = work / "long.toml"
         scene.write_text(BASE.replace("steps = 6", "steps = 100000"))
         out = work / "out"
-        child = subprocess.Popen(_run(scene, out), env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                 text=True)  # fmt: skip
-        _wait_for(out / "checkpoint.h5", child)
-        time.sleep(1.0)
-        child.send_signal(signal.SIGTERM)
-        _, err = child.communicate(timeout=120)
-        assert child.returncode == 2, err[-2000:]
-        assert len(err.strip().splitlines()) == 1 and "stopped by SIGTERM after step" in err, err
-        summary = json.loads((out / "summary.json").read_text())
-        _, attrs = read_checkpoint(out / "checkpoint.h5")
+        summary, attrs = _terminated(scene, out, "stopped by SIGTERM after step", 1.0)
         assert summary["status"] == "interrupted" and len(summary["steps"]) == attrs["step"] > 0
         _, last_time = read_frame(out / "surface.h5", -1)
         assert last_time == attrs["time"]
@@ -175,20 +181,11 @@ def test_sigterm_ends_a_run_at_a_step_boundary_with_its_state_written(comm):
 def test_sigterm_ends_a_static_path_after_a_point_with_its_rows_and_plot(comm):
     """The same for a path (the cylindrical panel's arc length): ``interrupted`` after a converged
     point whose frame, checkpoint and path.csv row are written, and path.png drawn."""
-    from bhem_hpc.io import read_checkpoint
 
     def check(work: Path) -> None:
         out = work / "out"
-        child = subprocess.Popen(_run(REPO / "jobs" / "cylindrical-panel.toml", out), env=ENV,
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
-        _wait_for(out / "checkpoint.h5", child)
-        time.sleep(0.5)
-        child.send_signal(signal.SIGTERM)
-        _, err = child.communicate(timeout=120)
-        assert child.returncode == 2, err[-2000:]
-        assert len(err.strip().splitlines()) == 1 and "stopped by SIGTERM after path point" in err, err
-        summary = json.loads((out / "summary.json").read_text())
-        _, attrs = read_checkpoint(out / "checkpoint.h5")
+        panel = REPO / "jobs" / "cylindrical-panel.toml"
+        summary, attrs = _terminated(panel, out, "stopped by SIGTERM after path point", 0.5)
         rows = (out / "path.csv").read_text().splitlines()
         assert summary["status"] == "interrupted" and len(summary["steps"]) == attrs["step"] + 1 == len(rows) - 1
         assert (out / "path.png").stat().st_size > 10_000

@@ -47,6 +47,7 @@ from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, 
 from bhem_hpc.solver.linear import LinearSolverError
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
+from bhem_hpc.solver.state import ShellState
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
@@ -87,13 +88,15 @@ def _is_same_directory(a: Path, b: Path) -> bool:
 
 @dataclass
 class _Run:
-    """What the stages of one run share: its options and scene, the model and solver (collective,
-    every rank), the summary, and, once started, the time series (rank 0) and the stop signals."""
+    """What the stages of one run share: its options and scene, the model, solver and state
+    (collective, every rank; the state is the one writer of position and velocity), the summary,
+    and, once started, the time series (rank 0) and the stop signals."""
 
     options: RunOptions
     scene: Scene
     model: ShellModel
     solver: ShellSolver
+    state: ShellState
     summary: RunSummary
     comm: MPI.Comm
     series: SurfaceTimeSeries | None = None
@@ -192,7 +195,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
     model = build_model(scene, comm)
     disc = model.discretization
     if checkpoint is not None:  # the DOF layout of this model (rank count for B-splines) must match
-        expected = disc.gather_raw_dofs(model.x.x.array).shape
+        expected = ShellState(model).raw_position().shape
         if checkpoint.arrays["position_dofs"].shape != expected:
             raise RunError(
                 f"{checkpoint.path}: its DOFs have shape {checkpoint.arrays['position_dofs'].shape}, "
@@ -216,7 +219,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         factorization=scene.factorization,
         steps=previous_steps(options.out, checkpoint) if continuing else [],
     )
-    run = _Run(options, scene, model, solver, summary, comm)
+    run = _Run(options, scene, model, solver, ShellState(model), summary, comm)
     try:
         run.series = _start_output(run, scene_text, checkpoint if continuing else None)
         with Interruption() as run.interruption:
@@ -357,7 +360,7 @@ def _run_static(run: _Run, steps: int, checkpoint: RestartPoint | None, continui
     if checkpoint is not None:
         arrays, attrs = checkpoint.arrays, checkpoint.attrs
         disc = model.discretization
-        model.x.x.array[:] = disc.scatter_raw_dofs(arrays["position_dofs"])
+        run.state.set_raw(arrays["position_dofs"])
         previous = disc.open_to_closed(disc.scatter_raw_dofs(arrays["previous_position_dofs"]))
         start, first_step = (float(attrs["load_factor"]), float(attrs.get("arc_length", 0.0))), int(attrs["step"])
         arc_step = float(attrs.get("arc_step", np.nan))
@@ -407,7 +410,7 @@ class _PathOutput:
     def __init__(self, run: _Run, continued_step: int | None):
         out, scene = run.options.out, run.scene
         self.out, self.model, self.plan, self.series = out, run.model, scene.path_plan, run.series
-        self.summary, self.comm = run.summary, run.comm
+        self.summary, self.comm, self.state = run.summary, run.comm, run.state
         self.records = _StepRecords(out, run.summary, run.comm)
         self.interruption, self.scene_path = run.interruption, run.options.scene
         self.probes = [p.name for p in scene.probes]
@@ -423,7 +426,7 @@ class _PathOutput:
         """Frame, path.csv and summary rows, then the checkpoint (with the previous point's DOFs);
         a stop signal then ends the run (:class:`RunInterrupted`)."""
         time_value = point.load_factor if self.plan.time_is_load_factor else point.arc_length
-        raw = self.model.discretization.gather_raw_dofs(self.model.x.x.array)
+        raw = self.state.raw_position()
         previous = raw if self.previous_raw is None else self.previous_raw
         extra = {"position_dofs": raw, "previous_position_dofs": previous}
         attrs = {"load_factor": point.load_factor, "arc_length": point.arc_length}
@@ -442,7 +445,7 @@ class _PathOutput:
         now = time.perf_counter()
         self.records.add(row | {"events": [e.as_dict() for e in point.events], "wall_s": now - self.started})
         self.started = now  # the checkpoint's time counts to the next point
-        _checkpoint(self.out / "checkpoint.h5", self.model, self.surface, (time_value, point.step), self.summary,
+        _checkpoint(self.out / "checkpoint.h5", self.state, self.surface, (time_value, point.step), self.summary,
                     self.comm, extra, attrs)  # fmt: skip
         stop = self.interruption.requested(self.comm)
         if stop is not None:
@@ -469,13 +472,13 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
     contact = build_contact(scene, model, solver)
     if contact is not None:
         summary.contact = {"colliders": len(scene.contact.colliders), "sample_points": contact.detector.num_samples}
-    stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
+    stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact, state=run.state)
     if checkpoint is not None:
         arrays, attrs = checkpoint.arrays, checkpoint.attrs
         if "factorization_state_dofs" in arrays:
             state = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
             solver.restore_reuse_checkpoint(arrays, state)
-        _restore(model, arrays)
+        stepper.state.set_raw(arrays["position_dofs"], arrays["velocity_dofs"])
         stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
     surface = model.state_surface()
     probes = _ProbeTable(options.out, model, scene, stepper.step if checkpoint is not None else None, comm)
@@ -502,7 +505,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
             if wrote:  # after the step's rows: a restart from it finds them all
                 arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
                 attrs = {f"reuse_{k}": v for k, v in reuse.items()}
-                _checkpoint(options.out / "checkpoint.h5", model, surface, (stepper.time, stepper.step), summary,
+                _checkpoint(options.out / "checkpoint.h5", run.state, surface, (stepper.time, stepper.step), summary,
                             comm, arrays, attrs)  # fmt: skip
             # summary.json shows the records so far, at most every SUMMARY_EVERY_S (a restart reads
             # them from steps.jsonl)
@@ -558,13 +561,6 @@ def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float
     return row if energies is None else row | {"energies": energies}
 
 
-def _restore(model: ShellModel, arrays: dict[str, np.ndarray]) -> None:
-    """Set position and velocity from a checkpoint's raw DOF arrays (bit-exact)."""
-    disc = model.discretization
-    model.x.x.array[:] = disc.scatter_raw_dofs(arrays["position_dofs"])
-    model.velocity.x.array[:] = disc.scatter_raw_dofs(arrays["velocity_dofs"])
-
-
 def _write_frame(series, model: ShellModel, time_value: float, comm: MPI.Comm) -> HermiteSurface:
     """Write the current state as a frame of the series; returns it as a surface (every rank)."""
     surface = model.state_surface()
@@ -573,7 +569,7 @@ def _write_frame(series, model: ShellModel, time_value: float, comm: MPI.Comm) -
 
 
 def _checkpoint(
-    path: Path, model: ShellModel, surface: HermiteSurface, clock: tuple[float, int], summary: RunSummary,
+    path: Path, state: ShellState, surface: HermiteSurface, clock: tuple[float, int], summary: RunSummary,
     comm: MPI.Comm, arrays: dict, attrs: dict,
 ) -> None:  # fmt: skip
     """Write the state at ``clock`` = (time, step) (a static run: zero velocity, the path point's
@@ -581,13 +577,12 @@ def _checkpoint(
     are gathered unless ``arrays`` holds them already)."""
     position = arrays.get("position_dofs")
     if position is None:
-        position = model.discretization.gather_raw_dofs(model.x.x.array)
-    velocity_array = model.velocity.x.array if model.dynamics is not None else np.zeros_like(model.x.x.array)
-    velocity = model.discretization.gather_raw_dofs(velocity_array)
-    data = {"position_dofs": position, "velocity_dofs": velocity, "position_nodal": surface.nodal} | arrays
+        position = state.raw_position()
+    data = {"position_dofs": position, "velocity_dofs": state.raw_velocity(), "position_nodal": surface.nodal}
     meta = {"time": clock[0], "step": clock[1], "physics_hash": summary.physics_hash,
             "solution_method": canonical_json(summary.solution_method),
-            "static": model.dynamics is None} | attrs  # fmt: skip
+            "static": state.model.dynamics is None} | attrs  # fmt: skip
+    data |= arrays
     _on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
 
 

@@ -40,6 +40,7 @@ from bhem_hpc.contact.petsc import ContactProjector
 from bhem_hpc.errors import InputError
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.state import StateCorrection
 
 log = logging.getLogger(__name__)
 
@@ -146,18 +147,19 @@ class ContactHandler:
                 raise RuntimeError(f"contact detection failed on rank {rank}: {part!r}") from part
         return Contacts.concatenate(gathered)
 
-    def respond(self, x_start: np.ndarray, t: float, dt: float) -> ContactReport:
-        """Resolve the contacts of the step from ``x_start`` (open layout) to the model's state.
+    def respond(self, x_start: np.ndarray, x_end: np.ndarray, t: float, dt: float
+                ) -> tuple[ContactReport, StateCorrection | None]:  # fmt: skip
+        """Resolve the contacts of the step from ``x_start`` to the solved ``x_end`` (open layout).
 
-        Updates the model's position and velocity Functions in place.
+        Returns the report and the correction of velocity and position the contacts need (None
+        without contacts); the caller's state applies it (after ``v = (x_end - x_start) / dt``).
         """
-        model = self.model
         settings = self.settings
         report = ContactReport()
         projections_before = self.projector.projections
         t0 = time.perf_counter()
         start = self.layout.open_to_entries(x_start)
-        end = self.layout.open_to_entries(model.x.x.array)
+        end = self.layout.open_to_entries(x_end)
         velocity = (end - start) / dt
         gap = settings.push_out
         active = Contacts.empty()
@@ -201,14 +203,13 @@ class ContactHandler:
                 )
         report.contacts = len(active)
         report.projections = self.projector.projections - projections_before
-        model.velocity.x.array[:] = (model.x.x.array - x_start) / dt
-        if len(active):
-            report.min_separation = float((active.separation(end) - active.clearance).min())
-            # Corrections are added to the solver's arrays, so a step without contact stays bit-exact.
-            model.velocity.x.array[:] += self.layout.entries_to_open(delta_velocity)
-            model.x.x.array[:] = model.x.x.array + self.layout.entries_to_open(dt * delta_velocity + delta_position)
         self.history.append(report)
-        return report
+        if not len(active):
+            return report, None
+        report.min_separation = float((active.separation(end) - active.clearance).min())
+        correction = StateCorrection(self.layout.entries_to_open(delta_velocity),
+                                     self.layout.entries_to_open(dt * delta_velocity + delta_position))  # fmt: skip
+        return report, correction
 
     def _retest(self, first_end: np.ndarray, end: np.ndarray, found: Contacts, margin: float) -> np.ndarray:
         """Mask ``(n1 * n2,)`` of the patches a later round must test again.

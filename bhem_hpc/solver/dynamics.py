@@ -2,7 +2,8 @@
 
 Each step minimizes the incremental potential built by :class:`bhem_hpc.model.shell.ShellModel` with
 ``dynamics`` set: ``x_predicted = x_n + dt v_n``, ``x_previous = x_n``, solve, then
-``v_{n+1} = (x_{n+1} - x_n) / dt``. A step whose solve fails (after the solver's regularized
+``v_{n+1} = (x_{n+1} - x_n) / dt`` and the contact response's correction (the stepper's
+:class:`~bhem_hpc.solver.state.ShellState` writes them all). A step whose solve fails (after the solver's regularized
 retries) is retried as two half steps, recursively, at most ``max_halvings`` deep; a step that
 still fails stops the run with an error naming the step, the time and the solver's reasons.
 """
@@ -22,6 +23,7 @@ from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
+from bhem_hpc.solver.state import ShellState
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
     from bhem_hpc.contact.response import ContactHandler
@@ -84,6 +86,8 @@ class TimeStepper:
         max_halvings: bound on recursive dt halvings of one step.
         contact: contact detection and response run after every solve (None: no contact effects,
             nothing is detected and nothing is paid for).
+        state: the model's state (default: a :class:`ShellState` of the model); the stepper writes
+            position and velocity through it only.
     """
 
     model: ShellModel
@@ -91,6 +95,7 @@ class TimeStepper:
     motions: Sequence[PrescribedMotion] = ()
     max_halvings: int = 4
     contact: ContactHandler | None = None
+    state: ShellState | None = None
     time: float = 0.0
     step: int = 0
     history: list[StepRecord] = field(default_factory=list)
@@ -101,6 +106,8 @@ class TimeStepper:
         self.dt = self.model.dynamics.time_step
         self._clock = (self.time, self.step, self.dt)  # (time, step, dt) after the last advance
         self._origin = (self.time, self.step)  # where the clock was last set
+        if self.state is None:  # the one writer of x, v and the step's previous state
+            self.state = ShellState(self.model)
         constrained = {tuple(c.nodes.ravel()) + c.kinds + c.components for c in self.model.constraints}
         for motion in self.motions:
             key = tuple(motion.constraint.nodes.ravel()) + motion.constraint.kinds + motion.constraint.components
@@ -147,21 +154,15 @@ class TimeStepper:
         return report
 
     def _advance(self, t_start: float, dt: float, depth: int, report: StepRecord) -> None:
-        model = self.model
-        x_n = model.x.x.array.copy()
-        v_n = model.velocity.x.array.copy()
-        model.time_step.value = dt
-        model.x_previous.x.array[:] = x_n
-        model.x_predicted.x.array[:] = x_n + dt * v_n
-        model.x.x.array[:] = model.x_predicted.x.array  # the inertial prediction is the first guess
+        start = self.state.begin_step(dt)
         try:
             self.solver.problem.set_point_targets(t_start + dt)
             report.newton_iterations += self.solver.solve_step(self.bc_values_at(t_start + dt))
         except SolverSetupError:
-            model.x.x.array[:] = x_n
+            self.state.roll_back(start)
             raise
         except SolverError as exc:
-            model.x.x.array[:] = x_n
+            self.state.roll_back(start)
             if depth >= self.max_halvings:
                 raise StepFailure(
                     f"time step {report.step} (t = {report.time:.6g} s) failed after {depth} halvings of dt "
@@ -174,9 +175,10 @@ class TimeStepper:
             self._advance(t_start + dt / 2, dt / 2, depth + 1, report)
             return
         if self.contact is None:
-            model.velocity.x.array[:] = (model.x.x.array - x_n) / dt
+            self.state.finish_step(start, dt)
             return
-        contact = self.contact.respond(x_n, t_start, dt)
+        contact, correction = self.contact.respond(start.position, self.state.position, t_start, dt)
+        self.state.finish_step(start, dt, correction)
         report.contacts = max(report.contacts, contact.contacts)
         report.contact_rounds += contact.rounds
         report.earliest_toi = min(report.earliest_toi, contact.earliest_toi)

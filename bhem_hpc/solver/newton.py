@@ -202,7 +202,7 @@ class ShellSolver(PetscOwner):
         """The adaptive Hessian recomputes a step with the projected one where LDL^T shows negative
         pivots; a Krylov solve shows no inertia, so the iterative path takes the projected Hessian
         (positive semi-definite: every step still goes downhill)."""
-        if set(self.model.jacobian_forms) == {"out_of_plane", "projected"}:  # hessian = "adaptive"
+        if set(self.problem.form_terms.hessian_kinds()) == {"out_of_plane", "projected"}:  # hessian = "adaptive"
             self.problem.hessian = "projected" if self.linear.kind == "iterative" else "out_of_plane"
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:
@@ -325,7 +325,7 @@ class ShellSolver(PetscOwner):
         self._energy_scale = abs(energy0)
         resolution = 1e-12 * abs(energy0)
         if indefinite:
-            if self.problem.hessian == "out_of_plane" and "projected" in self.model.jacobian_forms:
+            if self.problem.hessian == "out_of_plane" and "projected" in self.problem.form_terms.hessian_kinds():
                 slope = self._projected_direction(x, y)
             else:
                 slope = self._regularized_direction(y)

@@ -1,9 +1,10 @@
 """The shell problem in PETSc form, apart from any solver (as dolfinx separates ``NonlinearProblem``).
 
 :class:`ShellProblem` owns the residual and Jacobian on the closed DOFs, the boundary-condition rows,
-the seam prolongation and the total potential: the model's UFL terms plus a list of energy
-contributions outside UFL (:mod:`.contributions`: point loads, the augmented-Lagrangian point
-constraints, and any the caller adds). On a surface with periodic directions it assembles on the
+the seam prolongation and the total potential: the model's UFL terms (one contribution dolfinx
+assembles, :mod:`.form_terms`) plus a list of energy contributions outside UFL
+(:mod:`.contributions`: point loads, the augmented-Lagrangian point constraints, and any the caller
+adds). On a surface with periodic directions it assembles on the
 open grid and iterates on the closed DOFs ``x_c``: ``F_c = P^T F(P x_c)``, ``J_c = P^T J P``
 (PETSc ``PtAP``, whose symbolic product is reused).
 """
@@ -13,7 +14,6 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
-import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
 import numpy as np
 from petsc4py import PETSc
@@ -26,6 +26,7 @@ from bhem_hpc.solver.contributions import (
     PointLoads,
     StepBounded,
 )
+from bhem_hpc.solver.form_terms import ShellFormTerms
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.report import SolveReport
 
@@ -94,7 +95,9 @@ class ShellProblem(PetscOwner):
         disc = model.discretization
         comm = model.comm
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
-        self.f_open = fem_petsc.create_vector(model.residual_form)
+        #: the terms assembled into PETSc objects: the model's UFL forms
+        self.form_terms = ShellFormTerms(model)
+        self.f_open = self.form_terms.create_vector()
         self.point_constraints = self._point_constraints()
         self.contributions: list[Contribution] = [
             PointLoads(lambda: model.point_load_open, lambda: model.point_loads_version),
@@ -108,9 +111,9 @@ class ShellProblem(PetscOwner):
         # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
         # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
         # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).
-        self.jacobian_blocked: PETSc.Mat | None = fem_petsc.create_matrix(model.jacobian_form, "baij")
+        self.jacobian_blocked: PETSc.Mat | None = self.form_terms.create_matrix("baij")
         self._add_contribution_pattern(self.jacobian_blocked)
-        fem_petsc.assemble_matrix(self.jacobian_blocked, model.jacobian_form)
+        self.form_terms.add_hessian(self.jacobian_blocked, self.form_terms.hessian_kinds()[0])
         self.jacobian_blocked.assemble()
         self.jacobian_blocked.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         if matrix_format == "baij":  # Krylov solvers and block preconditioners take it as assembled
@@ -143,7 +146,7 @@ class ShellProblem(PetscOwner):
         self.bc_values = model.constrained_initial.copy()
         self.regularization = 0.0  # the driver's diagonal regularizer r: J + r |diag J|
         #: the Hessian kind the next Jacobian is assembled with (a key of ``model.jacobian_forms``)
-        self.hessian = next(iter(model.jacobian_forms))
+        self.hessian = self.form_terms.hessian_kinds()[0]
 
     def _point_constraints(self) -> PointConstraints:
         """Augmented Lagrangian for the model's point constraints: penalty ``1e3 Y h``, tolerance
@@ -208,7 +211,7 @@ class ShellProblem(PetscOwner):
         t0 = time.perf_counter()
         with self.f_open.localForm() as local:
             local.set(0.0)
-        fem_petsc.assemble_vector(self.f_open, self.model.residual_form)
+        self.form_terms.add_gradient(self.f_open)
         state = self.contribution_state()
         with self.f_open.localForm() as local:
             gradient = local.array.reshape(-1, 3)
@@ -231,7 +234,7 @@ class ShellProblem(PetscOwner):
         disc = self.model.discretization
         closed = PETSc.Vec().createMPI((3 * disc.num_owned_closed, 3 * disc.num_closed), comm=self.model.comm)
         state = self.contribution_state()
-        parts = [(name, form, None) for name, form in self.model.term_residual_forms().items()]
+        parts = [(name, form, None) for name, form in self.form_terms.term_gradient_forms().items()]
         parts += [(c.name, None, c) for c in self.contributions]
         try:
             for name, form, contribution in parts:
@@ -255,7 +258,7 @@ class ShellProblem(PetscOwner):
     def potential_energy(self) -> float:
         """Total potential at the model's current state (internal - external work, plus the
         contributions' energies), collective."""
-        local = fem.assemble_scalar(self.model.potential_form)
+        local = self.form_terms.local_energy()
         state = self.contribution_state()
         local += sum(contribution.energy(state) for contribution in self.contributions)
         return self.model.comm.allreduce(local)
@@ -284,7 +287,7 @@ class ShellProblem(PetscOwner):
     def _assemble_open_jacobian(self) -> None:
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
-        fem_petsc.assemble_matrix(target, self.model.jacobian_forms[self.hessian])
+        self.form_terms.add_hessian(target, self.hessian)
         state = self.contribution_state()
         for contribution, (rows, columns) in zip(self.contributions, self._patterns, strict=True):
             values = contribution.hessian(state)  # on every rank: it may be collective

@@ -74,7 +74,7 @@ def drape_to_rest(
         start = time.perf_counter()
         for step in range(1, 1001):
             stepper.advance()
-            speed = comm.allreduce(float(np.abs(model.velocity.x.array).max(initial=0.0)), op=MPI.MAX)
+            speed = comm.allreduce(float(np.abs(stepper.state.velocity).max(initial=0.0)), op=MPI.MAX)
             # parametric velocity DOFs: positions' rates are in m/s, derivative rates smaller
             if step >= 10 and speed < 1e-3:
                 break

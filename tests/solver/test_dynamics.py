@@ -135,3 +135,28 @@ def test_a_step_that_cannot_converge_names_the_dominant_term(comm):
                            r".*dominates; try a smaller dt"):  # fmt: skip
             stepper.advance()
         assert solver.counters()["trust_region_solves"] == 0
+
+
+def test_the_state_begins_rolls_back_and_finishes_a_step_exactly(comm):
+    """ShellState, the stepper's one writer of the state: a step's data from (x_n, v_n), the
+    rollback of a failed solve, v = (x - x_n) / dt and a correction added after; read-only views."""
+    from bhem_hpc.solver.state import ShellState, StateCorrection
+
+    model, dt = hanging_strip(comm, 4, 0.01), 0.01
+    state = ShellState(model)
+    rng = np.random.default_rng(3)
+    model.velocity.x.array[:] = rng.normal(size=model.velocity.x.array.shape)
+    x_n, v_n = model.x.x.array.copy(), model.velocity.x.array.copy()
+    start = state.begin_step(dt)
+    assert np.array_equal(start.position, x_n) and np.array_equal(start.velocity, v_n)
+    assert np.array_equal(model.x_previous.x.array, x_n) and np.array_equal(model.x.x.array, x_n + dt * v_n)
+    assert np.array_equal(model.x_predicted.x.array, x_n + dt * v_n) and model.time_step.value == dt
+    state.roll_back(start)
+    assert np.array_equal(state.position, x_n)
+    solved = x_n + 1e-3 * rng.normal(size=x_n.shape)
+    model.x.x.array[:] = solved
+    dv, dx = rng.normal(size=x_n.shape), 1e-4 * rng.normal(size=x_n.shape)
+    state.finish_step(start, dt, StateCorrection(dv, dx))
+    assert np.array_equal(state.velocity, (solved - x_n) / dt + dv) and np.array_equal(state.position, solved + dx)
+    with pytest.raises(ValueError, match="read-only"):
+        state.position[0] = 1.0

@@ -125,11 +125,6 @@ def numpy_expression(text: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray
     return values
 
 
-def finite_on(text: str, xi1: np.ndarray, xi2: np.ndarray) -> bool:
-    """Whether the expression is finite at the parameters ``xi1``, ``xi2``."""
-    return bool(np.all(np.isfinite(numpy_expression(text)(xi1, xi2))))
-
-
 def finite_on_tensor(text: str, xi1: np.ndarray, xi2: np.ndarray) -> bool:
     """Whether the expression is finite at every pair of the 1-D parameter arrays ``xi1 (m1,)`` and
     ``xi2 (m2,)`` (a tensor grid, evaluated in slabs of bounded size)."""

@@ -126,7 +126,13 @@ def write(comm, directory: Path, text: str, name: str = "scene.toml") -> Path:
         ),
         (lambda s: s.replace('kinds = ["x"]', 'kinds = ["x", "d3"]'), r"key 'constraints\[1\].kinds' must be"),
         (lambda s: s + "\n[solver]\nhessian = 'approx'\n",
-         r"key 'solver.hessian' must be 'exact', 'pseudo', 'projected' or 'adaptive'"),
+         r"key 'solver.hessian' must be 'exact' or 'pseudo' or 'projected' or 'adaptive' or 'trust_region'"),
+        (lambda s: s.replace("damping = { mass = 0.5 }", "pressure = 2.0") + "\n[solver]\nhessian = 'trust_region'\n",
+         r"key 'solver.hessian' = 'trust_region' minimizes a potential, which the follower load effects.pressure = "
+         r"2.0 does not have"),
+        (lambda s: s.replace("dt = 0.01\nsteps = 6", "static = true") + "\n[solver]\nhessian = 'trust_region'\n",
+         r"key 'solver.hessian' must be 'exact' or 'pseudo' or 'projected' or 'adaptive' \(a static scene\), "
+         r"got 'trust_region'"),
         (lambda s: s.replace("[output]", "[outputs]"), r"unknown key 'outputs'"),
         (lambda s: "effects = 3\n" + s.replace("[effects]", "[unused]"), r"key 'effects' must be a table, got 3"),
     ],

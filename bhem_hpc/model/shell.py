@@ -23,7 +23,7 @@ from bhem_hpc import forms
 from bhem_hpc.discretization import ConstrainedDofs, Discretization, create_discretization
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.model.bcs import NodalConstraint, NodalTie, target_surface
-from bhem_hpc.model.hessian import HESSIAN_KINDS, HessianKind
+from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HESSIAN_KINDS, HessianKind
 from bhem_hpc.model.jit import compilation_report, default_jit_params
 from bhem_hpc.model.loads import (  # noqa: F401 - re-exported: the model API
     AreaLoad,
@@ -314,7 +314,8 @@ class ShellModel:
         total = potential if dead_line_work is None else potential - lf * dead_line_work
         # "adaptive" iterates with the Hessian projected out of the plane and, where that is
         # indefinite, with the projected one (HESSIAN_FALLBACK)
-        kinds = ("out_of_plane", "projected") if self.hessian == "adaptive" else (self.hessian,)
+        # "trust_region" models with the exact one, preconditioned by the projected one
+        kinds = COMPOSED_HESSIANS.get(self.hessian, (self.hessian,))
         jacobians = {kind: self._jacobian(kind, residual, potentials, works, test, trial) for kind in kinds}
         self.symmetric = all(w.conservative for w in works)
         self.ufl_residual = residual
@@ -533,6 +534,9 @@ def _validate(
         dynamics.validate()
     if hessian not in HESSIAN_KINDS:
         raise ModelError(f"hessian = {hessian!r}; expected one of {HESSIAN_KINDS}")
+    if hessian == "trust_region" and (dynamics is None or loads.pressure is not None):
+        raise ModelError("hessian = 'trust_region' minimizes the incremental potential of a time step: it needs "
+                         "dynamics and no follower pressure (which has no potential)")  # fmt: skip
     try:
         check_quadrature(quadrature_points, rest.discretization)
     except QuadratureError as error:

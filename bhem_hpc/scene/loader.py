@@ -123,8 +123,13 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
                             "'auto', 'direct' or 'iterative'")  # fmt: skip
         factorization = solver.get("factorization", "a string", "reuse", lambda v: v in FACTORIZATION_POLICIES,
                                    "'reuse' or 'fresh'")  # fmt: skip
-        hessian = solver.get("hessian", "a string", default_hessian, lambda v: v in HESSIAN_KINDS,
-                             "'exact', 'pseudo', 'projected' or 'adaptive'")  # fmt: skip
+        # the energy trust region minimizes a time step's incremental potential
+        kinds = tuple(k for k in HESSIAN_KINDS if not (static and k == "trust_region"))
+        hessian = solver.get("hessian", "a string", default_hessian, lambda v: v in kinds,
+                             " or ".join(map(repr, kinds)) + (" (a static scene)" if static else ""))  # fmt: skip
+        if hessian == "trust_region" and effects.pressure is not None:
+            raise SceneError(f"{path}: key 'solver.hessian' = 'trust_region' minimizes a potential, which the "
+                             f"follower load effects.pressure = {effects.pressure!r} does not have; use 'adaptive'")
         quadrature = solver.get(
             "quadrature", "an integer or a string", None, lambda v: v in (2, 3, 4, 5, "reduced"),
             "2, 3, 4, 5 (Gauss points per direction) or 'reduced' (quadratic B-splines)",

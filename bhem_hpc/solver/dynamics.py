@@ -51,6 +51,7 @@ class StepRecord:
     regularized_iterations: int = 0
     projected_iterations: int = 0  # Newton steps recomputed with the projected Hessian (adaptive)
     trust_region_solves: int = 0  # solves recovered by the trust-region Newton fallback
+    trust_region_failures: int = 0  # energy trust-region solves (hessian = "trust_region") that failed
     negative_pivots: int = -1  # of the last factorization (-1: unknown, not LDL^T)
     refactorizations: int = 0  # Jacobians assembled and factored
     chord_iterations: int = 0  # Newton iterations on a kept factorization
@@ -70,8 +71,8 @@ class StepRecord:
 
     @property
     def recoveries(self) -> int:
-        """Regularized retries, trust-region solves and dt halvings."""
-        return self.regularized_retries + self.trust_region_solves + self.dt_halvings
+        """Regularized retries, trust-region solves and failures, and dt halvings."""
+        return self.regularized_retries + self.trust_region_solves + self.trust_region_failures + self.dt_halvings
 
 
 @dataclass

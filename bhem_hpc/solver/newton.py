@@ -21,6 +21,8 @@ from petsc4py import PETSc
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.anderson import AndersonMixing
 from bhem_hpc.solver.contributions import Contribution
+from bhem_hpc.solver.energy_trust_region import EnergyTrustRegion
+from bhem_hpc.solver.failure import solve_failure
 from bhem_hpc.solver.linear import LinearSolverChoice, LinearSolverError
 from bhem_hpc.solver.linear_strategy import (
     ITERATIVE_REFACTOR_COST,
@@ -35,7 +37,6 @@ from bhem_hpc.solver.petsc import (
     PETSC_ERRORS,
     SNES_REASONS,
     PetscOwner,
-    SolverError,
     SolverSetupError,
     negative_pivots,
     push_options,
@@ -44,7 +45,7 @@ from bhem_hpc.solver.petsc import (
     unused_options,
 )
 from bhem_hpc.solver.problem import ShellProblem
-from bhem_hpc.solver.report import SolveReport
+from bhem_hpc.solver.report import SolveReport, solver_counters
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, refactor_cost
 from bhem_hpc.solver.trust_region import TrustRegionNewton
 
@@ -54,7 +55,7 @@ log = logging.getLogger(__name__)
 #: of 3, 5 and 8, 5 took the fewest Newton iterations on the ball scene in contact.
 CHORD_ANDERSON_DEPTH = 5
 #: The counters of :meth:`ShellSolver.counters` that count what Newton did besides plain steps.
-RECOVERY_COUNTERS = ("projected_iterations", "trust_region_solves")
+RECOVERY_COUNTERS = ("projected_iterations", "trust_region_solves", "trust_region_failures")
 #: The counters of :meth:`ShellSolver.counters` that count the linear solver's work.
 LINEAR_COUNTERS = ("refactorizations", "chord_iterations", "refactor_retries", "krylov_iterations", "linear_solves")
 
@@ -113,6 +114,11 @@ class ShellSolver(PetscOwner):
         LinearSolverError: an unknown ``linear`` or a direct solver that would not fit in memory.
     """
 
+    #: newtontr, made at the first failed time step
+    trust_region: TrustRegionNewton | None
+    #: the energy trust region (``hessian = "trust_region"``), made at the first time step
+    energy_trust_region: EnergyTrustRegion | None
+
     def __init__(
         self, model: ShellModel, prefix: str = "bhem_static_", options: Mapping[str, object] | None = None,
         factorization: str = "reuse", linear: str = "auto", contributions: Sequence[Contribution] = (),
@@ -126,7 +132,7 @@ class ShellSolver(PetscOwner):
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
-        self.trust_region: TrustRegionNewton | None = None  # made at the first failed time step
+        self.trust_region = self.energy_trust_region = None
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
         self.fallbacks: list[dict] = []
@@ -202,7 +208,8 @@ class ShellSolver(PetscOwner):
         """The adaptive Hessian recomputes a step with the projected one where LDL^T shows negative
         pivots; a Krylov solve shows no inertia, so the iterative path takes the projected Hessian
         (positive semi-definite: every step still goes downhill)."""
-        if set(self.problem.form_terms.hessian_kinds()) == {"out_of_plane", "projected"}:  # hessian = "adaptive"
+        kinds = set(self.problem.form_terms.hessian_kinds())
+        if kinds == {"out_of_plane", "projected"}:  # hessian = "adaptive"
             self.problem.hessian = "projected" if self.linear.kind == "iterative" else "out_of_plane"
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:
@@ -502,6 +509,10 @@ class ShellSolver(PetscOwner):
         self.problem.state_to_vector(self.x)
         start = self.x.copy()
         try:
+            if self._uses_energy_trust_region():
+                its = self._energy_trust_region_step()
+                if its >= 0:
+                    return its
             for attempt, regularization in enumerate((0.0, *regularizations)):
                 self.problem.regularization = regularization
                 start.copy(self.x)
@@ -513,17 +524,9 @@ class ShellSolver(PetscOwner):
                     # A converged step whose last LDL^T showed negative pivots is a stationary point
                     # of an indefinite incremental potential: recorded, not retried (a regularized
                     # retry converges to the same point).
-                    self.problem.update_state(self.x)
-                    its = self.snes.getIterationNumber()
-                    self.report.newton_iterations.append(its)
-                    self.report.negative_pivots.append(pivots)
-                    return its
+                    return self._step_converged(self.snes.getIterationNumber(), pivots)
                 if attempt == 0 and self._trust_region_applies() and self._trust_region_recovers(start):
-                    self.problem.update_state(self.x)
-                    its = self.trust_region.iterations()
-                    self.report.newton_iterations.append(its)
-                    self.report.negative_pivots.append(self.negative_pivots())
-                    return its
+                    return self._step_converged(self.trust_region.iterations(), self.negative_pivots())
                 if attempt == len(regularizations):
                     break
                 self.report.regularized_retries += 1
@@ -540,6 +543,41 @@ class ShellSolver(PetscOwner):
             self.problem.regularization = 0.0
             start.destroy()
         return -1  # unreachable: raise_failure always raises
+
+    def _step_converged(self, iterations: int, pivots: int) -> int:
+        """Record a converged time step's Newton iterations and negative pivots; returns the former."""
+        self.problem.update_state(self.x)
+        self.report.newton_iterations.append(iterations)
+        self.report.negative_pivots.append(pivots)
+        return iterations
+
+    def _uses_energy_trust_region(self) -> bool:
+        """Whether time steps start with the energy trust region (``hessian = "trust_region"``), made
+        at the first one. Its CG needs a symmetric positive definite preconditioner, the projected
+        Hessian's Cholesky factors (MUMPS): the iterative path iterates with the projected Hessian."""
+        if self.energy_trust_region is None:
+            kinds = set(self.problem.form_terms.hessian_kinds())
+            if kinds != {"exact", "projected"} or self.linear.kind != "direct" or self.model.potential_form is None:
+                return False
+            self.energy_trust_region = EnergyTrustRegion(self, default_options(self.model, "direct"),
+                                                         self._caller_options)  # fmt: skip
+        return self._trust_region_applies()
+
+    def _energy_trust_region_step(self) -> int:
+        """The time step by the energy trust region from ``self.x`` (constrained DOFs set first);
+        its iterations, or -1 (``self.x`` back at the start) when it did not converge."""
+        if len(self.problem.bc_local):
+            self.x.array[self.problem.bc_local] = self.problem.bc_values
+        self._stage.push()  # its factorizations and solves count in this solver's timings
+        try:
+            converged = self.energy_trust_region.solve(self.x)
+        finally:
+            self._stage.pop()
+        self.report.linear_solves += self.energy_trust_region.iterations
+        if not converged:
+            self.report.trust_region_failures += 1
+            return -1
+        return self._step_converged(self.energy_trust_region.iterations, 0)  # it factors an SPD matrix
 
     def _trust_region_applies(self) -> bool:
         """The trust-region recovery lacks the augmented Lagrangian's outer loop (point constraints)
@@ -575,31 +613,9 @@ class ShellSolver(PetscOwner):
         return reason > 0 and bool(np.isfinite(norm))
 
     def raise_failure(self, factor: float, after: str) -> None:
-        """Raise the :class:`SolverError` of a solve that failed at load ``factor`` after ``after``."""
-        reason = self.snes.getConvergedReason()
-        ksp_reason = self.snes.getKSP().getConvergedReason()
-        mumps = ""
-        factor_matrix = self.factor_matrix()
-        if factor_matrix is not None:
-            mumps = f", MUMPS INFOG(1) = {factor_matrix.getMumpsInfog(1)}"
-        raise SolverError(
-            f"SNES solver '{self.prefix}' failed at load factor {factor:.4g} after {after}: "
-            f"{SNES_REASONS.get(reason, reason)} after {self.snes.getIterationNumber()} Newton iterations, "
-            f"|F| = {self.snes.getFunctionNorm():.3e}; last linear solve: KSP "
-            f"{KSP_REASONS.get(ksp_reason, ksp_reason)}{mumps}; {self._dominant_terms()}"
-        )
-
-    def _dominant_terms(self) -> str:
-        """Which terms make up the residual where the solve stopped, and what the user can change."""
-        self.problem.update_state(self.x)
-        norms = self.problem.term_residual_norms()
-        ranked = sorted(norms.items(), key=lambda item: -item[1])
-        listed = ", ".join(f"{name} {norm:.2e}" for name, norm in ranked[:3])
-        if self.model.dynamics is not None:
-            advice = "a smaller dt, a finer or coarser resolution, or solver.hessian = 'projected'"
-        else:
-            advice = "more load steps (time.load_steps), or a path method"
-        return f"residual by term (largest first): {listed}; the {ranked[0][0]} term dominates; try {advice}"
+        """Raise the :class:`SolverError` of a solve that failed at load ``factor`` after ``after``
+        (:func:`~bhem_hpc.solver.failure.solve_failure`: the reasons, the dominant terms, advice)."""
+        raise solve_failure(self, factor, after)
 
     def factor_matrix(self) -> PETSc.Mat | None:
         """The MUMPS factor of the last factorization (for its INFOG/RINFOG figures); None for other solvers."""
@@ -650,25 +666,10 @@ class ShellSolver(PetscOwner):
         self.reuse.restore(state, self.operator_signature())
 
     def counters(self) -> dict[str, float]:
-        """Cumulative figures of this solver (the PETSc timings: of this process); the difference of
-        two snapshots covers what happened in between, and ``negative_pivots`` is the last one's."""
+        """Cumulative figures of this solver (:func:`~bhem_hpc.solver.report.solver_counters`); the
+        difference of two snapshots covers what happened in between."""
         factor, solve = self.linear_solver_seconds()
-        report = self.report
-        return {
-            "assembly_s": report.assemble_residual_s + report.assemble_jacobian_s,
-            "factorization_s": factor,
-            "linear_solve_s": solve,
-            "regularized_retries": report.regularized_retries,
-            "regularized_iterations": report.regularized_iterations,
-            "projected_iterations": report.projected_iterations,
-            "trust_region_solves": report.trust_region_solves,
-            "negative_pivots": report.negative_pivots[-1] if report.negative_pivots else -1,
-            "refactorizations": self.reuse.refactorizations,
-            "chord_iterations": self.reuse.chord_iterations,
-            "refactor_retries": report.refactor_retries,
-            "krylov_iterations": report.krylov_iterations,
-            "linear_solves": report.linear_solves,
-        }
+        return solver_counters(self.report, self.reuse, factor, solve)
 
     def linear_solver_seconds(self) -> tuple[float, float]:
         """Cumulative ``(preconditioner setup, linear solves)`` seconds of this solver's SNES solves on
@@ -690,8 +691,9 @@ class ShellSolver(PetscOwner):
         opts = PETSc.Options()
         for name in self._overrides:
             opts.delValue(name)
-        if self.trust_region is not None:
-            self.trust_region.close()
+        for owner in (self.trust_region, self.energy_trust_region):
+            if owner is not None:
+                owner.close()
         for obj in (self.snes, self.x, self.f, self._trial):
             if obj is not None:
                 obj.destroy()

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bhem_hpc.solver.reuse import FactorizationReuse
 
 
 @dataclass
@@ -19,6 +23,7 @@ class SolveReport:
     regularized_iterations: int = 0
     projected_iterations: int = 0
     trust_region_solves: int = 0
+    trust_region_failures: int = 0  # time steps the energy trust region left to line-search Newton
     multiplier_updates: int = 0
     bounded_steps: int = 0  # line-search steps shortened by a contribution's bound
     refactor_retries: int = 0
@@ -27,3 +32,27 @@ class SolveReport:
     assemble_residual_s: float = 0.0
     assemble_jacobian_s: float = 0.0
     wall_s: float = 0.0
+
+
+def solver_counters(
+    report: SolveReport, reuse: FactorizationReuse, factorization_s: float, linear_solve_s: float
+) -> dict[str, float]:
+    """A solver's cumulative figures: ``report``'s counts and timings, the factorization policy
+    ``reuse``'s (:class:`~bhem_hpc.solver.reuse.FactorizationReuse`) and the PETSc timings of this
+    process; ``negative_pivots`` is the last factorization's."""
+    return {
+        "assembly_s": report.assemble_residual_s + report.assemble_jacobian_s,
+        "factorization_s": factorization_s,
+        "linear_solve_s": linear_solve_s,
+        "regularized_retries": report.regularized_retries,
+        "regularized_iterations": report.regularized_iterations,
+        "projected_iterations": report.projected_iterations,
+        "trust_region_solves": report.trust_region_solves,
+        "trust_region_failures": report.trust_region_failures,
+        "negative_pivots": report.negative_pivots[-1] if report.negative_pivots else -1,
+        "refactorizations": reuse.refactorizations,
+        "chord_iterations": reuse.chord_iterations,
+        "refactor_retries": report.refactor_retries,
+        "krylov_iterations": report.krylov_iterations,
+        "linear_solves": report.linear_solves,
+    }

@@ -176,7 +176,7 @@ def run_case(case: ClothCase, runs: Path, steps: int, comm: MPI.Comm) -> dict:
     count = len(records)
     return {
         "case": case.name, "job": case.job, "discretization": case.discretization, "patches": case.patches,
-        "quadrature": case.quadrature, "membrane": case.membrane, "dofs": summary["dofs"],
+        "quadrature": case.quadrature, "membrane": case.membrane, "hessian": scene.hessian, "dofs": summary["dofs"],
         "nonzeros": summary["nonzeros"], "steps": count, "status": summary["status"],
         "step_s": sum(r["wall_s"] for r in records) / count,
         "newton_per_step": sum(r["newton_iterations"] for r in records) / count,
@@ -199,16 +199,19 @@ def cloth_markdown(rows: list[dict], steps: int, command: str = "") -> str:
         "of those steps (the paper averages whole runs). Wrinkles: along the job's line of the final state, "
         f"the height out of the initial plane less its quadratic fit crosses ±{WRINKLE_AMPLITUDE * 1e3:g} mm "
         "alternately; the locking test's figure is how far its free corners hang below the held ones (membrane "
-        "locking makes it smaller). FBW rows use the FEM Baraff–Witkin membrane with shear_ratio = 1. "
+        "locking makes it smaller). FBW rows use the FEM Baraff–Witkin membrane with shear_ratio = 1. Hessian: "
+        "the job's `solver.hessian` (`trust_region`: TAO's Newton trust region on the energy). "
         f"Paper s/step: {PAPER_MACHINE}.",
         "",
-        "| case | DoFs | nonzeros | steps | s/step | Newton/step | dt halvings | recoveries | quality | paper s/step |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| case | Hessian | DoFs | nonzeros | steps | s/step | Newton/step | dt halvings | recoveries | quality | "
+        "paper s/step |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in rows:
         paper = "" if r["paper_step_s"] is None else f"{r['paper_step_s']:.2f}"
         status = "" if r["status"] == "completed" else f" ({r['status']})"
-        lines.append(f"| {r['case']}{status} | {r['dofs']} | {r['nonzeros']} | {r['steps']} | {r['step_s']:.3g} | "
+        lines.append(f"| {r['case']}{status} | {r.get('hessian', '')} | {r['dofs']} | {r['nonzeros']} | "
+                     f"{r['steps']} | {r['step_s']:.3g} | "
                      f"{r['newton_per_step']:.2f} | {r['dt_halvings']} | {r['recoveries']} | "
                      f"{r['quality'][0]} {r['quality'][1]:.4g} | "
                      f"{paper} |")  # fmt: skip

@@ -46,19 +46,20 @@ class EnergyTrustRegion(PetscOwner):
     Args:
         solver: the solver whose problem (residual, potential, Hessians) and tolerances it uses.
         direct_options: the solver's MUMPS options (``pc_*``, ``mat_mumps_*``), applied to the
-            preconditioner under this solver's KSP prefix where the database has no value.
-        overrides: the caller's options for this prefix (e.g. a scene's ``ntr_*`` ones, prefix removed).
+            preconditioner under this solver's KSP prefix where the database has no value (a scene's
+            ``ntr_*`` options are there already, under the solver's prefix).
+
+    The Hessian is the line-search solver's matrix, assembled with the exact kind; the preconditioner
+    a matrix of the same layout.
     """
 
-    def __init__(self, solver: ShellSolver, direct_options: Mapping[str, str], overrides: Mapping[str, object]):
+    def __init__(self, solver: ShellSolver, direct_options: Mapping[str, str]):
         self.solver = solver
         self.prefix = solver.prefix + "ntr_"
         self._closed = False
         comm = solver.model.comm
-        self.hessian = solver.jacobian.duplicate()
         self.preconditioner = solver.jacobian.duplicate()
         self.gradient = solver.f.duplicate()
-        self.iterations = 0  # of the last solve
         self.tao: PETSc.TAO | None = None
         rtol, atol, _, _ = solver.snes.getTolerances()
         ksp_prefix = self.prefix + "tao_ntr_"
@@ -67,7 +68,7 @@ class EnergyTrustRegion(PetscOwner):
         linear = {"ksp_type": "stcg", "ksp_rtol": CG_RTOL, "ksp_max_it": "200",
                   **{k: v for k, v in direct_options.items() if k.startswith(("pc_", "mat_mumps_"))}}  # fmt: skip
         linear["pc_type"] = "cholesky"  # the projected Hessian is symmetric positive definite
-        pushed = push_options(self.prefix, own, overrides) + push_options(ksp_prefix, linear, {})
+        pushed = push_options(self.prefix, own, {}) + push_options(ksp_prefix, linear, {})
         opts = PETSc.Options()
         try:
             self.tao = PETSc.TAO().create(comm)
@@ -75,7 +76,7 @@ class EnergyTrustRegion(PetscOwner):
             self.tao.setType("ntr")
             self.tao.setObjectiveGradient(self._objective_gradient, self.gradient)
             self.tao.setObjective(self._objective)
-            self.tao.setHessian(self._hessian, self.hessian, self.preconditioner)
+            self.tao.setHessian(self._hessian, solver.jacobian, self.preconditioner)
             try:
                 self.tao.setFromOptions()
             except PETSc.Error as exc:
@@ -103,14 +104,13 @@ class EnergyTrustRegion(PetscOwner):
         problem = self.solver.problem
         problem.update_state(x)
         kind = problem.hessian
-        try:  # the problem assembles into its own matrix (the line-search solver's), copied from there
-            wanted = [("exact", hessian)]
+        try:  # the problem assembles into its own matrix, ``hessian``: the projected kind is copied out
             if tao.getIterationNumber() % PRECONDITIONER_PERIOD == 0:
-                wanted.append(("projected", preconditioner))
-            for kind_wanted, target in wanted:
-                problem.hessian = kind_wanted
-                problem.assemble_jacobian(problem.jacobian)
-                problem.jacobian.copy(target, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+                problem.hessian = "projected"
+                problem.assemble_jacobian(hessian)
+                hessian.copy(preconditioner, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            problem.hessian = "exact"
+            problem.assemble_jacobian(hessian)
         finally:
             problem.hessian = kind
         self.solver.reuse.invalidate()  # the line-search solver's kept factorization is of another matrix
@@ -127,7 +127,6 @@ class EnergyTrustRegion(PetscOwner):
             except PETSc.Error as exc:
                 raise solve_stopped(self.prefix, exc) from None
             reason = self.tao.getConvergedReason()
-            self.iterations = self.tao.getIterationNumber()
             # not a step-size test: a radius shrunk to nothing is no equilibrium
             converged = reason in (PETSc.TAO.Reason.CONVERGED_GATOL, PETSc.TAO.Reason.CONVERGED_GTTOL)
             if not converged:
@@ -139,11 +138,16 @@ class EnergyTrustRegion(PetscOwner):
         finally:
             start.destroy()
 
+    @property
+    def iterations(self) -> int:
+        """Trust-region iterations of the last solve."""
+        return self.tao.getIterationNumber()
+
     def close(self) -> None:
         """Destroy the TAO solver and its matrices (idempotent)."""
         if self._closed:
             return
         self._closed = True
-        for obj in (self.tao, self.hessian, self.preconditioner, self.gradient):
+        for obj in (self.tao, self.preconditioner, self.gradient):
             if obj is not None:
                 obj.destroy()

@@ -208,8 +208,7 @@ class ShellSolver(PetscOwner):
         """The adaptive Hessian recomputes a step with the projected one where LDL^T shows negative
         pivots; a Krylov solve shows no inertia, so the iterative path takes the projected Hessian
         (positive semi-definite: every step still goes downhill)."""
-        kinds = set(self.problem.form_terms.hessian_kinds())
-        if kinds == {"out_of_plane", "projected"}:  # hessian = "adaptive"
+        if set(self.problem.form_terms.hessian_kinds()) == {"out_of_plane", "projected"}:  # hessian = "adaptive"
             self.problem.hessian = "projected" if self.linear.kind == "iterative" else "out_of_plane"
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:
@@ -559,8 +558,7 @@ class ShellSolver(PetscOwner):
             kinds = set(self.problem.form_terms.hessian_kinds())
             if kinds != {"exact", "projected"} or self.linear.kind != "direct" or self.model.potential_form is None:
                 return False
-            self.energy_trust_region = EnergyTrustRegion(self, default_options(self.model, "direct"),
-                                                         self._caller_options)  # fmt: skip
+            self.energy_trust_region = EnergyTrustRegion(self, default_options(self.model, "direct"))
         return self._trust_region_applies()
 
     def _energy_trust_region_step(self) -> int:

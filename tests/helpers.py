@@ -3,6 +3,7 @@ ray-triangle references, import checks, a small scene."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import dolfinx.fem as fem
@@ -15,6 +16,13 @@ from bhem_hpc.model.shell import ShellModel
 
 #: The repository (jobs/, meshes/, docs/ beside tests/).
 REPO = Path(__file__).resolve().parents[1]
+#: The line a cold form cache logs when a command compiles its kernels (INFO).
+JIT_LOG_LINE = re.compile(r"^\[rank \d+\] INFO bhem_hpc\.jit: ")
+
+
+def message_lines(stderr: str) -> list[str]:
+    """A command's standard error without blank lines and the form compiler's log line: what it says."""
+    return [line for line in stderr.splitlines() if line.strip() and not JIT_LOG_LINE.match(line)]
 
 
 def total_internal_energy(model: ShellModel) -> float:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import BASE, REPO
+from helpers import BASE, REPO, message_lines
 
 from bhem_hpc import cli
 from bhem_hpc.geometry import bspline as B
@@ -49,14 +49,10 @@ SCENE_CASES = {
 }  # fmt: skip
 
 
-JIT_LOG_LINE = re.compile(r"^\[rank \d+\] INFO bhem_hpc\.jit: ")
-
-
 def one_error_line(comm, capsys, code: int) -> str:
     """The error line of a failed command (rank 0; other ranks print nothing)."""
     err = capsys.readouterr().err
-    # a cold form cache logs its compilations (INFO); every other line counts
-    lines = [line for line in err.splitlines() if line.strip() and not JIT_LOG_LINE.match(line)]
+    lines = message_lines(err)  # a cold form cache logs its compilations; every other line counts
     assert code == 2 and "Traceback" not in err, err[-3000:]
     if comm.rank != 0:
         assert not lines, err

@@ -12,7 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from helpers import BASE
+from helpers import BASE, message_lines
 
 REPO = Path(__file__).resolve().parents[1]
 #: The child processes run without the parent's MPI environment (one rank each).
@@ -52,7 +52,7 @@ def test_a_second_run_into_a_directory_being_written_is_refused_and_the_first_is
         for extra in ((), ("--force",)):
             second = subprocess.run(_run(scene, out, *extra), env=ENV, capture_output=True, text=True, timeout=300)
             assert second.returncode == 2, second.stderr[-2000:]
-            lines = second.stderr.strip().splitlines()
+            lines = message_lines(second.stderr)
             assert len(lines) == 1 and "is being written by another run (process" in lines[0], second.stderr
             assert f"process {first.pid} on this host" in lines[0]
         assert first.wait(timeout=600) == 0, first.stderr.read().decode()[-2000:]
@@ -152,7 +152,7 @@ def _terminated(scene: Path, out: Path, message: str, after_s: float) -> tuple[d
     child.send_signal(signal.SIGTERM)
     _, err = child.communicate(timeout=120)
     assert child.returncode == 2, err[-2000:]
-    assert len(err.strip().splitlines()) == 1 and message in err, err
+    assert len(message_lines(err)) == 1 and message in err, err
     return json.loads((out / "summary.json").read_text()), read_checkpoint(out / "checkpoint.h5")[1]
 
 

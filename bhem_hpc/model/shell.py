@@ -312,8 +312,8 @@ class ShellModel:
         dead_line_work = sum(dead) if dead else None
         # Conservative problems minimize a total potential; the line search uses it as merit function.
         total = potential if dead_line_work is None else potential - lf * dead_line_work
-        # "adaptive" iterates with the Hessian projected out of the plane and, where that is
-        # indefinite, with the projected one (HESSIAN_FALLBACK)
+        # "adaptive" iterates with the exact Hessian, the one projected out of the plane and the
+        # projected one, each where the one before is indefinite (bhem_hpc.model.hessian)
         # "trust_region" models with the exact one, preconditioned by the projected one
         kinds = COMPOSED_HESSIANS.get(self.hessian, (self.hessian,))
         jacobians = {kind: self._jacobian(kind, residual, potentials, works, test, trial) for kind in kinds}

@@ -114,9 +114,9 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
         load_steps = 1
     time_table.done()
     solver = top.table("solver", None)
-    # the Hessian Newton iterates with: exact for statics (its inertia tells stability), positive
-    # semi-definite for time steps (every Newton step goes downhill)
-    default_hessian = "exact" if static else "projected"
+    # the Hessian Newton iterates with: exact for statics (its inertia tells stability), adaptive
+    # for time steps (exact where it is positive definite, otherwise every Newton step goes downhill)
+    default_hessian = "exact" if static else "adaptive"
     hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", "reuse"
     if solver is not None:
         linear = solver.get("linear", "a string", "auto", lambda v: v in LINEAR_SOLVERS,

@@ -9,12 +9,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.linear import LinearSolverChoice, available_memory, choose_linear_solver, mass_dominance
+
+if TYPE_CHECKING:
+    from bhem_hpc.solver.problem import ShellProblem
+    from bhem_hpc.solver.reuse import FactorizationReuse
 
 log = logging.getLogger(__name__)
 #: Jacobian nonzeros per DoF for the memory estimate of a factorization (Hermite ~100, B-splines
@@ -111,42 +116,61 @@ def switch_to_mumps(ksp: PETSc.KSP, symmetric: bool, matrix_format: str) -> None
 
 class FactoredState:
     """The state a kept factorization's Jacobian was assembled at: the position (open DOFs, as
-    assembled) and, in dynamics, the previous position (stiffness damping). A checkpoint stores it
-    so that a continued run remakes the same factorization."""
+    assembled), in dynamics the previous position (stiffness damping), and the Hessian kind (its
+    index among the problem's kinds: the adaptive Hessian changes kind within a time step). A
+    checkpoint stores it so that a continued run remakes the same factorization."""
 
     def __init__(self, model: ShellModel):
         self.model = model
         self.arrays: tuple[np.ndarray, np.ndarray | None] | None = None
+        self.kind = 0
 
     def _current(self) -> tuple[np.ndarray, np.ndarray | None]:
         model = self.model
         return model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None
 
-    def remember(self) -> None:
-        """The Jacobian was just assembled at the model's current state."""
-        self.arrays = self._current()
+    def remember(self, kind: int) -> None:
+        """The Jacobian of Hessian kind ``kind`` was just assembled at the model's current state."""
+        self.arrays, self.kind = self._current(), kind
 
-    def checkpoint(self) -> dict[str, np.ndarray]:
-        """Collective: the remembered state as raw DOFs (empty when none is remembered)."""
-        if self.arrays is None:
-            return {}
+    def checkpoint(self, reuse: FactorizationReuse) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """Collective: the remembered state as raw DOFs, and the refactor policy's state with the
+        Hessian kind (both empty when no factorization is kept), for :meth:`restore`."""
+        if self.arrays is None or not reuse.valid:
+            return {}, {}
         disc = self.model.discretization
         position, previous = self.arrays
         arrays = {"factorization_state_dofs": disc.gather_raw_dofs(position)}
         if previous is not None:
             arrays["factorization_previous_dofs"] = disc.gather_raw_dofs(previous)
-        return arrays
+        return arrays, reuse.state() | {"hessian_kind": self.kind}
+
+    def restore(self, arrays: dict[str, np.ndarray], state: dict[str, float], problem: ShellProblem,
+                ksp: PETSc.KSP) -> None:  # fmt: skip
+        """Collective: assemble the Jacobian at a checkpoint's factored state, with the Hessian kind it
+        was made with (a checkpoint without one: the problem's current kind), and factor it."""
+        kinds, current = problem.form_terms.hessian_kinds(), problem.hessian
+        kind = state.get("hessian_kind", -1)
+        ours = isinstance(kind, int | float | np.number) and 0 <= kind < len(kinds)
+        with self.restored(arrays, int(kind) if ours else kinds.index(current)):
+            problem.hessian = kinds[self.kind]
+            try:
+                problem.assemble_jacobian(problem.jacobian)
+            finally:
+                problem.hessian = current
+            ksp.setOperators(problem.jacobian)
+            ksp.setUp()
 
     @contextmanager
-    def restored(self, arrays: dict[str, np.ndarray]) -> Iterator[None]:
-        """Collective: within the block the model is at the checkpoint's factored state (remembered);
-        afterwards back at its own."""
+    def restored(self, arrays: dict[str, np.ndarray], kind: int) -> Iterator[None]:
+        """Collective: within the block the model is at the checkpoint's factored state of Hessian
+        kind ``kind`` (remembered); afterwards back at its own."""
         model, disc = self.model, self.model.discretization
         saved = self._current()
         model.x.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_state_dofs"])
         if model.dynamics is not None:
             model.x_previous.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_previous_dofs"])
-        self.remember()
+        self.remember(kind)
         try:
             yield
         finally:

@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from petsc4py import PETSc
 
+from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HessianLadder
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.anderson import AndersonMixing
 from bhem_hpc.solver.contributions import Contribution
@@ -132,7 +133,8 @@ class ShellSolver(PetscOwner):
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
-        self.trust_region = self.energy_trust_region = None
+        # recoveries made when first needed; where the adaptive Hessian starts each time step
+        self.trust_region, self.energy_trust_region, self.ladder = None, None, HessianLadder()
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
         self.fallbacks: list[dict] = []
@@ -205,11 +207,15 @@ class ShellSolver(PetscOwner):
                     opts.delValue(name)
 
     def _choose_hessian(self) -> None:
-        """The adaptive Hessian recomputes a step with the projected one where LDL^T shows negative
-        pivots; a Krylov solve shows no inertia, so the iterative path takes the projected Hessian
-        (positive semi-definite: every step still goes downhill)."""
-        if set(self.problem.form_terms.hessian_kinds()) == {"out_of_plane", "projected"}:  # hessian = "adaptive"
-            self.problem.hessian = "projected" if self.linear.kind == "iterative" else "out_of_plane"
+        """The adaptive Hessian starts each solve with the exact one and steps down its ladder where
+        LDL^T shows negative pivots (:meth:`_descent_direction`); a Krylov solve shows no inertia, so
+        the iterative path takes the projected Hessian (positive semi-definite: steps go downhill)."""
+        if self._adaptive:
+            self.problem.hessian = "projected" if self.linear.kind == "iterative" else "exact"
+
+    @property
+    def _adaptive(self) -> bool:
+        return self.problem.form_terms.hessian_kinds() == COMPOSED_HESSIANS["adaptive"]
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:
         name = self.prefix + "chord_anderson_depth"
@@ -331,10 +337,7 @@ class ShellSolver(PetscOwner):
         self._energy_scale = abs(energy0)
         resolution = 1e-12 * abs(energy0)
         if indefinite:
-            if self.problem.hessian == "out_of_plane" and "projected" in self.problem.form_terms.hessian_kinds():
-                slope = self._projected_direction(x, y)
-            else:
-                slope = self._regularized_direction(y)
+            slope = self._descent_direction(x, y)
         slope *= self._bound_step(x, y)
         if abs(slope) <= 1e3 * resolution:
             return
@@ -407,11 +410,21 @@ class ShellSolver(PetscOwner):
         self.anderson.mixed_step(x.getArray(readonly=True), y.getArray(readonly=True))  # the new history's first
         return -self.f.dot(y)
 
-    def _projected_direction(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
-        """Re-solve for ``y`` with the projected (positive semi-definite) Hessian assembled and factored
-        at ``x``, where the one projected out of the plane only is indefinite (strong in-plane
-        compression). Returns the new slope ``-F.y``."""
-        self.problem.hessian = "projected"
+    def _descent_direction(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
+        """Re-solve for ``y`` where the step's Jacobian is indefinite or went uphill; returns the new
+        slope ``-F.y``. The adaptive Hessian steps down its ladder: from an indefinite exact Hessian
+        (quadratic convergence wherever inertia keeps it positive definite: stiff shells) to the one
+        projected out of the plane for the rest of the solve (compressed cloth), and from that to the
+        projected one for this iteration (strong in-plane compression). Otherwise (an uphill step of
+        round-off size, other kinds) the diagonal is regularized."""
+        if self._adaptive and self.problem.hessian == "exact" and self.negative_pivots() > 0:
+            self.problem.hessian = "out_of_plane"
+            slope = self._fresh_direction(x, y)
+            if self.negative_pivots() <= 0 and slope <= 0:
+                return slope
+        if not (self._adaptive and self.problem.hessian == "out_of_plane"):
+            return self._regularized_direction(y)
+        self.problem.hessian = "projected"  # positive semi-definite, for this iteration
         try:
             slope = self._fresh_direction(x, y)
         finally:
@@ -507,6 +520,8 @@ class ShellSolver(PetscOwner):
         self.problem.bc_values = model.constrained_target.copy() if bc_values is None else np.asarray(bc_values, float)
         self.problem.state_to_vector(self.x)
         start = self.x.copy()
+        if self._adaptive and self.linear.kind == "direct":  # where this step starts the ladder
+            self.problem.hessian = self.ladder.start(self.problem.hessian)
         try:
             if self._uses_energy_trust_region():
                 its = self._energy_trust_region_step()
@@ -529,14 +544,9 @@ class ShellSolver(PetscOwner):
                 if attempt == len(regularizations):
                     break
                 self.report.regularized_retries += 1
-                log.info(
-                    "%s: attempt %d failed (%s, %d negative pivots); retrying with diagonal regularizer %.0e",
-                    self.prefix,
-                    attempt,
-                    SNES_REASONS.get(self.snes.getConvergedReason()),
-                    pivots,
-                    regularizations[attempt],
-                )
+                log.info("%s: attempt %d failed (%s, %d negative pivots); retrying with diagonal regularizer %.0e",
+                         self.prefix, attempt, SNES_REASONS.get(self.snes.getConvergedReason()), pivots,
+                         regularizations[attempt])  # fmt: skip
             self.raise_failure(1.0, f"trust-region Newton and {len(regularizations)} regularized retries")
         finally:
             self.problem.regularization = 0.0
@@ -642,25 +652,17 @@ class ShellSolver(PetscOwner):
         return self.negative_pivots()
 
     def remember_factored_state(self) -> None:
-        """Note the state the Jacobian just assembled depends on (see :class:`FactoredState`)."""
-        self.factored_state.remember()
+        """Note the state and Hessian kind the Jacobian just assembled depends on (:class:`FactoredState`)."""
+        self.factored_state.remember(self.problem.form_terms.hessian_kinds().index(self.problem.hessian))
 
     def reuse_checkpoint(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-        """Collective: raw DOFs of the state the kept factorization was made at and the policy's
-        state (empty when none is kept), for :meth:`restore_reuse_checkpoint`."""
-        if not self.reuse.valid:
-            return {}, {}
-        arrays = self.factored_state.checkpoint()
-        return (arrays, self.reuse.state()) if arrays else ({}, {})
+        """Collective: the kept factorization's checkpoint (:meth:`FactoredState.checkpoint`)."""
+        return self.factored_state.checkpoint(self.reuse)
 
     def restore_reuse_checkpoint(self, arrays: dict[str, np.ndarray], state: dict[str, float]) -> None:
         """Collective: remake the kept factorization of a checkpoint (assembled and factored at its
         state), so a continued run decides and computes as the uninterrupted one."""
-        with self.factored_state.restored(arrays):
-            self.problem.assemble_jacobian(self.jacobian)
-            ksp = self.snes.getKSP()
-            ksp.setOperators(self.jacobian)
-            ksp.setUp()
+        self.factored_state.restore(arrays, state, self.problem, self.snes.getKSP())
         self.reuse.restore(state, self.operator_signature())
 
     def counters(self) -> dict[str, float]:

@@ -12,9 +12,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from helpers import BASE, message_lines
+from helpers import BASE, REPO, message_lines
 
-REPO = Path(__file__).resolve().parents[1]
 #: The child processes run without the parent's MPI environment (one rank each).
 ENV = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}
 

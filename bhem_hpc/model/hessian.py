@@ -15,12 +15,12 @@
   compression of order one), the iteration is recomputed with the projected one. A step that left
   the exact Hessian is followed by steps that start one rung lower, more of them each time it is
   left again (:class:`HessianLadder`: compressed cloth stays compressed; hanging cotton, 20 steps:
-  20 factorizations, 28 where every step tries the exact Hessian first, 14 from the rung below). Descent steps as
-  ``"projected"``, in far fewer Newton iterations on compressed cloth (cotton hanging from moving
-  corners, 25 x 25 Hermite patches, the sheet in its plane: 7.6 per step against 32 for
-  ``"projected"``, whose linear convergence when the corners stop needed dt halvings). Where
-  wrinkles grow out of the plane, both still converge linearly. The iterative linear path, whose
-  Krylov solves tell no inertia, takes ``"projected"`` instead.
+  20 factorizations, 28 where every step tries the exact Hessian first, 14 from the rung below).
+  Descent steps as ``"projected"``, in far fewer Newton iterations on compressed cloth (cotton
+  hanging from moving corners, 25 x 25 Hermite patches, the sheet in its plane: 7.6 per step
+  against 32 for ``"projected"``, whose linear convergence when the corners stop needed dt
+  halvings). Where wrinkles grow out of the plane, both still converge linearly. The iterative
+  linear path, whose Krylov solves tell no inertia, takes ``"projected"`` instead.
 - ``"trust_region"``: time steps minimize the incremental potential by a Newton trust region whose
   quadratic model has the exact Hessian, its conjugate gradients preconditioned by the projected
   one (:mod:`bhem_hpc.solver.energy_trust_region`); steps it cannot take go on as ``"projected"``.

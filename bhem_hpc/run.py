@@ -203,7 +203,8 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
             )
     try:
         solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
-                             factorization=scene.factorization, linear=scene.linear)  # fmt: skip
+                             factorization=scene.factorization, linear=scene.linear,
+                             acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{options.scene}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
     summary = RunSummary(

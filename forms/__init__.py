@@ -12,7 +12,7 @@ from bhem_hpc.forms.bending import bending_energy, bending_pseudo_hessian
 from bhem_hpc.forms.damping import mass_damping_potential, stiffness_damping_potential
 from bhem_hpc.forms.edge_moment import edge_moment_work
 from bhem_hpc.forms.gravity import gravity_potential
-from bhem_hpc.forms.inertia import impulse_metric, inertia_potential
+from bhem_hpc.forms.inertia import impulse_metric, inertia_potential, mass_matrix, total_mass
 from bhem_hpc.forms.kinetic import kinetic_energy
 from bhem_hpc.forms.line_load import line_load_work
 from bhem_hpc.forms.membrane import membrane_energy, membrane_projected_hessian, membrane_stress
@@ -29,6 +29,8 @@ __all__ = [
     "gravity_potential",
     "impulse_metric",
     "inertia_potential",
+    "mass_matrix",
+    "total_mass",
     "kinetic_energy",
     "mass_damping_potential",
     "stiffness_damping_potential",

@@ -17,6 +17,17 @@ def inertia_potential(x, x_predicted, x_rest, density, thickness, time_step, dx:
     return density * thickness / (2 * time_step**2) * ufl.dot(increment, increment) * area_density(x_rest) * dx
 
 
+def mass_matrix(trial, test, x_rest, density, thickness, dx: ufl.Measure) -> ufl.Form:
+    """The consistent mass ``M``: ``rho h int u . w dOmega_rest`` (``dt^2`` times the inertia
+    potential's Hessian)."""
+    return density * thickness * ufl.dot(trial, test) * area_density(x_rest) * dx
+
+
+def total_mass(x_rest, density, thickness, dx: ufl.Measure) -> ufl.Form:
+    """``rho h int dOmega_rest``: the shell's mass [kg]."""
+    return density * thickness * area_density(x_rest) * dx
+
+
 def impulse_metric(trial, test, x_rest, density, thickness, patch_size, weights, dx: ufl.Measure) -> ufl.Form:
     """Metric of contact impulses: ``rho h int (m u . w + c sum_a h_a^2 u_,a . w_,a) dOmega_rest``,
     ``weights = (m, c)``.

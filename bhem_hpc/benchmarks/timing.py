@@ -198,7 +198,8 @@ def scene_benchmark(
         )
     model = build_model(scene, comm)
     with ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
-                     factorization=scene.factorization, linear=scene.linear) as solver:  # fmt: skip
+                     factorization=scene.factorization, linear=scene.linear,
+                     acceleration_tolerance=scene.acceleration_tolerance) as solver:  # fmt: skip
         contact = build_contact(scene, model, solver)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
         try:

@@ -42,6 +42,7 @@ MAX_NAME_LENGTH = 64
 
 
 MIN_DT, MAX_DT = 1e-12, 1e3  # s
+MIN_ACCELERATION, MAX_ACCELERATION = 1e-12, 1e6  # m/s^2: solver.acceleration_tolerance
 
 
 def _whole_steps(duration: float, dt: float) -> bool:
@@ -118,6 +119,7 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
     # for time steps (exact where it is positive definite, otherwise every Newton step goes downhill)
     default_hessian = "exact" if static else "adaptive"
     hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", "reuse"
+    acceleration_tolerance = None
     if solver is not None:
         linear = solver.get("linear", "a string", "auto", lambda v: v in LINEAR_SOLVERS,
                             "'auto', 'direct' or 'iterative'")  # fmt: skip
@@ -137,6 +139,12 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
         if quadrature == "reduced" and surface.discretization != "bspline2":
             solver.fail("quadrature", f"2, 3, 4 or 5: 'reduced' needs surface.discretization = 'bspline2', "
                         f"not {surface.discretization!r}", quadrature)  # fmt: skip
+        acceleration_tolerance = solver.get(
+            "acceleration_tolerance", "a number", None,
+            lambda v: not static and MIN_ACCELERATION <= v <= MAX_ACCELERATION,
+            "absent: a static scene has no accelerations" if static
+            else f"a number in [{MIN_ACCELERATION:g}, {MAX_ACCELERATION:g}] (m/s^2)",
+        )  # fmt: skip
         options = _petsc_options(solver)
         solver.done()
     output = top.table("output", None)
@@ -168,6 +176,7 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
         quadrature=quadrature,
         linear=linear,
         factorization=factorization,
+        acceleration_tolerance=acceleration_tolerance,
         petsc_options=dict(options),
         point_constraints=points,
         output_every=every,

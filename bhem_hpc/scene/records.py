@@ -89,6 +89,7 @@ class Scene:
     quadrature: int | str | None  # Gauss points per direction, 'reduced', None: the default
     linear: str = "auto"  # linear solver: auto | direct | iterative
     factorization: str = "reuse"  # reuse | fresh
+    acceleration_tolerance: float | None = None  # time steps: Newton stops at this RMS acceleration [m/s^2]
     petsc_options: dict[str, Any] = field(default_factory=dict)
     point_constraints: tuple[ScenePoint, ...] = ()
     output_every: int = 1

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 from petsc4py import PETSc
 
+from bhem_hpc.solver.acceleration import tao_acceleration_test
 from bhem_hpc.solver.petsc import PETSC_ERRORS, PetscOwner, SolverSetupError, push_options, solve_stopped
 
 if TYPE_CHECKING:
@@ -77,6 +78,10 @@ class EnergyTrustRegion(PetscOwner):
             self.tao.setObjectiveGradient(self._objective_gradient, self.gradient)
             self.tao.setObjective(self._objective)
             self.tao.setHessian(self._hessian, solver.jacobian, self.preconditioner)
+            if solver.acceleration is not None:  # the line-search solver's stopping test, in TAO's terms
+                test = solver.acceleration
+                self.tao.setConvergenceTest(tao_acceleration_test, kargs={"residual": test.residual,
+                                                                          "tolerance": test.tolerance})  # fmt: skip
             try:
                 self.tao.setFromOptions()
             except PETSc.Error as exc:
@@ -118,7 +123,7 @@ class EnergyTrustRegion(PetscOwner):
     # -- solve ----------------------------------------------------------------------------------
     def solve(self, x: PETSc.Vec) -> bool:
         """Minimize the potential from ``x`` (overwritten with the result, or left as it was when the
-        gradient norm did not reach the solver's absolute or relative tolerance); whether it converged."""
+        gradient did not meet the solver's tolerances: absolute, relative or acceleration); whether it converged."""
         start = x.copy()
         try:
             self.tao.setSolution(x)
@@ -128,7 +133,8 @@ class EnergyTrustRegion(PetscOwner):
                 raise solve_stopped(self.prefix, exc) from None
             reason = self.tao.getConvergedReason()
             # not a step-size test: a radius shrunk to nothing is no equilibrium
-            converged = reason in (PETSc.TAO.Reason.CONVERGED_GATOL, PETSc.TAO.Reason.CONVERGED_GTTOL)
+            converged = reason in (PETSc.TAO.Reason.CONVERGED_GATOL, PETSc.TAO.Reason.CONVERGED_GTTOL,
+                                   PETSc.TAO.Reason.CONVERGED_USER)  # fmt: skip
             if not converged:
                 log.info("%s: %s after %d trust-region iterations, |g| = %.3e; the step starts again with "
                          "line-search Newton", self.prefix, TAO_REASONS.get(reason, reason), self.iterations,

@@ -20,6 +20,7 @@ from petsc4py import PETSc
 
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HessianLadder
 from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.acceleration import AccelerationTest, attach_acceleration_test
 from bhem_hpc.solver.anderson import AndersonMixing
 from bhem_hpc.solver.contributions import Contribution
 from bhem_hpc.solver.energy_trust_region import EnergyTrustRegion
@@ -39,6 +40,7 @@ from bhem_hpc.solver.petsc import (
     SNES_REASONS,
     PetscOwner,
     SolverSetupError,
+    mumps_factor,
     negative_pivots,
     push_options,
     solve_stopped,
@@ -110,6 +112,8 @@ class ShellSolver(PetscOwner):
         contributions: energy contributions besides the model's terms
             (:class:`~bhem_hpc.solver.contributions.Contribution`); a :class:`StepBounded` one caps
             every line-search step.
+        acceleration_tolerance: time steps converge once the residual's root-mean-square
+            acceleration is at most this [m/s^2] (:mod:`.acceleration`), instead of at ``rtol``.
 
     Raises:
         LinearSolverError: an unknown ``linear`` or a direct solver that would not fit in memory.
@@ -123,18 +127,19 @@ class ShellSolver(PetscOwner):
     def __init__(
         self, model: ShellModel, prefix: str = "bhem_static_", options: Mapping[str, object] | None = None,
         factorization: str = "reuse", linear: str = "auto", contributions: Sequence[Contribution] = (),
+        acceleration_tolerance: float | None = None,
     ):  # fmt: skip
         if factorization not in FACTORIZATION_POLICIES:
             raise ValueError(f"factorization must be one of {FACTORIZATION_POLICIES}, got {factorization!r}")
-        self.model = model
-        self.prefix = prefix
-        self._closed = False
-        self._energy_scale = 0.0
+        self.model, self.prefix = model, prefix
+        self._closed, self._energy_scale = False, 0.0
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
-        # recoveries made when first needed; where the adaptive Hessian starts each time step
+        # recoveries made when first needed; where the adaptive Hessian starts each time step; the
+        # stopping test of acceleration_tolerance (made with the SNES)
         self.trust_region, self.energy_trust_region, self.ladder = None, None, HessianLadder()
+        self.acceleration: AccelerationTest | None = None
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
         self.fallbacks: list[dict] = []
@@ -148,8 +153,7 @@ class ShellSolver(PetscOwner):
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
         #: straight from the initial values to the targets.
         self.prescribed = None
-        disc = model.discretization
-        comm = model.comm
+        disc, comm = model.discretization, model.comm
         n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
         self.x = PETSc.Vec().createMPI((n_local, n_global), comm=comm)
         self.f = self.x.duplicate()
@@ -177,7 +181,7 @@ class ShellSolver(PetscOwner):
             self.bc_rows = self.problem.bc_rows
             self.prolongation = self.problem.prolongation
 
-            PETSc.Log.begin()  # event timers for linear_solver_seconds (idempotent, cheap)
+            PETSc.Log.begin()  # event timers for counters() (idempotent, cheap)
             self._stage = PETSc.Log.Stage(f"{prefix}solve")  # one per prefix: the same stage if reused
             self.snes = PETSc.SNES().create(comm)
             self.snes.setOptionsPrefix(prefix)
@@ -198,6 +202,8 @@ class ShellSolver(PetscOwner):
                     f"prefix: {dict(sorted(given.items()))}"
                 ) from None
             self.anderson = AndersonMixing(self._anderson_depth(opts), reduce=lambda a: comm.allreduce(a))
+            if acceleration_tolerance is not None:
+                self.acceleration = attach_acceleration_test(self, acceleration_tolerance)
         finally:
             for name in pushed:
                 if name.startswith(prefix + "mat_mumps_"):  # read at the first factorization
@@ -626,14 +632,8 @@ class ShellSolver(PetscOwner):
         raise solve_failure(self, factor, after)
 
     def factor_matrix(self) -> PETSc.Mat | None:
-        """The MUMPS factor of the last factorization (for its INFOG/RINFOG figures); None for other solvers."""
-        pc = self.snes.getKSP().getPC()
-        if pc.getType() not in ("cholesky", "lu") or pc.getFactorSolverType() != "mumps":
-            return None
-        try:
-            return pc.getFactorMatrix()
-        except PETSc.Error:
-            return None
+        """The MUMPS factor of the last factorization (:func:`~bhem_hpc.solver.petsc.mumps_factor`)."""
+        return mumps_factor(self.snes.getKSP())
 
     def negative_pivots(self) -> int:
         """Negative pivots of the last LDL^T factorization (MUMPS INFOG(12)); -1 if unknown."""
@@ -666,15 +666,11 @@ class ShellSolver(PetscOwner):
         self.reuse.restore(state, self.operator_signature())
 
     def counters(self) -> dict[str, float]:
-        """Cumulative figures of this solver (:func:`~bhem_hpc.solver.report.solver_counters`); the
-        difference of two snapshots covers what happened in between."""
-        factor, solve = self.linear_solver_seconds()
+        """Cumulative figures of this solver (:func:`~bhem_hpc.solver.report.solver_counters`), with the
+        seconds of its stage's ``PCSetUp`` and ``KSPSolve`` on this process; the difference of two
+        snapshots covers what happened in between."""
+        factor, solve = stage_seconds(self._stage, "PCSetUp"), stage_seconds(self._stage, "KSPSolve")
         return solver_counters(self.report, self.reuse, factor, solve)
-
-    def linear_solver_seconds(self) -> tuple[float, float]:
-        """Cumulative ``(preconditioner setup, linear solves)`` seconds of this solver's SNES solves on
-        this process (:func:`~bhem_hpc.solver.petsc.stage_seconds` of ``PCSetUp`` and ``KSPSolve``)."""
-        return stage_seconds(self._stage, "PCSetUp"), stage_seconds(self._stage, "KSPSolve")
 
     # -- lifetime -------------------------------------------------------------------------------
     def unused_options(self) -> list[str]:
@@ -691,7 +687,7 @@ class ShellSolver(PetscOwner):
         opts = PETSc.Options()
         for name in self._overrides:
             opts.delValue(name)
-        for owner in (self.trust_region, self.energy_trust_region):
+        for owner in (self.trust_region, self.energy_trust_region, self.acceleration and self.acceleration.residual):
             if owner is not None:
                 owner.close()
         for obj in (self.snes, self.x, self.f, self._trial):

@@ -87,6 +87,17 @@ def mumps_infog(ksp: PETSc.KSP | None, entry: int = 1) -> int | None:
         return None
 
 
+def mumps_factor(ksp: PETSc.KSP) -> PETSc.Mat | None:
+    """The MUMPS factor of a KSP's last factorization (for its INFOG/RINFOG figures); None otherwise."""
+    pc = ksp.getPC()
+    if pc.getType() not in ("cholesky", "lu") or pc.getFactorSolverType() != "mumps":
+        return None
+    try:
+        return pc.getFactorMatrix()
+    except PETSc.Error:
+        return None
+
+
 def negative_pivots(ksp: PETSc.KSP) -> int:
     """Negative pivots of a KSP's last LDL^T factorization (MUMPS INFOG(12)); -1 if unknown (no
     Cholesky, or not MUMPS')."""

@@ -1,0 +1,184 @@
+"""The acceleration residual of a time step, and the Newton stopping test on it
+(``solver.acceleration_tolerance``).
+
+A time step's residual is a force, ``r = M (x - x_pred) / dt^2 + f_int(x) - f_ext`` on the closed
+DOFs. The acceleration it leaves unbalanced is ``M^-1 r``; its root-mean-square over the shell's
+mass ``m``,
+
+    a_rms = sqrt(r^T M^-1 r / m)   [m/s^2],
+
+means the same whatever the discretization, the resolution and the DOF kinds (Hermite derivative
+DOFs carry other units than positions): a uniform acceleration field ``a`` gives ``|a|``, so
+gravity's load vector alone gives 9.81. Where inertia dominates the stiffness (``M / dt^2`` against
+``K``), the position error a step leaves is about ``a_rms dt^2`` in the mass-weighted mean.
+
+With a tolerance, Newton (the SNES, and the energy trust region's TAO) stops once ``a_rms`` is
+below it, instead of at the relative tolerances ``rtol`` / ``gttol``, whose meaning depends on how
+far a step's first guess was off; the absolute floor ``atol`` (round-off of the internal force)
+still ends a solve. This is the acceleration criterion of Longva et al. (2023, "Pitfalls of
+projection"), in the mass norm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import dolfinx.fem as fem
+import dolfinx.fem.petsc as fem_petsc
+import numpy as np
+import ufl
+from petsc4py import PETSc
+
+from bhem_hpc import forms
+from bhem_hpc.model.jit import compilation_report, default_jit_params
+from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.petsc import KSP_REASONS, PetscOwner, SolverError, push_options
+
+if TYPE_CHECKING:
+    from bhem_hpc.solver.newton import ShellSolver
+
+#: The mass solve's defaults: a Cholesky factorization made once per run (MUMPS) for the direct
+#: linear strategy; conjugate gradients on incomplete Cholesky blocks for the iterative one
+#: (``M`` is well conditioned; ``a_rms`` needs a few digits).
+DIRECT_MASS_OPTIONS = {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps",
+                       "mat_mumps_icntl_7": "2"}  # fmt: skip
+ITERATIVE_MASS_OPTIONS = {"ksp_type": "cg", "pc_type": "bjacobi", "sub_pc_type": "icc", "ksp_rtol": "1e-6",
+                          "ksp_max_it": "500"}  # fmt: skip
+
+
+class AccelerationResidual(PetscOwner):
+    """``a_rms`` of residual vectors on a time-stepped :class:`ShellModel`'s closed DOFs.
+
+    Args:
+        model: the shell model (dynamic: it has a mass).
+        prolongation: the seam prolongation ``P`` of the problem (open = ``P`` closed), or None.
+        constrained_rows: global closed rows held by constraints (left out: they hold ``x - x_bc``).
+        constrained_local: the same rows as local indices of this rank's closed vector.
+        prefix: PETSc options prefix of the mass solve.
+        direct: factor ``M`` (MUMPS) rather than iterate on it.
+    """
+
+    def __init__(self, model: ShellModel, prolongation: PETSc.Mat | None, constrained_rows: np.ndarray,
+                 constrained_local: np.ndarray, prefix: str, direct: bool = True):  # fmt: skip
+        if model.dynamics is None:
+            raise ValueError("an acceleration residual needs a time-stepped model (its mass)")
+        self.prefix = prefix
+        self._closed = False
+        self.constrained_local = np.asarray(constrained_local, dtype=np.int64)
+        space = model.discretization.function_space
+        jit = default_jit_params()
+        with compilation_report("the mass matrix", jit["cache_dir"]):
+            trial, test = ufl.TrialFunction(space), ufl.TestFunction(space)
+            mass_form = fem.form(forms.mass_matrix(trial, test, model.x_rest, model.density, model.thickness, model.dx),
+                                 jit_params=jit)  # fmt: skip
+            total_form = fem.form(forms.total_mass(model.x_rest, model.density, model.thickness, model.dx),
+                                  jit_params=jit)  # fmt: skip
+        self.mass = float(model.comm.allreduce(fem.assemble_scalar(total_form)))
+        if not self.mass > 0:
+            raise ValueError(f"an acceleration residual needs a positive mass, got {self.mass!r} kg")
+        open_mass = fem_petsc.assemble_matrix(mass_form)
+        open_mass.assemble()
+        if prolongation is None:
+            self.matrix = open_mass
+        else:
+            self.matrix = open_mass.PtAP(prolongation)
+            open_mass.destroy()
+        self.matrix.zeroRowsColumns(np.asarray(constrained_rows, dtype=PETSc.IntType), diag=1.0)
+        self.matrix.setOption(PETSc.Mat.Option.SPD, True)
+        self.ksp = PETSc.KSP().create(model.comm)
+        self.ksp.setOptionsPrefix(prefix)
+        self.ksp.setOperators(self.matrix)
+        pushed = push_options(prefix, DIRECT_MASS_OPTIONS if direct else ITERATIVE_MASS_OPTIONS, {})
+        try:
+            self.ksp.setFromOptions()
+        finally:
+            opts = PETSc.Options()
+            for name in pushed:
+                opts.delValue(name)
+        self.force = self.matrix.createVecLeft()
+        self.acceleration = self.matrix.createVecRight()
+        #: ``a_rms`` of the last residual asked about [m/s^2]
+        self.last = float("nan")
+
+    def rms(self, residual: PETSc.Vec) -> float:
+        """Collective: ``a_rms`` of ``residual`` (closed layout; its constrained rows left out)."""
+        residual.copy(self.force)
+        if len(self.constrained_local):
+            self.force.array[self.constrained_local] = 0.0
+        self.ksp.solve(self.force, self.acceleration)
+        reason = self.ksp.getConvergedReason()
+        if reason < 0:
+            raise SolverError(f"KSP solver '{self.prefix}' (the mass solve of the acceleration residual) failed: "
+                              f"{KSP_REASONS.get(reason, reason)}")  # fmt: skip
+        self.last = float(np.sqrt(max(self.force.dot(self.acceleration), 0.0) / self.mass))
+        return self.last
+
+    def close(self) -> None:
+        """Destroy the mass matrix, its solver and vectors (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for obj in (self.ksp, self.matrix, self.force, self.acceleration):
+            obj.destroy()
+
+
+@dataclass(frozen=True)
+class AccelerationTest:
+    """A solver's acceleration stopping test: the residual's measure and its tolerance [m/s^2]."""
+
+    residual: AccelerationResidual
+    tolerance: float
+
+
+def snes_acceleration_test(
+    snes: PETSc.SNES, iteration: int, norms: tuple[float, float, float], residual: AccelerationResidual,
+    tolerance: float,
+) -> int:  # fmt: skip
+    """SNES convergence test (``snes.setConvergenceTest(..., kargs={"residual": ..., "tolerance": ...})``):
+    converged once ``a_rms`` of the current residual is at most ``tolerance`` [m/s^2], or its 2-norm is
+    below ``atol`` (round-off); diverged on a non-finite residual. A step that stopped moving (below
+    ``stol``) is reported as such, for the driver to judge. ``norms = (|x|, |step|, |F|)``."""
+    _, atol, stol, _ = snes.getTolerances()
+    x_norm, step_norm, f_norm = norms
+    reasons = PETSc.SNES.ConvergedReason
+    if not np.isfinite(f_norm):
+        return reasons.DIVERGED_FNORM_NAN
+    # an absolute test on the residual, in the mass norm: SNES 3.18 has no reason of the user's
+    if f_norm < atol or residual.rms(snes.getFunction()[0]) <= tolerance:
+        return reasons.CONVERGED_FNORM_ABS
+    if iteration and step_norm < stol * x_norm:
+        return reasons.CONVERGED_SNORM_RELATIVE
+    return reasons.ITERATING
+
+
+def tao_acceleration_test(tao: PETSc.TAO, residual: AccelerationResidual, tolerance: float) -> None:
+    """TAO convergence test (``tao.setConvergenceTest``): ``CONVERGED_USER`` once ``a_rms`` of the
+    current gradient is at most ``tolerance`` [m/s^2]; ``CONVERGED_GATOL`` below ``gatol``; diverged
+    on non-finite values or at the iteration limit."""
+    iteration, value, gradient_norm = tao.getSolutionStatus()[:3]
+    gatol, _, _ = tao.getTolerances()
+    reasons = PETSc.TAO.Reason
+    if not (np.isfinite(value) and np.isfinite(gradient_norm)):
+        reason = reasons.DIVERGED_NAN
+    elif gradient_norm <= gatol:
+        reason = reasons.CONVERGED_GATOL
+    elif residual.rms(tao.getGradient()[0]) <= tolerance:
+        reason = reasons.CONVERGED_USER
+    elif iteration >= tao.getMaximumIterations():
+        reason = reasons.DIVERGED_MAXITS
+    else:
+        reason = reasons.CONTINUE_ITERATING
+    tao.setConvergedReason(reason)
+
+
+def attach_acceleration_test(solver: ShellSolver, tolerance: float) -> AccelerationTest:
+    """Make ``solver``'s SNES stop at ``a_rms <= tolerance`` [m/s^2] (its mass solve under the prefix
+    ``<solver prefix>mass_``); the energy trust region takes the test from ``solver.acceleration``."""
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"acceleration_tolerance must be a number > 0 [m/s^2], got {tolerance!r}")
+    problem = solver.problem
+    residual = AccelerationResidual(solver.model, problem.prolongation, problem.bc_rows, problem.bc_local,
+                                    solver.prefix + "mass_", direct=solver.linear.kind == "direct")  # fmt: skip
+    solver.snes.setConvergenceTest(snes_acceleration_test, kargs={"residual": residual, "tolerance": tolerance})
+    return AccelerationTest(residual, tolerance)

@@ -41,6 +41,17 @@ def _add_cloth(sub) -> None:
                        "locking-cotton)")  # fmt: skip
 
 
+def _add_states(sub) -> None:
+    """``bhem-hpc states``: the shipped jobs' final states recorded, or compared with a record."""
+    states = sub.add_parser("states", help="record the shipped jobs' final states, or compare with a record")
+    states.add_argument("--record", type=Path, default=None, help="write the states to FILE (.npz)")
+    states.add_argument("--compare", type=Path, default=None, help="compare with FILE (exit 1 if not equal)")
+    states.add_argument("--steps", type=int, default=3, help="time steps (static jobs: path points) per job")
+    states.add_argument("--jobs", nargs="+", default=None, help="job names of jobs/ (default: every TOML scene)")
+    states.add_argument("--out", type=Path, default=Path("out/states"), help="the runs' output directories")
+    states.add_argument("--tolerance", type=float, default=1e-12, help="largest relative difference that passes")
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bhem-hpc",
@@ -71,6 +82,7 @@ def _parser() -> argparse.ArgumentParser:
     paths.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/path-following.md and its PNGs")
     paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
     _add_cloth(sub)
+    _add_states(sub)
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
@@ -315,6 +327,12 @@ def _paths(args: argparse.Namespace, comm) -> None:
         print(f"wrote {page}")
 
 
+def _states(args: argparse.Namespace, comm) -> int:
+    from bhem_hpc.benchmarks.reference_states import reference_states
+
+    return reference_states(args.record, args.compare, args.jobs, args.steps, args.out, args.tolerance, comm)
+
+
 def _summary(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.summary import update_readme
 
@@ -323,7 +341,7 @@ def _summary(args: argparse.Namespace, comm) -> None:
         print(f"updated the summary in {args.readme}")
 
 
-#: One handler per subcommand: ``handler(args, comm)``.
+#: One handler per subcommand: ``handler(args, comm)``, which may return an exit status.
 HANDLERS = {
     "run": _run,
     "render": _render,
@@ -332,6 +350,7 @@ HANDLERS = {
     "summary": _summary,
     "paths": _paths,
     "cloth": _cloth,
+    "states": _states,
     "cantilever": _cantilever,
 }
 
@@ -385,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
     from bhem_hpc.errors import UserError
 
     try:
-        HANDLERS[args.command](args, comm)
+        status = HANDLERS[args.command](args, comm)
     except UserError as exc:
         if comm.rank == 0:
             if args.debug:
@@ -398,7 +417,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bhem-hpc: internal error on rank {comm.rank} (a bug in bhem-hpc; please report it with "
               "the traceback below)", file=sys.stderr)  # fmt: skip
         raise
-    return 0
+    return status or 0
 
 
 def _exit_past_failed_hdf5_files() -> None:

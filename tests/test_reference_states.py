@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bhem_hpc.benchmarks import reference_states as rs
-from tests.helpers import BASE
+from helpers import BASE
 
 
 def _state(job: str, scale: float = 1.0, iterations: int = 7) -> rs.JobState:

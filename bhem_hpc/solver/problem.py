@@ -12,7 +12,7 @@ open grid and iterates on the closed DOFs ``x_c``: ``F_c = P^T F(P x_c)``, ``J_c
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import dolfinx.fem.petsc as fem_petsc
 import numpy as np
@@ -71,6 +71,16 @@ def _blocked_aij(
         csr=(row_pointer.astype(PETSc.IntType), columns.astype(PETSc.IntType), values),
         comm=comm,
     )
+
+
+def add_diagonal_regularization(jac: PETSc.Mat, regularization: float) -> None:
+    """The paper's diagonal regularizer, scaled per row: ``J + r |diag J|`` (nothing for ``r = 0``)."""
+    if regularization > 0:
+        diagonal = jac.getDiagonal()
+        diagonal.abs()
+        diagonal.scale(regularization)
+        jac.setDiagonal(diagonal, addv=PETSc.InsertMode.ADD)
+        diagonal.destroy()
 
 
 class ShellProblem(PetscOwner):
@@ -205,9 +215,11 @@ class ShellProblem(PetscOwner):
         """Copy the model's current position into closed DOFs ``x``."""
         x.array[:] = self.model.discretization.open_to_closed(self.model.x.x.array)
 
-    def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
+    def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec,
+                          extra_gradient: Callable[[np.ndarray], None] | None = None) -> None:  # fmt: skip
         """``f = P^T (F_int - F_ext + sum of the contributions' gradients)`` with constrained rows
-        replaced by ``x - x_bc``."""
+        replaced by ``x - x_bc``; ``extra_gradient(gradient)`` may add more to this rank's open
+        blocks ``(blocks, 3)`` first (a problem of several bodies adds the terms that couple them)."""
         t0 = time.perf_counter()
         with self.f_open.localForm() as local:
             local.set(0.0)
@@ -217,6 +229,8 @@ class ShellProblem(PetscOwner):
             gradient = local.array.reshape(-1, 3)
             for contribution in self.contributions:
                 contribution.add_gradient(state, gradient)
+            if extra_gradient is not None:
+                extra_gradient(gradient)
         self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         if self.prolongation is not None:
             self.prolongation.multTranspose(self.f_open, f)
@@ -274,15 +288,19 @@ class ShellProblem(PetscOwner):
         bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
         if not bounded:
             return 1.0
+        blocks = self.open_direction_blocks(direction)
+        state = self.contribution_state()
+        return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
+
+    def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
+        """Collective: a closed-DOF direction on this rank's open blocks (owned and ghosts), ``(blocks, 3)``."""
         open_direction = self.model.x.vector.duplicate()
         try:
             self._to_open(direction, open_direction, offset=False)
             with open_direction.localForm() as local:
-                blocks = local.array.reshape(-1, 3).copy()
+                return local.array.reshape(-1, 3).copy()
         finally:
             open_direction.destroy()
-        state = self.contribution_state()
-        return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
 
     def _assemble_open_jacobian(self) -> None:
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
@@ -305,13 +323,7 @@ class ShellProblem(PetscOwner):
         if self.prolongation is not None:
             self.jacobian_open.PtAP(self.prolongation, result=jac)
         jac.zeroRowsColumns(self.bc_rows, diag=1.0)
-        if self.regularization > 0:
-            # The paper's diagonal regularizer, scaled per row: J + r |diag J|.
-            diagonal = jac.getDiagonal()
-            diagonal.abs()
-            diagonal.scale(self.regularization)
-            jac.setDiagonal(diagonal, addv=PETSc.InsertMode.ADD)
-            diagonal.destroy()
+        add_diagonal_regularization(jac, self.regularization)
         self.report.assemble_jacobian_s += time.perf_counter() - t0
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:

@@ -1,0 +1,322 @@
+"""Several bodies' problems as one: a stacked residual, Jacobian, potential and constraint rows.
+
+:class:`StackedProblem` joins the :class:`~bhem_hpc.solver.problem.ShellProblem` of each body into
+one problem on one stacked vector (:class:`~bhem_hpc.bodies.layout.StackedLayout`: each rank's
+range holds the closed DOFs each body owns there, body after body). Each body assembles its own
+UFL terms and contributions as it does alone; the stacked problem adds energy contributions that
+couple bodies (a spring between material points of two bodies; contact between bodies), which
+see every body's open blocks side by side:
+
+- ``ContributionState.positions``: this rank's open blocks (owned and ghosts) of body 0, then of
+  body 1, ..., shape ``(blocks, 3)``; :meth:`StackedProblem.point_basis` names a material point of a
+  body in those rows;
+- Hessian patterns name stacked global open blocks (:attr:`StackedProblem.global_open_blocks`).
+
+The stacked Jacobian is AIJ with 3 x 3 blocks: each body's closed Jacobian (constrained rows and
+columns already the identity) copied in at its offsets, plus the coupling Hessian ``P^T H P``
+(``H`` on the stacked open blocks, ``P`` the bodies' prolongations side by side: seams, ties and
+B-spline control points as each body has them), every constrained row and column set to the
+identity again, then the diagonal regularizer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from petsc4py import PETSc
+
+from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis, StepBounded
+from bhem_hpc.solver.petsc import PetscOwner
+from bhem_hpc.solver.problem import ShellProblem, add_diagonal_regularization
+
+
+def _pattern(contribution: Contribution) -> tuple[np.ndarray, np.ndarray]:
+    rows, columns = (np.asarray(a).reshape(-1) for a in contribution.hessian_pattern())
+    if rows.shape != columns.shape:
+        raise ValueError(f"contribution {contribution.name!r}: a Hessian pattern needs as many rows as columns, "
+                         f"got {rows.shape} and {columns.shape}")  # fmt: skip
+    return rows.astype(PETSc.IntType)[:, None], columns.astype(PETSc.IntType)[:, None]
+
+
+class StackedProblem(PetscOwner):
+    """One problem of several bodies' :class:`ShellProblem` s and the contributions that couple them.
+
+    Args:
+        problems: one per body, in the stacked order, on one communicator, each with an AIJ
+            Jacobian (``matrix_format = "aij"``); the stacked problem owns and closes them.
+        contributions: energy contributions over all bodies' open blocks (see the module).
+
+    Raises:
+        ValueError: no body, or a body whose Jacobian is not AIJ.
+        TypeError: an object that is not a :class:`Contribution`.
+    """
+
+    def __init__(self, problems: Sequence[ShellProblem], contributions: Sequence[Contribution] = ()):
+        if not problems:
+            raise ValueError("a stacked problem needs at least one body")
+        self.problems = list(problems)
+        self._closed = False
+        comm = self.problems[0].model.comm
+        self.comm = comm
+        for k, problem in enumerate(self.problems):
+            if problem.matrix_format != "aij":
+                raise ValueError(f"body {k}: its Jacobian must be AIJ to be stacked, got {problem.matrix_format!r}")
+        self.contributions: list[Contribution] = []
+        self._patterns: list[tuple[np.ndarray, np.ndarray]] = []
+        discretizations = [p.model.discretization for p in self.problems]
+        self.closed = StackedLayout(comm.allgather([3 * d.num_owned_closed for d in discretizations]), comm.rank)
+        index_maps = [p.model.x.function_space.dofmap.index_map for p in self.problems]
+        self.open = StackedLayout(comm.allgather([m.size_local for m in index_maps]), comm.rank)
+        #: where each body's open blocks (owned, then ghosts) start in the contributions' rows
+        self.open_offsets = np.concatenate([[0], np.cumsum([m.size_local + m.num_ghosts for m in index_maps])])
+        #: the stacked global open block of each row of ``ContributionState.positions``
+        self.global_open_blocks = np.concatenate(
+            [self.open.to_stacked(b, p.model.global_open_blocks) for b, p in enumerate(self.problems)])  # fmt: skip
+        self._x = [PETSc.Vec().createMPI((3 * d.num_owned_closed, 3 * d.num_closed), comm=comm)
+                   for d in discretizations]  # fmt: skip
+        self._f = [v.duplicate() for v in self._x]
+        self._rows = [self.closed.rank_start[comm.rank] + np.arange(s.start, s.stop, dtype=np.int64)
+                      for s in map(self.closed.local_slice, range(len(self.problems)))]  # fmt: skip
+        self.bc_local = np.concatenate([p.bc_local + self.closed.local_slice(b).start
+                                        for b, p in enumerate(self.problems)]).astype(np.int64)  # fmt: skip
+        self.bc_rows = np.concatenate([self.closed.to_stacked(b, p.bc_rows)
+                                       for b, p in enumerate(self.problems)]).astype(PETSc.IntType)  # fmt: skip
+        self._bc_counts = np.cumsum([0] + [len(p.bc_local) for p in self.problems])
+        self.regularization = 0.0
+        #: the coupling Hessian on the stacked open blocks, the prolongation and P^T H P (None: no coupling)
+        self._coupling: tuple[PETSc.Mat, PETSc.Mat, PETSc.Mat] | None = None
+        self.jacobian = self._create_jacobian()
+        if contributions:
+            self.add_contributions(contributions)
+
+    def add_contributions(self, contributions: Sequence[Contribution]) -> None:
+        """Collective: add coupling contributions (their Hessian patterns fix the Jacobian's, which is
+        made again: before the problem is handed to a solver). They may name material points through
+        :meth:`point_basis` and blocks through :attr:`global_open_blocks` of this problem."""
+        for contribution in contributions:
+            if not isinstance(contribution, Contribution):
+                raise TypeError(f"{contribution!r} is not an energy contribution (bhem_hpc.solver.contributions)")
+        self.contributions += list(contributions)
+        self._patterns += [_pattern(c) for c in contributions]
+        for obj in (self.jacobian, *(self._coupling or ())):
+            obj.destroy()
+        self._coupling = self._create_coupling() if self.comm.allreduce(len(self.contributions)) else None
+        self.jacobian = self._create_jacobian()
+
+    # -- layout ---------------------------------------------------------------------------------
+    def body_csr(self, body: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Body ``body``'s closed Jacobian as it stands: row pointer, stacked global columns, values
+        of this rank's rows."""
+        row_pointer, columns, values = self.problems[body].jacobian.getValuesCSR()
+        return row_pointer, self.closed.to_stacked(body, columns).astype(PETSc.IntType), values
+
+    def _prolongation(self) -> PETSc.Mat:
+        """The bodies' prolongations side by side: stacked open DOFs (rows) from stacked closed DOFs."""
+        rank = self.comm.rank
+        pointers, columns, values, rows = [np.zeros(1, np.int64)], [], [], 0
+        for body, problem in enumerate(self.problems):
+            if problem.prolongation is not None:
+                row_pointer, body_columns, body_values = problem.prolongation.getValuesCSR()
+                body_columns = self.closed.to_stacked(body, body_columns)
+            else:  # open DOFs are the closed ones
+                count = self.closed.local_slice(body).stop - self.closed.local_slice(body).start
+                row_pointer, body_values = np.arange(count + 1), np.ones(count)
+                body_columns = self.closed.rank_start[rank] + np.arange(self.closed.local_slice(body).start,
+                                                                        self.closed.local_slice(body).stop)  # fmt: skip
+            pointers.append(np.asarray(row_pointer[1:], np.int64) + pointers[-1][-1])
+            columns.append(body_columns)
+            values.append(body_values)
+            rows += len(row_pointer) - 1
+        csr = (np.concatenate(pointers).astype(PETSc.IntType), np.concatenate(columns).astype(PETSc.IntType),
+               np.concatenate(values))  # fmt: skip
+        open_size = (3 * self.open.size_local, 3 * self.open.size_global)
+        return PETSc.Mat().createAIJ((open_size, (self.closed.size_local, self.closed.size_global)), csr=csr,
+                                     comm=self.comm)  # fmt: skip
+
+    def _create_coupling(self) -> tuple[PETSc.Mat, PETSc.Mat, PETSc.Mat]:
+        """``H`` with room for every coupling block, ``P``, and ``P^T H P``'s structure."""
+        open_size = (3 * self.open.size_local, 3 * self.open.size_global)
+        hessian = PETSc.Mat().createAIJ((open_size, open_size), bsize=3, nnz=(0, 0), comm=self.comm)
+        hessian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)  # its pattern: the blocks below
+        for rows, cols in self._patterns:
+            if len(rows):
+                hessian.setValuesBlockedRCV(rows, cols, np.zeros((len(rows), 1, 9)), addv=PETSc.InsertMode.ADD)
+        hessian.assemble()
+        hessian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        prolongation = self._prolongation()
+        return hessian, prolongation, hessian.PtAP(prolongation)
+
+    def _create_jacobian(self) -> PETSc.Mat:
+        """The stacked AIJ: every body's pattern at its offsets and the coupling's ``P^T H P``."""
+        size = (self.closed.size_local, self.closed.size_global)
+        local_rows, columns = [], []
+        for body in range(len(self.problems)):
+            row_pointer, body_columns, _ = self.body_csr(body)
+            local_rows.append(self._rows[body][np.repeat(np.arange(len(row_pointer) - 1), np.diff(row_pointer))])
+            columns.append(body_columns)
+        if self._coupling is not None:
+            row_pointer, coupled_columns, _ = self._coupling[2].getValuesCSR()
+            start = self.closed.rank_start[self.comm.rank]
+            local_rows.append(start + np.repeat(np.arange(len(row_pointer) - 1), np.diff(row_pointer)))
+            columns.append(coupled_columns)
+        rows, columns = np.concatenate(local_rows) - self.closed.rank_start[self.comm.rank], np.concatenate(columns)
+        keys = np.unique(rows * self.closed.size_global + columns.astype(np.int64))  # sorted by row, then column
+        rows, columns = keys // self.closed.size_global, keys % self.closed.size_global
+        row_pointer = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=self.closed.size_local))])
+        csr = (row_pointer.astype(PETSc.IntType), columns.astype(PETSc.IntType))
+        jacobian = PETSc.Mat().createAIJ((size, size), bsize=3, csr=csr, comm=self.comm)
+        jacobian.assemble()
+        jacobian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, all(p.model.symmetric for p in self.problems))
+        return jacobian
+
+    def create_vector(self) -> PETSc.Vec:
+        """A stacked closed vector (the caller destroys it)."""
+        return PETSc.Vec().createMPI((self.closed.size_local, self.closed.size_global), comm=self.comm)
+
+    def point_basis(self, body: int, xi1: float, xi2: float) -> PointBasis:
+        """A material point of ``body`` in the contributions' rows: ``(rows, basis values)`` on the rank
+        that owns its patch (empty elsewhere)."""
+        blocks, values = self.problems[body].model.discretization.point_basis(xi1, xi2)
+        return np.asarray(blocks, dtype=np.int64) + self.open_offsets[body], values
+
+    # -- state ----------------------------------------------------------------------------------
+    @property
+    def hessian(self) -> str:
+        """The Hessian kind every body assembles next (they share one)."""
+        return self.problems[0].hessian
+
+    @hessian.setter
+    def hessian(self, kind: str) -> None:
+        for problem in self.problems:
+            problem.hessian = kind
+
+    @property
+    def bc_values(self) -> np.ndarray:
+        """Values of the constrained DOFs, body after body (a copy)."""
+        return np.concatenate([p.bc_values for p in self.problems])
+
+    @bc_values.setter
+    def bc_values(self, values: np.ndarray) -> None:
+        values = np.asarray(values, dtype=float)
+        if values.shape != (self._bc_counts[-1],):
+            raise ValueError(f"the bodies have {self._bc_counts[-1]} constrained DOFs, got values of shape "
+                             f"{values.shape}")  # fmt: skip
+        for k, problem in enumerate(self.problems):
+            problem.bc_values = values[self._bc_counts[k]:self._bc_counts[k + 1]].copy()
+
+    def _split(self, x: PETSc.Vec) -> None:
+        """Copy stacked ``x`` into the bodies' vectors."""
+        values = x.array_r
+        for body, vector in enumerate(self._x):
+            vector.array[:] = values[self.closed.local_slice(body)]
+
+    def update_state(self, x: PETSc.Vec) -> None:
+        """Write stacked closed DOFs ``x`` into every body's position Function."""
+        self._split(x)
+        for problem, vector in zip(self.problems, self._x, strict=True):
+            problem.update_state(vector)
+
+    def state_to_vector(self, x: PETSc.Vec) -> None:
+        """Copy every body's current position into stacked closed DOFs ``x``."""
+        values = x.array
+        for body, (problem, vector) in enumerate(zip(self.problems, self._x, strict=True)):
+            problem.state_to_vector(vector)
+            values[self.closed.local_slice(body)] = vector.array_r
+
+    def contribution_state(self) -> ContributionState:
+        """What the coupling contributions see: every body's open blocks, side by side."""
+        positions = np.concatenate([p.model.x.x.array.reshape(-1, 3) for p in self.problems])
+        return ContributionState(positions, float(self.problems[0].model.load_factor.value), self.point_positions)
+
+    def point_positions(self, bases: Sequence[PointBasis]) -> np.ndarray:
+        """Collective: positions ``(points, 3)`` of material points given by :meth:`point_basis`."""
+        positions = np.concatenate([p.model.x.x.array.reshape(-1, 3) for p in self.problems])
+        local = np.zeros((len(bases), 3))
+        for k, (rows, values) in enumerate(bases):
+            if len(rows):
+                local[k] = values @ positions[rows]
+        return self.comm.allreduce(local)
+
+    # -- assembly -------------------------------------------------------------------------------
+    def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
+        """Every body's residual at its offsets, the coupling gradients added to its open blocks
+        before its constrained rows are replaced by ``x - x_bc``."""
+        gradient = np.zeros((self.open_offsets[-1], 3))
+        state = self.contribution_state()
+        for contribution in self.contributions:
+            contribution.add_gradient(state, gradient)
+        self._split(x)
+        values = f.array
+        for body, problem in enumerate(self.problems):
+            share = gradient[self.open_offsets[body]:self.open_offsets[body + 1]]
+
+            def add_share(local: np.ndarray, share: np.ndarray = share) -> None:
+                local += share
+
+            problem.assemble_residual(self._x[body], self._f[body], add_share)
+            values[self.closed.local_slice(body)] = self._f[body].array_r
+
+    def assemble_jacobian(self, jac: PETSc.Mat) -> None:
+        """Every body's closed Jacobian at its offsets plus the coupling blocks; constrained rows and
+        columns the identity; then ``J + r |diag J|``."""
+        jac.zeroEntries()
+        for body, problem in enumerate(self.problems):
+            problem.regularization = 0.0  # applied once, to the stacked matrix
+            problem.assemble_jacobian(problem.jacobian)
+            row_pointer, columns, values = self.body_csr(body)
+            jac.setValuesIJV(row_pointer, columns, values, addv=PETSc.InsertMode.ADD,
+                             rowmap=self._rows[body].astype(PETSc.IntType))  # fmt: skip
+        jac.assemble()
+        if self._coupling is not None:
+            hessian, prolongation, coupled = self._coupling
+            hessian.zeroEntries()
+            state = self.contribution_state()
+            for contribution, (rows, cols) in zip(self.contributions, self._patterns, strict=True):
+                values = contribution.hessian(state)  # on every rank: it may be collective
+                if len(rows):
+                    values = np.asarray(values, dtype=float).reshape(len(rows), 1, 9)
+                    hessian.setValuesBlockedRCV(rows, cols, values, addv=PETSc.InsertMode.ADD)
+            hessian.assemble()
+            hessian.PtAP(prolongation, result=coupled)
+            jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            jac.zeroRowsColumns(self.bc_rows, diag=1.0)
+        add_diagonal_regularization(jac, self.regularization)
+
+    def potential_energy(self) -> float:
+        """Collective: every body's potential plus the coupling contributions' energies."""
+        state = self.contribution_state()
+        coupling = self.comm.allreduce(sum(c.energy(state) for c in self.contributions))
+        return sum(p.potential_energy() for p in self.problems) + coupling
+
+    @property
+    def has_step_bounds(self) -> bool:
+        return any(p.has_step_bounds for p in self.problems) or any(
+            isinstance(c, StepBounded) for c in self.contributions)  # fmt: skip
+
+    def max_step(self, direction: PETSc.Vec) -> float:
+        """Collective: the largest fraction of the stacked step every bounded contribution admits."""
+        self._split(direction)
+        fraction = min(1.0, *(p.max_step(v) for p, v in zip(self.problems, self._x, strict=True)))
+        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
+        if bounded:
+            blocks = np.concatenate([p.open_direction_blocks(v) for p, v in zip(self.problems, self._x, strict=True)])
+            state = self.contribution_state()
+            fraction = min(fraction, *(float(c.max_step(state, blocks)) for c in bounded))
+        return fraction
+
+    def matrix_nonzeros(self) -> int:
+        """Nonzeros of the stacked Jacobian."""
+        return int(self.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+
+    def close(self) -> None:
+        """Destroy the stacked objects and close every body's problem (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for obj in (*self._x, *self._f, self.jacobian, *(self._coupling or ())):
+            obj.destroy()
+        for problem in self.problems:
+            problem.close()

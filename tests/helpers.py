@@ -170,3 +170,65 @@ def central_difference(model, q0, direction, eps, evaluate):
     minus = evaluate(model)
     set_open_state_global(model, q0)
     return (plus - minus) / (2 * eps)
+
+
+class PointSpring:
+    """``k/2 (|x_p - x_q| - L)^2`` between two material points, an energy contribution (Hessian: the
+    exact one in tension, its transverse part dropped in compression, so it stays positive
+    semi-definite).
+
+    Args:
+        comm: the communicator.
+        points: the two points' ``(rows, basis values)`` in the contributions' layout, on the rank
+            owning each (empty elsewhere).
+        shared: the two points' ``(global blocks, basis values)``, on every rank.
+        stiffness, rest_length: k [N/m] and L [m].
+    """
+
+    name = "spring"
+
+    def __init__(self, comm, points, shared, stiffness: float, rest_length: float):
+        self.comm, self.k, self.length = comm, stiffness, rest_length
+        self.points = list(points)
+        self._owns = tuple(len(rows) > 0 for rows, _ in self.points)
+        blocks = [g for g, _ in shared]
+        self.signed_values = [shared[0][1], -shared[1][1]]
+        rows, cols = [], []
+        for owns, g in zip(self._owns, blocks, strict=True):
+            if owns:  # this rank adds the rows of the points it owns, coupled to both points' columns
+                for other in blocks:
+                    rows.append(np.repeat(g, len(other)))
+                    cols.append(np.tile(other, len(g)))
+        empty = np.zeros(0, np.int64)
+        self._pattern = (np.concatenate(rows), np.concatenate(cols)) if rows else (empty, empty)
+
+    def _d(self, state):
+        xp, xq = state.point_positions(self.points)
+        return xp - xq
+
+    def hessian_pattern(self):
+        return self._pattern
+
+    def energy(self, state):
+        stretch = np.linalg.norm(self._d(state)) - self.length
+        return 0.5 * self.k * stretch**2 if self.comm.rank == 0 else 0.0
+
+    def force(self, state) -> np.ndarray:
+        """The force ``(3,)`` [N] the spring pulls point q with (and p with its opposite)."""
+        d = self._d(state)
+        return self.k * (np.linalg.norm(d) - self.length) * d / np.linalg.norm(d)
+
+    def add_gradient(self, state, gradient):
+        force = self.force(state)
+        for (rows, values), sign in zip(self.points, (1.0, -1.0), strict=True):
+            gradient[rows] += sign * values[:, None] * force
+
+    def hessian(self, state):
+        d = self._d(state)
+        r = np.linalg.norm(d)
+        n = d / r
+        block = self.k * (np.outer(n, n) + max(0.0, 1 - self.length / r) * (np.eye(3) - np.outer(n, n)))
+        parts = [np.outer(v, other).ravel()[:, None, None] * block
+                 for owns, v in zip(self._owns, self.signed_values, strict=True) if owns
+                 for other in self.signed_values]  # fmt: skip
+        return np.concatenate(parts) if parts else np.zeros((0, 3, 3))

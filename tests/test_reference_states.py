@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import BASE
 
 from bhem_hpc.benchmarks import reference_states as rs
-from helpers import BASE
 
 
 def _state(job: str, scale: float = 1.0, iterations: int = 7) -> rs.JobState:

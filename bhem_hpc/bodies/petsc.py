@@ -29,7 +29,7 @@ from petsc4py import PETSc
 from bhem_hpc.bodies.layout import StackedLayout
 from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis, StepBounded
 from bhem_hpc.solver.petsc import PetscOwner
-from bhem_hpc.solver.problem import ShellProblem, add_diagonal_regularization
+from bhem_hpc.solver.problem import ShellProblem, add_contribution_hessians, add_diagonal_regularization
 
 
 def _pattern(contribution: Contribution) -> tuple[np.ndarray, np.ndarray]:
@@ -273,12 +273,7 @@ class StackedProblem(PetscOwner):
         if self._coupling is not None:
             hessian, prolongation, coupled = self._coupling
             hessian.zeroEntries()
-            state = self.contribution_state()
-            for contribution, (rows, cols) in zip(self.contributions, self._patterns, strict=True):
-                values = contribution.hessian(state)  # on every rank: it may be collective
-                if len(rows):
-                    values = np.asarray(values, dtype=float).reshape(len(rows), 1, 9)
-                    hessian.setValuesBlockedRCV(rows, cols, values, addv=PETSc.InsertMode.ADD)
+            add_contribution_hessians(hessian, self.contributions, self._patterns, self.contribution_state())
             hessian.assemble()
             hessian.PtAP(prolongation, result=coupled)
             jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)

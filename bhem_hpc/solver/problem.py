@@ -73,6 +73,19 @@ def _blocked_aij(
     )
 
 
+def add_contribution_hessians(
+    matrix: PETSc.Mat, contributions: Sequence[Contribution], patterns: Sequence[tuple[np.ndarray, np.ndarray]],
+    state: ContributionState,
+) -> None:
+    """Add each contribution's Hessian blocks at its pattern (block indices ``(k, 1)`` each) into the
+    unassembled ``matrix``; every contribution is asked on every rank (it may be collective)."""
+    for contribution, (rows, columns) in zip(contributions, patterns, strict=True):
+        values = contribution.hessian(state)
+        if len(rows):
+            values = np.asarray(values, dtype=float).reshape(len(rows), 1, 9)
+            matrix.setValuesBlockedRCV(rows, columns, values, addv=PETSc.InsertMode.ADD)
+
+
 def add_diagonal_regularization(jac: PETSc.Mat, regularization: float) -> None:
     """The paper's diagonal regularizer, scaled per row: ``J + r |diag J|`` (nothing for ``r = 0``)."""
     if regularization > 0:
@@ -306,12 +319,7 @@ class ShellProblem(PetscOwner):
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
         self.form_terms.add_hessian(target, self.hessian)
-        state = self.contribution_state()
-        for contribution, (rows, columns) in zip(self.contributions, self._patterns, strict=True):
-            values = contribution.hessian(state)  # on every rank: it may be collective
-            if len(rows):
-                values = np.asarray(values, dtype=float).reshape(len(rows), 1, 9)
-                target.setValuesBlockedRCV(rows, columns, values, addv=PETSc.InsertMode.ADD)
+        add_contribution_hessians(target, self.contributions, self._patterns, self.contribution_state())
         target.assemble()
         if self.jacobian_blocked is not None:
             self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)

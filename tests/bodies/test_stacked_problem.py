@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import gather, gather_matrix
+from helpers import PointSpring, gather, gather_matrix
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import StackedLayout
@@ -94,57 +94,17 @@ def _stacked(models):
     return StackedProblem([ShellProblem(m, "aij", SolveReport()) for m in models])
 
 
-class TwoBodySpring:
-    """``k/2 (|x_p - x_q| - L)^2`` between material point ``p`` of body 0 and ``q`` of body 1, written
-    against the stacked problem's public layout only (Hessian: exact in tension)."""
+class TwoBodySpring(PointSpring):
+    """The spring between material point ``p`` of body 0 and ``q`` of body 1, named through the
+    stacked problem's public layout only."""
 
     name = "two-body spring"
 
     def __init__(self, stacked: StackedProblem, p, q, stiffness: float, rest_length: float):
-        self.comm, self.k, self.length = stacked.comm, stiffness, rest_length
-        self.points = [stacked.point_basis(0, *p), stacked.point_basis(1, *q)]
-        shared = [[part for part in self.comm.allgather((stacked.global_open_blocks[rows], values)) if len(part[0])][0]
-                  for rows, values in self.points]  # fmt: skip
-        self.global_blocks = [g for g, _ in shared]
-        self.signed_values = [shared[0][1], -shared[1][1]]
-        rows, cols = [], []
-        for (local, _), g in zip(self.points, self.global_blocks, strict=True):
-            if len(local):  # this rank adds the rows of the points it owns, coupled to both points
-                for other in self.global_blocks:
-                    rows.append(np.repeat(g, len(other)))
-                    cols.append(np.tile(other, len(g)))
-        empty = np.zeros(0, np.int64)
-        self.pattern = (np.concatenate(rows), np.concatenate(cols)) if rows else (empty, empty)
-
-    def _d(self, state):
-        xp, xq = state.point_positions(self.points)
-        return xp - xq
-
-    def hessian_pattern(self):
-        return self.pattern
-
-    def energy(self, state):
-        stretch = np.linalg.norm(self._d(state)) - self.length
-        return 0.5 * self.k * stretch**2 if self.comm.rank == 0 else 0.0
-
-    def force(self, state) -> np.ndarray:
-        d = self._d(state)
-        return self.k * (np.linalg.norm(d) - self.length) * d / np.linalg.norm(d)
-
-    def add_gradient(self, state, gradient):
-        force = self.force(state)
-        for (rows, values), sign in zip(self.points, (1.0, -1.0), strict=True):
-            gradient[rows] += sign * values[:, None] * force
-
-    def hessian(self, state):
-        d = self._d(state)
-        r = np.linalg.norm(d)
-        n = d / r
-        block = self.k * (np.outer(n, n) + (1 - self.length / r) * (np.eye(3) - np.outer(n, n)))
-        parts = [np.outer(v, other).ravel()[:, None, None] * block
-                 for (local, _), v in zip(self.points, self.signed_values, strict=True) if len(local)
-                 for other in self.signed_values]  # fmt: skip
-        return np.concatenate(parts) if parts else np.zeros((0, 3, 3))
+        points = (stacked.point_basis(0, *p), stacked.point_basis(1, *q))
+        gathered = [stacked.comm.allgather((stacked.global_open_blocks[rows], values)) for rows, values in points]
+        shared = [next(part for part in parts if len(part[0])) for parts in gathered]
+        super().__init__(stacked.comm, points, shared, stiffness, rest_length)
 
 
 def test_two_bodies_stacked_give_their_own_residuals_jacobians_and_energies(comm, shared_tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import PointSpring
 from petsc4py import PETSc
 
 from bhem_hpc.geometry import surface as S
@@ -32,56 +33,15 @@ def _gathered_point(model, xi):
     return (blocks, values), shared[0]
 
 
-class Spring:
-    """``k/2 (|x_p - x_q| - L)^2`` between two material points (Hessian: the exact one in tension,
-    its transverse part dropped in compression, so it stays positive semi-definite)."""
+class Spring(PointSpring):
+    """The spring between two material points of one sheet."""
 
     name = "spring"
 
     def __init__(self, model, p, q, stiffness, rest_length):
-        self.comm = model.comm
-        self.k, self.length = stiffness, rest_length
-        self.p, (self.gp, self.vp) = _gathered_point(model, p)
-        self.q, (self.gq, self.vq) = _gathered_point(model, q)
-        owns_p, owns_q = len(self.p[0]) > 0, len(self.q[0]) > 0
-        # this rank adds the rows of the points it owns, coupled to both points' columns
-        rows, cols = [], []
-        for owns, g in ((owns_p, self.gp), (owns_q, self.gq)):
-            if owns:
-                for other in (self.gp, self.gq):
-                    rows.append(np.repeat(g, len(other)))
-                    cols.append(np.tile(other, len(g)))
-        self._pattern = (np.concatenate(rows), np.concatenate(cols)) if rows else (np.zeros(0, int), np.zeros(0, int))
-        self._owns = (owns_p, owns_q)
-
-    def _d(self, state):
-        xp, xq = state.point_positions([self.p, self.q])
-        return xp - xq
-
-    def hessian_pattern(self):
-        return self._pattern
-
-    def energy(self, state):
-        stretch = np.linalg.norm(self._d(state)) - self.length
-        return 0.5 * self.k * stretch**2 if self.comm.rank == 0 else 0.0
-
-    def add_gradient(self, state, gradient):
-        d = self._d(state)
-        force = self.k * (np.linalg.norm(d) - self.length) * d / np.linalg.norm(d)
-        for (blocks, values), sign in ((self.p, 1.0), (self.q, -1.0)):
-            gradient[blocks] += sign * values[:, None] * force
-
-    def hessian(self, state):
-        d = self._d(state)
-        r = np.linalg.norm(d)
-        n = d / r
-        block = self.k * (np.outer(n, n) + max(0.0, 1 - self.length / r) * (np.eye(3) - np.outer(n, n)))
-        parts = []
-        for owns, v in zip(self._owns, (self.vp, -self.vq), strict=True):
-            if owns:
-                for other in (self.vp, -self.vq):
-                    parts.append(np.outer(v, other).ravel()[:, None, None] * block)
-        return np.concatenate(parts) if parts else np.zeros((0, 3, 3))
+        self.p, shared_p = _gathered_point(model, p)
+        self.q, shared_q = _gathered_point(model, q)
+        super().__init__(model.comm, (self.p, self.q), (shared_p, shared_q), stiffness, rest_length)
 
 
 class Floor(Spring):

@@ -232,3 +232,18 @@ class PointSpring:
                  for owns, v in zip(self._owns, self.signed_values, strict=True) if owns
                  for other in self.signed_values]  # fmt: skip
         return np.concatenate(parts) if parts else np.zeros((0, 3, 3))
+
+
+class TwoBodySpring(PointSpring):
+    """The spring between material point ``p`` of body 0 and ``q`` of body 1, named through the
+    public layout of several bodies only (``blocks``: a stacked problem or its
+    :class:`~bhem_hpc.bodies.petsc.StackedBlocks`, with ``comm``, ``point_basis`` and
+    ``global_open_blocks``)."""
+
+    name = "two-body spring"
+
+    def __init__(self, blocks, p, q, stiffness: float, rest_length: float):
+        points = (blocks.point_basis(0, *p), blocks.point_basis(1, *q))
+        gathered = [blocks.comm.allgather((blocks.global_open_blocks[rows], values)) for rows, values in points]
+        shared = [next(part for part in parts if len(part[0])) for parts in gathered]
+        super().__init__(blocks.comm, points, shared, stiffness, rest_length)

@@ -27,9 +27,11 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis, StepBounded
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import ShellProblem, add_contribution_hessians, add_diagonal_regularization
+from bhem_hpc.solver.report import SolveReport
 
 
 def _pattern(contribution: Contribution) -> tuple[np.ndarray, np.ndarray]:
@@ -38,6 +40,36 @@ def _pattern(contribution: Contribution) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"contribution {contribution.name!r}: a Hessian pattern needs as many rows as columns, "
                          f"got {rows.shape} and {columns.shape}")  # fmt: skip
     return rows.astype(PETSc.IntType)[:, None], columns.astype(PETSc.IntType)[:, None]
+
+
+class StackedBlocks:
+    """Where contributions that couple bodies see each body's open blocks (known from the models
+    alone, before any problem is made: a contribution is made before the solver that takes it).
+
+    Args:
+        models: the bodies' models in the stacked order, on one communicator.
+
+    Attributes:
+        open: the stacked numbering of the bodies' open blocks (:class:`StackedLayout`).
+        open_offsets: where each body's open blocks (owned, then ghosts) start in the rows of
+            ``ContributionState.positions``, ``(bodies + 1,)``.
+        global_open_blocks: the stacked global open block of each of those rows.
+    """
+
+    def __init__(self, models: Sequence[ShellModel]):
+        self.models = list(models)
+        self.comm = comm = self.models[0].comm
+        index_maps = [m.x.function_space.dofmap.index_map for m in self.models]
+        self.open = StackedLayout(comm.allgather([m.size_local for m in index_maps]), comm.rank)
+        self.open_offsets = np.concatenate([[0], np.cumsum([m.size_local + m.num_ghosts for m in index_maps])])
+        self.global_open_blocks = np.concatenate(
+            [self.open.to_stacked(b, m.global_open_blocks) for b, m in enumerate(self.models)])  # fmt: skip
+
+    def point_basis(self, body: int, xi1: float, xi2: float) -> PointBasis:
+        """A material point of ``body`` in the contributions' rows: ``(rows, basis values)`` on the rank
+        that owns its patch (empty elsewhere)."""
+        blocks, values = self.models[body].discretization.point_basis(xi1, xi2)
+        return np.asarray(blocks, dtype=np.int64) + self.open_offsets[body], values
 
 
 class StackedProblem(PetscOwner):
@@ -53,10 +85,19 @@ class StackedProblem(PetscOwner):
         TypeError: an object that is not a :class:`Contribution`.
     """
 
-    def __init__(self, problems: Sequence[ShellProblem], contributions: Sequence[Contribution] = ()):
+    def __init__(self, problems: Sequence[ShellProblem], contributions: Sequence[Contribution] = (),
+                 names: Sequence[str] | None = None):  # fmt: skip
         if not problems:
             raise ValueError("a stacked problem needs at least one body")
         self.problems = list(problems)
+        #: the bodies' names, for messages (default: "body 0", "body 1", ...)
+        self.names = [f"body {k}" for k in range(len(self.problems))] if names is None else list(names)
+        if len(self.names) != len(self.problems):
+            raise ValueError(f"{len(self.problems)} bodies need as many names, got {self.names}")
+        kinds = {p.hessian_kinds() for p in self.problems}
+        if len(kinds) > 1:
+            raise ValueError(f"the bodies of one problem must offer the same Hessian kinds (solver.hessian), got "
+                             f"{sorted(kinds)}")  # fmt: skip
         self._closed = False
         comm = self.problems[0].model.comm
         self.comm = comm
@@ -67,13 +108,10 @@ class StackedProblem(PetscOwner):
         self._patterns: list[tuple[np.ndarray, np.ndarray]] = []
         discretizations = [p.model.discretization for p in self.problems]
         self.closed = StackedLayout(comm.allgather([3 * d.num_owned_closed for d in discretizations]), comm.rank)
-        index_maps = [p.model.x.function_space.dofmap.index_map for p in self.problems]
-        self.open = StackedLayout(comm.allgather([m.size_local for m in index_maps]), comm.rank)
-        #: where each body's open blocks (owned, then ghosts) start in the contributions' rows
-        self.open_offsets = np.concatenate([[0], np.cumsum([m.size_local + m.num_ghosts for m in index_maps])])
-        #: the stacked global open block of each row of ``ContributionState.positions``
-        self.global_open_blocks = np.concatenate(
-            [self.open.to_stacked(b, p.model.global_open_blocks) for b, p in enumerate(self.problems)])  # fmt: skip
+        #: the coupling contributions' rows and blocks
+        self.blocks = StackedBlocks([p.model for p in self.problems])
+        self.open, self.open_offsets = self.blocks.open, self.blocks.open_offsets
+        self.global_open_blocks = self.blocks.global_open_blocks
         self._x = [PETSc.Vec().createMPI((3 * d.num_owned_closed, 3 * d.num_closed), comm=comm)
                    for d in discretizations]  # fmt: skip
         self._f = [v.duplicate() for v in self._x]
@@ -177,10 +215,8 @@ class StackedProblem(PetscOwner):
         return PETSc.Vec().createMPI((self.closed.size_local, self.closed.size_global), comm=self.comm)
 
     def point_basis(self, body: int, xi1: float, xi2: float) -> PointBasis:
-        """A material point of ``body`` in the contributions' rows: ``(rows, basis values)`` on the rank
-        that owns its patch (empty elsewhere)."""
-        blocks, values = self.problems[body].model.discretization.point_basis(xi1, xi2)
-        return np.asarray(blocks, dtype=np.int64) + self.open_offsets[body], values
+        """A material point of ``body`` in the contributions' rows (:meth:`StackedBlocks.point_basis`)."""
+        return self.blocks.point_basis(body, xi1, xi2)
 
     # -- state ----------------------------------------------------------------------------------
     @property
@@ -192,6 +228,25 @@ class StackedProblem(PetscOwner):
     def hessian(self, kind: str) -> None:
         for problem in self.problems:
             problem.hessian = kind
+
+    def hessian_kinds(self) -> tuple[str, ...]:
+        """The Hessian kinds :attr:`hessian` may name (every body's)."""
+        return self.problems[0].hessian_kinds()
+
+    @property
+    def alm_multipliers(self) -> np.ndarray:
+        """Every body's point-constraint multipliers, body after body, ``(points, 3)``."""
+        return np.concatenate([p.alm_multipliers.reshape(-1, 3) for p in self.problems])
+
+    def update_multipliers(self) -> bool:
+        """After a converged solve: whether every body's held points are within tolerance (each body
+        updates its multipliers where not; collective)."""
+        return all([p.update_multipliers() for p in self.problems])  # a list: every body updates
+
+    def set_point_targets(self, t: float, ramp: bool = False) -> None:
+        """Every body's point-constraint targets at time (or load factor) ``t``."""
+        for problem in self.problems:
+            problem.set_point_targets(t, ramp)
 
     @property
     def bc_values(self) -> np.ndarray:
@@ -286,6 +341,26 @@ class StackedProblem(PetscOwner):
         coupling = self.comm.allreduce(sum(c.energy(state) for c in self.contributions))
         return sum(p.potential_energy() for p in self.problems) + coupling
 
+    def term_residual_norms(self) -> dict[str, float]:
+        """Collective: the 2-norm of each body's terms' part of the residual (named ``"<body>: <term>"``)
+        and of each coupling contribution's, on the free DOFs, at the current state."""
+        norms = {f"{name}: {term}": norm for name, problem in zip(self.names, self.problems, strict=True)
+                 for term, norm in problem.term_residual_norms().items()}  # fmt: skip
+        state = self.contribution_state()
+        for contribution in self.contributions:
+            gradient = np.zeros((self.open_offsets[-1], 3))
+            contribution.add_gradient(state, gradient)
+            squares = 0.0
+            for body, problem in enumerate(self.problems):
+                share = gradient[self.open_offsets[body]:self.open_offsets[body + 1]]
+
+                def fill(local: np.ndarray, share: np.ndarray = share) -> None:
+                    local += share.ravel()
+
+                squares += problem.open_gradient_norm(fill) ** 2
+            norms[contribution.name] = float(np.sqrt(squares))
+        return norms
+
     @property
     def has_step_bounds(self) -> bool:
         return any(p.has_step_bounds for p in self.problems) or any(
@@ -315,3 +390,23 @@ class StackedProblem(PetscOwner):
             obj.destroy()
         for problem in self.problems:
             problem.close()
+
+
+def make_problem(models: Sequence[ShellModel], matrix_format: str, report: SolveReport,
+                 contributions: Sequence[Contribution] = ()) -> ShellProblem | StackedProblem:  # fmt: skip
+    """The problem a Newton driver solves: one model's :class:`ShellProblem` (its Jacobian in
+    ``matrix_format``, ``contributions`` on its open blocks), or several models' problems stacked
+    (AIJ; ``contributions`` couple the bodies)."""
+    if len(models) == 1:
+        return ShellProblem(models[0], matrix_format, report, contributions)
+    if matrix_format != "aij":
+        raise ValueError(f"several bodies are assembled into one AIJ matrix, not {matrix_format!r}")
+    problems: list[ShellProblem] = []
+    try:
+        for model in models:
+            problems.append(ShellProblem(model, "aij", report))
+        return StackedProblem(problems, contributions)
+    except Exception:
+        for problem in problems:
+            problem.close()
+        raise

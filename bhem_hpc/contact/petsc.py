@@ -79,9 +79,9 @@ class ContactProjector(PetscOwner):
                 )  # fmt: skip
             matrix = fem_petsc.assemble_matrix(form)
             matrix.assemble()
-            if solver.prolongation is None:
+            if solver.problem.prolongation is None:
                 return matrix
-            closed = matrix.PtAP(solver.prolongation)
+            closed = matrix.PtAP(solver.problem.prolongation)
             matrix.destroy()
             return closed
 

@@ -177,6 +177,8 @@ def attach_acceleration_test(solver: ShellSolver, tolerance: float) -> Accelerat
     ``<solver prefix>mass_``); the energy trust region takes the test from ``solver.acceleration``."""
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"acceleration_tolerance must be a number > 0 [m/s^2], got {tolerance!r}")
+    if len(solver.bodies) > 1:
+        raise ValueError("acceleration_tolerance measures one body's mass: not available for several bodies")
     problem = solver.problem
     residual = AccelerationResidual(solver.model, problem.prolongation, problem.bc_rows, problem.bc_local,
                                     solver.prefix + "mass_", direct=solver.linear.kind == "direct")  # fmt: skip

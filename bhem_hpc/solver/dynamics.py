@@ -21,9 +21,10 @@ import numpy as np
 from bhem_hpc.errors import UserError
 from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
-from bhem_hpc.solver.state import ShellState
+from bhem_hpc.solver.state import ShellState, StackedState
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
     from bhem_hpc.contact.response import ContactHandler
@@ -75,45 +76,59 @@ class StepRecord:
         return self.regularized_retries + self.trust_region_solves + self.trust_region_failures + self.dt_halvings
 
 
+def _constraint_key(c: NodalConstraint) -> tuple:
+    return tuple(c.nodes.ravel()) + c.kinds + c.components
+
+
+def _check_motion(models: Sequence[ShellModel], motion: PrescribedMotion) -> None:
+    """A prescribed motion moves one of its body's constraints (same nodes, kinds and components)."""
+    if not 0 <= motion.body < len(models):
+        raise ValueError(f"a prescribed motion of body {motion.body}: there are {len(models)} bodies")
+    if _constraint_key(motion.constraint) not in {_constraint_key(c) for c in models[motion.body].constraints}:
+        raise ValueError("a prescribed motion must be one of the model's constraints (same nodes/kinds)")
+
+
 @dataclass
 class TimeStepper:
-    """Advance a dynamic :class:`ShellModel` with a :class:`ShellSolver`.
+    """Advance a dynamic :class:`ShellModel` (or several bodies' models, in one Newton solve per
+    step) with a :class:`ShellSolver`.
 
     Args:
-        model: a model built with ``dynamics``.
+        model: a model built with ``dynamics``, or several (one dt), as the solver was made with.
         solver: its solver.
         motions: time-dependent nodal constraints: each maps time ``t`` to the parametric values
-            of its ``(nodes, kinds, components)`` (see :class:`PrescribedMotion`).
+            of its ``(nodes, kinds, components)`` of body ``motion.body`` (see :class:`PrescribedMotion`).
         max_halvings: bound on recursive dt halvings of one step.
         contact: contact detection and response run after every solve (None: no contact effects,
-            nothing is detected and nothing is paid for).
-        state: the model's state (default: a :class:`ShellState` of the model); the stepper writes
-            position and velocity through it only.
+            nothing is detected and nothing is paid for); one body only.
+        state: the model's state (default: a :class:`ShellState` of the model, a
+            :class:`StackedState` of several); the stepper writes position and velocity through it only.
     """
 
-    model: ShellModel
+    model: ShellModel | Sequence[ShellModel]
     solver: ShellSolver
     motions: Sequence[PrescribedMotion] = ()
     max_halvings: int = 4
     contact: ContactHandler | None = None
-    state: ShellState | None = None
+    state: ShellState | StackedState | None = None
     time: float = 0.0
     step: int = 0
     history: list[StepRecord] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if self.model.dynamics is None:
+        self.models = ModelGroup(self.model).models
+        if any(m.dynamics is None for m in self.models):
             raise ValueError("TimeStepper needs a ShellModel built with dynamics=Dynamics(...)")
-        self.dt = self.model.dynamics.time_step
+        if self.contact is not None and len(self.models) > 1:
+            raise ValueError("contact effects are resolved on one body: several bodies step without contact")
+        self.dt = self.models[0].dynamics.time_step
         self._clock = (self.time, self.step, self.dt)  # (time, step, dt) after the last advance
         self._origin = (self.time, self.step)  # where the clock was last set
         if self.state is None:  # the one writer of x, v and the step's previous state
-            self.state = ShellState(self.model)
-        constrained = {tuple(c.nodes.ravel()) + c.kinds + c.components for c in self.model.constraints}
+            states = [ShellState(m) for m in self.models]
+            self.state = states[0] if len(states) == 1 else StackedState(states)
         for motion in self.motions:
-            key = tuple(motion.constraint.nodes.ravel()) + motion.constraint.kinds + motion.constraint.components
-            if key not in constrained:
-                raise ValueError("a prescribed motion must be one of the model's constraints (same nodes/kinds)")
+            _check_motion(self.models, motion)
 
     def _tick(self) -> None:
         """Advance step and time. The time is ``t0 + (step - step0) dt`` from the last time the
@@ -127,11 +142,12 @@ class TimeStepper:
         self._clock = (self.time, self.step, self.dt)
 
     def bc_values_at(self, t: float) -> np.ndarray:
-        """Reference-DOF values of all constrained DOFs at time ``t``."""
-        model = self.model
-        if not self.motions:
-            return model.constrained_target
-        return model.prescribed_values([m.at(t) for m in self.motions])
+        """Reference-DOF values of all constrained DOFs at time ``t``, body after body."""
+        values = []
+        for body, model in enumerate(self.models):
+            moved = [m.at(t) for m in self.motions if m.body == body]
+            values.append(model.prescribed_values(moved) if moved else model.constrained_target)
+        return values[0] if len(values) == 1 else np.concatenate(values)
 
     def advance(self) -> StepRecord:
         """One time step of the model's dt (possibly as recovered substeps)."""
@@ -141,7 +157,8 @@ class TimeStepper:
         try:
             self._advance(self.time, self.dt, 0, report)
         finally:
-            self.model.time_step.value = self.dt
+            for model in self.models:
+                model.time_step.value = self.dt
         self._tick()
         report.time = self.time
         after = self.solver.counters()
@@ -196,10 +213,12 @@ class PrescribedMotion:
         constraint: the constrained nodes, kinds and components (also passed to the model).
         values: callable ``t -> array`` broadcastable to ``(nodes, kinds, components)``, in
             parametric units.
+        body: the index of the body whose constraint it moves (among a stepper's several).
     """
 
     constraint: NodalConstraint
     values: Callable[[float], np.ndarray]
+    body: int = 0
 
     def at(self, t: float) -> NodalConstraint:
         c = self.constraint

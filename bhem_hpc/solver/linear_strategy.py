@@ -7,7 +7,7 @@ parts; :class:`~bhem_hpc.solver.newton.ShellSolver` combines them.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
@@ -93,16 +93,28 @@ def choose_for_model(model: ShellModel, requested: str, available: float | None 
     Raises:
         LinearSolverError: an unknown ``requested`` or a direct solver that would not fit.
     """
-    dofs = 3 * model.discretization.num_closed
-    material = model.material
+    return choose_for_models([model], requested, available)
+
+
+def choose_for_models(models: Sequence[ShellModel], requested: str, available: float | None = None
+                      ) -> LinearSolverChoice:  # fmt: skip
+    """:func:`choose_for_model` for several bodies in one solve: their DoFs added up, the mass
+    dominance of the least mass-dominated body (the one a Krylov solve would struggle with)."""
+    dofs = sum(3 * model.discretization.num_closed for model in models)
+    dominance = min(map(_mass_dominance, models))
+    first = models[0]
+    available = available_memory(first.comm) if available is None else available
+    return choose_linear_solver(requested, dofs, NONZEROS_PER_DOF * dofs, dominance, available,
+                                first.dynamics is not None)  # fmt: skip
+
+
+def _mass_dominance(model: ShellModel) -> float:
     nodes = model.rest_surface.nodal[..., 0, :]  # nodes (Hermite) or control points (B-splines)
     edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
     element = float(np.median(np.concatenate([e.ravel() for e in edges])))  # patch edge length
     dt = float(model.time_step.value) if model.dynamics is not None else None
-    dominance = mass_dominance(material.density, material.young, material.poisson, element, dt)
-    available = available_memory(model.comm) if available is None else available
-    return choose_linear_solver(requested, dofs, NONZEROS_PER_DOF * dofs, dominance, available,
-                                model.dynamics is not None)  # fmt: skip
+    material = model.material
+    return mass_dominance(material.density, material.young, material.poisson, element, dt)
 
 
 def switch_to_mumps(ksp: PETSc.KSP, symmetric: bool, matrix_format: str) -> None:
@@ -115,22 +127,31 @@ def switch_to_mumps(ksp: PETSc.KSP, symmetric: bool, matrix_format: str) -> None
 
 
 class FactoredState:
-    """The state a kept factorization's Jacobian was assembled at: the position (open DOFs, as
-    assembled), in dynamics the previous position (stiffness damping), and the Hessian kind (its
+    """The state a kept factorization's Jacobian was assembled at: each body's position (open DOFs,
+    as assembled), in dynamics its previous position (stiffness damping), and the Hessian kind (its
     index among the problem's kinds: the adaptive Hessian changes kind within a time step). A
-    checkpoint stores it so that a continued run remakes the same factorization."""
+    checkpoint stores it so that a continued run remakes the same factorization.
 
-    def __init__(self, model: ShellModel):
-        self.model = model
-        self.arrays: tuple[np.ndarray, np.ndarray | None] | None = None
+    Args:
+        models: the bodies' models in the problem's order (one for a single body).
+    """
+
+    def __init__(self, models: Sequence[ShellModel]):
+        self.models = list(models)
+        #: per body: (position, previous position or None), None before the first assembly
+        self.arrays: list[tuple[np.ndarray, np.ndarray | None]] | None = None
         self.kind = 0
 
-    def _current(self) -> tuple[np.ndarray, np.ndarray | None]:
-        model = self.model
-        return model.x.x.array.copy(), model.x_previous.x.array.copy() if model.dynamics is not None else None
+    def _current(self) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        return [(m.x.x.array.copy(), m.x_previous.x.array.copy() if m.dynamics is not None else None)
+                for m in self.models]  # fmt: skip
+
+    def _key(self, name: str, body: int) -> str:
+        """A checkpoint array's name: one body's as it always was, several bodies' numbered."""
+        return name if len(self.models) == 1 else f"{name}_{body}"
 
     def remember(self, kind: int) -> None:
-        """The Jacobian of Hessian kind ``kind`` was just assembled at the model's current state."""
+        """The Jacobian of Hessian kind ``kind`` was just assembled at the models' current state."""
         self.arrays, self.kind = self._current(), kind
 
     def checkpoint(self, reuse: FactorizationReuse) -> tuple[dict[str, np.ndarray], dict[str, float]]:
@@ -138,18 +159,19 @@ class FactoredState:
         Hessian kind (both empty when no factorization is kept), for :meth:`restore`."""
         if self.arrays is None or not reuse.valid:
             return {}, {}
-        disc = self.model.discretization
-        position, previous = self.arrays
-        arrays = {"factorization_state_dofs": disc.gather_raw_dofs(position)}
-        if previous is not None:
-            arrays["factorization_previous_dofs"] = disc.gather_raw_dofs(previous)
+        arrays = {}
+        for body, (model, (position, previous)) in enumerate(zip(self.models, self.arrays, strict=True)):
+            disc = model.discretization
+            arrays[self._key("factorization_state_dofs", body)] = disc.gather_raw_dofs(position)
+            if previous is not None:
+                arrays[self._key("factorization_previous_dofs", body)] = disc.gather_raw_dofs(previous)
         return arrays, reuse.state() | {"hessian_kind": self.kind}
 
     def restore(self, arrays: dict[str, np.ndarray], state: dict[str, float], problem: ShellProblem,
                 ksp: PETSc.KSP) -> None:  # fmt: skip
         """Collective: assemble the Jacobian at a checkpoint's factored state, with the Hessian kind it
         was made with (a checkpoint without one: the problem's current kind), and factor it."""
-        kinds, current = problem.form_terms.hessian_kinds(), problem.hessian
+        kinds, current = problem.hessian_kinds(), problem.hessian
         kind = state.get("hessian_kind", -1)
         ours = isinstance(kind, int | float | np.number) and 0 <= kind < len(kinds)
         with self.restored(arrays, int(kind) if ours else kinds.index(current)):
@@ -163,17 +185,20 @@ class FactoredState:
 
     @contextmanager
     def restored(self, arrays: dict[str, np.ndarray], kind: int) -> Iterator[None]:
-        """Collective: within the block the model is at the checkpoint's factored state of Hessian
-        kind ``kind`` (remembered); afterwards back at its own."""
-        model, disc = self.model, self.model.discretization
+        """Collective: within the block the models are at the checkpoint's factored state of Hessian
+        kind ``kind`` (remembered); afterwards back at their own."""
         saved = self._current()
-        model.x.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_state_dofs"])
-        if model.dynamics is not None:
-            model.x_previous.x.array[:] = disc.scatter_raw_dofs(arrays["factorization_previous_dofs"])
+        for body, model in enumerate(self.models):
+            disc = model.discretization
+            model.x.x.array[:] = disc.scatter_raw_dofs(arrays[self._key("factorization_state_dofs", body)])
+            if model.dynamics is not None:
+                previous = arrays[self._key("factorization_previous_dofs", body)]
+                model.x_previous.x.array[:] = disc.scatter_raw_dofs(previous)
         self.remember(kind)
         try:
             yield
         finally:
-            model.x.x.array[:] = saved[0]
-            if saved[1] is not None:
-                model.x_previous.x.array[:] = saved[1]
+            for model, (position, previous) in zip(self.models, saved, strict=True):
+                model.x.x.array[:] = position
+                if previous is not None:
+                    model.x_previous.x.array[:] = previous

@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from petsc4py import PETSc
 
+from bhem_hpc.bodies.petsc import make_problem
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HessianLadder
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.acceleration import AccelerationTest, attach_acceleration_test
@@ -29,11 +30,12 @@ from bhem_hpc.solver.linear import LinearSolverChoice, LinearSolverError
 from bhem_hpc.solver.linear_strategy import (
     ITERATIVE_REFACTOR_COST,
     FactoredState,
-    choose_for_model,
+    choose_for_models,
     default_options,
     switch_to_mumps,
 )
 from bhem_hpc.solver.load_steps import solve_in_load_steps
+from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.petsc import (
     KSP_REASONS,
     PETSC_ERRORS,
@@ -47,7 +49,6 @@ from bhem_hpc.solver.petsc import (
     stage_seconds,
     unused_options,
 )
-from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.report import SolveReport, solver_counters
 from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, refactor_cost
 from bhem_hpc.solver.trust_region import TrustRegionNewton
@@ -101,7 +102,9 @@ class ShellSolver(PetscOwner):
     and single time steps (:meth:`solve_step`, driven by :class:`~bhem_hpc.solver.dynamics.TimeStepper`).
 
     Args:
-        model: the shell problem (forms, constraints, loads).
+        model: the shell problem (forms, constraints, loads), or several bodies' models solved as one
+            problem (:class:`~bhem_hpc.bodies.petsc.StackedProblem`, body after body; see
+            :class:`~bhem_hpc.solver.model_group.ModelGroup` for what they must share).
         prefix: PETSc options prefix of this solver.
         options: PETSc options (without prefix) that override the defaults, e.g. from a scene.
         factorization: ``"reuse"``: keep the Jacobian and its factorization (or preconditioner)
@@ -111,7 +114,8 @@ class ShellSolver(PetscOwner):
             (:func:`~bhem_hpc.solver.linear.choose_linear_solver`: by size, mass dominance and memory).
         contributions: energy contributions besides the model's terms
             (:class:`~bhem_hpc.solver.contributions.Contribution`); a :class:`StepBounded` one caps
-            every line-search step.
+            every line-search step. With several bodies: contributions that couple them, on the
+            stacked problem's open blocks.
         acceleration_tolerance: time steps converge once the residual's root-mean-square
             acceleration is at most this [m/s^2] (:mod:`.acceleration`), instead of at ``rtol``.
 
@@ -125,13 +129,15 @@ class ShellSolver(PetscOwner):
     energy_trust_region: EnergyTrustRegion | None
 
     def __init__(
-        self, model: ShellModel, prefix: str = "bhem_static_", options: Mapping[str, object] | None = None,
-        factorization: str = "reuse", linear: str = "auto", contributions: Sequence[Contribution] = (),
-        acceleration_tolerance: float | None = None,
+        self, model: ShellModel | Sequence[ShellModel], prefix: str = "bhem_static_",
+        options: Mapping[str, object] | None = None, factorization: str = "reuse", linear: str = "auto",
+        contributions: Sequence[Contribution] = (), acceleration_tolerance: float | None = None,
     ):  # fmt: skip
         if factorization not in FACTORIZATION_POLICIES:
             raise ValueError(f"factorization must be one of {FACTORIZATION_POLICIES}, got {factorization!r}")
-        self.model, self.prefix = model, prefix
+        #: the bodies solved together; :attr:`model` is the first (the only one of a single body)
+        self.bodies = ModelGroup(model)
+        self.model, self.prefix = self.bodies.models[0], prefix
         self._closed, self._energy_scale = False, 0.0
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
@@ -145,7 +151,7 @@ class ShellSolver(PetscOwner):
         self.fallbacks: list[dict] = []
         self.reuse = FactorizationReuse(
             enabled=factorization == "reuse",
-            chord_within_solve=model.dynamics is not None,
+            chord_within_solve=self.bodies.dynamic,
             # a Krylov solve costs about as much as assembling the Jacobian that preconditions it
             refactor_cost=refactor_cost(self._dofs) if self.linear.kind == "direct" else ITERATIVE_REFACTOR_COST,
         )
@@ -153,33 +159,32 @@ class ShellSolver(PetscOwner):
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
         #: straight from the initial values to the targets.
         self.prescribed = None
-        disc, comm = model.discretization, model.comm
-        n_local, n_global = 3 * disc.num_owned_closed, 3 * disc.num_closed
-        self.x = PETSc.Vec().createMPI((n_local, n_global), comm=comm)
+        comm = self.bodies.comm
+        self.x = PETSc.Vec().createMPI(self.bodies.closed_sizes, comm=comm)
         self.f = self.x.duplicate()
-        self.factored_state = FactoredState(model)
+        self.factored_state = FactoredState(self.bodies.models)
         opts = PETSc.Options()
         # the caller's options stay in the database for the solver's life (some are read only at
         # the first factorization) and are removed by close(); the defaults only for setup
         self._caller_options = dict(options or {})
         self._overrides = push_options(prefix, {}, options or {})
         self._own_options: list[str] = []  # defaults kept in the database: not the user's to spell right
-        pushed = push_options(prefix, default_options(model, self.linear.kind), {})
+        pushed = push_options(prefix, default_options(self.bodies.stiffest(), self.linear.kind), {})
         try:  # the pushed defaults are removed again whatever happens
             ldlt = opts.getString(prefix + "pc_type", "") == "cholesky"
             mumps = opts.getString(prefix + "pc_factor_mat_solver_type", "") == "mumps"
             # MUMPS' LDL^T takes SBAIJ (one triangle) serially; seams (PtAP) and MPI need AIJ.
-            serial_sbaij = ldlt and mumps and model.symmetric and comm.size == 1 and disc.closed_is_open
+            one = self.bodies.closed_is_open  # one body without seams
+            serial_sbaij = ldlt and mumps and self.bodies.symmetric and comm.size == 1 and one
             # Block Jacobi and additive Schwarz / ILU work on the 3 x 3 blocks as assembled (no
-            # conversion); hypre and the seams' PtAP need AIJ.
-            blocked = opts.getString(prefix + "pc_type", "") in ("bjacobi", "asm") and disc.closed_is_open
+            # conversion); hypre, the seams' PtAP and several bodies need AIJ.
+            blocked = opts.getString(prefix + "pc_type", "") in ("bjacobi", "asm") and one
             self.matrix_format = "sbaij" if serial_sbaij else "baij" if blocked else "aij"
             self.report = SolveReport()
-            self.problem = ShellProblem(model, self.matrix_format, self.report, contributions)
+            self.problem = make_problem(self.bodies.models, self.matrix_format, self.report, contributions)
             self.jacobian = self.problem.jacobian
             self._choose_hessian()
             self.bc_rows = self.problem.bc_rows
-            self.prolongation = self.problem.prolongation
 
             PETSc.Log.begin()  # event timers for counters() (idempotent, cheap)
             self._stage = PETSc.Log.Stage(f"{prefix}solve")  # one per prefix: the same stage if reused
@@ -188,7 +193,7 @@ class ShellSolver(PetscOwner):
             self.snes.setFunction(residual_callback, self.f, kargs={"solver": self})
             self.snes.setJacobian(_kept_jacobian_callback, self.jacobian, self.jacobian, kargs={"solver": self})
             self._trial: PETSc.Vec | None = None  # the energy line search's trial state
-            if model.potential_form is not None:
+            if self.bodies.has_potential:
                 self._trial = self.x.duplicate()
                 self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
             try:
@@ -221,7 +226,7 @@ class ShellSolver(PetscOwner):
 
     @property
     def _adaptive(self) -> bool:
-        return self.problem.form_terms.hessian_kinds() == COMPOSED_HESSIANS["adaptive"]
+        return self.problem.hessian_kinds() == COMPOSED_HESSIANS["adaptive"]
 
     def _anderson_depth(self, opts: PETSc.Options) -> int:
         name = self.prefix + "chord_anderson_depth"
@@ -237,10 +242,10 @@ class ShellSolver(PetscOwner):
 
     @property
     def _dofs(self) -> int:
-        return 3 * self.model.discretization.num_closed
+        return self.bodies.closed_sizes[1]
 
     def _choose_linear(self, requested: str) -> LinearSolverChoice:
-        choice = choose_for_model(self.model, requested)
+        choice = choose_for_models(self.bodies.models, requested)
         log.info("%s: %s linear solver (%s)", self.prefix, choice.kind, choice.reason)
         return choice
 
@@ -250,11 +255,11 @@ class ShellSolver(PetscOwner):
         if self.linear.kind != "iterative" or self.fallbacks:
             return False
         try:
-            choice = choose_for_model(self.model, "direct", self.linear.available_bytes)
+            choice = choose_for_models(self.bodies.models, "direct", self.linear.available_bytes)
         except LinearSolverError as exc:
             log.warning("%s: the Krylov solve failed (%s) and %s", self.prefix, reason, exc)
             return False
-        switch_to_mumps(self.snes.getKSP(), self.model.symmetric, self.matrix_format)
+        switch_to_mumps(self.snes.getKSP(), self.bodies.symmetric, self.matrix_format)
         self.linear = choice
         self._choose_hessian()
         self.reuse.refactor_cost = refactor_cost(self._dofs)
@@ -268,8 +273,7 @@ class ShellSolver(PetscOwner):
         """What the Jacobian's operator depends on besides the state: the time step (the mass term
         scales with 1 / dt^2) and the diagonal regularizer. A kept factorization of another
         signature is not reused."""
-        dt = float(self.model.time_step.value) if self.model.dynamics is not None else None
-        return (dt, self.problem.regularization)
+        return (self.bodies.time_step, self.problem.regularization)
 
     def _snes_solve(self) -> None:
         """One SNES solve from ``self.x``. A solve that failed on a kept factorization is repeated
@@ -492,12 +496,11 @@ class ShellSolver(PetscOwner):
         """One Newton solve (SNES) at ``load_factor`` from the current iterate ``self.x``: loads scaled
         to it, prescribed values from :attr:`prescribed` (or interpolated linearly from the initial
         values to the targets). Returns whether it converged (``self.x`` holds the result)."""
-        model = self.model
-        model.load_factor.value = load_factor
+        self.bodies.set_load_factor(load_factor)
         if self.prescribed is not None:
             self.problem.bc_values = np.asarray(self.prescribed(load_factor), dtype=float)
         else:
-            initial, target = model.constrained_initial, model.constrained_target
+            initial, target = self.bodies.constrained_initial, self.bodies.constrained_target
             self.problem.bc_values = initial + load_factor * (target - initial)
         self.problem.set_point_targets(load_factor, ramp=True)
         if len(self.problem.bc_local):
@@ -521,9 +524,9 @@ class ShellSolver(PetscOwner):
         Raises:
             SolverError: when every attempt failed; the state is left at the last attempt.
         """
-        model = self.model
-        model.load_factor.value = 1.0
-        self.problem.bc_values = model.constrained_target.copy() if bc_values is None else np.asarray(bc_values, float)
+        self.bodies.set_load_factor(1.0)
+        target = self.bodies.constrained_target if bc_values is None else np.asarray(bc_values, float)
+        self.problem.bc_values = target
         self.problem.state_to_vector(self.x)
         start = self.x.copy()
         if self._adaptive and self.linear.kind == "direct":  # where this step starts the ladder
@@ -571,10 +574,10 @@ class ShellSolver(PetscOwner):
         at the first one. Its CG needs a symmetric positive definite preconditioner, the projected
         Hessian's Cholesky factors (MUMPS): the iterative path iterates with the projected Hessian."""
         if self.energy_trust_region is None:
-            kinds = set(self.problem.form_terms.hessian_kinds())
-            if kinds != {"exact", "projected"} or self.linear.kind != "direct" or self.model.potential_form is None:
+            kinds = set(self.problem.hessian_kinds())
+            if kinds != {"exact", "projected"} or self.linear.kind != "direct" or not self.bodies.has_potential:
                 return False
-            self.energy_trust_region = EnergyTrustRegion(self, default_options(self.model, "direct"))
+            self.energy_trust_region = EnergyTrustRegion(self, default_options(self.bodies.stiffest(), "direct"))
         return self._trust_region_applies()
 
     def _energy_trust_region_step(self) -> int:
@@ -602,7 +605,7 @@ class ShellSolver(PetscOwner):
         """After a failed line-search solve: the trust-region Newton from the step's start (counted
         in ``trust_region_solves`` when it converges; logged either way)."""
         if self.trust_region is None:
-            self.trust_region = TrustRegionNewton(self, default_options(self.model, self.linear.kind),
+            self.trust_region = TrustRegionNewton(self, default_options(self.bodies.stiffest(), self.linear.kind),
                                                   (residual_callback, jacobian_callback),
                                                   self._caller_options)  # fmt: skip
         log.info("%s: Newton failed (%s); trying trust-region Newton", self.prefix,
@@ -653,7 +656,7 @@ class ShellSolver(PetscOwner):
 
     def remember_factored_state(self) -> None:
         """Note the state and Hessian kind the Jacobian just assembled depends on (:class:`FactoredState`)."""
-        self.factored_state.remember(self.problem.form_terms.hessian_kinds().index(self.problem.hessian))
+        self.factored_state.remember(self.problem.hessian_kinds().index(self.problem.hessian))
 
     def reuse_checkpoint(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
         """Collective: the kept factorization's checkpoint (:meth:`FactoredState.checkpoint`)."""

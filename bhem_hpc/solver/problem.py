@@ -14,8 +14,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 
-import dolfinx.fem.petsc as fem_petsc
 import numpy as np
+from dolfinx import fem
 from petsc4py import PETSc
 
 from bhem_hpc.model.shell import ShellModel
@@ -254,33 +254,39 @@ class ShellProblem(PetscOwner):
             values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
         self.report.assemble_residual_s += time.perf_counter() - t0
 
+    def hessian_kinds(self) -> tuple[str, ...]:
+        """The Hessian kinds :attr:`hessian` may name, the first the default."""
+        return self.form_terms.hessian_kinds()
+
     def term_residual_norms(self) -> dict[str, float]:
         """Collective: the 2-norm of each term's part of the residual at the current state, on the free
         DOFs (constrained rows left out), e.g. to tell which energy dominates a failed solve."""
-        norms = {}
+        state = self.contribution_state()
+        norms = {name: self.open_gradient_norm(lambda local, form=form: fem.assemble_vector(local, form))
+                 for name, form in self.form_terms.term_gradient_forms().items()}  # fmt: skip
+        for contribution in self.contributions:
+            norms[contribution.name] = self.open_gradient_norm(
+                lambda local, c=contribution: c.add_gradient(state, local.reshape(-1, 3)))  # fmt: skip
+        return norms
+
+    def open_gradient_norm(self, fill: Callable[[np.ndarray], None]) -> float:
+        """Collective: the 2-norm on the free closed DOFs of the open gradient that ``fill(local)``
+        adds into this rank's zeroed open entries ``local`` (owned and ghost blocks, flat)."""
         disc = self.model.discretization
         closed = PETSc.Vec().createMPI((3 * disc.num_owned_closed, 3 * disc.num_closed), comm=self.model.comm)
-        state = self.contribution_state()
-        parts = [(name, form, None) for name, form in self.form_terms.term_gradient_forms().items()]
-        parts += [(c.name, None, c) for c in self.contributions]
         try:
-            for name, form, contribution in parts:
-                with self.f_open.localForm() as local:
-                    local.set(0.0)
-                    if contribution is not None:
-                        contribution.add_gradient(state, local.array.reshape(-1, 3))
-                if form is not None:
-                    fem_petsc.assemble_vector(self.f_open, form)
-                self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-                if self.prolongation is not None:
-                    self.prolongation.multTranspose(self.f_open, closed)
-                else:
-                    self.f_open.copy(closed)
-                closed.array[self.bc_local] = 0.0
-                norms[name] = closed.norm()
+            with self.f_open.localForm() as local:
+                local.set(0.0)
+                fill(local.array)
+            self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            if self.prolongation is not None:
+                self.prolongation.multTranspose(self.f_open, closed)
+            else:
+                self.f_open.copy(closed)
+            closed.array[self.bc_local] = 0.0
+            return closed.norm()
         finally:
             closed.destroy()
-        return norms
 
     def potential_energy(self) -> float:
         """Total potential at the model's current state (internal - external work, plus the

@@ -95,3 +95,53 @@ class ShellState:
     def raw_velocity(self) -> np.ndarray:
         """v as raw DOFs, gathered (collective; zeros for a static model)."""
         return self.model.discretization.gather_raw_dofs(np.asarray(self.velocity))
+
+
+class StackedState:
+    """The states of several bodies stepped together, with the interface of :class:`ShellState`:
+    arrays are the bodies' open arrays side by side (body after body, each this rank's entries with
+    ghosts), as :class:`~bhem_hpc.bodies.petsc.StackedProblem` lays out its contributions' rows.
+
+    Args:
+        states: one :class:`ShellState` per body, in the stacked order.
+    """
+
+    def __init__(self, states: list[ShellState]):
+        self.states = list(states)
+        #: where each body's entries start in the side-by-side arrays, ``(bodies + 1,)``
+        self.offsets = np.cumsum([0] + [s.model.x.x.array.size for s in self.states])
+
+    def _split(self, array: np.ndarray) -> list[np.ndarray]:
+        return [array[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:], strict=True)]
+
+    @property
+    def position(self) -> np.ndarray:
+        """x of every body (read-only copy)."""
+        view = np.concatenate([s.position for s in self.states])
+        view.flags.writeable = False
+        return view
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """v of every body (read-only copy)."""
+        view = np.concatenate([s.velocity for s in self.states])
+        view.flags.writeable = False
+        return view
+
+    def begin_step(self, dt: float) -> StepStart:
+        starts = [s.begin_step(dt) for s in self.states]
+        return StepStart(np.concatenate([s.position for s in starts]), np.concatenate([s.velocity for s in starts]))
+
+    def _body_starts(self, start: StepStart) -> list[StepStart]:
+        return [StepStart(p, v) for p, v in zip(self._split(start.position), self._split(start.velocity), strict=True)]
+
+    def roll_back(self, start: StepStart) -> None:
+        for state, body_start in zip(self.states, self._body_starts(start), strict=True):
+            state.roll_back(body_start)
+
+    def finish_step(self, start: StepStart, dt: float, correction: StateCorrection | None = None) -> None:
+        corrections = [None] * len(self.states) if correction is None else [
+            StateCorrection(dv, dx) for dv, dx in zip(self._split(correction.delta_velocity),
+                                                      self._split(correction.delta_position), strict=True)]  # fmt: skip
+        for state, body_start, body_correction in zip(self.states, self._body_starts(start), corrections, strict=True):
+            state.finish_step(body_start, dt, body_correction)

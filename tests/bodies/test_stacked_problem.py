@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PointSpring, gather, gather_matrix
+from helpers import TwoBodySpring, gather, gather_matrix
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import StackedLayout
@@ -92,19 +92,6 @@ def _models(comm, tmp_path, point_loads=((), ()), upper=RUBBER):
 
 def _stacked(models):
     return StackedProblem([ShellProblem(m, "aij", SolveReport()) for m in models])
-
-
-class TwoBodySpring(PointSpring):
-    """The spring between material point ``p`` of body 0 and ``q`` of body 1, named through the
-    stacked problem's public layout only."""
-
-    name = "two-body spring"
-
-    def __init__(self, stacked: StackedProblem, p, q, stiffness: float, rest_length: float):
-        points = (stacked.point_basis(0, *p), stacked.point_basis(1, *q))
-        gathered = [stacked.comm.allgather((stacked.global_open_blocks[rows], values)) for rows, values in points]
-        shared = [next(part for part in parts if len(part[0])) for parts in gathered]
-        super().__init__(stacked.comm, points, shared, stiffness, rest_length)
 
 
 def test_two_bodies_stacked_give_their_own_residuals_jacobians_and_energies(comm, shared_tmp_path):

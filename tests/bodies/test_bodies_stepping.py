@@ -1,0 +1,147 @@
+"""Several bodies in one Newton solve per time step: bodies that do not interact step as each steps
+alone, a spring between two free bodies conserves their total momentum (implicit Euler with the
+consistent mass: internal forces sum to zero), and bodies that cannot share a solve are refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from dolfinx import fem
+from helpers import TwoBodySpring
+from mpi4py import MPI
+
+from bhem_hpc.bodies.petsc import StackedBlocks
+from bhem_hpc.forms.kinematics import area_density
+from bhem_hpc.run import build_model
+from bhem_hpc.scene.loader import load_scene
+from bhem_hpc.solver.dynamics import PrescribedMotion, TimeStepper
+from bhem_hpc.solver.model_group import ModelGroup
+from bhem_hpc.solver.newton import ShellSolver
+
+SIZE = 0.2
+#: A square sheet, time-stepped at dt, optionally clamped along xi1 = 0 and under gravity.
+SHEET = """
+[surface]
+kind = "rectangle"
+size = [{size}, {size}]
+patches = [4, 4]
+discretization = "{discretization}"
+origin = [{x0}, 0.0, {z}]
+[material]
+young = {young}
+poisson = {poisson}
+thickness = {thickness}
+density = {density}
+[time]
+dt = {dt}
+steps = 3
+{rest}
+"""
+HELD = """
+[effects]
+gravity = [0.0, 0.0, -9.81]
+[[constraints]]
+type = "clamp"
+edge = "xi1_min"
+"""
+STEEL = {"young": 2.1e11, "poisson": 0.3, "thickness": 1e-3, "density": 7850.0}
+RUBBER = {"young": 5.0e6, "poisson": 0.49, "thickness": 2e-3, "density": 1100.0}
+#: tight Newton tolerances, so that one solve of two bodies and two solves of one agree closely
+TIGHT = {"snes_rtol": 1e-12, "snes_stol": 0.0}
+
+
+def _model(comm, tmp_path, name, discretization, material, z=0.0, x0=0.0, rest=HELD, dt=0.01):
+    path = tmp_path / f"{name}.toml"
+    if comm.rank == 0:
+        path.write_text(SHEET.format(size=SIZE, discretization=discretization, z=z, x0=x0, rest=rest, dt=dt,
+                                     **material))  # fmt: skip
+    comm.Barrier()
+    return build_model(load_scene(path), comm)
+
+
+def _held_pair(comm, tmp_path):
+    """A clamped steel Hermite sheet and a clamped rubber quadratic B-spline sheet 5 cm above it,
+    hanging under gravity."""
+    return [_model(comm, tmp_path, "steel", "hermite", STEEL),
+            _model(comm, tmp_path, "rubber", "bspline2", RUBBER, z=0.05)]  # fmt: skip
+
+
+def _step(models, steps, contributions=(), prefix="bodies_"):
+    with ShellSolver(models, prefix, TIGHT, contributions=contributions) as solver:
+        stepper = TimeStepper(models, solver)
+        iterations = [stepper.advance().newton_iterations for _ in range(steps)]
+    return iterations
+
+
+def test_bodies_in_one_solve_step_as_each_steps_alone(comm, shared_tmp_path):
+    together = _held_pair(comm, shared_tmp_path)
+    iterations = _step(together, 3)
+    alone = _held_pair(comm, shared_tmp_path)
+    for model in alone:
+        _step(model, 3, prefix="one_body_")
+    for one, other in zip(together, alone, strict=True):
+        start = one.x_rest.x.array
+        moved = comm.allreduce(np.abs(other.x.x.array - start).max(), op=MPI.MAX)
+        difference = comm.allreduce(np.abs(one.x.x.array - other.x.x.array).max(), op=MPI.MAX)
+        assert moved > 1e-5  # both sag under gravity (m)
+        # the solves stop at the steel's residual floor (snes_atol ~ 1e-6 N): 3e-8 of the sag measured
+        assert difference <= 1e-6 * moved
+        np.testing.assert_allclose(one.velocity.x.array, other.velocity.x.array, rtol=0, atol=1e-6 * moved / 0.01)
+    assert all(k >= 2 for k in iterations)
+
+
+def _momentum(model) -> np.ndarray:
+    """``int rho h v dOmega_rest`` [kg m/s], every rank."""
+    parts = [fem.form(model.density * model.thickness * model.velocity[i] * area_density(model.x_rest) * model.dx)
+             for i in range(3)]  # fmt: skip
+    return np.array([model.comm.allreduce(fem.assemble_scalar(form)) for form in parts])
+
+
+@pytest.mark.parametrize("second", ["bspline2", "bspline3"])
+def test_a_spring_between_two_free_bodies_conserves_their_momentum(comm, shared_tmp_path, second):
+    """Two free sheets (steel Hermite, rubber B-splines) side by side, no gravity, a stretched spring
+    between their facing corners: each gains momentum, the sum stays zero (the B-spline paper's
+    momentum test, with a spring for the collision)."""
+    models = [_model(comm, shared_tmp_path, "left", "hermite", STEEL, rest=""),
+              _model(comm, shared_tmp_path, "right", second, RUBBER, x0=SIZE + 0.05, rest="")]  # fmt: skip
+    spring = TwoBodySpring(StackedBlocks(models), (SIZE, SIZE), (0.0, SIZE), 50.0, 0.01)
+    _step(models, 3, [spring], prefix="sprung_")
+    momenta = [_momentum(m) for m in models]
+    assert momenta[0][0] > 1e-4  # the spring pulled the left sheet towards +x (kg m/s)
+    assert np.linalg.norm(momenta[0] + momenta[1]) <= 1e-6 * np.linalg.norm(momenta[0])
+
+
+def test_a_prescribed_motion_moves_its_own_body(comm, shared_tmp_path):
+    """A motion names its body: the rubber sheet's clamped edge is lifted, the steel sheet's stays."""
+    models = _held_pair(comm, shared_tmp_path)
+    clamp = models[1].constraints[0]
+    nodes = np.asarray(clamp.nodes)
+    initial = models[1].rest_surface.nodal[nodes[:, 0], nodes[:, 1]][:, list(clamp.kinds)][:, :, list(clamp.components)]
+    position = (np.asarray(clamp.kinds) == 0)[None, :, None] * (np.asarray(clamp.components) == 2)[None, None, :]
+
+    def lifted(t):
+        return initial + 0.5 * t * position  # the clamped edge rises at 0.5 m/s
+
+    with ShellSolver(models, "moved_", TIGHT) as solver:
+        stepper = TimeStepper(models, solver, [PrescribedMotion(clamp, lifted, body=1)])
+        stepper.advance()
+        values = stepper.bc_values_at(stepper.time)
+    counts = [len(m.constrained_target) for m in models]
+    kept = comm.allreduce(np.abs(values[:counts[0]] - models[0].constrained_target).max(initial=0.0), op=MPI.MAX)
+    lift = comm.allreduce(np.abs(values[counts[0]:] - models[1].constrained_target).max(initial=0.0), op=MPI.MAX)
+    assert kept == 0.0 and lift == pytest.approx(0.5 * stepper.time, rel=1e-12)
+    with pytest.raises(ValueError, match="body 2: there are 2 bodies"):
+        with ShellSolver(models, "moved_bad_", TIGHT) as solver:
+            TimeStepper(models, solver, [PrescribedMotion(clamp, lifted, body=2)])
+
+
+def test_bodies_that_cannot_share_a_solve_are_refused(comm, shared_tmp_path):
+    steel = _model(comm, shared_tmp_path, "steel", "hermite", STEEL)
+    slower = _model(comm, shared_tmp_path, "slower", "hermite", STEEL, dt=0.02)
+    with pytest.raises(ValueError, match="share one time step"):
+        ModelGroup([steel, slower])
+    with pytest.raises(ValueError, match="at least one shell model"):
+        ModelGroup([])
+    with pytest.raises(ValueError, match="not available for several bodies"):
+        ShellSolver([steel, _model(comm, shared_tmp_path, "other", "hermite", STEEL)], "accel_",
+                    acceleration_tolerance=1e-2)  # fmt: skip

@@ -41,7 +41,9 @@ from bhem_hpc.restart import (
     read_restart,
     solution_method,
 )
-from bhem_hpc.scene import Scene, load_scene
+from bhem_hpc.scene import Scene
+from bhem_hpc.scene.bodies import BodiesScene
+from bhem_hpc.scene.loader import load_any_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
@@ -64,7 +66,7 @@ class RunOptions:
     progress: bool = True
 
 
-def _check_output(options: RunOptions, continuing: bool, comm: MPI.Comm) -> None:
+def check_output(options: RunOptions, continuing: bool, comm: MPI.Comm) -> None:
     _on_rank0_directory(comm, lambda: check_output_directory(options.out, options.force, continuing))
 
 
@@ -169,16 +171,20 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     step records; a restart into another directory starts its series with the restart frame.
     """
     scene, checkpoint, continuing = _prepare(options, comm)
-    lock = _lock_output(options.out, comm)
+    lock = lock_output(options.out, comm)
     try:
-        _check_output(options, continuing, comm)
+        check_output(options, continuing, comm)
+        if isinstance(scene, BodiesScene):
+            from bhem_hpc.bodies.run import run_bodies  # it builds on this module's stages
+
+            return run_bodies(options, scene, comm)
         return _run_locked(options, scene, checkpoint, continuing, comm)
     finally:
         if lock is not None:
             lock.release()
 
 
-def _lock_output(out: Path, comm: MPI.Comm) -> OutputLock | None:
+def lock_output(out: Path, comm: MPI.Comm) -> OutputLock | None:
     """Rank 0 takes the output directory's lock (None on the other ranks); every rank raises
     :class:`RunError` when another run holds it."""
     lock = OutputLock(out) if comm.rank == 0 else None
@@ -230,7 +236,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
                 final = _run_dynamic(run, steps, checkpoint)
         where = f"load factor {summary.load_factor:.4g}" if scene.static else f"t = {summary.time or 0:.4g} s"
         title = f"{options.scene.name}, {where}"
-        _on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
+        on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
     except Exception as exc:
         summary.status, summary.error = "interrupted" if isinstance(exc, RunInterrupted) else "failed", str(exc)
         if comm.rank == 0 and options.out.is_dir():
@@ -242,18 +248,18 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
     finally:
         if run.series is not None:
             run.series.close()
-        _report_unused_options(solver, summary, comm)
+        report_unused_options(solver, summary, comm)
         summary.linear_solver_fallbacks = solver.fallbacks
         summary.solver_totals = {
             k: v for k, v in solver.counters().items() if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)
         }
         solver.close()
     summary.status = "completed"
-    _on_rank0(comm, lambda: summary.write(options.out), "summary.json")
+    on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()
 
 
-def _report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:
+def report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:
     """Options under the run's prefix that PETSc never read (a misspelling, or an option that does
     not apply): a warning and ``summary.json``'s ``unused_petsc_options``."""
     unused = solver.unused_options()
@@ -262,15 +268,20 @@ def _report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.C
         log.warning("PETSc options never used (misspelled or not applicable): %s", ", ".join(unused))
 
 
-def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene, dict | None, bool]:
+def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene | BodiesScene, dict | None, bool]:
     """Every check before anything is built but the output directory's (done under its lock): the
     scene, ``--steps`` and the restart. Returns the scene, the restart checkpoint (or None) and
     whether the restart continues the run in its own directory."""
-    scene = load_scene(options.scene)
+    scene = load_any_scene(options.scene)
     if options.steps is not None and options.steps < 1:
         raise RunError(f"--steps must be >= 1, got {options.steps}")
     checkpoint = None
     continuing = False
+    if isinstance(scene, BodiesScene):
+        if options.restart is not None:
+            raise RunError(f"{options.scene}: a scene of several bodies writes no checkpoint; it cannot be restarted "
+                           f"(--restart {options.restart})")  # fmt: skip
+        return scene, None, False
     if options.restart is not None:
         checkpoint = read_restart(options.restart, scene)
         continuing = _is_same_directory(options.restart, options.out)
@@ -295,10 +306,10 @@ def _start_output(run: _Run, scene_text: bytes, continued: RestartPoint | None) 
             continue_at=None if continued is None else float(continued.attrs["time"]),
         )  # fmt: skip
 
-    return _on_rank0(run.comm, start, f"the output directory {out}")
+    return on_rank0(run.comm, start, f"the output directory {out}")
 
 
-def _on_rank0(comm: MPI.Comm, action, what: str):
+def on_rank0(comm: MPI.Comm, action, what: str):
     """Run a file operation on rank 0 and raise :class:`RunError` on every rank if it fails (so no
     rank waits for a collective that rank 0 never reaches). Returns the action's result on rank 0,
     None elsewhere."""
@@ -330,7 +341,7 @@ def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: RestartPoint | 
     return scene.steps - done
 
 
-class _StepRecords:
+class StepRecords:
     """``summary.json``'s step records, each also appended to ``steps.jsonl`` (collective
     :meth:`add`; call it before the step's checkpoint, so that a restart finds it)."""
 
@@ -340,7 +351,7 @@ class _StepRecords:
 
     def add(self, row: dict) -> None:
         self.summary.steps.append(row)
-        _on_rank0(self.comm, lambda: self.table.add(row), "steps.jsonl")
+        on_rank0(self.comm, lambda: self.table.add(row), "steps.jsonl")
 
 
 def _energies(model: ShellModel) -> dict[str, float]:
@@ -412,7 +423,7 @@ class _PathOutput:
         out, scene = run.options.out, run.scene
         self.out, self.model, self.plan, self.series = out, run.model, scene.path_plan, run.series
         self.summary, self.comm, self.state = run.summary, run.comm, run.state
-        self.records = _StepRecords(out, run.summary, run.comm)
+        self.records = StepRecords(out, run.summary, run.comm)
         self.interruption, self.scene_path = run.interruption, run.options.scene
         self.probes = [p.name for p in scene.probes]
         keep = read_rows(out / "path.csv", continued_step) if continued_step is not None else []
@@ -442,7 +453,7 @@ class _PathOutput:
                "stable": point.stable, "event": point.event,
                "event_load_factor": point.events[0].load_factor if point.events else ""}  # fmt: skip
         row |= {f"energy_{k}": float(v) for k, v in point.energies.items()} | probe_columns(point.probes)
-        _on_rank0(self.comm, lambda: self.table.add(row), "path.csv")
+        on_rank0(self.comm, lambda: self.table.add(row), "path.csv")
         now = time.perf_counter()
         self.records.add(row | {"events": [e.as_dict() for e in point.events], "wall_s": now - self.started})
         self.started = now  # the checkpoint's time counts to the next point
@@ -461,7 +472,7 @@ class _PathOutput:
             if len(self.table.rows) > 1:
                 plot_path(self.table.rows, self.probes, self.out / "path.png", title)
 
-        _on_rank0(self.comm, draw, "path.png")
+        on_rank0(self.comm, draw, "path.png")
 
 
 def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> HermiteSurface:
@@ -484,10 +495,10 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
     surface = model.state_surface()
     probes = _ProbeTable(options.out, model, scene, stepper.step if checkpoint is not None else None, comm)
     if comm.bcast(series is not None and not series.times):  # a continued series has its restart frame
-        _on_rank0(comm, lambda: series.write(stepper.time, surface), "a frame")
+        on_rank0(comm, lambda: series.write(stepper.time, surface), "a frame")
         probes.write(stepper)
-    progress = _progress(steps, options.progress and comm.rank == 0)
-    records = _StepRecords(options.out, summary, comm)
+    progress = progress_bar(steps, options.progress and comm.rank == 0)
+    records = StepRecords(options.out, summary, comm)
     last_summary = time.perf_counter()
     checkpoint_s = 0.0  # a checkpoint's write time counts to the next step's output_s
     try:
@@ -501,7 +512,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
                 surface = _write_frame(series, model, stepper.time, comm)
             probes.write(stepper)
             energies = _energies(model) if wrote else None  # a few assemblies: with the frames only
-            records.add(_step_summary(record, time.perf_counter() - t_out + checkpoint_s, energies))
+            records.add(step_summary(record, time.perf_counter() - t_out + checkpoint_s, energies))
             t_checkpoint = time.perf_counter()
             if wrote:  # after the step's rows: a restart from it finds them all
                 arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
@@ -511,7 +522,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
             # summary.json shows the records so far, at most every SUMMARY_EVERY_S (a restart reads
             # them from steps.jsonl)
             if wrote and comm.bcast(time.perf_counter() - last_summary >= SUMMARY_EVERY_S):
-                _on_rank0(comm, lambda: summary.write(options.out), "summary.json")
+                on_rank0(comm, lambda: summary.write(options.out), "summary.json")
                 last_summary = time.perf_counter()
             checkpoint_s = time.perf_counter() - t_checkpoint
             progress(record, stepper)
@@ -546,10 +557,10 @@ class _ProbeTable:
         if self.probes is None:
             return
         row = {"step": stepper.step, "time": stepper.time} | probe_columns(self.probes.record())
-        _on_rank0(self.comm, lambda: self.table.add(row), "probes.csv")
+        on_rank0(self.comm, lambda: self.table.add(row), "probes.csv")
 
 
-def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float] | None) -> dict:
+def step_summary(record: StepRecord, output_s: float, energies: dict[str, float] | None) -> dict:
     """A step's row of ``summary.json`` (the energies at steps that wrote a frame)."""
     names = ("step", "time", "newton_iterations", "recoveries", "dt_halvings", "regularized_retries",
              "trust_region_solves", "trust_region_failures", "negative_pivots", "regularized_iterations",
@@ -566,7 +577,7 @@ def _step_summary(record: StepRecord, output_s: float, energies: dict[str, float
 def _write_frame(series, model: ShellModel, time_value: float, comm: MPI.Comm) -> HermiteSurface:
     """Write the current state as a frame of the series; returns it as a surface (every rank)."""
     surface = model.state_surface()
-    _on_rank0(comm, lambda: series.write(time_value, surface), "a frame of surface.h5")
+    on_rank0(comm, lambda: series.write(time_value, surface), "a frame of surface.h5")
     return surface
 
 
@@ -585,10 +596,10 @@ def _checkpoint(
             "solution_method": canonical_json(summary.solution_method),
             "static": state.model.dynamics is None} | attrs  # fmt: skip
     data |= arrays
-    _on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
+    on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
 
 
-def _progress(total: int, enabled: bool):
+def progress_bar(total: int, enabled: bool):
     """A tqdm bar on rank 0 showing step, simulated time, Newton iterations and recoveries."""
     if not enabled:
         return lambda report, stepper: None

@@ -3,7 +3,10 @@ ray-triangle references, import checks, a small scene."""
 
 from __future__ import annotations
 
+import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import dolfinx.fem as fem
@@ -247,3 +250,11 @@ class TwoBodySpring(PointSpring):
         gathered = [blocks.comm.allgather((blocks.global_open_blocks[rows], values)) for rows, values in points]
         shared = [next(part for part in parts if len(part[0])) for parts in gathered]
         super().__init__(blocks.comm, points, shared, stiffness, rest_length)
+
+
+def paraview_read(*paths: Path) -> dict:
+    """What ParaView's readers give for ``paths`` (see ``io/paraview_reader.py``, run in its own process)."""
+    done = subprocess.run([sys.executable, str(REPO / "tests" / "io" / "paraview_reader.py"), *map(str, paths)],
+                          capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout)

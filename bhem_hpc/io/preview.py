@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 from bhem_hpc.geometry.surface import HermiteSurface
 
 
 def render_surface_png(
-    path: str | Path, surface: HermiteSurface, title: str = "", size: tuple[int, int] = (480, 360)
+    path: str | Path, surface: HermiteSurface | Sequence[HermiteSurface], title: str = "",
+    size: tuple[int, int] = (480, 360),
 ) -> Path:
-    """Ray-trace the surface's patches (:func:`bhem_hpc.io.render.render`) to a PNG with a title line."""
+    """Ray-trace the surface's patches, or several surfaces' (:func:`bhem_hpc.io.render.render`), to a
+    PNG with a title line."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -6,6 +6,7 @@ no tessellation; shading uses the patch normal at the hit. numpy + matplotlib on
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -18,13 +19,19 @@ LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
 VIEW = np.array([1.0, -1.6, 1.1])
 
 
-def camera_rays(surface: HermiteSurface, width: int, height: int, fov_degrees: float = 35.0):
-    """Pinhole camera looking at the surface's bounding box from ``VIEW``.
+#: Base colours of the bodies of a picture, in turn (one body: the first).
+BODY_COLOURS = np.array([[0.25, 0.45, 0.8], [0.85, 0.45, 0.2], [0.3, 0.65, 0.35], [0.7, 0.3, 0.6], [0.8, 0.7, 0.2]])
+
+
+def camera_rays(surface: HermiteSurface | Sequence[HermiteSurface], width: int, height: int,
+                fov_degrees: float = 35.0):  # fmt: skip
+    """Pinhole camera looking at the bounding box of the surface (or surfaces) from ``VIEW``.
 
     Returns:
         ``(origin (3,), directions (height * width, 3))``, rows top to bottom.
     """
-    points = surface.nodal[..., 0, :].reshape(-1, 3)
+    surfaces = list(surface) if isinstance(surface, Sequence) else [surface]
+    points = np.concatenate([s.nodal[..., 0, :].reshape(-1, 3) for s in surfaces])
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     radius = 0.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) or 1.0
     forward = -VIEW / np.linalg.norm(VIEW)
@@ -40,10 +47,15 @@ def camera_rays(surface: HermiteSurface, width: int, height: int, fov_degrees: f
     return eye, directions.reshape(-1, 3)
 
 
-def render(surface: HermiteSurface, width: int = 160, height: int = 120) -> tuple[np.ndarray, np.ndarray]:
-    """Shaded image ``(height, width, 3)`` in [0, 1] and the coverage mask ``(height, width)``."""
-    nets = surface.bezier_nets()
-    eye, directions = camera_rays(surface, width, height)
+def render(surface: HermiteSurface | Sequence[HermiteSurface], width: int = 160, height: int = 120
+           ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Shaded image ``(height, width, 3)`` in [0, 1] and the coverage mask ``(height, width)`` of a
+    surface, or of several (bodies, each in its colour of :data:`BODY_COLOURS`)."""
+    surfaces = list(surface) if isinstance(surface, Sequence) else [surface]
+    parts = [s.bezier_nets() for s in surfaces]
+    nets = np.concatenate(parts)
+    body = np.repeat(np.arange(len(parts)), [len(p) for p in parts])  # the body of each patch
+    eye, directions = camera_rays(surfaces, width, height)
     hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
     mask = hits.patch >= 0
     hit_nets, u, v = nets[hits.patch[mask]], hits.u[mask], hits.v[mask]
@@ -51,7 +63,7 @@ def render(surface: HermiteSurface, width: int = 160, height: int = 120) -> tupl
     normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
     diffuse = np.abs(normal @ LIGHT)[:, None]  # two-sided: shells have no inside
     image = np.ones((len(directions), 3))
-    base = np.array([0.25, 0.45, 0.8])
+    base = BODY_COLOURS[body[hits.patch[mask]] % len(BODY_COLOURS)]
     image[mask] = np.clip(base * (0.25 + 0.75 * diffuse) + 0.15 * diffuse**20, 0.0, 1.0)
     return image.reshape(height, width, 3), mask.reshape(height, width)
 

@@ -30,7 +30,7 @@ from bhem_hpc.errors import UserError
 #: The files a run writes; a restart in place refuses to continue through a symbolic link among them.
 RUN_FILES = (
     "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
-    "last.png", "path.csv", "path.png", "probes.csv", "steps.jsonl",
+    "last.png", "path.csv", "path.png", "probes.csv", "steps.jsonl", "bodies.pvd",
 )  # fmt: skip
 
 
@@ -47,15 +47,33 @@ class OutputDirectoryError(UserError, ValueError):
 
 
 def foreign_entries(out: Path, most: int = 5) -> list[str]:
-    """Up to ``most`` entries of ``out`` (relative paths) that no run of this tool writes."""
+    """Up to ``most`` entries of ``out`` (relative paths) that no run of this tool writes (a run of
+    several bodies writes a folder per body, named in its manifest)."""
+    return _foreign_in(out, "", set(_manifest_bodies(out)), most)
+
+
+def _manifest_bodies(out: Path) -> list[str]:
+    """The body folders the manifest of ``out`` names (none: a run of one body, or no manifest)."""
+    try:
+        bodies = json.loads((out / MANIFEST).read_text()).get("bodies", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [b for b in bodies if isinstance(b, str) and b.isidentifier()] if isinstance(bodies, list) else []
+
+
+def _foreign_in(folder: Path, prefix: str, bodies: set[str], most: int) -> list[str]:
     own = {*RUN_FILES, MANIFEST, *(f"{name}.tmp" for name in RUN_FILES)}
     found = []
-    for entry in sorted(out.iterdir()):
+    for entry in sorted(folder.iterdir()):
         name = entry.name
-        if name == "surface_frames" and entry.is_dir() and not entry.is_symlink():
-            found += [f"surface_frames/{f.name}" for f in sorted(entry.iterdir()) if not FRAME_FILE.fullmatch(f.name)]
+        is_dir = entry.is_dir() and not entry.is_symlink()
+        if name == "surface_frames" and is_dir:
+            found += [f"{prefix}surface_frames/{f.name}" for f in sorted(entry.iterdir())
+                      if not FRAME_FILE.fullmatch(f.name)]  # fmt: skip
+        elif name in bodies and is_dir:
+            found += _foreign_in(entry, f"{prefix}{name}/", set(), most - len(found))
         elif name not in own and not name.startswith(".bhem-write-test-"):
-            found.append(name + ("/" if entry.is_dir() and not entry.is_symlink() else ""))
+            found.append(prefix + name + ("/" if is_dir else ""))
         if len(found) >= most:
             break
     return found[:most]
@@ -120,9 +138,9 @@ def write_replacing(path: Path, data: str | bytes) -> None:
         raise
 
 
-def start_output_directory(out: Path) -> None:
-    """Make ``out`` a fresh directory holding only the manifest: an existing one is renamed aside,
-    then deleted."""
+def start_output_directory(out: Path, bodies: list[str] | None = None) -> None:
+    """Make ``out`` a fresh directory holding only the manifest (naming the folders of ``bodies``, a
+    run of several): an existing one is renamed aside, then deleted."""
     if out.exists():
         aside = out.with_name(f".{out.name}.replaced-{os.getpid()}")
         os.rename(out, aside)
@@ -130,7 +148,8 @@ def start_output_directory(out: Path) -> None:
         shutil.rmtree(aside, ignore_errors=True)
     else:
         out.mkdir(parents=True)
-    write_replacing(out / MANIFEST, json.dumps({"tool": "bhem-hpc", "files": list(RUN_FILES)}) + "\n")
+    manifest = {"tool": "bhem-hpc", "files": list(RUN_FILES)} | ({"bodies": list(bodies)} if bodies else {})
+    write_replacing(out / MANIFEST, json.dumps(manifest) + "\n")
 
 
 class OutputLock:

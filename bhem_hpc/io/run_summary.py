@@ -40,6 +40,7 @@ class RunSummary:
         unused_petsc_options: options under the run's prefix PETSc never read.
         linear_solver_fallbacks: fallbacks of the linear solver during the run.
         solver_totals: the solver's counters over the run.
+        bodies: a scene of several bodies: each body's name, DoFs and discretization.
     """
 
     scene: str
@@ -62,6 +63,7 @@ class RunSummary:
     unused_petsc_options: list[str] | None = None
     linear_solver_fallbacks: list | None = None
     solver_totals: dict | None = None
+    bodies: list[dict] | None = None
 
     #: The JSON object's first keys (the run's identity), then the others in field order.
     LEADING = ("scene", "status")

@@ -77,10 +77,13 @@ def write_vtu(path: str | Path, points, quads, fields: dict[str, np.ndarray], no
     return path
 
 
-def write_pvd(path: str | Path, frames: list[tuple[float, str]]) -> Path:
-    """Write a ParaView collection ``path`` (.pvd) listing ``(time, file relative to path)`` frames."""
+def write_pvd(path: str | Path, frames: list[tuple[float, str]], parts: list[int] | None = None) -> Path:
+    """Write a ParaView collection ``path`` (.pvd) listing ``(time, file relative to path)`` frames;
+    ``parts``: each frame's part (several bodies at one time), default 0."""
     path = Path(path)
-    entries = "".join(f'    <DataSet timestep="{time!r}" part="0" file="{file}"/>\n' for time, file in frames)
+    parts = [0] * len(frames) if parts is None else parts
+    entries = "".join(f'    <DataSet timestep="{time!r}" part="{part}" file="{file}"/>\n'
+                      for (time, file), part in zip(frames, parts, strict=True))  # fmt: skip
     xml = (
         '<?xml version="1.0"?>\n<VTKFile type="Collection" version="1.0" byte_order="LittleEndian">\n'
         f"  <Collection>\n{entries}  </Collection>\n</VTKFile>\n"

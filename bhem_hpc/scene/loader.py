@@ -18,6 +18,7 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
+from bhem_hpc.scene.bodies import BodiesScene, parse_bodies
 from bhem_hpc.scene.colliders import parse_colliders
 from bhem_hpc.scene.constraints import parse_constraints, parse_point_constraints
 from bhem_hpc.scene.loads import LOADS, parse_loads
@@ -89,6 +90,22 @@ def load_scene(path: str | Path, overrides: dict[str, dict[str, Any]] | None = N
     """
     path = Path(path)
     raw = _override(_read_toml(path), overrides or {}, path)
+    if "bodies" in raw:
+        raise SceneError(f"{path}: lists [[bodies]] (a scene of several bodies); this command takes a scene of one "
+                         "body ([surface], [material], ...); 'bhem-hpc run' runs both")  # fmt: skip
+    return _scene(path, raw)
+
+
+def load_any_scene(path: str | Path) -> Scene | BodiesScene:
+    """Read and check a scene of one body (:func:`load_scene`) or of several (``[[bodies]]``,
+    :func:`~bhem_hpc.scene.bodies.parse_bodies`). Raises :class:`SceneError` on any problem."""
+    path = Path(path)
+    raw = _read_toml(path)
+    return parse_bodies(path, raw, _scene) if "bodies" in raw else _scene(path, raw)
+
+
+def _scene(path: Path, raw: dict) -> Scene:
+    """The scene of one body from its file's tables ``raw``."""
     top = Table(path, "", raw)
     surface = parse_surface(top.table("surface"), path)
     material = _material(top.table("material"))

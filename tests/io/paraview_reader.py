@@ -4,8 +4,8 @@ Usage: ``python paraview_reader.py FILE...``. For an ``.xdmf`` file each of Para
 readers reads every time step; a ``.pvd`` or ``.vtu`` file is read with ParaView's VTK XML
 readers. Per file, reader and time: the times the reader lists, the point and cell counts, the data
 type of the points and of the connectivity, and per point array its type, component count, first
-tuple and whether it is the active normals. Run in its own process: ParaView's libraries (HDF5
-among them) stay out of the test process.
+tuple and whether it is the active normals; the number of datasets (a collection's parts). Run in
+its own process: ParaView's libraries (HDF5 among them) stay out of the test process.
 """
 
 import json
@@ -33,7 +33,20 @@ def _leaf(data):
     return data
 
 
+def _leaves(data) -> int:
+    """How many datasets a reader's output holds (a collection's parts: one per body)."""
+    if not data.IsA("vtkCompositeDataSet"):
+        return 1
+    iterator, count = data.NewIterator(), 0
+    iterator.InitTraversal()
+    while not iterator.IsDoneWithTraversal():
+        count += 1
+        iterator.GoToNextItem()
+    return count
+
+
 def _describe(data) -> dict:
+    leaves = _leaves(data)
     data = _leaf(data)
     point_data = data.GetPointData()
     normals = point_data.GetNormals()
@@ -47,6 +60,7 @@ def _describe(data) -> dict:
             "normals": normals is not None and normals.GetName() == array.GetName(),
         }
     return {
+        "leaves": leaves,
         "points": data.GetNumberOfPoints(),
         "cells": data.GetNumberOfCells(),
         "point_type": data.GetPoints().GetData().GetDataTypeAsString(),

@@ -4,31 +4,16 @@ the physical fields, and the normals active in the VTK XML files."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
-
 import h5py
 import numpy as np
-from helpers import BASE
+from helpers import BASE, paraview_read
 
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import write_surface_xdmf
 from bhem_hpc.model.material import Material
 from bhem_hpc.run import RunOptions, run_scene
 
-READER = Path(__file__).with_name("paraview_reader.py")
 WIDTHS = {"normal": 3, "mean_curvature": 1, "membrane_energy_density": 1, "bending_energy_density": 1}
-
-
-def paraview_read(*paths: Path) -> dict:
-    """What ParaView's readers give for ``paths`` (see ``paraview_reader.py``)."""
-    done = subprocess.run(
-        [sys.executable, str(READER), *map(str, paths)], capture_output=True, text=True, timeout=300, check=False
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    return json.loads(done.stdout)
 
 
 def _check_arrays(frame: dict, widths: dict[str, int], normals_active: bool) -> None:

@@ -1,0 +1,114 @@
+"""Scenes of several bodies (numpy + stdlib only): a ``[[bodies]]`` table per body, each with the
+tables a scene of one body has for its shell, and the tables all bodies share at the top::
+
+    [time]            # dt and steps (or duration): one clock for every body
+    [solver]          # one Newton solve per time step for all bodies
+    [output]
+
+    [[bodies]]
+    name = "steel"    # names the body's output folder and its messages
+    [bodies.surface]  # and material, effects (gravity, damping, loads), constraints,
+    ...               # point_constraints, probes: as in a scene of one body
+
+Each body is parsed as the scene of one body it would be alone (with the shared tables), so every
+key means what it means there; an error names the body and the key. Contact between bodies and
+with colliders is not part of a scene of several bodies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from bhem_hpc.scene.records import Scene
+from bhem_hpc.scene.table import SceneError, Table
+
+#: The tables a body lists (a scene of one body's tables for its shell).
+BODY_KEYS = ("name", "surface", "material", "effects", "constraints", "point_constraints", "probes")
+#: The tables every body shares, at the top of the file.
+SHARED_KEYS = ("time", "solver", "output")
+#: Longest body name (it names an output folder).
+MAX_BODY_NAME = 64
+
+
+@dataclass(frozen=True)
+class BodiesScene:
+    """A scene of several bodies stepped in one Newton solve per time step.
+
+    Attributes:
+        path: the scene file.
+        names: the bodies' names, in the file's order (the stacked order).
+        bodies: each body's scene of one body (the shared tables in each).
+        raw: the file's tables.
+    """
+
+    path: Path
+    names: tuple[str, ...]
+    bodies: tuple[Scene, ...]
+    raw: dict[str, Any]
+
+    @property
+    def first(self) -> Scene:
+        """The first body's scene: it holds the shared settings (time, solver, output) as every body does."""
+        return self.bodies[0]
+
+
+def _body_name(t: Table, taken: list[str]) -> str:
+    expected = f"a name no other body has (letters, digits, _; at most {MAX_BODY_NAME} characters)"
+    return t.get("name", "a string", check=lambda v: v.isidentifier() and len(v) <= MAX_BODY_NAME and v not in taken,
+                 expected=expected)  # fmt: skip
+
+
+def _check_body(t: Table, name: str) -> None:
+    """What a body's table may not hold: shared tables, contact."""
+    for key in t.data:
+        if key in SHARED_KEYS:
+            raise SceneError(f"{t.path}: key '{t.key(key)}': [{key}] is shared by all bodies; give it once, at the top")
+        if key not in BODY_KEYS:
+            t.fail(key, f"absent (a body lists {', '.join(BODY_KEYS)})", t.data[key])
+    effects = t.data.get("effects", {})
+    for key in ("contact", "self_collision", "friction"):
+        if isinstance(effects, dict) and key in effects:
+            raise SceneError(f"{t.path}: body '{name}': key '{t.key('effects.' + key)}': contact is not available in "
+                             "a scene of several bodies")  # fmt: skip
+
+
+def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dict], Scene]) -> BodiesScene:
+    """The scene of several bodies in ``raw`` (a file's tables); ``parse_one(path, tables)`` parses the
+    scene of one body (:func:`bhem_hpc.scene.loader.load_scene`'s parser).
+
+    Raises:
+        SceneError: naming the file, the body and the key.
+    """
+    top = Table(path, "", raw)
+    items = top.get("bodies", "a list", check=lambda v: len(v) >= 1 and all(isinstance(b, dict) for b in v),
+                    expected="a list of at least one body table ([[bodies]])")  # fmt: skip
+    for key in raw:
+        if key != "bodies" and key not in SHARED_KEYS:
+            hint = "a body's own table (in each [[bodies]])" if key in BODY_KEYS else "unknown"
+            raise SceneError(f"{path}: key '{key}' at the top of a scene of several bodies: {hint}; the top holds "
+                             f"[[bodies]] and the shared {', '.join(SHARED_KEYS)}")  # fmt: skip
+    shared = {key: raw[key] for key in SHARED_KEYS if key in raw}
+    time = shared.get("time", {})
+    if isinstance(time, dict) and time.get("static", False) is True:
+        raise SceneError(f"{path}: key 'time.static': a scene of several bodies is time-stepped (dt and steps)")
+    solver = shared.get("solver", {})
+    if isinstance(solver, dict) and "acceleration_tolerance" in solver:
+        raise SceneError(f"{path}: key 'solver.acceleration_tolerance' measures one body's mass: not available in a "
+                         "scene of several bodies")  # fmt: skip
+    names: list[str] = []
+    bodies: list[Scene] = []
+    for k, item in enumerate(items):
+        t = Table(path, f"bodies[{k}]", item)
+        name = _body_name(t, names)
+        _check_body(t, name)
+        tables = {key: value for key, value in item.items() if key != "name"} | shared
+        try:
+            bodies.append(parse_one(path, tables))
+        except SceneError as exc:
+            where = str(exc).removeprefix(f"{path}: ")
+            raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None
+        names.append(name)
+    return BodiesScene(path, tuple(names), tuple(bodies), raw)

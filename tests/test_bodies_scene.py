@@ -1,0 +1,171 @@
+"""Scenes of several bodies (``[[bodies]]``): each body is the scene of one body it would be alone,
+so one run of two bodies gives each body's run alone (within the Newton tolerance); its output is a
+folder per body and one ParaView collection of every body; bad bodies are refused by name."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import REPO, paraview_read
+
+from bhem_hpc.io import read_frame
+from bhem_hpc.run import RunError, RunOptions, run_scene
+from bhem_hpc.scene import SceneError, load_scene
+from bhem_hpc.scene.loader import load_any_scene
+
+SHARED = """
+[time]
+dt = 0.01
+steps = 4
+[solver]
+options = { snes_rtol = 1e-12 }
+[output]
+every = 2
+"""
+#: Two bodies' tables, as a scene of one body writes them: steel Hermite and rubber B-splines.
+BODIES = {
+    "steel": """
+[surface]
+kind = "rectangle"
+size = [0.2, 0.2]
+patches = [4, 4]
+discretization = "hermite"
+[material]
+young = 2.1e11
+poisson = 0.3
+thickness = 1e-3
+density = 7850.0
+[effects]
+gravity = [0.0, 0.0, -9.81]
+[[constraints]]
+type = "clamp"
+edge = "xi1_min"
+[[probes]]
+name = "tip"
+at = [0.2, 0.1]
+""",
+    "rubber": """
+[surface]
+kind = "rectangle"
+size = [0.2, 0.2]
+origin = [0.3, 0.0, 0.0]
+patches = [4, 4]
+discretization = "bspline2"
+[material]
+young = 5.0e6
+poisson = 0.49
+thickness = 2e-3
+density = 1100.0
+[effects]
+gravity = [0.0, 0.0, -9.81]
+[[constraints]]
+type = "fix"
+corners = ["min_max", "max_max"]
+kinds = ["x"]
+components = [0, 1, 2]
+""",
+}
+
+
+def _as_body(name: str, tables: str) -> str:
+    """A scene of one body's tables as a ``[[bodies]]`` entry: every table header under ``bodies.``."""
+    text = re.sub(r"^\[\[(\w+)\]\]", r"[[bodies.\1]]", tables, flags=re.M)
+    text = re.sub(r"^\[(\w+)\]", r"[bodies.\1]", text, flags=re.M)
+    return f'[[bodies]]\nname = "{name}"\n{text}'
+
+
+def _write(comm, path: Path, text: str) -> Path:
+    if comm.rank == 0:
+        path.write_text(text)
+    comm.Barrier()
+    return path
+
+
+def _pair(comm, directory: Path, edit=lambda s: s) -> Path:
+    text = SHARED + "".join(_as_body(name, tables) for name, tables in BODIES.items())
+    return _write(comm, directory / "pair.toml", edit(text))
+
+
+def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection(comm, shared_tmp_path):
+    summary = run_scene(RunOptions(_pair(comm, shared_tmp_path), shared_tmp_path / "pair", progress=False), comm)
+    assert [b["name"] for b in summary["bodies"]] == ["steel", "rubber"] and summary["status"] == "completed"
+    assert summary["dofs"] == sum(b["dofs"] for b in summary["bodies"]) and len(summary["steps"]) == 4
+    out = shared_tmp_path / "pair"
+    for name, tables in BODIES.items():
+        alone = run_scene(RunOptions(_write(comm, shared_tmp_path / f"{name}.toml", SHARED + tables),
+                                     shared_tmp_path / name, progress=False), comm)  # fmt: skip
+        assert alone["dofs"] == next(b["dofs"] for b in summary["bodies"] if b["name"] == name)
+        together, t1 = read_frame(out / name / "surface.h5")
+        single, t2 = read_frame(shared_tmp_path / name / "surface.h5")
+        rest, _ = read_frame(out / name / "surface.h5", 0)
+        moved = np.abs(single.nodal - rest.nodal).max()
+        assert t1 == t2 == pytest.approx(0.04) and moved > 1e-6
+        # one solve stops at the stiffer body's residual floor, two at each one's own
+        assert np.abs(together.nodal - single.nodal).max() <= 1e-6 * moved
+    if comm.rank == 0:
+        steel_probes = (out / "steel" / "probes.csv").read_text().splitlines()
+        assert steel_probes[0].startswith("step,time,tip_") and len(steel_probes) == 1 + 3  # t = 0, 0.02, 0.04
+        assert not (out / "rubber" / "probes.csv").exists() and (out / "last.png").stat().st_size > 1000
+        collection = paraview_read(out / "bodies.pvd")[str(out / "bodies.pvd")][".pvd"]
+        assert collection["times"] == [0.0, 0.02, 0.04]
+        assert all(frame["leaves"] == 2 for frame in collection["frames"].values())
+    comm.Barrier()
+    # a second --force run replaces the first; a folder holding files of its own is kept and refused
+    run_scene(RunOptions(_pair(comm, shared_tmp_path), out, steps=1, force=True, progress=False), comm)
+    if comm.rank == 0:
+        (out / "rubber" / "notes.txt").write_text("mine")
+    comm.Barrier()
+    with pytest.raises(RunError, match=r"did not write \(rubber/notes.txt\)"):
+        run_scene(RunOptions(_pair(comm, shared_tmp_path), out, steps=1, force=True, progress=False), comm)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda s: s.replace('name = "rubber"', 'name = "steel"'),
+         r"key 'bodies\[1\].name' must be a name no other body has .*got 'steel'"),
+        (lambda s: s.replace("young = 5.0e6", 'young = "soft"'),
+         r"body 'rubber' \(bodies\[1\]\): key 'material.young' must be a number, got 'soft'"),
+        (lambda s: s.replace("[bodies.material]\nyoung = 5.0e6", "[bodies.materials]\nyoung = 5.0e6"),
+         r"key 'bodies\[1\].materials' must be absent"),
+        (lambda s: s.replace("young = 2.1e11\npoisson = 0.3\nthickness = 1e-3\ndensity = 7850.0\n", "")
+         .replace("[bodies.material]\n[bodies.effects]", "[bodies.effects]"),
+         r"body 'steel' \(bodies\[0\]\): missing key 'material'"),
+        (lambda s: s + "\n[surface]\nkind = 'rectangle'\n",
+         r"key 'surface' at the top of a scene of several bodies: a body's own table"),
+        (lambda s: s.replace('name = "rubber"', 'name = "rubber"\ntime = { dt = 0.01, steps = 1 }'),
+         r"key 'bodies\[1\].time': \[time\] is shared by all bodies"),
+        (lambda s: s.replace("[bodies.effects]\ngravity", "[bodies.effects]\ncontact = true\ngravity", 1),
+         r"body 'steel': key 'bodies\[0\].effects.contact': contact is not available"),
+        (lambda s: s.replace("steps = 4", "steps = 4\nstatic = true"), r"key 'time.static': a scene of several"),
+        (lambda s: s.replace("[solver]\n", "[solver]\nacceleration_tolerance = 0.01\n"),
+         r"key 'solver.acceleration_tolerance' measures one body's mass"),
+        (lambda s: s.replace("at = [0.2, 0.1]", "at = [2.0, 0.5]"),
+         r"body 'steel' \(bodies\[0\]\): key 'probes\[0\].at'"),
+    ],
+)  # fmt: skip
+def test_bad_bodies_are_refused_naming_the_body_and_key(comm, shared_tmp_path, edit, message):
+    path = _pair(comm, shared_tmp_path, edit)
+    with pytest.raises(SceneError, match=message):
+        load_any_scene(path)
+    with pytest.raises(SceneError, match=message):
+        run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
+    assert not (shared_tmp_path / "out").exists()
+
+
+def test_a_scene_of_several_bodies_is_not_restarted_nor_taken_by_one_body_commands(comm, shared_tmp_path):
+    path = _pair(comm, shared_tmp_path)
+    with pytest.raises(SceneError, match=r"lists \[\[bodies\]\] \(a scene of several bodies\)"):
+        load_scene(path)
+    with pytest.raises(RunError, match="cannot be restarted"):
+        run_scene(RunOptions(path, shared_tmp_path / "out", restart=shared_tmp_path / "old", progress=False), comm)
+    assert not (shared_tmp_path / "out").exists()
+
+
+def test_the_shipped_scene_of_two_bodies_loads(comm):
+    scene = load_any_scene(REPO / "jobs" / "hanging-pair.toml")
+    assert scene.names == ("cotton", "rubber")
+    assert [b.surface.discretization for b in scene.bodies] == ["hermite", "bspline2"]

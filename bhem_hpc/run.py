@@ -49,6 +49,7 @@ from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, 
 from bhem_hpc.solver.linear import LinearSolverError
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
+from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.state import ShellState
 
 log = logging.getLogger(__name__)
@@ -133,8 +134,9 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
     )
 
 
-def build_contact(scene: Scene, model: ShellModel, solver: ShellSolver):
-    """The scene's :class:`~bhem_hpc.contact.response.ContactHandler`, or None: only scenes that list contact
+def build_contact(scene: Scene, model: ShellModel, problem: ShellProblem, prefix: str = "bhem_contact_"):
+    """The scene's :class:`~bhem_hpc.contact.response.ContactHandler` for ``model`` and its ``problem``
+    in the solver (the response's options under ``prefix``), or None: only scenes that list contact
     effects load the collision code."""
     if scene.contact is None:
         return None
@@ -145,7 +147,7 @@ def build_contact(scene: Scene, model: ShellModel, solver: ShellSolver):
     patches = model.discretization.patches
     detector = ContactDetector(patches, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)
     settings = ContactSettings(c.push_out, metric=c.metric)
-    return ContactHandler(model, solver, detector, settings)
+    return ContactHandler(model, problem, detector, settings, prefix=prefix)
 
 
 def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:
@@ -481,7 +483,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
     :class:`RunInterrupted`."""
     scene, options, model, solver, summary = run.scene, run.options, run.model, run.solver, run.summary
     series, comm, interruption = run.series, run.comm, run.interruption
-    contact = build_contact(scene, model, solver)
+    contact = build_contact(scene, model, solver.problem)
     if contact is not None:
         summary.contact = {"colliders": len(scene.contact.colliders), "sample_points": contact.detector.num_samples}
     stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact, state=run.state)

@@ -139,7 +139,11 @@ def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection
         (lambda s: s.replace('name = "rubber"', 'name = "rubber"\ntime = { dt = 0.01, steps = 1 }'),
          r"key 'bodies\[1\].time': \[time\] is shared by all bodies"),
         (lambda s: s.replace("[bodies.effects]\ngravity", "[bodies.effects]\ncontact = true\ngravity", 1),
-         r"body 'steel': key 'bodies\[0\].effects.contact': contact is not available"),
+         r"body 'steel' \(bodies\[0\]\): 'effects.contact' is listed but there are no 'colliders'"),
+        (lambda s: s + "\n[[colliders]]\ntype = 'plane'\npoint = [0, 0, -1]\nnormal = [0, 0, 1]\n",
+         r"key 'colliders' is given but no body lists 'effects.contact'"),
+        (lambda s: s.replace('name = "rubber"', 'name = "rubber"\ncolliders = []'),
+         r"key 'bodies\[1\].colliders': \[colliders\] is shared by all bodies"),
         (lambda s: s.replace("steps = 4", "steps = 4\nstatic = true"), r"key 'time.static': a scene of several"),
         (lambda s: s.replace("[solver]\n", "[solver]\nacceleration_tolerance = 0.01\n"),
          r"key 'solver.acceleration_tolerance' measures one body's mass"),
@@ -169,3 +173,34 @@ def test_the_shipped_scene_of_two_bodies_loads(comm):
     scene = load_any_scene(REPO / "jobs" / "hanging-pair.toml")
     assert scene.names == ("cotton", "rubber")
     assert [b.surface.discretization for b in scene.bodies] == ["hermite", "bspline2"]
+
+
+#: The two sheets free (no constraints) with contact effects, dropped 5 mm onto a floor: their
+#: contacts with it are each body's own.
+DROPPED = {name: re.sub(r"\[\[constraints\]\]\n(?:[^\[\n].*\n)*", "", tables)
+           .replace("[effects]", "[effects]\ncontact = true\nfriction = 0.3") for name, tables in BODIES.items()}
+FLOOR = """
+[[colliders]]
+type = "plane"
+point = [0.0, 0.0, -0.005]
+normal = [0.0, 0.0, 1.0]
+"""
+
+
+def test_bodies_meet_the_scene_colliders_each_as_alone(comm, shared_tmp_path):
+    """Each body with contact effects meets the scene's colliders as it would alone: the pair's run
+    gives each body's run alone, both lying on the floor."""
+    bodies = DROPPED
+    shared = SHARED.replace("steps = 4", "steps = 8")
+    pair = _write(comm, shared_tmp_path / "dropped.toml",
+                  shared + FLOOR + "".join(_as_body(name, tables) for name, tables in bodies.items()))  # fmt: skip
+    summary = run_scene(RunOptions(pair, shared_tmp_path / "pair", progress=False), comm)
+    assert set(summary["contact"]) == {"steel", "rubber"} and max(s["contacts"] for s in summary["steps"]) > 0
+    for name, tables in bodies.items():
+        run_scene(RunOptions(_write(comm, shared_tmp_path / f"{name}.toml", shared + tables + FLOOR),
+                             shared_tmp_path / name, progress=False), comm)  # fmt: skip
+        together, _ = read_frame(shared_tmp_path / "pair" / name / "surface.h5")
+        single, _ = read_frame(shared_tmp_path / name / "surface.h5")
+        heights = together.nodal[..., 0, 2]
+        assert heights.min() >= -0.005 + 0.5e-4 and heights.max() <= -0.005 + 1.5e-4  # on the floor, pushed out
+        assert np.abs(together.nodal - single.nodal).max() <= 1e-8

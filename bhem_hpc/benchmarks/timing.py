@@ -200,7 +200,7 @@ def scene_benchmark(
     with ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
                      factorization=scene.factorization, linear=scene.linear,
                      acceleration_tolerance=scene.acceleration_tolerance) as solver:  # fmt: skip
-        contact = build_contact(scene, model, solver)
+        contact = build_contact(scene, model, solver.problem)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
         try:
             for _ in range(max(warmup, 1)):

@@ -31,6 +31,7 @@ from bhem_hpc.run import (
     SOLVER_PREFIX,
     RunOptions,
     StepRecords,
+    build_contact,
     build_model,
     on_rank0,
     prescribed_motions,
@@ -158,13 +159,37 @@ def _frame(output: BodiesOutput | None, models: list, probes: list, stepper: Tim
     return surfaces
 
 
+def _contact_handlers(scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary) -> list:
+    """Each body's contact handler (None: a body without contact effects); ``summary.contact`` per body."""
+    handlers = [build_contact(body, model, problem, prefix=f"{SOLVER_PREFIX}contact_{name}_")
+                for name, body, model, problem in zip(scene.names, scene.bodies, models, solver.problem.problems,
+                                                      strict=True)]  # fmt: skip
+    if any(h is not None for h in handlers):
+        summary.contact = {name: {"colliders": len(body.contact.colliders), "sample_points": h.detector.num_samples}
+                           for name, body, h in zip(scene.names, scene.bodies, handlers, strict=True)
+                           if h is not None}  # fmt: skip
+    return handlers
+
+
 def _step(options: RunOptions, scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary,
           output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
     """Advance every body ``steps`` time steps, writing frames every ``output.every`` steps and the
     last; returns the bodies' final surfaces."""
-    stepper = TimeStepper(models, solver, _motions(scene))
+    handlers = _contact_handlers(scene, models, solver, summary)
+    try:
+        contact = handlers if any(h is not None for h in handlers) else None
+        return _advance(options, scene, models, TimeStepper(models, solver, _motions(scene), contact=contact),
+                        summary, output, steps)  # fmt: skip
+    finally:
+        for handler in handlers:
+            if handler is not None:
+                handler.close()
+
+
+def _advance(options: RunOptions, scene: BodiesScene, models: list, stepper: TimeStepper, summary: RunSummary,
+             output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
     probes = [ProbeSet(m, body.probes) if body.probes else None for m, body in zip(models, scene.bodies, strict=True)]
-    surfaces = _frame(output, models, probes, stepper, comm := solver.bodies.comm)
+    surfaces = _frame(output, models, probes, stepper, comm := stepper.solver.bodies.comm)
     records = StepRecords(options.out, summary, comm)
     progress = progress_bar(steps, options.progress and comm.rank == 0)
     every = scene.first.output_every

@@ -13,8 +13,8 @@ from petsc4py import PETSc
 
 from bhem_hpc import forms
 from bhem_hpc.model.jit import compilation_report, default_jit_params
-from bhem_hpc.solver.newton import ShellSolver
 from bhem_hpc.solver.petsc import PetscOwner, SolverError, mumps_infog, push_options
+from bhem_hpc.solver.problem import ShellProblem
 
 
 class ContactProjector(PetscOwner):
@@ -39,7 +39,8 @@ class ContactProjector(PetscOwner):
     the row's other directions (friction's tangents).
 
     Args:
-        solver: the model's solver (its constrained rows and seam prolongation are reused).
+        problem: the model's problem (its constrained rows and seam prolongation are reused): a
+            solver's ``problem``, or one body's among several (``StackedProblem.problems``).
         prefix: PETSc options prefix of the metric's KSP.
         options: PETSc options (without prefix) overriding the defaults.
         regularization: ``eps`` relative to ``max diag(G^T G) / max diag(W)``.
@@ -49,13 +50,13 @@ class ContactProjector(PetscOwner):
 
     def __init__(
         self,
-        solver: ShellSolver,
+        problem: ShellProblem,
         prefix: str = "bhem_contact_",
         options: Mapping[str, object] | None = None,
         regularization: float = 1e-8,
         smoothing: float = 1.0,
     ):
-        model = solver.model
+        model = problem.model
         if model.dynamics is None:
             raise ValueError("contact response needs a dynamic ShellModel (its mass matrix)")
         self.model = model
@@ -79,20 +80,20 @@ class ContactProjector(PetscOwner):
                 )  # fmt: skip
             matrix = fem_petsc.assemble_matrix(form)
             matrix.assemble()
-            if solver.problem.prolongation is None:
+            if problem.prolongation is None:
                 return matrix
-            closed = matrix.PtAP(solver.problem.prolongation)
+            closed = matrix.PtAP(problem.prolongation)
             matrix.destroy()
             return closed
 
         self.mass = assemble(1.0, smoothing)  # M + S: the metric without a Jacobian
         self.smoothing = assemble(0.0, smoothing)  # S alone, added to dt^2 J
-        self.bc_rows = solver.bc_rows
-        self.bc_local = solver.problem.bc_local
+        self.bc_rows = problem.bc_rows
+        self.bc_local = problem.bc_local
         # Contact rows name entries (the discretization's flat nodal data): their closed DOFs.
         self.entry_block, self.entry_scale = disc.entry_closed_blocks()
         self._constrained_global = np.zeros(3 * disc.num_closed, dtype=bool)
-        for rows in comm.allgather(np.asarray(solver.bc_rows, dtype=np.int64)):
+        for rows in comm.allgather(np.asarray(problem.bc_rows, dtype=np.int64)):
             self._constrained_global[rows] = True
         # Sparse right-hand sides serially only: PETSc 3.18's parallel path stops with MUMPS
         # INFOG(1) = -27 (the sparse RHS pointers do not match); in parallel G^T goes dense.

@@ -39,7 +39,7 @@ from bhem_hpc.contact.metrics import CONTACT_METRICS
 from bhem_hpc.contact.petsc import ContactProjector
 from bhem_hpc.errors import InputError
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.state import StateCorrection
 
 log = logging.getLogger(__name__)
@@ -106,19 +106,22 @@ class ContactHandler:
 
     Args:
         model: a dynamic :class:`ShellModel`.
-        solver: its solver (the projector reuses its constraints).
+        problem: its problem in the solver (``solver.problem``, or the body's among several: the
+            projector reuses its constraints, the ``"jacobian"`` metric its last Jacobian).
         detector: the scene's colliders and sampling.
         settings: push-out distance and loop bounds.
-        options: PETSc options of the projection (prefix ``bhem_contact_``).
+        options: PETSc options of the projection (under ``prefix``).
+        prefix: the projection's PETSc options prefix (one per body).
     """
 
     def __init__(
         self,
         model: ShellModel,
-        solver: ShellSolver,
+        problem: ShellProblem,
         detector: ContactDetector,
         settings: ContactSettings | None = None,
         options=None,
+        prefix: str = "bhem_contact_",
     ):
         self.settings = settings or ContactSettings()
         self.settings.validate()
@@ -126,9 +129,9 @@ class ContactHandler:
             raise InputError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
         self.model = model
         self.detector = detector
-        self.projector = ContactProjector(solver, options=options)
+        self.projector = ContactProjector(problem, prefix=prefix, options=options)
         # the last Newton iteration's Jacobian, at (nearly) the step's end
-        self.jacobian = solver.jacobian if self.settings.metric == "jacobian" else None
+        self.jacobian = problem.jacobian if self.settings.metric == "jacobian" else None
         self.history: list[ContactReport] = []
         self.layout = model.discretization
         self._patch_entries = self.layout.patches.patch_entries()  # (n1 * n2, 16) entries of each patch

@@ -11,8 +11,9 @@ tables a scene of one body has for its shell, and the tables all bodies share at
     ...               # point_constraints, probes: as in a scene of one body
 
 Each body is parsed as the scene of one body it would be alone (with the shared tables), so every
-key means what it means there; an error names the body and the key. Contact between bodies and
-with colliders is not part of a scene of several bodies.
+key means what it means there; an error names the body and the key. ``[[colliders]]`` at the top
+are the scene's colliders: a body whose ``effects`` list ``contact`` meets them (and itself, with
+``self_collision``) as a scene of one body does. Contact between bodies is not resolved.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from bhem_hpc.scene.table import SceneError, Table
 BODY_KEYS = ("name", "surface", "material", "effects", "constraints", "point_constraints", "probes")
 #: The tables every body shares, at the top of the file.
 SHARED_KEYS = ("time", "solver", "output")
+#: The scene's colliders, at the top: every body with contact effects meets them.
+COLLIDERS = "colliders"
 #: Longest body name (it names an output folder).
 MAX_BODY_NAME = 64
 
@@ -61,18 +64,16 @@ def _body_name(t: Table, taken: list[str]) -> str:
                  expected=expected)  # fmt: skip
 
 
-def _check_body(t: Table, name: str) -> None:
-    """What a body's table may not hold: shared tables, contact."""
+def _check_body(t: Table) -> bool:
+    """What a body's table may not hold (shared tables, unknown keys); returns whether its effects
+    list contact."""
     for key in t.data:
-        if key in SHARED_KEYS:
+        if key in (*SHARED_KEYS, COLLIDERS):
             raise SceneError(f"{t.path}: key '{t.key(key)}': [{key}] is shared by all bodies; give it once, at the top")
         if key not in BODY_KEYS:
             t.fail(key, f"absent (a body lists {', '.join(BODY_KEYS)})", t.data[key])
     effects = t.data.get("effects", {})
-    for key in ("contact", "self_collision", "friction"):
-        if isinstance(effects, dict) and key in effects:
-            raise SceneError(f"{t.path}: body '{name}': key '{t.key('effects.' + key)}': contact is not available in "
-                             "a scene of several bodies")  # fmt: skip
+    return isinstance(effects, dict) and "contact" in effects
 
 
 def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dict], Scene]) -> BodiesScene:
@@ -86,7 +87,7 @@ def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dic
     items = top.get("bodies", "a list", check=lambda v: len(v) >= 1 and all(isinstance(b, dict) for b in v),
                     expected="a list of at least one body table ([[bodies]])")  # fmt: skip
     for key in raw:
-        if key != "bodies" and key not in SHARED_KEYS:
+        if key not in ("bodies", COLLIDERS, *SHARED_KEYS):
             hint = "a body's own table (in each [[bodies]])" if key in BODY_KEYS else "unknown"
             raise SceneError(f"{path}: key '{key}' at the top of a scene of several bodies: {hint}; the top holds "
                              f"[[bodies]] and the shared {', '.join(SHARED_KEYS)}")  # fmt: skip
@@ -98,17 +99,21 @@ def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dic
     if isinstance(solver, dict) and "acceleration_tolerance" in solver:
         raise SceneError(f"{path}: key 'solver.acceleration_tolerance' measures one body's mass: not available in a "
                          "scene of several bodies")  # fmt: skip
+    colliders = {COLLIDERS: raw[COLLIDERS]} if COLLIDERS in raw else {}
     names: list[str] = []
     bodies: list[Scene] = []
     for k, item in enumerate(items):
         t = Table(path, f"bodies[{k}]", item)
         name = _body_name(t, names)
-        _check_body(t, name)
+        in_contact = _check_body(t)
         tables = {key: value for key, value in item.items() if key != "name"} | shared
+        tables |= colliders if in_contact else {}
         try:
             bodies.append(parse_one(path, tables))
         except SceneError as exc:
             where = str(exc).removeprefix(f"{path}: ")
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None
         names.append(name)
+    if colliders and all(body.contact is None for body in bodies):
+        raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
     return BodiesScene(path, tuple(names), tuple(bodies), raw)

@@ -42,7 +42,7 @@ def _slide(comm, theta_deg: float, mu: float, steps: int = 40, dt: float = 0.005
     plane = ColliderEntry(Plane([0.0, 0.0, 0.0], normal), mu)
     detector = ContactDetector(S.HermitePatches(rest.grid), [plane], samples_per_side=3)
     with ShellSolver(model, prefix="incline_") as solver:
-        handler = ContactHandler(model, solver, detector)
+        handler = ContactHandler(model, solver.problem, detector)
         stepper = TimeStepper(model, solver, contact=handler)
         before = model.state_surface().nodal[..., 0, :].copy()
         for _ in range(steps):
@@ -82,7 +82,7 @@ def _drop(comm, material, patches, collider, samples=2, steps=60, discretization
     dense = np.meshgrid(u, u, indexing="ij")
     lowest = []
     with ShellSolver(model, prefix="drop_") as solver:
-        handler = ContactHandler(model, solver, detector)
+        handler = ContactHandler(model, solver.problem, detector)
         stepper = TimeStepper(model, solver, contact=handler)
         for _ in range(steps):
             stepper.advance()
@@ -157,7 +157,7 @@ def test_pair_impulses_conserve_momentum_and_meet_their_rows(comm, rng, metric):
     model = ShellModel(rest, SHEET, comm=comm, dynamics=Dynamics(0.01))
     grid = rest.grid
     with ShellSolver(model, prefix="pair_") as solver:
-        projector = ContactProjector(solver)
+        projector = ContactProjector(solver.problem)
         count = 5
         a = point_weights(
             grid, rng.integers(0, 2, count), rng.integers(0, 5, count), rng.random(count), rng.random(count)
@@ -216,7 +216,7 @@ def test_scalar_mass_metric_equals_the_vector_one(comm, rng):
     changes = []
     with ShellSolver(model, prefix="scalar_") as solver:
         for scalar in (True, False):
-            projector = ContactProjector(solver)
+            projector = ContactProjector(solver.problem)
             assert projector.scalar_metric
             projector.scalar_metric = scalar
             projector.set_metric()
@@ -232,7 +232,7 @@ def test_scalar_mass_metric_equals_the_vector_one(comm, rng):
     held_z = [NodalConstraint(edge_nodes(grid, "xi1_min"), (0,), (2,))]
     model = ShellModel(rest, SHEET, constraints=held_z, comm=comm, dynamics=Dynamics(0.01))
     with ShellSolver(model, prefix="vector_") as solver:
-        projector = ContactProjector(solver)
+        projector = ContactProjector(solver.problem)
         assert not projector.scalar_metric
         projector.close()
 
@@ -381,7 +381,7 @@ def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm
     before = momentum()
     separations = []
     with ShellSolver(model, prefix="hairpin_") as solver:
-        handler = ContactHandler(model, solver, detector)
+        handler = ContactHandler(model, solver.problem, detector)
         stepper = TimeStepper(model, solver, contact=handler)
         for _ in range(20):
             stepper.advance()

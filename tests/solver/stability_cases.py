@@ -97,7 +97,8 @@ def plane_drop_case(comm):
     plane = Plane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0])
 
     def contact(model, solver):
-        return ContactHandler(model, solver, ContactDetector(S.HermitePatches(rest.grid), [ColliderEntry(plane, 0.3)]))
+        detector = ContactDetector(S.HermitePatches(rest.grid), [ColliderEntry(plane, 0.3)])
+        return ContactHandler(model, solver.problem, detector)
 
     return run_case(model, 40, energy_tolerance=1e-3, contact=contact)
 
@@ -180,7 +181,7 @@ def ball_drop_case(comm, steps: int = 25):
     ball = ColliderEntry(Sphere([0.03, 0.01, -0.1], 0.1), 0.2)
 
     def contact(model, solver):
-        return ContactHandler(model, solver, ContactDetector(S.HermitePatches(rest.grid), [ball]))
+        return ContactHandler(model, solver.problem, ContactDetector(S.HermitePatches(rest.grid), [ball]))
 
     return run_case(model, steps, energy_tolerance=None, contact=contact)
 
@@ -233,7 +234,7 @@ def job_case(job: str, steps: int, comm, imperfection: float = 0.0) -> tuple[flo
     dense = np.meshgrid(a, b, indexing="ij")
     lowest = np.inf
     with ShellSolver(model, prefix="job_", options=scene.petsc_options) as solver:
-        contact = build_contact(scene, model, solver)
+        contact = build_contact(scene, model, solver.problem)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
         for _ in range(steps):
             report = stepper.advance()  # raises StepFailure if a step cannot be completed

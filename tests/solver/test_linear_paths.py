@@ -26,7 +26,7 @@ def step_scene(comm, scene, steps: int, **solver_args) -> tuple[np.ndarray, dict
     """Positions (gathered raw DOFs) after ``steps`` steps of a scene, and the solver's counters."""
     model = build_model(scene, comm)
     with ShellSolver(model, prefix="lin_", options=scene.petsc_options, **solver_args) as solver:
-        contact = build_contact(scene, model, solver)
+        contact = build_contact(scene, model, solver.problem)
         stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact)
         for _ in range(steps):
             stepper.advance()

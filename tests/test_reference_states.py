@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import BASE
+from helpers import BASE, REPO
 
 from bhem_hpc.benchmarks import reference_states as rs
 
@@ -49,6 +49,21 @@ def test_a_small_job_run_twice_gives_the_same_state_bit_for_bit(shared_tmp_path,
         assert set(first.arrays) == set(rs.STATE_ARRAYS)
         assert rs.state_difference(first, second) == 0.0
         assert np.abs(first.arrays["velocity_dofs"]).max() > 1e-3  # it moved
+
+
+def test_a_job_of_several_bodies_is_recorded_by_each_bodys_last_frame(shared_tmp_path, comm):
+    """A scene of several bodies writes no checkpoint: its state is each body's last frame."""
+    jobs = shared_tmp_path / "jobs"
+    if comm.rank == 0:
+        jobs.mkdir()
+        (jobs / "pair.toml").write_text((REPO / "jobs" / "hanging-pair.toml").read_text())
+    comm.Barrier()
+    [scene] = rs.job_files(["pair"], jobs)
+    first = rs.run_job(scene, shared_tmp_path / "runs", 2, comm)
+    second = rs.run_job(scene, shared_tmp_path / "again", 2, comm)
+    if comm.rank == 0:
+        assert set(first.arrays) == {"cotton_position_nodal", "rubber_position_nodal"} and first.steps == 2
+        assert rs.state_difference(first, second) == 0.0
 
 
 def test_bad_arguments_are_refused_by_name(tmp_path):

@@ -59,19 +59,26 @@ def job_files(names: list[str] | None, directory: Path = JOBS_DIRECTORY) -> list
 
 
 def run_job(scene_file: Path, runs: Path, steps: int, comm: MPI.Comm) -> JobState | None:
-    """Run ``scene_file`` for ``steps`` steps into ``runs/<job>``; its final state (rank 0; None elsewhere)."""
-    from bhem_hpc.io import read_checkpoint
+    """Run ``scene_file`` for ``steps`` steps into ``runs/<job>``; its final state (rank 0; None elsewhere):
+    the checkpoint's arrays, or for a scene of several bodies (no checkpoint) each body's last frame
+    (``<body>/position_nodal``: nodal data or control points)."""
+    from bhem_hpc.io import read_checkpoint, read_frame
     from bhem_hpc.run import RunOptions, run_scene
 
     out = runs / scene_file.stem
     summary = run_scene(RunOptions(scene_file, out, steps=steps, force=True, progress=False), comm)
     if comm.rank != 0:
         return None
-    arrays, _ = read_checkpoint(out / "checkpoint.h5")
+    if "bodies" in summary:
+        arrays = {f"{body['name']}_position_nodal": read_frame(out / body["name"] / "surface.h5")[0].nodal
+                  for body in summary["bodies"]}  # fmt: skip
+    else:
+        arrays, _ = read_checkpoint(out / "checkpoint.h5")
+        arrays = {name: arrays[name] for name in STATE_ARRAYS if name in arrays}
     records = summary["steps"]
     iterations = sum(int(r.get("newton_iterations", r.get("iterations", 0))) for r in records)
     return JobState(scene_file.stem, len(records), summary["status"], iterations,
-                    {name: np.asarray(arrays[name]) for name in STATE_ARRAYS if name in arrays})  # fmt: skip
+                    {name: np.asarray(value) for name, value in arrays.items()})  # fmt: skip
 
 
 def save_states(path: Path, states: list[JobState]) -> None:

@@ -59,11 +59,11 @@ def _model(comm, tmp_path, name, discretization, material, z=0.0, x0=0.0, rest=H
     return build_model(load_scene(path), comm)
 
 
-def _held_pair(comm, tmp_path):
+def _held_pair(comm, tmp_path, tag=""):
     """A clamped steel Hermite sheet and a clamped rubber quadratic B-spline sheet 5 cm above it,
     hanging under gravity."""
-    return [_model(comm, tmp_path, "steel", "hermite", STEEL),
-            _model(comm, tmp_path, "rubber", "bspline2", RUBBER, z=0.05)]  # fmt: skip
+    return [_model(comm, tmp_path, f"steel{tag}", "hermite", STEEL),
+            _model(comm, tmp_path, f"rubber{tag}", "bspline2", RUBBER, z=0.05)]  # fmt: skip
 
 
 def _step(models, steps, contributions=(), prefix="bodies_"):
@@ -88,6 +88,18 @@ def test_bodies_in_one_solve_step_as_each_steps_alone(comm, shared_tmp_path):
         assert difference <= 1e-6 * moved
         np.testing.assert_allclose(one.velocity.x.array, other.velocity.x.array, rtol=0, atol=1e-6 * moved / 0.01)
     assert all(k >= 2 for k in iterations)
+
+
+@pytest.mark.parallel
+def test_two_ranks_step_two_bodies_as_one_rank(comm, shared_tmp_path):
+    here = _held_pair(comm, shared_tmp_path)
+    _step(here, 3, prefix="ranks_")
+    serial = _held_pair(MPI.COMM_SELF, shared_tmp_path, tag=f"-self-{comm.rank}")
+    _step(serial, 3, prefix="self_")
+    for ours, theirs in zip(here, serial, strict=True):
+        moved = np.abs(theirs.state_surface().nodal - theirs.rest_surface.nodal).max()
+        assert moved > 1e-5
+        assert np.abs(ours.state_surface().nodal - theirs.state_surface().nodal).max() <= 1e-6 * moved
 
 
 def _momentum(model) -> np.ndarray:

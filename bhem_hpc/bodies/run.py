@@ -102,7 +102,8 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
     models = [build_model(body, comm) for body in scene.bodies]
     try:
         solver = ShellSolver(models, prefix=SOLVER_PREFIX, options=first.petsc_options,
-                             factorization=first.factorization, linear=first.linear)  # fmt: skip
+                             factorization=first.factorization, linear=first.linear,
+                             acceleration_tolerance=first.acceleration_tolerance)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{options.scene}: key 'solver.linear' = {first.linear!r}: {exc}") from None
     summary = RunSummary(

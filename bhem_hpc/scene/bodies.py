@@ -95,10 +95,6 @@ def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dic
     time = shared.get("time", {})
     if isinstance(time, dict) and time.get("static", False) is True:
         raise SceneError(f"{path}: key 'time.static': a scene of several bodies is time-stepped (dt and steps)")
-    solver = shared.get("solver", {})
-    if isinstance(solver, dict) and "acceleration_tolerance" in solver:
-        raise SceneError(f"{path}: key 'solver.acceleration_tolerance' measures one body's mass: not available in a "
-                         "scene of several bodies")  # fmt: skip
     colliders = {COLLIDERS: raw[COLLIDERS]} if COLLIDERS in raw else {}
     names: list[str] = []
     bodies: list[Scene] = []

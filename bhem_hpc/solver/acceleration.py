@@ -103,6 +103,11 @@ class AccelerationResidual(PetscOwner):
 
     def rms(self, residual: PETSc.Vec) -> float:
         """Collective: ``a_rms`` of ``residual`` (closed layout; its constrained rows left out)."""
+        self.last = float(np.sqrt(self.mass_norm_squared(residual) / self.mass))
+        return self.last
+
+    def mass_norm_squared(self, residual: PETSc.Vec) -> float:
+        """Collective: ``r^T M^-1 r`` of ``residual`` (closed layout; constrained rows left out) [N^2 / kg]."""
         residual.copy(self.force)
         if len(self.constrained_local):
             self.force.array[self.constrained_local] = 0.0
@@ -111,8 +116,7 @@ class AccelerationResidual(PetscOwner):
         if reason < 0:
             raise SolverError(f"KSP solver '{self.prefix}' (the mass solve of the acceleration residual) failed: "
                               f"{KSP_REASONS.get(reason, reason)}")  # fmt: skip
-        self.last = float(np.sqrt(max(self.force.dot(self.acceleration), 0.0) / self.mass))
-        return self.last
+        return max(self.force.dot(self.acceleration), 0.0)
 
     def close(self) -> None:
         """Destroy the mass matrix, its solver and vectors (idempotent)."""
@@ -123,11 +127,49 @@ class AccelerationResidual(PetscOwner):
             obj.destroy()
 
 
+class BodiesAccelerationResidual(PetscOwner):
+    """``a_rms`` of several bodies in one residual: ``sqrt(sum_b r_b^T M_b^-1 r_b / sum_b m_b)``, each
+    body's mass its own (the bodies' mass matrix is block diagonal).
+
+    Args:
+        residuals: one :class:`AccelerationResidual` per body (owned and closed by this object).
+        slices: where each body's closed DOFs sit in this rank's part of the stacked residual.
+    """
+
+    def __init__(self, residuals: list[AccelerationResidual], slices: list[slice]):
+        self.residuals, self.slices = residuals, slices
+        self.mass = sum(r.mass for r in residuals)
+        self._closed = False
+        self.last = float("nan")
+
+    def rms(self, residual: PETSc.Vec) -> float:
+        """Collective: ``a_rms`` of the stacked ``residual``."""
+        values = residual.array_r
+        total = 0.0
+        for body, part in zip(self.residuals, self.slices, strict=True):
+            piece = body.force.duplicate()
+            try:
+                piece.array[:] = values[part]
+                total += body.mass_norm_squared(piece)
+            finally:
+                piece.destroy()
+        self.last = float(np.sqrt(total / self.mass))
+        return self.last
+
+    def close(self) -> None:
+        """Close every body's residual (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        for residual in self.residuals:
+            residual.close()
+
+
 @dataclass(frozen=True)
 class AccelerationTest:
     """A solver's acceleration stopping test: the residual's measure and its tolerance [m/s^2]."""
 
-    residual: AccelerationResidual
+    residual: AccelerationResidual | BodiesAccelerationResidual
     tolerance: float
 
 
@@ -177,10 +219,16 @@ def attach_acceleration_test(solver: ShellSolver, tolerance: float) -> Accelerat
     ``<solver prefix>mass_``); the energy trust region takes the test from ``solver.acceleration``."""
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"acceleration_tolerance must be a number > 0 [m/s^2], got {tolerance!r}")
-    if len(solver.bodies) > 1:
-        raise ValueError("acceleration_tolerance measures one body's mass: not available for several bodies")
-    problem = solver.problem
-    residual = AccelerationResidual(solver.model, problem.prolongation, problem.bc_rows, problem.bc_local,
-                                    solver.prefix + "mass_", direct=solver.linear.kind == "direct")  # fmt: skip
+    problem, direct = solver.problem, solver.linear.kind == "direct"
+    if len(solver.bodies) == 1:
+        residual = AccelerationResidual(solver.model, problem.prolongation, problem.bc_rows, problem.bc_local,
+                                        solver.prefix + "mass_", direct=direct)  # fmt: skip
+    else:  # each body's mass solve under its own prefix
+        residual = BodiesAccelerationResidual(
+            [AccelerationResidual(body.model, body.prolongation, body.bc_rows, body.bc_local,
+                                  f"{solver.prefix}mass_{k}_", direct=direct)
+             for k, body in enumerate(problem.problems)],
+            [problem.closed.local_slice(k) for k in range(len(problem.problems))],
+        )  # fmt: skip
     solver.snes.setConvergenceTest(snes_acceleration_test, kargs={"residual": residual, "tolerance": tolerance})
     return AccelerationTest(residual, tolerance)

@@ -17,6 +17,7 @@ from bhem_hpc.scene.loader import load_scene
 from bhem_hpc.solver.dynamics import PrescribedMotion, TimeStepper
 from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.newton import ShellSolver
+from bhem_hpc.solver.state import ShellState
 
 SIZE = 0.2
 #: A square sheet, time-stepped at dt, optionally clamped along xi1 = 0 and under gravity.
@@ -154,6 +155,33 @@ def test_bodies_that_cannot_share_a_solve_are_refused(comm, shared_tmp_path):
         ModelGroup([steel, slower])
     with pytest.raises(ValueError, match="at least one shell model"):
         ModelGroup([])
-    with pytest.raises(ValueError, match="not available for several bodies"):
-        ShellSolver([steel, _model(comm, shared_tmp_path, "other", "hermite", STEEL)], "accel_",
-                    acceleration_tolerance=1e-2)  # fmt: skip
+
+
+def test_the_acceleration_of_several_bodies_weighs_each_by_its_mass(comm, shared_tmp_path):
+    """Two free sheets at rest under different gravity: the first residual is each body's ``-M_b g_b``,
+    so ``a_rms = sqrt((m_1 |g_1|^2 + m_2 |g_2|^2) / (m_1 + m_2))``; a step with the tolerance lets
+    each fall freely."""
+    gravities = ([1.0, -2.0, -9.5], [0.0, 0.0, -3.0])
+    models = [_model(comm, shared_tmp_path, f"free{k}", discretization, material, x0=0.3 * k,
+                     rest=f"[effects]\ngravity = {g}\n")
+              for k, (discretization, material, g) in enumerate(zip(("hermite", "bspline2"), (STEEL, RUBBER),
+                                                                    gravities, strict=True))]  # fmt: skip
+    masses = [m["density"] * m["thickness"] * SIZE**2 for m in (STEEL, RUBBER)]
+    expected = np.sqrt(sum(mass * np.dot(g, g) for mass, g in zip(masses, gravities, strict=True)) / sum(masses))
+    dt = 0.01
+    with ShellSolver(models, "accel_", acceleration_tolerance=1e-2) as solver:
+        for model in models:
+            ShellState(model).begin_step(dt)
+        problem = solver.problem
+        problem.state_to_vector(solver.x)
+        problem.update_state(solver.x)
+        problem.assemble_residual(solver.x, solver.f)
+        residual = solver.acceleration.residual
+        assert residual.mass == pytest.approx(sum(masses), rel=1e-12)
+        assert residual.rms(solver.f) == pytest.approx(expected, rel=1e-9)
+        for model in models:  # the step starts again at rest
+            model.x.x.array[:] = model.x_previous.x.array
+        TimeStepper(models, solver).advance()
+    for model, g in zip(models, gravities, strict=True):  # each falls freely: x_1 = x_0 + dt^2 g_b
+        fall = model.state_surface().nodal[..., 0, :] - model.rest_surface.nodal[..., 0, :]
+        np.testing.assert_allclose(fall, np.broadcast_to(dt**2 * np.asarray(g), fall.shape), rtol=0, atol=1e-9 * dt**2)

@@ -209,12 +209,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
                 f"{checkpoint.path}: its DOFs have shape {checkpoint.arrays['position_dofs'].shape}, "
                 f"this run's {expected}"
             )
-    try:
-        solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
-                             factorization=scene.factorization, linear=scene.linear,
-                             acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
-    except LinearSolverError as exc:
-        raise RunError(f"{options.scene}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
+    solver = make_solver(model, scene, options.scene)
     summary = RunSummary(
         scene=str(options.scene),
         physics_hash=physics_hash(scene),
@@ -240,25 +235,45 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         title = f"{options.scene.name}, {where}"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
     except Exception as exc:
-        summary.status, summary.error = "interrupted" if isinstance(exc, RunInterrupted) else "failed", str(exc)
-        if comm.rank == 0 and options.out.is_dir():
-            try:
-                summary.write(options.out)
-            except OSError:
-                log.error("could not record the failure in %s/summary.json", options.out)
+        record_failure(summary, exc, options.out, comm)
         raise
     finally:
         if run.series is not None:
             run.series.close()
-        report_unused_options(solver, summary, comm)
-        summary.linear_solver_fallbacks = solver.fallbacks
-        summary.solver_totals = {
-            k: v for k, v in solver.counters().items() if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)
-        }
-        solver.close()
+        close_solver(solver, summary, comm)
     summary.status = "completed"
     on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()
+
+
+def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: Path) -> ShellSolver:
+    """The run's solver of ``model`` (or several bodies' models) with the scene's ``[solver]``
+    settings (a scene of several bodies: any body's, they share them)."""
+    try:
+        return ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
+                           factorization=scene.factorization, linear=scene.linear,
+                           acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
+    except LinearSolverError as exc:
+        raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
+
+
+def record_failure(summary: RunSummary, exc: Exception, out: Path, comm: MPI.Comm) -> None:
+    """``summary.json`` says why the run stopped (``interrupted`` by a signal, else ``failed``), if
+    its output directory was started (rank 0 writes)."""
+    summary.status, summary.error = "interrupted" if isinstance(exc, RunInterrupted) else "failed", str(exc)
+    if comm.rank == 0 and out.is_dir():
+        try:
+            summary.write(out)
+        except OSError:
+            log.error("could not record the failure in %s/summary.json", out)
+
+
+def close_solver(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:
+    """The solver's unused options, fallbacks and totals into the summary; then close it."""
+    report_unused_options(solver, summary, comm)
+    summary.linear_solver_fallbacks = solver.fallbacks
+    summary.solver_totals = {k: v for k, v in solver.counters().items() if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)}
+    solver.close()
 
 
 def report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:

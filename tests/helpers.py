@@ -258,3 +258,34 @@ def paraview_read(*paths: Path) -> dict:
                           capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout)
+
+
+#: Real materials of the sheets the tests of several bodies use: sheet steel and rubber.
+STEEL = {"young": 2.1e11, "poisson": 0.3, "thickness": 1e-3, "density": 7850.0}
+RUBBER = {"young": 5.0e6, "poisson": 0.49, "thickness": 2e-3, "density": 1100.0}
+#: A square sheet of side {size} at {origin} (a scene of one body); ``time`` and ``rest`` are the
+#: scene's [time] table and anything after (effects, constraints).
+SHEET = """
+[surface]
+kind = "rectangle"
+size = [{size}, {size}]
+patches = [4, 4]
+discretization = "{discretization}"
+origin = {origin}
+[material]
+young = {young}
+poisson = {poisson}
+thickness = {thickness}
+density = {density}
+[time]
+{time}
+{rest}
+"""
+#: A sheet's edge xi1 = 0 clamped, under gravity (``rest`` of :data:`SHEET`).
+CLAMPED = """
+[effects]
+gravity = [0.0, 0.0, -9.81]
+[[constraints]]
+type = "clamp"
+edge = "xi1_min"
+"""

@@ -33,17 +33,17 @@ from bhem_hpc.run import (
     StepRecords,
     build_contact,
     build_model,
+    close_solver,
+    make_solver,
     on_rank0,
     prescribed_motions,
     progress_bar,
-    report_unused_options,
+    record_failure,
     step_summary,
 )
 from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper
-from bhem_hpc.solver.linear import LinearSolverError
-from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
 
 log = logging.getLogger(__name__)
@@ -100,12 +100,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
     steps = options.steps if options.steps is not None else first.steps
     scene_text = options.scene.read_bytes()
     models = [build_model(body, comm) for body in scene.bodies]
-    try:
-        solver = ShellSolver(models, prefix=SOLVER_PREFIX, options=first.petsc_options,
-                             factorization=first.factorization, linear=first.linear,
-                             acceleration_tolerance=first.acceleration_tolerance)  # fmt: skip
-    except LinearSolverError as exc:
-        raise RunError(f"{options.scene}: key 'solver.linear' = {first.linear!r}: {exc}") from None
+    solver = make_solver(models, first, options.scene)
     summary = RunSummary(
         scene=str(options.scene), physics_hash=_physics_hash(scene), solution_method=solution_method(first),
         dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
@@ -128,21 +123,12 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
         title = f"{options.scene.name}, t = {summary.time or 0:.4g} s"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", surfaces, title), "last.png")
     except Exception as exc:
-        summary.status, summary.error = "interrupted" if isinstance(exc, RunInterrupted) else "failed", str(exc)
-        if comm.rank == 0 and options.out.is_dir():
-            try:
-                summary.write(options.out)
-            except OSError:
-                log.error("could not record the failure in %s/summary.json", options.out)
+        record_failure(summary, exc, options.out, comm)
         raise
     finally:
         if output is not None:
             output.close()
-        report_unused_options(solver, summary, comm)
-        summary.linear_solver_fallbacks = solver.fallbacks
-        summary.solver_totals = {k: v for k, v in solver.counters().items()
-                                 if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)}  # fmt: skip
-        solver.close()
+        close_solver(solver, summary, comm)
     summary.status = "completed"
     on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()

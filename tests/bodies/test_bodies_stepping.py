@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from dolfinx import fem
-from helpers import TwoBodySpring
+from helpers import CLAMPED, RUBBER, SHEET, STEEL, TwoBodySpring
 from mpi4py import MPI
 
 from bhem_hpc.bodies.petsc import StackedBlocks
@@ -20,42 +20,15 @@ from bhem_hpc.solver.newton import ShellSolver
 from bhem_hpc.solver.state import ShellState
 
 SIZE = 0.2
-#: A square sheet, time-stepped at dt, optionally clamped along xi1 = 0 and under gravity.
-SHEET = """
-[surface]
-kind = "rectangle"
-size = [{size}, {size}]
-patches = [4, 4]
-discretization = "{discretization}"
-origin = [{x0}, 0.0, {z}]
-[material]
-young = {young}
-poisson = {poisson}
-thickness = {thickness}
-density = {density}
-[time]
-dt = {dt}
-steps = 3
-{rest}
-"""
-HELD = """
-[effects]
-gravity = [0.0, 0.0, -9.81]
-[[constraints]]
-type = "clamp"
-edge = "xi1_min"
-"""
-STEEL = {"young": 2.1e11, "poisson": 0.3, "thickness": 1e-3, "density": 7850.0}
-RUBBER = {"young": 5.0e6, "poisson": 0.49, "thickness": 2e-3, "density": 1100.0}
 #: tight Newton tolerances, so that one solve of two bodies and two solves of one agree closely
 TIGHT = {"snes_rtol": 1e-12, "snes_stol": 0.0}
 
 
-def _model(comm, tmp_path, name, discretization, material, z=0.0, x0=0.0, rest=HELD, dt=0.01):
+def _model(comm, tmp_path, name, discretization, material, z=0.0, x0=0.0, rest=CLAMPED, dt=0.01):
     path = tmp_path / f"{name}.toml"
     if comm.rank == 0:
-        path.write_text(SHEET.format(size=SIZE, discretization=discretization, z=z, x0=x0, rest=rest, dt=dt,
-                                     **material))  # fmt: skip
+        path.write_text(SHEET.format(size=SIZE, discretization=discretization, origin=[x0, 0.0, z],
+                                     time=f"dt = {dt}\nsteps = 3", rest=rest, **material))  # fmt: skip
     comm.Barrier()
     return build_model(load_scene(path), comm)
 

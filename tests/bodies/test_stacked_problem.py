@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import TwoBodySpring, gather, gather_matrix
+from helpers import CLAMPED, RUBBER, SHEET, STEEL, TwoBodySpring, gather, gather_matrix
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import StackedLayout
@@ -18,29 +18,6 @@ from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.report import SolveReport
 
 SIZE = 0.2
-#: A square sheet clamped along xi1 = 0 under gravity; steel (2.1e11 Pa, 1 mm) or rubber (5 MPa, 2 mm).
-SHEET = """
-[surface]
-kind = "rectangle"
-size = [{size}, {size}]
-patches = [4, 4]
-discretization = "{discretization}"
-origin = [0.0, 0.0, {z}]
-[material]
-young = {young}
-poisson = {poisson}
-thickness = {thickness}
-density = {density}
-[time]
-static = true
-[effects]
-gravity = [0.0, 0.0, -9.81]
-[[constraints]]
-type = "clamp"
-edge = "xi1_min"
-"""
-STEEL = {"young": 2.1e11, "poisson": 0.3, "thickness": 1e-3, "density": 7850.0}
-RUBBER = {"young": 5.0e6, "poisson": 0.49, "thickness": 2e-3, "density": 1100.0}
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -78,7 +55,8 @@ def _models(comm, tmp_path, point_loads=((), ()), upper=RUBBER):
     models = []
     for k, (discretization, material, z) in enumerate((("hermite", STEEL, 0.0), ("bspline2", upper, 0.05))):
         path = tmp_path / f"body{k}.toml"
-        text = SHEET.format(size=SIZE, discretization=discretization, z=z, **material)
+        text = SHEET.format(size=SIZE, discretization=discretization, origin=[0.0, 0.0, z], time="static = true",
+                            rest=CLAMPED, **material)  # fmt: skip
         if point_loads[k]:
             loads = ", ".join(f"{{ at = [{a}, {b}], force = [{fx!r}, {fy!r}, {fz!r}] }}"
                               for (a, b), (fx, fy, fz) in point_loads[k])  # fmt: skip

@@ -123,7 +123,7 @@ def test_closed_surfaces_rigid_motion_zero_energy_and_closed_residual(comm, rng,
         return solver.f.norm(), sum(model.energies().values())
 
     with ShellSolver(model) as solver:
-        assert solver.prolongation is not None
+        assert solver.problem.prolongation is not None
         reference_residual, reference_energy = closed_residual_and_energy(deformed(rest, rng, 0.01))
         assert reference_residual > 0 and reference_energy > 0
         residual, energy = closed_residual_and_energy(rest.transformed(random_rotation(rng), rng.normal(size=3)))

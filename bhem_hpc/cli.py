@@ -142,6 +142,7 @@ def _parser() -> argparse.ArgumentParser:
 def _render(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.io import read_frame
     from bhem_hpc.io.render import render, write_png
+    from bhem_hpc.io.run_directory import manifest_bodies
 
     if comm.rank != 0:  # serial: one rank renders
         return
@@ -151,16 +152,22 @@ def _render(args: argparse.Namespace, comm) -> None:
         raise InputError(f"--size must be WIDTHxHEIGHT, got {args.size!r}") from exc
     if not (1 <= width <= 4096 and 1 <= height <= 4096):
         raise InputError(f"--size must be between 1x1 and 4096x4096, got {args.size!r}")
-    h5 = args.directory / "surface.h5"
-    if not h5.is_file():
-        raise InputError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
+    # a run of one body has its series at the top; a run of several, one in each body's folder
+    bodies = manifest_bodies(args.directory) if not (args.directory / "surface.h5").is_file() else []
+    series = [args.directory / body / "surface.h5" for body in bodies] or [args.directory / "surface.h5"]
+    for h5 in series:
+        if not h5.is_file():
+            raise InputError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
     if args.out is not None and not args.out.parent.is_dir():
         raise InputError(f"--out {args.out}: the folder {args.out.parent} does not exist")
-    try:
-        surface, time = read_frame(h5, args.frame)
-    except (OSError, KeyError, TypeError) as exc:
-        raise InputError(f"{h5}: not a readable surface series ({exc})") from None
-    image, mask = render(surface, width, height)
+    surfaces = []
+    for h5 in series:
+        try:
+            surface, time = read_frame(h5, args.frame)
+        except (OSError, KeyError, TypeError) as exc:
+            raise InputError(f"{h5}: not a readable surface series ({exc})") from None
+        surfaces.append(surface)
+    image, mask = render(surfaces, width, height)
     out = args.out or args.directory / f"frame_{args.frame if args.frame >= 0 else 'last'}.png"
     write_png(out, image)
     print(f"rendered t = {time:.6g} s, {width}x{height}, {int(mask.sum())} pixels on the surface: {out}")

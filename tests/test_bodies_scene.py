@@ -7,10 +7,12 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import matplotlib.image
 import numpy as np
 import pytest
 from helpers import REPO, paraview_read
 
+from bhem_hpc import cli
 from bhem_hpc.io import read_frame
 from bhem_hpc.run import RunError, RunOptions, run_scene
 from bhem_hpc.scene import SceneError, load_scene
@@ -112,6 +114,12 @@ def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection
         collection = paraview_read(out / "bodies.pvd")[str(out / "bodies.pvd")][".pvd"]
         assert collection["times"] == [0.0, 0.02, 0.04]
         assert all(frame["leaves"] == 2 for frame in collection["frames"].values())
+        # bhem-hpc render ray-traces every body of the last frame, each in its colour
+        assert cli.main(["render", str(out), "--size", "120x90", "--out", str(shared_tmp_path / "both.png")]) == 0
+        image = matplotlib.image.imread(shared_tmp_path / "both.png")[..., :3]
+        covered = image.min(axis=2) < 0.99
+        blue, orange = image[..., 2] > image[..., 0] + 0.2, image[..., 0] > image[..., 2] + 0.2
+        assert (blue & covered).sum() > 20 and (orange & covered).sum() > 20
     comm.Barrier()
     # a second --force run replaces the first; a folder holding files of its own is kept and refused
     run_scene(RunOptions(_pair(comm, shared_tmp_path), out, steps=1, force=True, progress=False), comm)

@@ -49,11 +49,12 @@ class OutputDirectoryError(UserError, ValueError):
 def foreign_entries(out: Path, most: int = 5) -> list[str]:
     """Up to ``most`` entries of ``out`` (relative paths) that no run of this tool writes (a run of
     several bodies writes a folder per body, named in its manifest)."""
-    return _foreign_in(out, "", set(_manifest_bodies(out)), most)
+    return _foreign_in(out, "", set(manifest_bodies(out)), most)
 
 
-def _manifest_bodies(out: Path) -> list[str]:
-    """The body folders the manifest of ``out`` names (none: a run of one body, or no manifest)."""
+def manifest_bodies(out: Path) -> list[str]:
+    """The body folders the manifest of ``out`` names, in the scene's order (none: a run of one
+    body, or no manifest)."""
     try:
         bodies = json.loads((out / MANIFEST).read_text()).get("bodies", [])
     except (OSError, ValueError, AttributeError):

@@ -194,8 +194,9 @@ class PathFollower(PetscOwner):
         self.problem = solver.problem
         self.prefix = prefix
         self._closed = False
-        if self.model.dynamics is not None:
-            raise PathSettingError("path following needs a static model (dynamics = None)")
+        if self.model.dynamics is not None or len(solver.bodies) > 1:
+            raise PathSettingError("path following needs the solver of one static model (dynamics = None), got "
+                                   f"{len(solver.bodies)} bodies")  # fmt: skip
         self.probe_set = ProbeSet(self.model, probes)
         self.probes = self.probe_set.probes
         self.on_point = on_point

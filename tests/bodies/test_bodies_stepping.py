@@ -12,11 +12,13 @@ from mpi4py import MPI
 
 from bhem_hpc.bodies.petsc import StackedBlocks
 from bhem_hpc.forms.kinematics import area_density
+from bhem_hpc.model.path import PathSettingError
 from bhem_hpc.run import build_model
 from bhem_hpc.scene.loader import load_scene
 from bhem_hpc.solver.dynamics import PrescribedMotion, TimeStepper
 from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.newton import ShellSolver
+from bhem_hpc.solver.path import PathFollower
 from bhem_hpc.solver.state import ShellState
 
 SIZE = 0.2
@@ -24,11 +26,11 @@ SIZE = 0.2
 TIGHT = {"snes_rtol": 1e-12, "snes_stol": 0.0}
 
 
-def _model(comm, tmp_path, name, discretization, material, z=0.0, x0=0.0, rest=CLAMPED, dt=0.01):
+def _model(comm, tmp_path, name, discretization, material, z=0.0, x0=0.0, rest=CLAMPED, dt=0.01, time=None):
     path = tmp_path / f"{name}.toml"
     if comm.rank == 0:
         path.write_text(SHEET.format(size=SIZE, discretization=discretization, origin=[x0, 0.0, z],
-                                     time=f"dt = {dt}\nsteps = 3", rest=rest, **material))  # fmt: skip
+                                     time=time or f"dt = {dt}\nsteps = 3", rest=rest, **material))  # fmt: skip
     comm.Barrier()
     return build_model(load_scene(path), comm)
 
@@ -128,6 +130,11 @@ def test_bodies_that_cannot_share_a_solve_are_refused(comm, shared_tmp_path):
         ModelGroup([steel, slower])
     with pytest.raises(ValueError, match="at least one shell model"):
         ModelGroup([])
+    with pytest.raises(ValueError, match="all be static or all be time-stepped"):
+        ModelGroup([steel, _model(comm, shared_tmp_path, "static", "hermite", STEEL, time="static = true")])
+    static = [_model(comm, shared_tmp_path, f"static{k}", "hermite", STEEL, time="static = true") for k in range(2)]
+    with ShellSolver(static, "static_pair_") as solver, pytest.raises(PathSettingError, match="got 2 bodies"):
+        PathFollower(solver)
 
 
 def test_the_acceleration_of_several_bodies_weighs_each_by_its_mass(comm, shared_tmp_path):

@@ -11,7 +11,7 @@ from its start.
 
 from __future__ import annotations
 
-import logging
+import hashlib
 import time
 from pathlib import Path
 
@@ -46,14 +46,12 @@ from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper
 from bhem_hpc.solver.petsc import library_versions
 
-log = logging.getLogger(__name__)
-
 
 class BodiesOutput:
     """Rank 0's files of a run of several bodies: each body's time series and probe table, and the
     collection of all bodies' frames (``bodies.pvd``)."""
 
-    def __init__(self, out: Path, scene: BodiesScene, models: list):
+    def __init__(self, out: Path, scene: BodiesScene):
         self.out = out
         self.names = scene.names
         self.series = []
@@ -70,8 +68,8 @@ class BodiesOutput:
             series.write(time_value, surface)
         frames, parts = [], []
         for part, (name, series) in enumerate(zip(self.names, self.series, strict=True)):
-            for k, t in enumerate(series.times):
-                frames.append((t, f"{name}/{series.vtu_folder.name}/frame_{k:06d}.vtu"))
+            for t, file in series.frame_files():
+                frames.append((t, f"{name}/{file}"))
                 parts.append(part)
         write_pvd(self.out / "bodies.pvd", frames, parts)
 
@@ -81,8 +79,6 @@ class BodiesOutput:
 
 
 def _physics_hash(scene: BodiesScene) -> str:
-    import hashlib
-
     raw = {k: v for k, v in scene.raw.items() if k != "output"}
     return hashlib.sha256(canonical_json(raw).encode()).hexdigest()[:16]
 
@@ -116,7 +112,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
             start_output_directory(options.out, list(scene.names))
             write_replacing(options.out / "scene.toml", scene_text)
             summary.write(options.out)
-            return BodiesOutput(options.out, scene, models)
+            return BodiesOutput(options.out, scene)
 
         output = on_rank0(comm, start, f"the output directory {options.out}")
         surfaces = _step(options, scene, models, solver, summary, output, steps)
@@ -160,8 +156,8 @@ def _contact_handlers(scene: BodiesScene, models: list, solver: ShellSolver, sum
 
 def _step(options: RunOptions, scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary,
           output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
-    """Advance every body ``steps`` time steps, writing frames every ``output.every`` steps and the
-    last; returns the bodies' final surfaces."""
+    """Advance every body ``steps`` time steps with each body's contact handler (closed at the end);
+    returns the bodies' final surfaces."""
     handlers = _contact_handlers(scene, models, solver, summary)
     try:
         contact = handlers if any(h is not None for h in handlers) else None
@@ -175,6 +171,8 @@ def _step(options: RunOptions, scene: BodiesScene, models: list, solver: ShellSo
 
 def _advance(options: RunOptions, scene: BodiesScene, models: list, stepper: TimeStepper, summary: RunSummary,
              output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
+    """The time steps: frames every ``output.every`` steps, the last one and one a stop signal ends
+    with; a step record each; returns the bodies' final surfaces."""
     probes = [ProbeSet(m, body.probes) if body.probes else None for m, body in zip(models, scene.bodies, strict=True)]
     surfaces = _frame(output, models, probes, stepper, comm := stepper.solver.bodies.comm)
     records = StepRecords(options.out, summary, comm)

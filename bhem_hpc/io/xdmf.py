@@ -268,8 +268,12 @@ class SurfaceTimeSeries:
             + "\n    </Grid>"
         )
         write_replacing(self.path, xml)
+        write_pvd(self.pvd_path, self.frame_files())
+
+    def frame_files(self) -> list[tuple[float, str]]:
+        """``(time, VTK XML file relative to the series' folder)`` of every frame written."""
         folder = self.vtu_folder.name
-        write_pvd(self.pvd_path, [(t, f"{folder}/{self._vtu_path(k).name}") for k, t in enumerate(self.times)])
+        return [(t, f"{folder}/{self._vtu_path(k).name}") for k, t in enumerate(self.times)]
 
     def close(self) -> None:
         """Close the HDF5 file; after a failed write that may fail too, and is then left as it is."""

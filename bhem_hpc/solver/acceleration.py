@@ -103,12 +103,13 @@ class AccelerationResidual(PetscOwner):
 
     def rms(self, residual: PETSc.Vec) -> float:
         """Collective: ``a_rms`` of ``residual`` (closed layout; its constrained rows left out)."""
-        self.last = float(np.sqrt(self.mass_norm_squared(residual) / self.mass))
+        self.last = float(np.sqrt(self.mass_norm_squared(residual.array_r) / self.mass))
         return self.last
 
-    def mass_norm_squared(self, residual: PETSc.Vec) -> float:
-        """Collective: ``r^T M^-1 r`` of ``residual`` (closed layout; constrained rows left out) [N^2 / kg]."""
-        residual.copy(self.force)
+    def mass_norm_squared(self, residual: np.ndarray) -> float:
+        """Collective: ``r^T M^-1 r`` of this rank's owned entries ``residual`` of a closed residual
+        (constrained rows left out) [N^2 / kg]."""
+        self.force.array[:] = residual
         if len(self.constrained_local):
             self.force.array[self.constrained_local] = 0.0
         self.ksp.solve(self.force, self.acceleration)
@@ -145,14 +146,8 @@ class BodiesAccelerationResidual(PetscOwner):
     def rms(self, residual: PETSc.Vec) -> float:
         """Collective: ``a_rms`` of the stacked ``residual``."""
         values = residual.array_r
-        total = 0.0
-        for body, part in zip(self.residuals, self.slices, strict=True):
-            piece = body.force.duplicate()
-            try:
-                piece.array[:] = values[part]
-                total += body.mass_norm_squared(piece)
-            finally:
-                piece.destroy()
+        parts = zip(self.residuals, self.slices, strict=True)
+        total = sum(body.mass_norm_squared(values[part]) for body, part in parts)
         self.last = float(np.sqrt(total / self.mass))
         return self.last
 

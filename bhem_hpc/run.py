@@ -134,20 +134,30 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
     )
 
 
-def build_contact(scene: Scene, model: ShellModel, problem: ShellProblem, prefix: str = "bhem_contact_"):
+def build_contact(scene: Scene, model: ShellModel, problem: ShellProblem):
     """The scene's :class:`~bhem_hpc.contact.response.ContactHandler` for ``model`` and its ``problem``
-    in the solver (the response's options under ``prefix``), or None: only scenes that list contact
-    effects load the collision code."""
+    in the solver, or None: only scenes that list contact effects load the collision code."""
     if scene.contact is None:
         return None
+    from bhem_hpc.contact.response import ContactHandler
+
+    return ContactHandler(model, problem, contact_detector(scene, model), contact_settings(scene))
+
+
+def contact_detector(scene: Scene, model: ShellModel):
+    """The :class:`~bhem_hpc.contact.detection.ContactDetector` of a scene with contact effects."""
     from bhem_hpc.contact.detection import ContactDetector
-    from bhem_hpc.contact.response import ContactHandler, ContactSettings
 
     c = scene.contact
-    patches = model.discretization.patches
-    detector = ContactDetector(patches, c.colliders, c.samples_per_side, c.self_collision, c.self_friction)
-    settings = ContactSettings(c.push_out, metric=c.metric)
-    return ContactHandler(model, problem, detector, settings, prefix=prefix)
+    return ContactDetector(model.discretization.patches, c.colliders, c.samples_per_side, c.self_collision,
+                           c.self_friction)  # fmt: skip
+
+
+def contact_settings(scene: Scene):
+    """The :class:`~bhem_hpc.contact.response.ContactSettings` of a scene with contact effects."""
+    from bhem_hpc.contact.response import ContactSettings
+
+    return ContactSettings(scene.contact.push_out, metric=scene.contact.metric)
 
 
 def prescribed_motions(scene: Scene) -> list[PrescribedMotion]:

@@ -31,9 +31,10 @@ from bhem_hpc.run import (
     SOLVER_PREFIX,
     RunOptions,
     StepRecords,
-    build_contact,
     build_model,
     close_solver,
+    contact_detector,
+    contact_settings,
     make_solver,
     on_rank0,
     prescribed_motions,
@@ -142,31 +143,41 @@ def _frame(output: BodiesOutput | None, models: list, probes: list, stepper: Tim
     return surfaces
 
 
-def _contact_handlers(scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary) -> list:
-    """Each body's contact handler (None: a body without contact effects); ``summary.contact`` per body."""
-    handlers = [build_contact(body, model, problem, prefix=f"{SOLVER_PREFIX}contact_{name}_")
-                for name, body, model, problem in zip(scene.names, scene.bodies, models, solver.problem.problems,
-                                                      strict=True)]  # fmt: skip
-    if any(h is not None for h in handlers):
-        summary.contact = {name: {"colliders": len(body.contact.colliders), "sample_points": h.detector.num_samples}
-                           for name, body, h in zip(scene.names, scene.bodies, handlers, strict=True)
-                           if h is not None}  # fmt: skip
-    return handlers
+def _contact_handler(scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary):
+    """The contact handler of every body whose effects list contact (their colliders, themselves
+    and each other), or None; ``summary.contact`` per body."""
+    in_contact = [body.contact is not None for body in scene.bodies]
+    if not any(in_contact):
+        return None
+    from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries
+    from bhem_hpc.contact.response import ContactHandler
+
+    entries = StackedEntries([m.discretization for m in models], [m.x.x.array.size for m in models])
+    detectors = [contact_detector(body, model) if body.contact is not None else None
+                 for body, model in zip(scene.bodies, models, strict=True)]  # fmt: skip
+    frictions = [body.contact.friction if body.contact is not None else 0.0 for body in scene.bodies]
+    detector = BodiesDetector(entries, detectors, frictions)
+    first = scene.bodies[in_contact.index(True)]
+    prefixes = [f"{SOLVER_PREFIX}contact_{name}_" for name in scene.names]
+    handler = ContactHandler.between_bodies(models, solver.problem.problems, detector, contact_settings(first),
+                                            prefixes)  # fmt: skip
+    summary.contact = {name: {"colliders": len(body.contact.colliders), "sample_points": d.num_samples}
+                       for name, body, d in zip(scene.names, scene.bodies, detectors, strict=True)
+                       if d is not None}  # fmt: skip
+    return handler
 
 
 def _step(options: RunOptions, scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary,
           output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
-    """Advance every body ``steps`` time steps with each body's contact handler (closed at the end);
+    """Advance every body ``steps`` time steps with the bodies' contact handler (closed at the end);
     returns the bodies' final surfaces."""
-    handlers = _contact_handlers(scene, models, solver, summary)
+    handler = _contact_handler(scene, models, solver, summary)
     try:
-        contact = handlers if any(h is not None for h in handlers) else None
-        return _advance(options, scene, models, TimeStepper(models, solver, _motions(scene), contact=contact),
+        return _advance(options, scene, models, TimeStepper(models, solver, _motions(scene), contact=handler),
                         summary, output, steps)  # fmt: skip
     finally:
-        for handler in handlers:
-            if handler is not None:
-                handler.close()
+        if handler is not None:
+            handler.close()
 
 
 def _advance(options: RunOptions, scene: BodiesScene, models: list, stepper: TimeStepper, summary: RunSummary,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -61,6 +61,22 @@ class Contacts:
         merged = {f.name: np.concatenate([getattr(p, f.name) for p in parts])[::-1] for f in fields(Contacts)}
         _, last = np.unique(merged["key"], return_index=True)
         return Contacts(**{name: value[last] for name, value in merged.items()})
+
+    def stacked(self, offset_a: int, offset_b: int, key_offset: int, width: int) -> Contacts:
+        """The contacts in a numbering of several bodies' entries: point ``a``'s entries shifted by
+        ``offset_a``, point ``b``'s by ``offset_b``, keys by ``key_offset``, and the points padded to
+        ``width`` entries with zero weights (bodies' discretizations have different widths)."""
+        if not len(self):
+            return self  # (concatenate drops it)
+        pad = ((0, 0), (0, width - self.index_a.shape[1]))
+        return replace(
+            self,
+            key=self.key + key_offset,
+            index_a=np.pad(self.index_a + offset_a, pad, constant_values=offset_a),
+            weights_a=np.pad(self.weights_a, pad),
+            index_b=np.pad(self.index_b + offset_b, pad, constant_values=offset_b),
+            weights_b=np.pad(self.weights_b, pad),
+        )
 
     def take(self, rows: np.ndarray) -> Contacts:
         """The contacts at ``rows``."""

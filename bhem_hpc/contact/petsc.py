@@ -17,6 +17,29 @@ from bhem_hpc.solver.petsc import PetscOwner, SolverError, mumps_infog, push_opt
 from bhem_hpc.solver.problem import ShellProblem
 
 
+def dual_solve(matrix: np.ndarray, residual: np.ndarray, what: str) -> np.ndarray:
+    """Multipliers ``lambda`` of the dual system ``matrix lambda = residual`` (``(r, r)``, symmetric
+    positive definite), with one step of iterative refinement: the system is as ill-conditioned as its
+    regularization is small. ``what`` names the projection in the error."""
+    try:
+        multipliers = np.linalg.solve(matrix, residual)
+        return multipliers + np.linalg.solve(matrix, residual - matrix @ multipliers)
+    except np.linalg.LinAlgError as error:
+        raise SolverError(f"{what} failed: singular dual system of {len(residual)} contact rows") from error
+
+
+def dual_solve_pushing(matrix: np.ndarray, lower: np.ndarray, what: str) -> np.ndarray:
+    """Multipliers ``lambda >= 0`` with ``matrix lambda >= lower`` and complementarity (impulses that
+    only push; :func:`~bhem_hpc.collision.lcp.solve_lcp`). ``what`` names the projection in the error."""
+    from bhem_hpc.collision.lcp import ComplementarityError, solve_lcp  # contact scenes only
+
+    try:
+        multipliers, _ = solve_lcp(matrix, lower)
+    except (ComplementarityError, np.linalg.LinAlgError) as error:
+        raise SolverError(f"{what} failed: {error}") from error
+    return multipliers
+
+
 class ContactProjector(PetscOwner):
     """Least-squares projection of velocities and positions onto linear contact constraints (§6.2).
 
@@ -458,15 +481,7 @@ class ContactProjector(PetscOwner):
         used, position, matrix, reduced = self._dual(current, targets, np.add)
         counts = np.bincount(position, minlength=len(used))
         matrix = matrix + (counts[:, None] - 1) * self._schur[np.ix_(used, used)]
-        try:
-            multipliers = np.linalg.solve(matrix, reduced)
-            # one step of iterative refinement: the dual matrix is as ill-conditioned as eps is small
-            multipliers += np.linalg.solve(matrix, reduced - matrix @ multipliers)
-        except np.linalg.LinAlgError as error:
-            raise SolverError(
-                f"contact projection '{self.prefix}' failed: singular dual system of {len(used)} contact rows"
-            ) from error
-        return self._correction(used, multipliers)
+        return self._correction(used, dual_solve(matrix, reduced, f"contact projection '{self.prefix}'"))
 
     def solve_pushing(self, current: np.ndarray | None, lower: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Collective: the correction ``d`` with ``rows . (current + d) >= lower`` whose impulses
@@ -475,15 +490,30 @@ class ContactProjector(PetscOwner):
         Returns:
             ``(d (N, 3) flat nodal, impulse (r,) of each selected row)``.
         """
-        from bhem_hpc.collision.lcp import ComplementarityError, solve_lcp  # contact scenes only
-
         used, position, matrix, reduced = self._dual(current, lower, np.maximum)
-        try:
-            multipliers, _ = solve_lcp(matrix, reduced)
-        except (ComplementarityError, np.linalg.LinAlgError) as error:
-            raise SolverError(f"contact projection '{self.prefix}' failed: {error}") from error
-        impulse = multipliers[position]
-        return self._correction(used, multipliers), impulse
+        multipliers = dual_solve_pushing(matrix, reduced, f"contact projection '{self.prefix}'")
+        return self._correction(used, multipliers), multipliers[position]
+
+    # The pieces of the dual system a projector over several bodies sums (StackedProjector).
+
+    def selected_ids(self) -> np.ndarray:
+        """``(r,)`` cached row of each row selected by :meth:`set_rows`."""
+        if self._selected is None:
+            raise RuntimeError("ContactProjector.selected_ids called before set_rows")
+        return self._selected[0]
+
+    def schur_block(self, ids: np.ndarray) -> np.ndarray:
+        """``G W^-1 G^T`` between the cached rows ``ids``, ``(len(ids), len(ids))``."""
+        return self._schur[np.ix_(ids, ids)]
+
+    def largest_gtg(self, ids: np.ndarray) -> float:
+        """``max diag(G^T G)`` over this body's DOFs of the cached rows ``ids`` (distinct)."""
+        return float(self._diagonal_of(ids).max(initial=0.0))
+
+    def correction_of(self, ids: np.ndarray, multipliers: np.ndarray) -> np.ndarray:
+        """Collective: ``sum_r multipliers[r] Z[:, ids[r]]`` as flat parametric nodal data ``(N, 3)``."""
+        used, position = np.unique(ids, return_inverse=True)
+        return self._correction(used, np.bincount(position, weights=multipliers, minlength=len(used)))
 
     def _diagonal_of(self, rows: np.ndarray) -> np.ndarray:
         """diag(G^T G) over the closed DOFs of the selected cached rows."""

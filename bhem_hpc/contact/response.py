@@ -29,10 +29,14 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from mpi4py import MPI
 
+from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries
+from bhem_hpc.contact.bodies_petsc import StackedProjector
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
 from bhem_hpc.contact.metrics import CONTACT_METRICS
@@ -106,12 +110,15 @@ class ContactHandler:
 
     Args:
         model: a dynamic :class:`ShellModel`.
-        problem: its problem in the solver (``solver.problem``, or the body's among several: the
-            projector reuses its constraints, the ``"jacobian"`` metric its last Jacobian).
+        problem: its problem in the solver (``solver.problem``: the projector reuses its
+            constraints, the ``"jacobian"`` metric its last Jacobian).
         detector: the scene's colliders and sampling.
         settings: push-out distance and loop bounds.
         options: PETSc options of the projection (under ``prefix``).
-        prefix: the projection's PETSc options prefix (one per body).
+        prefix: the projection's PETSc options prefix.
+
+    :meth:`between_bodies` makes the handler of several bodies in one solver: their contacts with
+    colliders, themselves and each other, resolved together.
     """
 
     def __init__(
@@ -123,23 +130,62 @@ class ContactHandler:
         options=None,
         prefix: str = "bhem_contact_",
     ):
-        self.settings = settings or ContactSettings()
-        self.settings.validate()
-        if model.ties:
-            raise InputError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
-        self.model = model
-        self.detector = detector
-        self.projector = ContactProjector(problem, prefix=prefix, options=options)
+        self._check(model)
+        self._attach(
+            StackedEntries([model.discretization], [model.x.x.array.size]), detector,
+            ContactProjector(problem, prefix=prefix, options=options), settings, model.comm,
+        )  # fmt: skip
         # the last Newton iteration's Jacobian, at (nearly) the step's end
         self.jacobian = problem.jacobian if self.settings.metric == "jacobian" else None
+
+    @classmethod
+    def between_bodies(
+        cls, models: Sequence[ShellModel], problems: Sequence[ShellProblem], detector: BodiesDetector,
+        settings: ContactSettings | None = None, prefixes: Sequence[str] = (),
+    ) -> ContactHandler:  # fmt: skip
+        """The handler of several bodies (a solver's ``problem.problems``) whose detector has a part
+        for each body in contact; ``prefixes``: each body's projection options prefix."""
+        handler = cls.__new__(cls)
+        projectors: list[ContactProjector | None] = [None] * len(models)
+        try:
+            for b in detector.in_contact:
+                cls._check(models[b])
+                projectors[b] = ContactProjector(problems[b], prefix=prefixes[b])
+        except Exception:
+            for projector in projectors:
+                if projector is not None:
+                    projector.close()
+            raise
+        projector = StackedProjector(projectors, detector.entries.entry_offsets)
+        handler._attach(detector.entries, detector, projector, settings, models[0].comm)
+        jacobian = handler.settings.metric == "jacobian"
+        handler.jacobian = [p.jacobian if jacobian else None for p in problems] if jacobian else None
+        return handler
+
+    @staticmethod
+    def _check(model: ShellModel) -> None:
+        if model.ties:
+            raise InputError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
+
+    def _attach(self, entries: StackedEntries, detector: ContactDetector | BodiesDetector,
+                projector: ContactProjector | StackedProjector, settings: ContactSettings | None,
+                comm: MPI.Comm) -> None:  # fmt: skip
+        self.settings = settings or ContactSettings()
+        try:
+            self.settings.validate()
+        except InputError:
+            projector.close()
+            raise
+        self.entries = entries
+        self.detector = detector
+        self.projector = projector
+        self.comm = comm
         self.history: list[ContactReport] = []
-        self.layout = model.discretization
-        self._patch_entries = self.layout.patches.patch_entries()  # (n1 * n2, 16) entries of each patch
 
     def _detect(
         self, start: np.ndarray, end: np.ndarray, t: float, dt: float, gap: float, patches: np.ndarray | None = None
     ) -> Contacts:
-        comm = self.model.comm
+        comm = self.comm
         try:
             local: Contacts | Exception = self.detector.detect(start, end, t, dt, gap, comm.rank, comm.size, patches)
         except Exception as exc:  # noqa: BLE001 - re-raised on every rank below
@@ -161,8 +207,8 @@ class ContactHandler:
         report = ContactReport()
         projections_before = self.projector.projections
         t0 = time.perf_counter()
-        start = self.layout.open_to_entries(x_start)
-        end = self.layout.open_to_entries(x_end)
+        start = self.entries.open_to_entries(x_start)
+        end = self.entries.open_to_entries(x_end)
         velocity = (end - start) / dt
         gap = settings.push_out
         active = Contacts.empty()
@@ -210,8 +256,8 @@ class ContactHandler:
         if not len(active):
             return report, None
         report.min_separation = float((active.separation(end) - active.clearance).min())
-        correction = StateCorrection(self.layout.entries_to_open(delta_velocity),
-                                     self.layout.entries_to_open(dt * delta_velocity + delta_position))  # fmt: skip
+        correction = StateCorrection(self.entries.entries_to_open(delta_velocity),
+                                     self.entries.entries_to_open(dt * delta_velocity + delta_position))  # fmt: skip
         return report, correction
 
     def _retest(self, first_end: np.ndarray, end: np.ndarray, found: Contacts, margin: float) -> np.ndarray:
@@ -224,13 +270,11 @@ class ContactHandler:
         ``margin = gap / 2`` cannot bring a point it did not have in contact closer than ``gap / 2``:
         only the other patches, and those touched by a contact found so far, are tested again.
         """
-        shift = self.layout.patches.bezier_nets(end - first_end)
-        # (half the margin: round-off and the projections of collider points are not exact)
-        again = np.linalg.norm(shift, axis=-1).reshape(len(shift), -1).max(axis=1) >= 0.5 * margin
-        touched = np.zeros(self.layout.num_entries, dtype=bool)
+        touched = np.zeros(self.entries.num_entries, dtype=bool)
         touched[found.index_a[found.weights_a != 0]] = True
         touched[found.index_b[found.weights_b != 0]] = True
-        return again | touched[self._patch_entries].any(axis=1)
+        # (half the margin: round-off and the projections of collider points are not exact)
+        return self.entries.patches_to_retest(end - first_end, touched, 0.5 * margin)
 
     def _respond(
         self, contacts: Contacts, start: np.ndarray, velocity: np.ndarray, dt: float, gap: float, pushed: np.ndarray
@@ -271,7 +315,7 @@ class ContactHandler:
         Returns:
             ``(d, rows that push)``.
         """
-        base = np.zeros((self.layout.num_entries, 3)) if current is None else current
+        base = np.zeros((self.entries.num_entries, 3)) if current is None else current
         value = np.einsum("kj,kjc,kc->k", weights, base[index], directions)
         # rows count as met within round-off of the largest needed change
         tolerance = 1e-9 * max(float(np.abs(lower - value).max(initial=0.0)), 1e-300)

@@ -1,4 +1,5 @@
-"""Self-contact: samples against the other patches, and folds within a patch's 3 x 3 neighbourhood."""
+"""Self-contact: samples against the other patches, and folds within a patch's 3 x 3 neighbourhood;
+and contact between bodies: one body's samples against another's patches."""
 
 from __future__ import annotations
 
@@ -22,17 +23,51 @@ def self_contacts(
     Patches sharing a node with the sample's own patch are skipped: a sample is always within
     ``gap`` of them. Folds inside that 3 x 3 neighbourhood are :func:`folded_self_contacts`'s.
     """
-    layout, start, end, dt, gap = motion.layout, motion.start, motion.end, motion.dt, motion.gap
-    nets_start, nets_end, grid = motion.nets_start, motion.nets_end, layout.grid
     if not len(rows):
         return Contacts.empty()
-    p0 = samples.positions(start, rows)
-    p1 = samples.positions(end, rows)
-    ip, iq = overlapping_pairs(swept_boxes(nets_start, nets_end, gap), swept_boxes(p0, p1, 0.0))
-    d1, d2 = _neighbour_offsets(grid, samples.patch[rows][iq], ip)
+    p0, p1 = samples.positions(motion.start, rows), samples.positions(motion.end, rows)
+    ip, iq = overlapping_pairs(swept_boxes(motion.nets_start, motion.nets_end, motion.gap), swept_boxes(p0, p1, 0.0))
+    d1, d2 = _neighbour_offsets(motion.layout.grid, samples.patch[rows][iq], ip)
     far = (np.abs(d1) > 1) | (np.abs(d2) > 1)
-    ip, iq = ip[far], iq[far]
-    found, uv, side_normal, separation, toi = point_patch_pairs(p0, p1, nets_start, nets_end, (iq, ip), gap, dt)
+    return points_on_patches(samples, rows, (p0, p1), motion, (ip[far], iq[far]), friction, source)
+
+
+def body_contacts(
+    samples: ShellSamples, rows: np.ndarray, sample_motion: ShellMotion, motion: ShellMotion,
+    patches: np.ndarray | None, friction: float, source: int,
+) -> Contacts:  # fmt: skip
+    """Samples ``rows`` of one body (moving as ``sample_motion``) against the patches of another
+    (moving as ``motion``): point ``a`` on the first body, ``b`` on the second, each in its own
+    body's entries.
+
+    Args:
+        patches: ``(sample body's patches + other body's patches,)`` mask of the patches that can
+            hold a new contact (a later detection round); a pair is tested when either of its
+            patches can. None: every pair.
+    """
+    if not len(rows):
+        return Contacts.empty()
+    p0, p1 = samples.positions(sample_motion.start, rows), samples.positions(sample_motion.end, rows)
+    ip, iq = overlapping_pairs(swept_boxes(motion.nets_start, motion.nets_end, motion.gap), swept_boxes(p0, p1, 0.0))
+    if patches is not None:
+        own = len(sample_motion.nets_end)
+        keep = patches[samples.patch[rows][iq]] | patches[own + ip]
+        ip, iq = ip[keep], iq[keep]
+    return points_on_patches(samples, rows, (p0, p1), motion, (ip, iq), friction, source)
+
+
+def points_on_patches(
+    samples: ShellSamples, rows: np.ndarray, positions: tuple[np.ndarray, np.ndarray], motion: ShellMotion,
+    pairs: tuple[np.ndarray, np.ndarray], friction: float, source: int,
+) -> Contacts:  # fmt: skip
+    """The narrow phase of candidate pairs ``(patch, point)`` of samples ``rows`` (at ``positions``,
+    ``(len(rows), 3)`` at both ends of the step) and the patches of ``motion``: each point's nearest
+    patch in contact."""
+    ip, iq = pairs
+    layout, grid = motion.layout, motion.layout.grid
+    found, uv, side_normal, separation, toi = point_patch_pairs(
+        *positions, motion.nets_start, motion.nets_end, (iq, ip), motion.gap, motion.dt
+    )
     if not len(found):
         return Contacts.empty()
     point, patch = iq[found], ip[found]

@@ -13,7 +13,10 @@ tables a scene of one body has for its shell, and the tables all bodies share at
 Each body is parsed as the scene of one body it would be alone (with the shared tables), so every
 key means what it means there; an error names the body and the key. ``[[colliders]]`` at the top
 are the scene's colliders: a body whose ``effects`` list ``contact`` meets them (and itself, with
-``self_collision``) as a scene of one body does. Contact between bodies is not resolved.
+``self_collision``) as a scene of one body does, and meets every other body whose effects list
+contact (Coulomb coefficient between two bodies: the geometric mean of their ``effects.friction``).
+Bodies in contact share one push-out distance and impulse metric (``effects.contact.push_out`` and
+``metric``), and must be apart at the start.
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.table import SceneError, Table
@@ -72,13 +77,13 @@ def _check_body(t: Table) -> bool:
             raise SceneError(f"{t.path}: key '{t.key(key)}': [{key}] is shared by all bodies; give it once, at the top")
         if key not in BODY_KEYS:
             t.fail(key, f"absent (a body lists {', '.join(BODY_KEYS)})", t.data[key])
-    effects = t.data.get("effects", {})
-    return isinstance(effects, dict) and "contact" in effects
+    return _in_contact(t)
 
 
-def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dict], Scene]) -> BodiesScene:
-    """The scene of several bodies in ``raw`` (a file's tables); ``parse_one(path, tables)`` parses the
-    scene of one body (:func:`bhem_hpc.scene.loader.load_scene`'s parser).
+def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dict, bool], Scene]) -> BodiesScene:
+    """The scene of several bodies in ``raw`` (a file's tables); ``parse_one(path, tables,
+    other_bodies_in_contact)`` parses the scene of one body (:func:`bhem_hpc.scene.loader.load_scene`'s
+    parser).
 
     Raises:
         SceneError: naming the file, the body and the key.
@@ -98,18 +103,58 @@ def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dic
     colliders = {COLLIDERS: raw[COLLIDERS]} if COLLIDERS in raw else {}
     names: list[str] = []
     bodies: list[Scene] = []
-    for k, item in enumerate(items):
-        t = Table(path, f"bodies[{k}]", item)
+    tables_of = [Table(path, f"bodies[{k}]", item) for k, item in enumerate(items)]
+    several_in_contact = sum(_in_contact(t) for t in tables_of) >= 2
+    for k, (item, t) in enumerate(zip(items, tables_of, strict=True)):
         name = _body_name(t, names)
         in_contact = _check_body(t)
         tables = {key: value for key, value in item.items() if key != "name"} | shared
         tables |= colliders if in_contact else {}
         try:
-            bodies.append(parse_one(path, tables))
+            bodies.append(parse_one(path, tables, in_contact and several_in_contact))
         except SceneError as exc:
             where = str(exc).removeprefix(f"{path}: ")
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None
         names.append(name)
     if colliders and all(body.contact is None for body in bodies):
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
-    return BodiesScene(path, tuple(names), tuple(bodies), raw)
+    scene = BodiesScene(path, tuple(names), tuple(bodies), raw)
+    _check_contact_between(scene)
+    return scene
+
+
+def _in_contact(t: Table) -> bool:
+    effects = t.data.get("effects", {})
+    return isinstance(effects, dict) and "contact" in effects
+
+
+def _check_contact_between(scene: BodiesScene) -> None:
+    """Bodies in contact share the response's settings and start apart (a body crossing another
+    at the start would be pushed through it)."""
+    path = scene.path
+    contact = [k for k, body in enumerate(scene.bodies) if body.contact is not None]
+    if len(contact) < 2:
+        return
+    first = contact[0]
+
+    def where(k: int) -> str:
+        return f"body '{scene.names[k]}' (bodies[{k}])"
+
+    for k in contact[1:]:
+        for key in ("push_out", "metric"):
+            mine, theirs = getattr(scene.bodies[k].contact, key), getattr(scene.bodies[first].contact, key)
+            if mine != theirs:
+                raise SceneError(f"{path}: {where(k)}: key 'effects.contact.{key}' is {mine!r} but {where(first)} "
+                                 f"has {theirs!r}: bodies in contact share one {key}")  # fmt: skip
+    from bhem_hpc.contact.bodies import lattice_crossing  # the collision code loads for contact scenes only
+
+    for a in contact:
+        for b in contact:
+            if a == b:
+                continue
+            per_side = scene.bodies[a].contact.samples_per_side
+            point = lattice_crossing(scene.bodies[a].surface, scene.bodies[b].surface, per_side)
+            if point is not None:
+                raise SceneError(f"{path}: {where(a)} and {where(b)} overlap at the start near "
+                                 f"{np.array2string(point, precision=4)}: key 'surface' of one of them must place "
+                                 f"it apart from the other (bodies in contact start apart)")  # fmt: skip

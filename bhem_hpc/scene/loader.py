@@ -104,8 +104,9 @@ def load_any_scene(path: str | Path) -> Scene | BodiesScene:
     return parse_bodies(path, raw, _scene) if "bodies" in raw else _scene(path, raw)
 
 
-def _scene(path: Path, raw: dict) -> Scene:
-    """The scene of one body from its file's tables ``raw``."""
+def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scene:
+    """The scene of one body from its file's tables ``raw``; ``other_bodies_in_contact``: the body is
+    one of several whose effects list contact (it meets them even without colliders)."""
     top = Table(path, "", raw)
     surface = parse_surface(top.table("surface"), path)
     material = _material(top.table("material"))
@@ -172,7 +173,7 @@ def _scene(path: Path, raw: dict) -> Scene:
         output.done()
     constraints = parse_constraints(top, surface, path)
     points = parse_point_constraints(top, surface, path)
-    contact = _contact(top, path, static)
+    contact = _contact(top, path, static, other_bodies_in_contact)
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip
@@ -337,8 +338,9 @@ def _arc_length(t: Table) -> ArcLength:
     return settings
 
 
-def _contact(top: Table, path: Path, static: bool) -> SceneContact | None:
-    """``effects.contact`` / ``self_collision`` / ``friction`` and the ``[[colliders]]`` list."""
+def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneContact | None:
+    """``effects.contact`` / ``self_collision`` / ``friction`` and the ``[[colliders]]`` list;
+    ``other_bodies``: other bodies in contact are met as well."""
     effects = top.data.get("effects", {}) if isinstance(top.data.get("effects"), dict) else {}
     listed = [k for k in CONTACT_EFFECTS if k in effects]
     colliders_raw = top.get("colliders", "a list", [])
@@ -366,10 +368,10 @@ def _contact(top: Table, path: Path, static: bool) -> SceneContact | None:
             f"{path}: key 'effects.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
         )
     self_collision, self_friction = _self_collision(effects.get("self_collision", False), friction, path)
-    if not colliders_raw and not self_collision:
+    if not colliders_raw and not self_collision and not other_bodies:
         raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
     colliders = parse_colliders(colliders_raw, friction, path)
-    return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric)
+    return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric, friction)
 
 
 def _self_collision(value: Any, friction: float, path: Path) -> tuple[bool, float]:

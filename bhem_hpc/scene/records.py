@@ -72,6 +72,7 @@ class SceneContact:
     self_collision: bool
     self_friction: float
     metric: str = "mass"  # the impulse metric: "mass" (M + S) or "jacobian" (dt^2 J + S)
+    friction: float = 0.0  # the body's Coulomb coefficient (``effects.friction``)
 
 
 @dataclass(frozen=True)

@@ -24,10 +24,10 @@ from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
-from bhem_hpc.solver.state import ShellState, StackedState, StateCorrection, StepStart
+from bhem_hpc.solver.state import ShellState, StackedState
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
-    from bhem_hpc.contact.response import ContactHandler, ContactReport
+    from bhem_hpc.contact.response import ContactHandler
 
 log = logging.getLogger(__name__)
 
@@ -100,8 +100,9 @@ class TimeStepper:
             of its ``(nodes, kinds, components)`` of body ``motion.body`` (see :class:`PrescribedMotion`).
         max_halvings: bound on recursive dt halvings of one step.
         contact: contact detection and response run after every solve (None: no contact effects,
-            nothing is detected and nothing is paid for); with several bodies, one handler (or None)
-            per body, each resolving its body's contacts with colliders and itself.
+            nothing is detected and nothing is paid for); with several bodies, the handler of them
+            all (:meth:`ContactHandler.between_bodies`: contacts with colliders, within a body and
+            between bodies resolved together).
         state: the model's state (default: a :class:`ShellState` of the model, a
             :class:`StackedState` of several); the stepper writes position and velocity through it only.
     """
@@ -110,7 +111,7 @@ class TimeStepper:
     solver: ShellSolver
     motions: Sequence[PrescribedMotion] = ()
     max_halvings: int = 4
-    contact: ContactHandler | Sequence[ContactHandler | None] | None = None
+    contact: ContactHandler | None = None
     state: ShellState | StackedState | None = None
     time: float = 0.0
     step: int = 0
@@ -120,10 +121,9 @@ class TimeStepper:
         self.models = ModelGroup(self.model).models
         if any(m.dynamics is None for m in self.models):
             raise ValueError("TimeStepper needs a ShellModel built with dynamics=Dynamics(...)")
-        several, count = isinstance(self.contact, Sequence), len(self.models)
-        if self.contact is not None and (several != (count > 1) or several and len(self.contact) != count):
-            raise ValueError(f"contact of {count} bodies takes one handler (or None) per body in a list of {count} "
-                             f"when there are several, one handler for one body; got {self.contact!r}")  # fmt: skip
+        handled = 0 if self.contact is None else len(self.contact.entries.discretizations)
+        if self.contact is not None and handled != len(self.models):
+            raise ValueError(f"the contact handler covers {handled} bodies; the stepper has {len(self.models)}")
         self.dt = self.models[0].dynamics.time_step
         self._clock = (self.time, self.step, self.dt)  # (time, step, dt) after the last advance
         self._origin = (self.time, self.step)  # where the clock was last set
@@ -198,39 +198,14 @@ class TimeStepper:
         if self.contact is None:
             self.state.finish_step(start, dt)
             return
-        if isinstance(self.contact, Sequence):
-            contacts, correction = self._respond_per_body(start, t_start, dt)
-        else:
-            contact, correction = self.contact.respond(start.position, self.state.position, t_start, dt)
-            contacts = [contact]
+        contact, correction = self.contact.respond(start.position, self.state.position, t_start, dt)
         self.state.finish_step(start, dt, correction)
-        report.contacts = max(report.contacts, sum(c.contacts for c in contacts))
-        for contact in contacts:
-            report.contact_rounds += contact.rounds
-            report.earliest_toi = min(report.earliest_toi, contact.earliest_toi)
-            report.collision_s += contact.detection_s + contact.response_s
-            report.detection_s += contact.detection_s
-            report.projections += contact.projections
-
-    def _respond_per_body(self, start: StepStart, t_start: float, dt: float
-                          ) -> tuple[list[ContactReport], StateCorrection | None]:  # fmt: skip
-        """Each body's handler resolves its contacts; the corrections side by side (None: no body's)."""
-        offsets = self.state.offsets
-        position = self.state.position
-        reports, velocities, positions, corrected = [], [], [], False
-        for body, handler in enumerate(self.contact):
-            part = slice(offsets[body], offsets[body + 1])
-            correction = None
-            if handler is not None:
-                report, correction = handler.respond(start.position[part], position[part], t_start, dt)
-                reports.append(report)
-            corrected |= correction is not None
-            zeros = np.zeros(offsets[body + 1] - offsets[body])
-            velocities.append(zeros if correction is None else correction.delta_velocity)
-            positions.append(zeros if correction is None else correction.delta_position)
-        if not corrected:
-            return reports, None
-        return reports, StateCorrection(np.concatenate(velocities), np.concatenate(positions))
+        report.contacts = max(report.contacts, contact.contacts)
+        report.contact_rounds += contact.rounds
+        report.earliest_toi = min(report.earliest_toi, contact.earliest_toi)
+        report.collision_s += contact.detection_s + contact.response_s
+        report.detection_s += contact.detection_s
+        report.projections += contact.projections
 
 
 @dataclass(frozen=True)

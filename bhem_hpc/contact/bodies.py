@@ -1,0 +1,184 @@
+"""Contact of several bodies (numpy only): their entries side by side, and detection of every
+body against the colliders, itself and the other bodies.
+
+The response (:class:`~bhem_hpc.contact.response.ContactHandler`) works on one array of flat
+entries ``(N, 3)``. For several bodies that array is every body's entries, body after body
+(:class:`StackedEntries`); a contact row names entries of one body (a collider, self-contact) or
+of two (point ``a`` on one body, point ``b`` on another), and the projector splits it by body
+(:class:`~bhem_hpc.contact.bodies_petsc.StackedProjector`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from bhem_hpc.contact.broad_phase import overlapping_pairs, swept_boxes
+from bhem_hpc.contact.closest_points import point_patch_pairs
+from bhem_hpc.contact.contacts import Contacts
+from bhem_hpc.contact.detection import ContactDetector
+from bhem_hpc.contact.samples import ShellMotion
+from bhem_hpc.contact.self_contact import body_contacts
+from bhem_hpc.discretization.protocol import Discretization
+from bhem_hpc.errors import InputError
+from bhem_hpc.geometry.bspline import BSplineSurface
+from bhem_hpc.geometry.surface import HermiteSurface
+
+#: Keys of one group of contacts (a body's own, or one ordered pair of bodies') stay below this:
+#: a body's detector keys its contacts ``source * 2**40 + sample`` with a few sources.
+GROUP_KEYS = 2**47
+#: Bodies a stacked detector takes: every ordered pair has a key group (``bodies * (bodies + 1)``
+#: groups of ``GROUP_KEYS`` keys fit in 63 bits).
+MAX_BODIES = 90
+
+Surface = HermiteSurface | BSplineSurface
+
+
+def pair_friction(first: float, second: float) -> float:
+    """Coulomb coefficient between two bodies: the geometric mean of theirs (a frictionless body slides
+    on every other)."""
+    return math.sqrt(first * second)
+
+
+class StackedEntries:
+    """Every body's flat entries ``(N_b, 3)`` side by side, ``(sum N_b, 3)``, and the stacked
+    open-layout array of the solver's state (every body's owned + ghost values, body after body).
+
+    Args:
+        discretizations: each body's discretization.
+        open_sizes: each body's open-layout array length on this rank.
+    """
+
+    def __init__(self, discretizations: Sequence[Discretization], open_sizes: Sequence[int]):
+        self.discretizations = tuple(discretizations)
+        self.layouts = tuple(d.patches for d in self.discretizations)
+        #: where each body's entries start, ``(bodies + 1,)``
+        self.entry_offsets = np.cumsum([0] + [d.num_entries for d in self.discretizations])
+        #: where each body's open array starts, ``(bodies + 1,)``
+        self.open_offsets = np.cumsum([0, *open_sizes])
+        #: where each body's patches start in a mask over every body's patches, ``(bodies + 1,)``
+        self.patch_offsets = np.cumsum([0] + [layout.grid.n1 * layout.grid.n2 for layout in self.layouts])
+        self._patch_entries = [layout.patch_entries() for layout in self.layouts]
+
+    @property
+    def num_entries(self) -> int:
+        return int(self.entry_offsets[-1])
+
+    def entries(self, stacked: np.ndarray, body: int) -> np.ndarray:
+        """Body ``body``'s rows of stacked entries."""
+        return stacked[self.entry_offsets[body] : self.entry_offsets[body + 1]]
+
+    def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the stacked entries of a stacked open-layout array, on every rank."""
+        o = self.open_offsets
+        return np.concatenate([d.open_to_entries(open_array[o[b] : o[b + 1]])
+                               for b, d in enumerate(self.discretizations)])  # fmt: skip
+
+    def entries_to_open(self, entries: np.ndarray) -> np.ndarray:
+        """The stacked open-layout array of stacked entries."""
+        return np.concatenate([d.entries_to_open(self.entries(entries, b)) for b, d in enumerate(self.discretizations)])
+
+    def patches_to_retest(self, shift: np.ndarray, touched: np.ndarray, margin: float) -> np.ndarray:
+        """Mask over every body's patches: those whose Bezier control points moved by ``margin`` or
+        more under the entry shift ``shift (N, 3)``, and those moved by an entry in ``touched (N,)``."""
+        masks = []
+        for b, layout in enumerate(self.layouts):
+            nets = layout.bezier_nets(self.entries(shift, b))
+            moved = np.linalg.norm(nets, axis=-1).reshape(len(nets), -1).max(axis=1) >= margin
+            masks.append(moved | self.entries(touched, b)[self._patch_entries[b]].any(axis=1))
+        return np.concatenate(masks)
+
+
+class BodiesDetector:
+    """All contacts of one step's motion of several bodies, for one rank's share of the samples:
+    each body's detector (its colliders and itself), and every body's samples against every other
+    body's patches, for the bodies with a detector.
+
+    Args:
+        entries: the bodies' stacked entries.
+        detectors: each body's detector (None: a body without contact effects).
+        frictions: each body's Coulomb coefficient (a pair's is :func:`pair_friction`).
+    """
+
+    def __init__(
+        self, entries: StackedEntries, detectors: Sequence[ContactDetector | None], frictions: Sequence[float]
+    ):
+        if len(detectors) != len(entries.discretizations) or len(frictions) != len(detectors):
+            raise ValueError(f"one detector and one friction coefficient per body: {len(entries.discretizations)} "
+                             f"bodies, {len(detectors)} detectors, {len(frictions)} coefficients")  # fmt: skip
+        if len(detectors) > MAX_BODIES:
+            raise InputError(f"contact of {len(detectors)} bodies: at most {MAX_BODIES} bodies meet each other")
+        self.entries = entries
+        self.detectors = tuple(detectors)
+        self.frictions = tuple(float(f) for f in frictions)
+        self.width = max(16, *(d.samples.index.shape[1] for d in self.detectors if d is not None))
+
+    @property
+    def in_contact(self) -> list[int]:
+        """The bodies with a detector."""
+        return [b for b, d in enumerate(self.detectors) if d is not None]
+
+    @property
+    def num_samples(self) -> int:
+        """Sample points tested per step: every body's, plus its samples once per other body."""
+        bodies = self.in_contact
+        return sum(self.detectors[b].num_samples + (len(bodies) - 1) * len(self.detectors[b].samples.patch)
+                   for b in bodies)  # fmt: skip
+
+    def detect(
+        self, start: np.ndarray, end: np.ndarray, time: float, dt: float, gap: float,
+        rank: int = 0, size: int = 1, patches: np.ndarray | None = None,
+    ) -> Contacts:  # fmt: skip
+        """Contacts of the motion ``start -> end`` (stacked entries) over ``[time, time + dt]``, in the
+        stacked numbering; ``patches`` a mask over every body's patches (:meth:`ContactDetector.detect`)."""
+        e, p = self.entries, self.entries.patch_offsets
+        bodies = self.in_contact
+        count = len(self.detectors)
+        parts = []
+        motions = {}
+        for b in bodies:
+            own = None if patches is None else patches[p[b] : p[b + 1]]
+            found = self.detectors[b].detect(e.entries(start, b), e.entries(end, b), time, dt, gap, rank, size, own)
+            offset = int(e.entry_offsets[b])
+            parts.append(found.stacked(offset, offset, b * GROUP_KEYS, self.width))
+            motions[b] = ShellMotion.of(e.layouts[b], e.entries(start, b), e.entries(end, b), dt, gap)
+        for a in bodies:
+            samples = self.detectors[a].samples
+            rows = np.arange(rank, len(samples.patch), size)
+            for b in bodies:
+                if b == a:
+                    continue
+                mask = None if patches is None else np.concatenate([patches[p[a] : p[a + 1]], patches[p[b] : p[b + 1]]])
+                friction = pair_friction(self.frictions[a], self.frictions[b])
+                found = body_contacts(samples, rows, motions[a], motions[b], mask, friction, 0)
+                group = count + a * count + b
+                parts.append(found.stacked(int(e.entry_offsets[a]), int(e.entry_offsets[b]), group * GROUP_KEYS,
+                                           self.width))  # fmt: skip
+        return Contacts.concatenate(parts)
+
+
+def lattice_crossing(first: Surface, second: Surface, per_side: int) -> np.ndarray | None:
+    """A point ``(3,)`` where the sample lattice of ``first`` (``per_side`` samples per patch side,
+    neighbours joined by straight segments) crosses ``second``, or None: a test that two bodies are
+    apart, as detection sees them (a crossing shorter than a lattice segment's width can go unseen).
+    ``first`` and ``second``: Hermite or B-spline surfaces (their ``grid``, ``evaluate`` and
+    ``bezier_nets``)."""
+    grid = first.grid
+    axes = []
+    for n, (lo, hi), periodic in ((grid.n1, grid.xi1_range, grid.periodic1), (grid.n2, grid.xi2_range, grid.periodic2)):
+        count = n * per_side + (0 if periodic else 1)
+        axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
+    lattice = first.evaluate(*np.meshgrid(*axes, indexing="ij")).x  # (L1, L2, 3)
+    starts = np.concatenate([lattice[:-1].reshape(-1, 3), lattice[:, :-1].reshape(-1, 3)])
+    ends = np.concatenate([lattice[1:].reshape(-1, 3), lattice[:, 1:].reshape(-1, 3)])
+    # each segment as a point moving from its start to its end past the resting patches of `second`:
+    # the point-patch test of detection with no gap finds where it crosses them
+    nets = second.bezier_nets()
+    patch, segment = overlapping_pairs(swept_boxes(nets, nets, 0.0), swept_boxes(starts, ends, 0.0))
+    found, _, _, _, toi = point_patch_pairs(starts, ends, nets, nets, (segment, patch), 0.0, 1.0)
+    if not len(found):
+        return None
+    k = segment[found[0]]
+    return starts[k] + toi[0] * (ends[k] - starts[k])

@@ -118,7 +118,7 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
         edge_moments=tuple(EdgeMoment(edge, moment) for edge, moment in e.edge_moments),
     )
     dynamics = None if scene.static else Dynamics(scene.dt, e.mass_damping, e.stiffness_damping)
-    return ShellModel(
+    model = ShellModel(
         scene.surface,
         scene.material,
         loads,
@@ -132,6 +132,12 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
             for p in scene.point_constraints
         ],
     )
+    if scene.initial_velocity is not None:  # a translation's entries: the rest surface moved by v, less the rest
+        disc = model.discretization
+        moved = scene.surface.transformed(np.eye(3), np.asarray(scene.initial_velocity))
+        model.velocity.x.array[:] = disc.entries_to_open(disc.entries_of_surface(moved)
+                                                         - disc.entries_of_surface(scene.surface))  # fmt: skip
+    return model
 
 
 def build_contact(scene: Scene, model: ShellModel, problem: ShellProblem):

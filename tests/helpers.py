@@ -252,6 +252,17 @@ class TwoBodySpring(PointSpring):
         super().__init__(blocks.comm, points, shared, stiffness, rest_length)
 
 
+def momentum(model: ShellModel) -> np.ndarray:
+    """``int rho h v dOmega_rest`` [kg m/s] of a dynamic model, on every rank."""
+    from dolfinx import fem
+
+    from bhem_hpc.forms.kinematics import area_density
+
+    parts = [fem.form(model.density * model.thickness * model.velocity[i] * area_density(model.x_rest) * model.dx)
+             for i in range(3)]  # fmt: skip
+    return np.array([model.comm.allreduce(fem.assemble_scalar(form)) for form in parts])
+
+
 def paraview_read(*paths: Path) -> dict:
     """What ParaView's readers give for ``paths`` (see ``io/paraview_reader.py``, run in its own process)."""
     done = subprocess.run([sys.executable, str(REPO / "tests" / "io" / "paraview_reader.py"), *map(str, paths)],

@@ -143,9 +143,9 @@ def _frame(output: BodiesOutput | None, models: list, probes: list, stepper: Tim
     return surfaces
 
 
-def _contact_handler(scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary):
-    """The contact handler of every body whose effects list contact (their colliders, themselves
-    and each other), or None; ``summary.contact`` per body."""
+def bodies_contact(scene: BodiesScene, models: list, solver: ShellSolver):
+    """The :class:`~bhem_hpc.contact.response.ContactHandler` of every body whose effects list contact
+    (their colliders, themselves and each other) in ``solver`` (made of ``models``), or None."""
     in_contact = [body.contact is not None for body in scene.bodies]
     if not any(in_contact):
         return None
@@ -159,19 +159,18 @@ def _contact_handler(scene: BodiesScene, models: list, solver: ShellSolver, summ
     detector = BodiesDetector(entries, detectors, frictions)
     first = scene.bodies[in_contact.index(True)]
     prefixes = [f"{SOLVER_PREFIX}contact_{name}_" for name in scene.names]
-    handler = ContactHandler.between_bodies(models, solver.problem.problems, detector, contact_settings(first),
-                                            prefixes)  # fmt: skip
-    summary.contact = {name: {"colliders": len(body.contact.colliders), "sample_points": d.num_samples}
-                       for name, body, d in zip(scene.names, scene.bodies, detectors, strict=True)
-                       if d is not None}  # fmt: skip
-    return handler
+    return ContactHandler.between_bodies(models, solver.problem.problems, detector, contact_settings(first), prefixes)
 
 
 def _step(options: RunOptions, scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary,
           output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
     """Advance every body ``steps`` time steps with the bodies' contact handler (closed at the end);
     returns the bodies' final surfaces."""
-    handler = _contact_handler(scene, models, solver, summary)
+    handler = bodies_contact(scene, models, solver)
+    if handler is not None:
+        summary.contact = {name: {"colliders": len(body.contact.colliders), "sample_points": d.num_samples}
+                           for name, body, d in zip(scene.names, scene.bodies, handler.detector.detectors, strict=True)
+                           if d is not None}  # fmt: skip
     try:
         return _advance(options, scene, models, TimeStepper(models, solver, _motions(scene), contact=handler),
                         summary, output, steps)  # fmt: skip

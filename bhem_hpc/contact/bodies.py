@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from bhem_hpc.contact.broad_phase import overlapping_pairs, swept_boxes
-from bhem_hpc.contact.closest_points import point_patch_pairs
+from bhem_hpc.contact.closest_points import project_to_patches
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
 from bhem_hpc.contact.samples import ShellMotion
@@ -163,6 +163,10 @@ def lattice_crossing(first: Surface, second: Surface, per_side: int) -> np.ndarr
     """A point ``(3,)`` where the sample lattice of ``first`` (``per_side`` samples per patch side,
     neighbours joined by straight segments) crosses ``second``, or None: a test that two bodies are
     apart, as detection sees them (a crossing shorter than a lattice segment's width can go unseen).
+    A segment crosses a patch of ``second`` when its ends lie on opposite sides of (or one on) the
+    tangent plane at the closest point of an end that projects inside the patch, and the point where
+    it meets that plane projects inside the patch too: exact for segments short against the
+    patch's curvature.
     ``first`` and ``second``: Hermite or B-spline surfaces (their ``grid``, ``evaluate`` and
     ``bezier_nets``)."""
     grid = first.grid
@@ -173,12 +177,27 @@ def lattice_crossing(first: Surface, second: Surface, per_side: int) -> np.ndarr
     lattice = first.evaluate(*np.meshgrid(*axes, indexing="ij")).x  # (L1, L2, 3)
     starts = np.concatenate([lattice[:-1].reshape(-1, 3), lattice[:, :-1].reshape(-1, 3)])
     ends = np.concatenate([lattice[1:].reshape(-1, 3), lattice[:, 1:].reshape(-1, 3)])
-    # each segment as a point moving from its start to its end past the resting patches of `second`:
-    # the point-patch test of detection with no gap finds where it crosses them
     nets = second.bezier_nets()
     patch, segment = overlapping_pairs(swept_boxes(nets, nets, 0.0), swept_boxes(starts, ends, 0.0))
-    found, _, _, _, toi = point_patch_pairs(starts, ends, nets, nets, (segment, patch), 0.0, 1.0)
-    if not len(found):
+    if not len(patch):
         return None
-    k = segment[found[0]]
-    return starts[k] + toi[0] * (ends[k] - starts[k])
+    # the ends' closest points on each candidate patch: a segment crosses the patch when its ends lie
+    # on opposite sides of the tangent plane at a closest point inside the patch
+    _, foot0, normal0, inside0 = project_to_patches(nets[patch], starts[segment])
+    _, foot1, normal1, inside1 = project_to_patches(nets[patch], ends[segment])
+    foot, normal = np.where(inside0[:, None], foot0, foot1), np.where(inside0[:, None], normal0, normal1)
+    side0 = np.einsum("kc,kc->k", starts[segment] - foot, normal)
+    side1 = np.einsum("kc,kc->k", ends[segment] - foot, normal)
+    crossing = np.flatnonzero((inside0 | inside1) & (side0 * side1 <= 0.0))
+    if not len(crossing):
+        return None
+    # where the segment meets that tangent plane: a crossing if it projects inside the patch (not
+    # beside the patch's boundary)
+    fraction = np.where(side0[crossing] == side1[crossing], 0.0,
+                        side0[crossing] / np.where(side0[crossing] == side1[crossing], 1.0,
+                                                   side0[crossing] - side1[crossing]))  # fmt: skip
+    meeting = starts[segment[crossing]] + fraction[:, None] * (ends[segment[crossing]] - starts[segment[crossing]])
+    _, _, _, inside = project_to_patches(nets[patch[crossing]], meeting)
+    if not inside.any():
+        return None
+    return meeting[np.flatnonzero(inside)[0]]

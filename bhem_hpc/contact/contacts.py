@@ -68,14 +68,17 @@ class Contacts:
         ``width`` entries with zero weights (bodies' discretizations have different widths)."""
         if not len(self):
             return self  # (concatenate drops it)
-        pad = ((0, 0), (0, width - self.index_a.shape[1]))
+
+        def padded(array: np.ndarray, value: float) -> np.ndarray:
+            return np.pad(array, ((0, 0), (0, width - array.shape[1])), constant_values=value)
+
         return replace(
             self,
             key=self.key + key_offset,
-            index_a=np.pad(self.index_a + offset_a, pad, constant_values=offset_a),
-            weights_a=np.pad(self.weights_a, pad),
-            index_b=np.pad(self.index_b + offset_b, pad, constant_values=offset_b),
-            weights_b=np.pad(self.weights_b, pad),
+            index_a=padded(self.index_a + offset_a, offset_a),
+            weights_a=padded(self.weights_a, 0.0),
+            index_b=padded(self.index_b + offset_b, offset_b),
+            weights_b=padded(self.weights_b, 0.0),
         )
 
     def take(self, rows: np.ndarray) -> Contacts:

@@ -8,7 +8,7 @@ tables a scene of one body has for its shell, and the tables all bodies share at
     [[bodies]]
     name = "steel"    # names the body's output folder and its messages
     [bodies.surface]  # and material, effects (gravity, damping, loads), constraints,
-    ...               # point_constraints, probes: as in a scene of one body
+    ...               # point_constraints, probes, initial: as in a scene of one body
 
 Each body is parsed as the scene of one body it would be alone (with the shared tables), so every
 key means what it means there; an error names the body and the key. ``[[colliders]]`` at the top
@@ -32,7 +32,7 @@ from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.table import SceneError, Table
 
 #: The tables a body lists (a scene of one body's tables for its shell).
-BODY_KEYS = ("name", "surface", "material", "effects", "constraints", "point_constraints", "probes")
+BODY_KEYS = ("name", "surface", "material", "effects", "constraints", "point_constraints", "probes", "initial")
 #: The tables every body shares, at the top of the file.
 SHARED_KEYS = ("time", "solver", "output")
 #: The scene's colliders, at the top: every body with contact effects meets them.

@@ -179,6 +179,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
                          "(contact rows would push the tied control points)")  # fmt: skip
     probes = _probes(top, surface)
     plan = _path_plan(top, static, load_steps, probes, path)
+    initial_velocity = _initial_velocity(top, static)
     top.done()
     return Scene(
         path=path,
@@ -203,7 +204,21 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
         contact=contact,
         path_plan=plan,
         probes=probes,
+        initial_velocity=initial_velocity,
     )
+
+
+def _initial_velocity(top: Table, static: bool) -> tuple[float, float, float] | None:
+    """``[initial] velocity = [vx, vy, vz]``: the whole shell's velocity at the start [m/s]."""
+    initial = top.table("initial", None)
+    if initial is None:
+        return None
+    if static:
+        initial.fail("velocity", "absent: a static scene has no velocities", initial.data.get("velocity"))
+    velocity = initial.get("velocity", "3 numbers", check=lambda v: len(v) == 3 and all(math.isfinite(c) for c in v),
+                           expected="3 finite numbers [m/s]")  # fmt: skip
+    initial.done()
+    return tuple(float(c) for c in velocity)
 
 
 def _material(t: Table) -> Material:

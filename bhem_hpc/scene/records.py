@@ -99,3 +99,4 @@ class Scene:
     contact: SceneContact | None = None
     path_plan: PathPlan | None = None  # static scenes: how the equilibrium path is followed
     probes: tuple[Probe, ...] = ()
+    initial_velocity: tuple[float, float, float] | None = None  # the shell's uniform velocity at t = 0 [m/s]

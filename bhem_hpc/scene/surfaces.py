@@ -31,8 +31,31 @@ def parse_surface(t: Table, path: Path) -> Shape:
         surface = SURFACES[kind](t, path, discretization)
     except S.SurfaceError as exc:
         raise SceneError(f"{path}: table 'surface': {exc}") from exc
+    rotation, translation = _placement(t)
     t.done()
-    return surface
+    return surface if rotation is None and translation is None else surface.transformed(
+        np.eye(3) if rotation is None else rotation, np.zeros(3) if translation is None else translation
+    )
+
+
+def _placement(t: Table) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``rotation = { axis = [x, y, z], degrees = a }`` and ``translation = [x, y, z]``: the surface
+    the kind built, moved by ``x -> R x + t`` (about the world origin, rotation first)."""
+    rotation = None
+    table = t.table("rotation", None)
+    if table is not None:
+        axis = table.get("axis", "3 numbers", check=lambda v: all(math.isfinite(c) for c in v) and any(v),
+                         expected="3 finite numbers, not all 0")  # fmt: skip
+        axis = np.array(axis, float)
+        degrees = table.get("degrees", "a number", check=math.isfinite, expected="a finite number (degrees)")
+        table.done()
+        k = axis / np.linalg.norm(axis)
+        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        angle = math.radians(degrees)  # Rodrigues' formula
+        rotation = np.eye(3) + math.sin(angle) * cross + (1.0 - math.cos(angle)) * cross @ cross
+    translation = t.get("translation", "3 numbers", None, lambda v: all(math.isfinite(c) for c in v),
+                        "3 finite numbers [m]")  # fmt: skip
+    return rotation, None if translation is None else np.array(translation, float)
 
 
 def _patches(t: Table, discretization: str) -> tuple[list[int], dict[str, int], object]:

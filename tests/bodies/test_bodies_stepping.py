@@ -6,12 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from dolfinx import fem
-from helpers import CLAMPED, RUBBER, SHEET, STEEL, TwoBodySpring
+from helpers import CLAMPED, RUBBER, SHEET, STEEL, TwoBodySpring, momentum
 from mpi4py import MPI
 
 from bhem_hpc.bodies.petsc import StackedBlocks
-from bhem_hpc.forms.kinematics import area_density
 from bhem_hpc.model.path import PathSettingError
 from bhem_hpc.run import build_model
 from bhem_hpc.scene.loader import load_scene
@@ -78,13 +76,6 @@ def test_two_ranks_step_two_bodies_as_one_rank(comm, shared_tmp_path):
         assert np.abs(ours.state_surface().nodal - theirs.state_surface().nodal).max() <= 1e-6 * moved
 
 
-def _momentum(model) -> np.ndarray:
-    """``int rho h v dOmega_rest`` [kg m/s], every rank."""
-    parts = [fem.form(model.density * model.thickness * model.velocity[i] * area_density(model.x_rest) * model.dx)
-             for i in range(3)]  # fmt: skip
-    return np.array([model.comm.allreduce(fem.assemble_scalar(form)) for form in parts])
-
-
 @pytest.mark.parametrize("second", ["bspline2", "bspline3"])
 def test_a_spring_between_two_free_bodies_conserves_their_momentum(comm, shared_tmp_path, second):
     """Two free sheets (steel Hermite, rubber B-splines) side by side, no gravity, a stretched spring
@@ -94,7 +85,7 @@ def test_a_spring_between_two_free_bodies_conserves_their_momentum(comm, shared_
               _model(comm, shared_tmp_path, "right", second, RUBBER, x0=SIZE + 0.05, rest="")]  # fmt: skip
     spring = TwoBodySpring(StackedBlocks(models), (SIZE, SIZE), (0.0, SIZE), 50.0, 0.01)
     _step(models, 3, [spring], prefix="sprung_")
-    momenta = [_momentum(m) for m in models]
+    momenta = [momentum(m) for m in models]
     assert momenta[0][0] > 1e-4  # the spring pulled the left sheet towards +x (kg m/s)
     assert np.linalg.norm(momenta[0] + momenta[1]) <= 1e-6 * np.linalg.norm(momenta[0])
 

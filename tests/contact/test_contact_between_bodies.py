@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import RUBBER, STEEL, momentum
+from helpers import REPO, RUBBER, STEEL, momentum
 
 from bhem_hpc.bodies.run import bodies_contact
 from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries, pair_friction
@@ -253,3 +253,12 @@ steps = 1
     comm.Barrier()
     with pytest.raises(SceneError, match="initial.velocity' must be absent: a static scene has no velocities"):
         load_scene(path)
+
+
+@pytest.mark.parametrize(("name", "bodies"), [("two-plates", 2), ("cloth-pile", 5), ("cloth-on-can", 2),
+                                              ("two-cloths-ball", 2), ("ball-and-floor", 2)])  # fmt: skip
+def test_shipped_scenes_of_bodies_in_contact_are_valid(name, bodies):
+    """The jobs of bodies in contact parse, every body meets the others, and they start apart."""
+    scene = load_any_scene(REPO / "jobs" / f"{name}.toml")
+    assert len(scene.bodies) == bodies and all(body.contact is not None for body in scene.bodies)
+    assert len({body.contact.push_out for body in scene.bodies}) == 1

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "bhem_hpc"
 PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py",
                  "solver/linear_strategy.py", "solver/load_steps.py", "solver/acceleration.py",
                  "solver/trust_region.py", "solver/energy_trust_region.py", "solver/form_terms.py",
-                 "contact/petsc.py", "bodies/petsc.py"}
+                 "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py"}
 
 
 @pytest.mark.parametrize(
@@ -22,6 +22,7 @@ PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "sol
         ("bhem_hpc.geometry.surface", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.collision", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.detection", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.contact.bodies", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.forms", ("dolfinx", "petsc4py", "mpi4py", "basix")),
         ("bhem_hpc.solver.contributions", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.bodies.layout", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),

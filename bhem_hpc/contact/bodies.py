@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,10 +22,12 @@ from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
 from bhem_hpc.contact.samples import ShellMotion
 from bhem_hpc.contact.self_contact import body_contacts
-from bhem_hpc.discretization.protocol import Discretization
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.bspline import BSplineSurface
 from bhem_hpc.geometry.surface import HermiteSurface
+
+if TYPE_CHECKING:  # (the discretizations are built on dolfinx; detection is numpy only)
+    from bhem_hpc.discretization.protocol import Discretization
 
 #: Keys of one group of contacts (a body's own, or one ordered pair of bodies') stay below this:
 #: a body's detector keys its contacts ``source * 2**40 + sample`` with a few sources.

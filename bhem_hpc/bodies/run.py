@@ -17,9 +17,10 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+from bhem_hpc.bodies.body import ShellBody
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
-from bhem_hpc.io import SurfaceTimeSeries, render_surface_png
+from bhem_hpc.io import render_surface_png
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
 from bhem_hpc.io.path_table import CsvTable, probe_columns
 from bhem_hpc.io.run_directory import start_output_directory, write_replacing
@@ -52,16 +53,15 @@ class BodiesOutput:
     """Rank 0's files of a run of several bodies: each body's time series and probe table, and the
     collection of all bodies' frames (``bodies.pvd``)."""
 
-    def __init__(self, out: Path, scene: BodiesScene):
+    def __init__(self, out: Path, bodies: list[ShellBody]):
         self.out = out
-        self.names = scene.names
+        self.names = [body.name for body in bodies]
         self.series = []
-        for name, body in zip(scene.names, scene.bodies, strict=True):
-            (out / name).mkdir()
-            self.series.append(SurfaceTimeSeries(out / name / "surface.xdmf", body.surface, body.material,
-                                                 body.output_density))  # fmt: skip
-        self.probe_tables = [CsvTable(out / name / "probes.csv", []) if body.probes else None
-                             for name, body in zip(scene.names, scene.bodies, strict=True)]  # fmt: skip
+        for body in bodies:
+            (out / body.name).mkdir()
+            self.series.append(body.writer(out / body.name / "surface.xdmf"))
+        self.probe_tables = [CsvTable(out / body.name / "probes.csv", []) if body.scene.probes else None
+                             for body in bodies]  # fmt: skip
 
     def write(self, time_value: float, surfaces: list[HermiteSurface]) -> None:
         """A frame of every body at ``time_value``, and the collection listing every frame so far."""
@@ -96,15 +96,17 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
     first = scene.first
     steps = options.steps if options.steps is not None else first.steps
     scene_text = options.scene.read_bytes()
-    models = [build_model(body, comm) for body in scene.bodies]
+    bodies = [ShellBody(name, k, body, build_model(body, comm))
+              for k, (name, body) in enumerate(zip(scene.names, scene.bodies, strict=True))]  # fmt: skip
+    models = [body.model for body in bodies]
     solver = make_solver(models, first, options.scene)
     summary = RunSummary(
         scene=str(options.scene), physics_hash=_physics_hash(scene), solution_method=solution_method(first),
         dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
         versions=library_versions(), static=False, linear_solver=solver.linear.as_dict(),
         factorization=first.factorization,
-        bodies=[{"name": name, "dofs": 3 * m.discretization.num_closed, "discretization": body.surface.discretization}
-                for name, m, body in zip(scene.names, models, scene.bodies, strict=True)],
+        bodies=[{"name": body.name, "dofs": 3 * body.model.discretization.num_closed, "mass_kg": body.mass(),
+                 "discretization": body.scene.surface.discretization} for body in bodies],
     )  # fmt: skip
     output: BodiesOutput | None = None
     try:
@@ -113,10 +115,10 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
             start_output_directory(options.out, list(scene.names))
             write_replacing(options.out / "scene.toml", scene_text)
             summary.write(options.out)
-            return BodiesOutput(options.out, scene)
+            return BodiesOutput(options.out, bodies)
 
         output = on_rank0(comm, start, f"the output directory {options.out}")
-        surfaces = _step(options, scene, models, solver, summary, output, steps)
+        surfaces = _step(options, scene, bodies, solver, summary, output, steps)
         title = f"{options.scene.name}, t = {summary.time or 0:.4g} s"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", surfaces, title), "last.png")
     except Exception as exc:
@@ -143,34 +145,36 @@ def _frame(output: BodiesOutput | None, models: list, probes: list, stepper: Tim
     return surfaces
 
 
-def bodies_contact(scene: BodiesScene, models: list, solver: ShellSolver):
+def bodies_contact(bodies: list[ShellBody], solver: ShellSolver):
     """The :class:`~bhem_hpc.contact.response.ContactHandler` of every body whose effects list contact
-    (their colliders, themselves and each other) in ``solver`` (made of ``models``), or None."""
-    in_contact = [body.contact is not None for body in scene.bodies]
+    (their colliders, themselves and each other) in ``solver`` (made of the bodies' models), or None."""
+    in_contact = [body.scene.contact is not None for body in bodies]
     if not any(in_contact):
         return None
     from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries
     from bhem_hpc.contact.response import ContactHandler
 
+    models = [body.model for body in bodies]
     entries = StackedEntries([m.discretization for m in models], [m.x.x.array.size for m in models])
-    detectors = [contact_detector(body, model) if body.contact is not None else None
-                 for body, model in zip(scene.bodies, models, strict=True)]  # fmt: skip
-    frictions = [body.contact.friction if body.contact is not None else 0.0 for body in scene.bodies]
+    detectors = [contact_detector(body.scene, body.model) if body.scene.contact is not None else None
+                 for body in bodies]  # fmt: skip
+    frictions = [body.scene.contact.friction if body.scene.contact is not None else 0.0 for body in bodies]
     detector = BodiesDetector(entries, detectors, frictions)
-    first = scene.bodies[in_contact.index(True)]
-    prefixes = [f"{SOLVER_PREFIX}contact_{name}_" for name in scene.names]
-    return ContactHandler.between_bodies(models, solver.problem.problems, detector, contact_settings(first), prefixes)
+    settings = contact_settings(bodies[in_contact.index(True)].scene)
+    prefixes = [f"{SOLVER_PREFIX}contact_{body.name}_" for body in bodies]
+    return ContactHandler.between_bodies(models, solver.problem.problems, detector, settings, prefixes)
 
 
-def _step(options: RunOptions, scene: BodiesScene, models: list, solver: ShellSolver, summary: RunSummary,
-          output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
+def _step(options: RunOptions, scene: BodiesScene, bodies: list[ShellBody], solver: ShellSolver,
+          summary: RunSummary, output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
     """Advance every body ``steps`` time steps with the bodies' contact handler (closed at the end);
     returns the bodies' final surfaces."""
-    handler = bodies_contact(scene, models, solver)
+    handler = bodies_contact(bodies, solver)
     if handler is not None:
-        summary.contact = {name: {"colliders": len(body.contact.colliders), "sample_points": d.num_samples}
-                           for name, body, d in zip(scene.names, scene.bodies, handler.detector.detectors, strict=True)
+        summary.contact = {body.name: {"colliders": len(body.scene.contact.colliders), "sample_points": d.num_samples}
+                           for body, d in zip(bodies, handler.detector.detectors, strict=True)
                            if d is not None}  # fmt: skip
+    models = [body.model for body in bodies]
     try:
         return _advance(options, scene, models, TimeStepper(models, solver, _motions(scene), contact=handler),
                         summary, output, steps)  # fmt: skip

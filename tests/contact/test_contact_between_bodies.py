@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from helpers import REPO, RUBBER, STEEL, momentum
 
+from bhem_hpc.bodies.body import ShellBody
 from bhem_hpc.bodies.run import bodies_contact
 from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries, pair_friction
 from bhem_hpc.contact.response import ContactHandler
@@ -34,6 +35,11 @@ discretization = "{disc}"
 STANDING = 'rotation = { axis = [1.0, 0.0, 0.0], degrees = 90.0 }'
 
 
+def _bodies(scene, comm) -> list[ShellBody]:
+    return [ShellBody(name, k, body, build_model(body, comm))
+            for k, (name, body) in enumerate(zip(scene.names, scene.bodies, strict=True))]  # fmt: skip
+
+
 def _write(comm, path, text):
     if comm.rank == 0:
         path.write_text(text)
@@ -56,11 +62,12 @@ def test_two_plates_colliding_conserve_their_total_momentum(comm, shared_tmp_pat
     """Two rubber plates, one falling onto the other's top edge as that one rises (the B-spline
     paper's momentum test): each plate's momentum changes, their sum stays."""
     scene = load_any_scene(_plates(comm, shared_tmp_path))
-    models = [build_model(body, comm) for body in scene.bodies]
+    bodies = _bodies(scene, comm)
+    models = [body.model for body in bodies]
     before = [momentum(m) for m in models]
     assert before[0][2] == pytest.approx(-0.5 * 1100.0 * 2e-3 * 0.01, rel=1e-12)  # rho h A v [kg m/s]
     with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(scene, models, solver)
+        handler = bodies_contact(bodies, solver)
         try:
             stepper = TimeStepper(models, solver, contact=handler)
             for _ in range(10):
@@ -158,9 +165,10 @@ def test_a_cloth_falling_onto_a_held_cloth_stays_on_its_side(comm, shared_tmp_pa
     text += CLOTH.format(name="held", origin=[0.0, 0.0, 0.0], rest=HELD)
     text += CLOTH.format(name="falling", origin=[0.02, 0.03, 0.005], rest="")
     scene = load_any_scene(_write(comm, shared_tmp_path / "cloths.toml", text))
-    models = [build_model(body, comm) for body in scene.bodies]
+    bodies = _bodies(scene, comm)
+    models = [body.model for body in bodies]
     with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(scene, models, solver)
+        handler = bodies_contact(bodies, solver)
         try:
             stepper = TimeStepper(models, solver, contact=handler)
             for _ in range(scene.first.steps):
@@ -206,9 +214,10 @@ def test_initial_velocity_and_placement_keys(comm, shared_tmp_path):
     standing = scene.bodies[1].surface
     lattice = standing.evaluate(np.array([0.0, 0.1]), np.array([0.0, 0.1])).x
     assert np.allclose(lattice, [[-0.05, 0.0, -0.1], [0.05, 0.0, 0.0]], atol=1e-15)
-    models = [build_model(body, comm) for body in scene.bodies]
+    bodies = _bodies(scene, comm)
+    models = [body.model for body in bodies]
     with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(scene, models, solver)
+        handler = bodies_contact(bodies, solver)
         try:
             stepper = TimeStepper(models, solver, contact=handler)
             for _ in range(3):

@@ -1,0 +1,100 @@
+"""A body of a scene: what the solver, contact and output need of it (:class:`Body`), and the shell
+body (:class:`ShellBody`) every scene's ``[[bodies]]`` table builds.
+
+The solver stacks the bodies' DOFs (each body owns a range of every rank's part of one global
+vector, :class:`~bhem_hpc.bodies.layout.StackedLayout`); contact and output see a body through its
+flat entries ``(N, 3)`` (Hermite nodal data or B-spline control points) and the sparse map from
+them to the points they use (as ipc-toolkit's displacement map from DOFs to collision-mesh
+vertices): ``points = point_map(parameters) @ entries``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import scipy.sparse
+from dolfinx import fem
+
+from bhem_hpc import forms
+from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.io import SurfaceTimeSeries
+from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.scene.records import Scene
+
+
+class Body(Protocol):
+    """What the solver, contact and output need of a body.
+
+    Attributes:
+        name: the body's name (its output folder, its messages).
+        index: its place among the scene's bodies (the stacked order).
+    """
+
+    name: str
+    index: int
+
+    def dof_range(self, layout: StackedLayout) -> slice:
+        """This rank's owned DOFs of the body within this rank's part of the stacked vector."""
+        ...
+
+    def mass(self) -> float:
+        """The body's mass [kg]."""
+        ...
+
+    def entries(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the body's flat entries ``(N, 3)`` of its open-layout array, on every rank."""
+        ...
+
+    def point_map(self, parameters: np.ndarray) -> scipy.sparse.csr_matrix:
+        """The sparse map ``(P, N)`` from the flat entries to the points at ``parameters (P, 2)``."""
+        ...
+
+    def writer(self, path: Path) -> SurfaceTimeSeries:
+        """The ParaView time series of the body's surface at ``path`` (``.xdmf``)."""
+        ...
+
+
+class ShellBody:
+    """A shell of a scene as a :class:`Body`: its scene of one body and its model.
+
+    Args:
+        name: the body's name; index: its place among the scene's bodies.
+        scene: its scene of one body (surface, material, effects, contact, output density).
+        model: its :class:`ShellModel` (its DOFs, forms, constraints and state); the model's
+            :class:`~bhem_hpc.solver.problem.ShellProblem` holds its energy contributions (the UFL
+            terms, point loads and point constraints).
+    """
+
+    def __init__(self, name: str, index: int, scene: Scene, model: ShellModel):
+        self.name = name
+        self.index = index
+        self.scene = scene
+        self.model = model
+
+    def dof_range(self, layout: StackedLayout) -> slice:
+        return layout.local_slice(self.index)
+
+    def mass(self) -> float:
+        m = self.model
+        form = fem.form(forms.total_mass(m.x_rest, m.density, m.thickness, m.dx))
+        return float(m.comm.allreduce(fem.assemble_scalar(form)))
+
+    def entries(self, open_array: np.ndarray) -> np.ndarray:
+        return self.model.discretization.open_to_entries(open_array)
+
+    def point_map(self, parameters: np.ndarray) -> scipy.sparse.csr_matrix:
+        parameters = np.asarray(parameters, dtype=float).reshape(-1, 2)
+        grid = self.model.rest_surface.grid
+        p1, p2, t1, t2 = grid.locate(parameters[:, 0], parameters[:, 1])
+        layout = self.model.discretization.patches
+        index, weights = layout.point_entries(p1, p2, t1, t2)
+        rows = np.repeat(np.arange(len(parameters)), index.shape[1])
+        matrix = scipy.sparse.csr_matrix((weights.ravel(), (rows, index.ravel())),
+                                         shape=(len(parameters), layout.num_entries))  # fmt: skip
+        matrix.sum_duplicates()
+        return matrix
+
+    def writer(self, path: Path) -> SurfaceTimeSeries:
+        return SurfaceTimeSeries(path, self.scene.surface, self.scene.material, self.scene.output_density)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from petsc4py import PETSc
 
-from bhem_hpc.contact.petsc import ContactProjector, dual_solve, dual_solve_pushing
+from bhem_hpc.contact.petsc import ContactProjector, dual_residual, dual_solve, dual_solve_pushing
 
 
 class StackedProjector:
@@ -80,10 +80,7 @@ class StackedProjector:
         if self._selected is None:
             raise RuntimeError("StackedProjector.solve called before set_rows")
         index, coefficients, parts = self._selected
-        residual = np.asarray(targets, dtype=float).copy()
-        if current is not None:
-            residual -= np.einsum("rkc,rkc->r", coefficients, current[index])
-        signature = np.full((len(residual), len(parts)), -1, dtype=np.int64)
+        signature = np.full((len(index), len(parts)), -1, dtype=np.int64)
         for k, (_, rows, ids) in enumerate(parts):
             signature[rows, k] = ids
         distinct, position = np.unique(signature, axis=0, return_inverse=True)
@@ -97,8 +94,7 @@ class StackedProjector:
             gtg_max = max(gtg_max, projector.largest_gtg(np.unique(distinct[on, k])))
             weighted_max = max(weighted_max, projector.weighted_max)
         eps = self.regularization * gtg_max / weighted_max if gtg_max > 0 else 1.0
-        reduced = np.full(len(distinct), -np.inf) if combine is np.maximum else np.zeros(len(distinct))
-        combine.at(reduced, position, residual)
+        reduced = dual_residual(targets, current, (index, coefficients), position, len(distinct), combine)
         return distinct, position, schur + eps * np.eye(len(distinct)), reduced, schur
 
     def _correction(self, distinct: np.ndarray, multipliers: np.ndarray) -> np.ndarray:

@@ -17,6 +17,21 @@ from bhem_hpc.solver.petsc import PetscOwner, SolverError, mumps_infog, push_opt
 from bhem_hpc.solver.problem import ShellProblem
 
 
+def dual_residual(targets: np.ndarray, current: np.ndarray | None, rows: tuple[np.ndarray, np.ndarray],
+                  position: np.ndarray, count: int, combine) -> np.ndarray:  # fmt: skip
+    """``targets - G current`` of the selected rows ``rows = (index (r, K), coefficients (r, K, 3))``
+    (``current`` None: the targets themselves), the rows at one ``position`` (of ``count`` distinct
+    rows) combined by the ufunc ``combine`` (``np.add``: one multiplier for the sum of their residuals;
+    ``np.maximum``: the tightest bound)."""
+    residual = np.asarray(targets, dtype=float).copy()
+    if current is not None:
+        index, coefficients = rows
+        residual -= np.einsum("rkc,rkc->r", coefficients, current[index])
+    reduced = np.full(count, -np.inf) if combine is np.maximum else np.zeros(count)
+    combine.at(reduced, position, residual)
+    return reduced
+
+
 def dual_solve(matrix: np.ndarray, residual: np.ndarray, what: str) -> np.ndarray:
     """Multipliers ``lambda`` of the dual system ``matrix lambda = residual`` (``(r, r)``, symmetric
     positive definite), with one step of iterative refinement: the system is as ill-conditioned as its
@@ -440,14 +455,10 @@ class ContactProjector(PetscOwner):
         if self._selected is None:
             raise RuntimeError("ContactProjector.solve called before set_rows")
         ids, index, coefficients = self._selected
-        residual = np.asarray(targets, dtype=float).copy()
-        if current is not None:
-            residual -= np.einsum("rkc,rkc->r", coefficients, current[index])
         used, position = np.unique(ids, return_inverse=True)
         gtg_max = float(self._diagonal_of(used).max(initial=0.0))
         eps = self.regularization * gtg_max / self.weighted_max if gtg_max > 0 else 1.0
-        reduced = np.full(len(used), -np.inf) if combine is np.maximum else np.zeros(len(used))
-        combine.at(reduced, position, residual)
+        reduced = dual_residual(targets, current, (index, coefficients), position, len(used), combine)
         matrix = self._schur[np.ix_(used, used)] + eps * np.eye(len(used))
         return used, position, matrix, reduced
 

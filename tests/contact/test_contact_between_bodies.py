@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import REPO, RUBBER, STEEL, momentum
+from helpers import BASE, REPO, RUBBER, STEEL, momentum
 
 from bhem_hpc.bodies.body import ShellBody
 from bhem_hpc.bodies.run import bodies_contact
@@ -40,6 +40,22 @@ def _bodies(scene, comm) -> list[ShellBody]:
             for k, (name, body) in enumerate(zip(scene.names, scene.bodies, strict=True))]  # fmt: skip
 
 
+def _step_bodies(scene, comm, steps: int):
+    """The scene's bodies stepped ``steps`` times with their contact handler; returns the bodies and
+    the reports of the steps with contacts."""
+    bodies = _bodies(scene, comm)
+    models = [body.model for body in bodies]
+    with make_solver(models, scene.first, scene.path) as solver:
+        handler = bodies_contact(bodies, solver)
+        try:
+            stepper = TimeStepper(models, solver, contact=handler)
+            for _ in range(steps):
+                stepper.advance()
+            return bodies, [r for r in handler.history if r.contacts]
+        finally:
+            handler.close()
+
+
 def _write(comm, path, text):
     if comm.rank == 0:
         path.write_text(text)
@@ -62,20 +78,10 @@ def test_two_plates_colliding_conserve_their_total_momentum(comm, shared_tmp_pat
     """Two rubber plates, one falling onto the other's top edge as that one rises (the B-spline
     paper's momentum test): each plate's momentum changes, their sum stays."""
     scene = load_any_scene(_plates(comm, shared_tmp_path))
-    bodies = _bodies(scene, comm)
-    models = [body.model for body in bodies]
-    before = [momentum(m) for m in models]
+    before = [momentum(build_model(body, comm)) for body in scene.bodies]
     assert before[0][2] == pytest.approx(-0.5 * 1100.0 * 2e-3 * 0.01, rel=1e-12)  # rho h A v [kg m/s]
-    with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(bodies, solver)
-        try:
-            stepper = TimeStepper(models, solver, contact=handler)
-            for _ in range(10):
-                stepper.advance()
-            reports = [r for r in handler.history if r.contacts]
-        finally:
-            handler.close()
-    after = [momentum(m) for m in models]
+    bodies, reports = _step_bodies(scene, comm, 10)
+    after = [momentum(body.model) for body in bodies]
     scale = np.linalg.norm(before[0]) + np.linalg.norm(before[1])
     assert len(reports) >= 3  # the plates touched from the second step on
     assert all(r.min_separation > 0.0 and not r.bound_reached for r in reports)
@@ -165,18 +171,8 @@ def test_a_cloth_falling_onto_a_held_cloth_stays_on_its_side(comm, shared_tmp_pa
     text += CLOTH.format(name="held", origin=[0.0, 0.0, 0.0], rest=HELD)
     text += CLOTH.format(name="falling", origin=[0.02, 0.03, 0.005], rest="")
     scene = load_any_scene(_write(comm, shared_tmp_path / "cloths.toml", text))
-    bodies = _bodies(scene, comm)
-    models = [body.model for body in bodies]
-    with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(bodies, solver)
-        try:
-            stepper = TimeStepper(models, solver, contact=handler)
-            for _ in range(scene.first.steps):
-                stepper.advance()
-            reports = [r for r in handler.history if r.contacts]
-        finally:
-            handler.close()
-    held, falling = (m.state_surface() for m in models)
+    bodies, reports = _step_bodies(scene, comm, scene.first.steps)
+    held, falling = (body.model.state_surface() for body in bodies)
     free_fall = 0.005 - 0.5 * 9.81 * (12 * 0.005) ** 2  # where the upper cloth would be without the lower
     assert len(reports) >= 4 and max(r.contacts for r in reports) >= 50
     assert all(r.min_separation >= 0.999 * 2e-4 and not r.bound_reached for r in reports)
@@ -214,18 +210,9 @@ def test_initial_velocity_and_placement_keys(comm, shared_tmp_path):
     standing = scene.bodies[1].surface
     lattice = standing.evaluate(np.array([0.0, 0.1]), np.array([0.0, 0.1])).x
     assert np.allclose(lattice, [[-0.05, 0.0, -0.1], [0.05, 0.0, 0.0]], atol=1e-15)
-    bodies = _bodies(scene, comm)
-    models = [body.model for body in bodies]
-    with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(bodies, solver)
-        try:
-            stepper = TimeStepper(models, solver, contact=handler)
-            for _ in range(3):
-                stepper.advance()
-        finally:
-            handler.close()
-    for model, body, speed in zip(models, scene.bodies, (-0.5, 0.5), strict=True):
-        shift = model.state_surface().nodal[..., 0, :] - body.surface.nodal[..., 0, :]
+    bodies, _ = _step_bodies(scene, comm, 3)
+    for body, speed in zip(bodies, (-0.5, 0.5), strict=True):
+        shift = body.model.state_surface().nodal[..., 0, :] - body.scene.surface.nodal[..., 0, :]
         assert np.abs(shift - [0.0, 0.0, speed * 3 * 0.002]).max() <= 1e-12
 
 
@@ -240,25 +227,13 @@ def test_initial_velocity_and_placement_keys(comm, shared_tmp_path):
     ],
 )
 def test_bad_initial_and_placement_keys_are_refused(comm, shared_tmp_path, table, message):
-    text = """
-[surface]
-kind = "rectangle"
-size = [0.1, 0.1]
-patches = [2, 2]
-[material]
-young = 1e6
-poisson = 0.3
-thickness = 1e-3
-density = 1000.0
-[time]
-dt = 0.01
-steps = 1
-"""
+    text = BASE.replace("steps = 6", "steps = 1")
     path = _write(comm, shared_tmp_path / "bad.toml", text + table + "\n")
     with pytest.raises(SceneError, match=message):
         load_scene(path)
     if comm.rank == 0:
-        path.write_text(text.replace("dt = 0.01\nsteps = 1", "static = true") + "[initial]\nvelocity = [0, 0, 1]\n")
+        static = text.replace("dt = 0.01\nsteps = 1", "static = true").split("[effects]")[0]
+        path.write_text(static + "[initial]\nvelocity = [0, 0, 1]\n")
     comm.Barrier()
     with pytest.raises(SceneError, match="initial.velocity' must be absent: a static scene has no velocities"):
         load_scene(path)

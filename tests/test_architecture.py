@@ -63,3 +63,13 @@ def test_no_dof_index_is_computed_outside_the_discretization():
         if f".{name}" in path.read_text()
     )
     assert not readers, readers
+
+
+def test_every_package_is_installed():
+    """pyproject.toml lists every package directory (a wheel holds only the listed ones)."""
+    import tomllib
+
+    listed = set(tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {"bhem_hpc." + p.parent.relative_to(PACKAGE).as_posix().replace("/", ".")
+             for p in PACKAGE.rglob("__init__.py") if p.parent != PACKAGE} | {"bhem_hpc", "bhem_hpc.forms"}  # fmt: skip
+    assert listed == found

@@ -130,13 +130,13 @@ class ContactHandler:
         options=None,
         prefix: str = "bhem_contact_",
     ):
+        settings = self._validated(settings)
         self._check(model)
-        self._attach(
-            StackedEntries([model.discretization], [model.x.x.array.size]), detector,
-            ContactProjector(problem, prefix=prefix, options=options), settings, model.comm,
-        )  # fmt: skip
-        # the last Newton iteration's Jacobian, at (nearly) the step's end
-        self.jacobian = problem.jacobian if self.settings.metric == "jacobian" else None
+        # the "jacobian" metric: the last Newton iteration's Jacobian, at (nearly) the step's end
+        jacobian = problem.jacobian if settings.metric == "jacobian" else None
+        projector = ContactProjector(problem, prefix=prefix, options=options)
+        self._attach(StackedEntries([model.discretization], [model.x.x.array.size]), detector, projector, settings,
+                     model.comm, jacobian)  # fmt: skip
 
     @classmethod
     def between_bodies(
@@ -145,22 +145,29 @@ class ContactHandler:
     ) -> ContactHandler:  # fmt: skip
         """The handler of several bodies (a solver's ``problem.problems``) whose detector has a part
         for each body in contact; ``prefixes``: each body's projection options prefix."""
-        handler = cls.__new__(cls)
+        settings = cls._validated(settings)
+        for b in detector.in_contact:
+            cls._check(models[b])
         projectors: list[ContactProjector | None] = [None] * len(models)
         try:
             for b in detector.in_contact:
-                cls._check(models[b])
                 projectors[b] = ContactProjector(problems[b], prefix=prefixes[b])
         except Exception:
             for projector in projectors:
                 if projector is not None:
                     projector.close()
             raise
-        projector = StackedProjector(projectors, detector.entries.entry_offsets)
-        handler._attach(detector.entries, detector, projector, settings, models[0].comm)
-        jacobian = handler.settings.metric == "jacobian"
-        handler.jacobian = [p.jacobian if jacobian else None for p in problems] if jacobian else None
+        jacobians = [p.jacobian for p in problems] if settings.metric == "jacobian" else None
+        handler = cls.__new__(cls)
+        handler._attach(detector.entries, detector, StackedProjector(projectors, detector.entries.entry_offsets),
+                        settings, models[0].comm, jacobians)  # fmt: skip
         return handler
+
+    @staticmethod
+    def _validated(settings: ContactSettings | None) -> ContactSettings:
+        settings = settings or ContactSettings()
+        settings.validate()
+        return settings
 
     @staticmethod
     def _check(model: ShellModel) -> None:
@@ -168,18 +175,15 @@ class ContactHandler:
             raise InputError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
 
     def _attach(self, entries: StackedEntries, detector: ContactDetector | BodiesDetector,
-                projector: ContactProjector | StackedProjector, settings: ContactSettings | None,
-                comm: MPI.Comm) -> None:  # fmt: skip
-        self.settings = settings or ContactSettings()
-        try:
-            self.settings.validate()
-        except InputError:
-            projector.close()
-            raise
+                projector: ContactProjector | StackedProjector, settings: ContactSettings, comm: MPI.Comm,
+                jacobian: object) -> None:  # fmt: skip
+        self.settings = settings
         self.entries = entries
         self.detector = detector
         self.projector = projector
         self.comm = comm
+        # the projector's set_metric argument: a PETSc Jacobian, one per body for several, or None
+        self.jacobian = jacobian
         self.history: list[ContactReport] = []
 
     def _detect(

@@ -1,8 +1,10 @@
-"""The layout's rules: numpy-only geometry and collision, forms on UFL alone, PETSc in PETSc modules."""
+"""The layout's rules: numpy-only geometry and collision, forms on UFL alone, PETSc in PETSc modules,
+no import cycle."""
 
 from __future__ import annotations
 
 import ast
+import graphlib
 from pathlib import Path
 
 import pytest
@@ -73,3 +75,34 @@ def test_every_package_is_installed():
     found = {"bhem_hpc." + p.parent.relative_to(PACKAGE).as_posix().replace("/", ".")
              for p in PACKAGE.rglob("__init__.py") if p.parent != PACKAGE} | {"bhem_hpc", "bhem_hpc.forms"}  # fmt: skip
     assert listed == found
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _module_level_imports(path: Path, modules: set[str]) -> set[str]:
+    """The package's modules that ``path`` imports when it is loaded: its top-level imports, not
+    those under ``if TYPE_CHECKING:`` nor those inside functions (deliberately deferred)."""
+    found = set()
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            # ``from package import module`` imports that module; ``from module import name`` the module
+            found.update(f"{node.module}.{alias.name}" if f"{node.module}.{alias.name}" in modules else node.module
+                         for alias in node.names)  # fmt: skip
+    return found & modules
+
+
+def test_no_import_cycle():
+    """The modules' load-time imports form a directed acyclic graph (a cycle makes the load order
+    decide which names exist, as solver/newton.py and solver/problem.py once did)."""
+    paths = {_module_name(path): path for path in PACKAGE.rglob("*.py")}
+    graph = {name: _module_level_imports(path, set(paths)) - {name} for name, path in paths.items()}
+    assert len(graph) > 100 and sum(map(len, graph.values())) > 300  # the graph was read
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as cycle:
+        pytest.fail(f"import cycle: {' -> '.join(cycle.args[1])}")

@@ -153,6 +153,8 @@ def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection
         (lambda s: s.replace('name = "rubber"', 'name = "rubber"\ncolliders = []'),
          r"key 'bodies\[1\].colliders': \[colliders\] is shared by all bodies"),
         (lambda s: s.replace("steps = 4", "steps = 4\nstatic = true"), r"key 'time.static': a scene of several"),
+        (lambda s: s.replace('name = "rubber"', 'name = "rubber"\ntype = "solid"'),
+         r"key 'bodies\[1\].type' must be one of shell, got 'solid'"),
         (lambda s: s.replace("at = [0.2, 0.1]", "at = [2.0, 0.5]"),
          r"body 'steel' \(bodies\[0\]\): key 'probes\[0\].at'"),
     ],
@@ -173,6 +175,17 @@ def test_a_scene_of_several_bodies_is_not_restarted_nor_taken_by_one_body_comman
     with pytest.raises(RunError, match="cannot be restarted"):
         run_scene(RunOptions(path, shared_tmp_path / "out", restart=shared_tmp_path / "old", progress=False), comm)
     assert not (shared_tmp_path / "out").exists()
+
+
+def test_a_body_of_type_shell_is_the_body_without_a_type(comm, shared_tmp_path):
+    implicit = load_any_scene(_pair(comm, shared_tmp_path))
+    typed = _pair(comm, shared_tmp_path, lambda s: s.replace('name = "rubber"', 'name = "rubber"\ntype = "shell"'))
+    explicit = load_any_scene(typed)
+    assert explicit.names == implicit.names
+    for mine, theirs in zip(explicit.bodies, implicit.bodies, strict=True):
+        for key in ("material", "effects", "dt", "steps", "hessian"):
+            assert getattr(mine, key) == getattr(theirs, key)
+        assert mine.surface.discretization == theirs.surface.discretization
 
 
 def test_the_shipped_scene_of_two_bodies_loads(comm):

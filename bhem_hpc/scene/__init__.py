@@ -7,7 +7,9 @@ motions, :class:`~bhem_hpc.model.shell.Loads`-like effects, time, solver and out
 
 Each kind of table parses itself and registers itself by name (pbrt-v4's ``Create``): surface
 kinds in :data:`~.surfaces.SURFACES`, motion types in :data:`~.motions.MOTIONS`, collider types in
-:data:`~.colliders.COLLIDERS`; :mod:`.table` gives them typed access with errors that name the key.
+:data:`~.colliders.COLLIDERS`, constraint types in :data:`~.constraints.CONSTRAINTS`, load families in
+:data:`~.loads.LOADS`, body types in :data:`~.bodies.BODY_TYPES`; :mod:`.table` gives them typed
+access with errors that name the key.
 """
 
 from bhem_hpc.scene.loader import load_scene

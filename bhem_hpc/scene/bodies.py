@@ -7,11 +7,13 @@ tables a scene of one body has for its shell, and the tables all bodies share at
 
     [[bodies]]
     name = "steel"    # names the body's output folder and its messages
+    type = "shell"    # the body type (default "shell"), one of BODY_TYPES
     [bodies.surface]  # and material, effects (gravity, damping, loads), constraints,
     ...               # point_constraints, probes, initial: as in a scene of one body
 
-Each body is parsed as the scene of one body it would be alone (with the shared tables), so every
-key means what it means there; an error names the body and the key. ``[[colliders]]`` at the top
+Each body type parses its own table and registers itself in :data:`BODY_TYPES` (pbrt-v4's
+``Create``); a shell body is parsed as the scene of one body it would be alone (with the shared
+tables), so every key means what it means there; an error names the body and the key. ``[[colliders]]`` at the top
 are the scene's colliders: a body whose ``effects`` list ``contact`` meets them (and itself, with
 ``self_collision``) as a scene of one body does, and meets every other body whose effects list
 contact (Coulomb coefficient between two bodies: the geometric mean of their ``effects.friction``).
@@ -29,10 +31,17 @@ from typing import Any
 import numpy as np
 
 from bhem_hpc.scene.records import Scene
-from bhem_hpc.scene.table import SceneError, Table
+from bhem_hpc.scene.table import Registry, SceneError, Table
 
+#: The parsers of body tables by type: ``parser(path, tables, other_bodies_in_contact)`` gives the
+#: body's scene from its tables (the shared ones included); ``other_bodies_in_contact``: the body is
+#: one of several whose effects list contact. The shell body registers itself in
+#: :mod:`bhem_hpc.scene.loader`, whose parser of a scene of one body it is.
+BODY_TYPES = Registry("body type")
+#: The body type of a ``[[bodies]]`` table without a ``type`` key.
+DEFAULT_BODY_TYPE = "shell"
 #: The tables a body lists (a scene of one body's tables for its shell).
-BODY_KEYS = ("name", "surface", "material", "effects", "constraints", "point_constraints", "probes", "initial")
+BODY_KEYS = ("name", "type", "surface", "material", "effects", "constraints", "point_constraints", "probes", "initial")
 #: The tables every body shares, at the top of the file.
 SHARED_KEYS = ("time", "solver", "output")
 #: The scene's colliders, at the top: every body with contact effects meets them.
@@ -80,10 +89,15 @@ def _check_body(t: Table) -> bool:
     return _in_contact(t)
 
 
-def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dict, bool], Scene]) -> BodiesScene:
-    """The scene of several bodies in ``raw`` (a file's tables); ``parse_one(path, tables,
-    other_bodies_in_contact)`` parses the scene of one body (:func:`bhem_hpc.scene.loader.load_scene`'s
-    parser).
+def _body_type(t: Table) -> Callable[[Path, dict, bool], Scene]:
+    names = BODY_TYPES.names
+    kind = t.get("type", "a string", DEFAULT_BODY_TYPE, lambda v: v in names, f"one of {', '.join(names)}")
+    return BODY_TYPES[kind]
+
+
+def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
+    """The scene of several bodies in ``raw`` (a file's tables): each body's table parsed by the
+    parser its ``type`` registered in :data:`BODY_TYPES`.
 
     Raises:
         SceneError: naming the file, the body and the key.
@@ -107,11 +121,12 @@ def parse_bodies(path: Path, raw: dict[str, Any], parse_one: Callable[[Path, dic
     several_in_contact = sum(_in_contact(t) for t in tables_of) >= 2
     for k, (item, t) in enumerate(zip(items, tables_of, strict=True)):
         name = _body_name(t, names)
+        parse_body = _body_type(t)
         in_contact = _check_body(t)
-        tables = {key: value for key, value in item.items() if key != "name"} | shared
+        tables = {key: value for key, value in item.items() if key not in ("name", "type")} | shared
         tables |= colliders if in_contact else {}
         try:
-            bodies.append(parse_one(path, tables, in_contact and several_in_contact))
+            bodies.append(parse_body(path, tables, in_contact and several_in_contact))
         except SceneError as exc:
             where = str(exc).removeprefix(f"{path}: ")
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None

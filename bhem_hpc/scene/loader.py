@@ -18,7 +18,7 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
-from bhem_hpc.scene.bodies import BodiesScene, parse_bodies
+from bhem_hpc.scene.bodies import BODY_TYPES, BodiesScene, parse_bodies
 from bhem_hpc.scene.colliders import parse_colliders
 from bhem_hpc.scene.constraints import parse_constraints, parse_point_constraints
 from bhem_hpc.scene.loads import LOADS, parse_loads
@@ -101,9 +101,10 @@ def load_any_scene(path: str | Path) -> Scene | BodiesScene:
     :func:`~bhem_hpc.scene.bodies.parse_bodies`). Raises :class:`SceneError` on any problem."""
     path = Path(path)
     raw = _read_toml(path)
-    return parse_bodies(path, raw, _scene) if "bodies" in raw else _scene(path, raw)
+    return parse_bodies(path, raw) if "bodies" in raw else _scene(path, raw)
 
 
+@BODY_TYPES.register("shell")
 def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scene:
     """The scene of one body from its file's tables ``raw``; ``other_bodies_in_contact``: the body is
     one of several whose effects list contact (it meets them even without colliders)."""

@@ -14,10 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from bhem_hpc.bodies.layout import body_array_name
 from bhem_hpc.errors import RunError
 from bhem_hpc.io import read_checkpoint
 from bhem_hpc.io.path_table import read_json_rows
 from bhem_hpc.scene import Scene
+from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.solver.reuse import FactorizationReuse
 
 log = logging.getLogger(__name__)
@@ -48,15 +50,31 @@ class RestartPoint:
 SOLUTION_METHOD_KEYS = ("linear", "factorization", "options")
 
 
-def physics_hash(scene: Scene) -> str:
-    """Identity of a scene's physics (everything but time span, path settings, probes, output and
-    the solution method's :data:`SOLUTION_METHOD_KEYS`), for restarts."""
-    raw = {k: v for k, v in scene.raw.items() if k not in ("output", "path", "probes")}
+def _physics_tables(raw: dict) -> dict:
+    """A scene file's tables without those that do not change its physics: output, path settings,
+    probes, the time span and the solution method's :data:`SOLUTION_METHOD_KEYS`."""
+    raw = {k: v for k, v in raw.items() if k not in ("output", "path", "probes")}
     raw["solver"] = {k: v for k, v in raw.get("solver", {}).items() if k not in SOLUTION_METHOD_KEYS}
     raw["time"] = {k: v for k, v in raw.get("time", {}).items() if k not in ("steps", "duration", "load_steps")}
-    canonical = canonical_json(raw)
+    return raw
+
+
+def _grid_identity(scene: Scene) -> str:
     grid = scene.surface.grid
-    canonical += repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
+    return repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
+
+
+def physics_hash(scene: Scene | BodiesScene) -> str:
+    """Identity of a scene's physics (everything but time span, path settings, probes, output and
+    the solution method's :data:`SOLUTION_METHOD_KEYS`; of a scene of several bodies, every body's
+    tables but their probes), for restarts."""
+    raw = _physics_tables(scene.raw)
+    if isinstance(scene, BodiesScene):
+        raw["bodies"] = [{k: v for k, v in body.items() if k != "probes"} for body in raw["bodies"]]
+        grids = [_grid_identity(body) for body in scene.bodies]
+    else:
+        grids = [_grid_identity(scene)]
+    canonical = canonical_json(raw) + "".join(grids)
     return hashlib.sha256(canonical.encode()).hexdigest()[:16]
 
 
@@ -71,7 +89,7 @@ def canonical_json(value: dict) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def read_restart(directory: Path, scene: Scene) -> RestartPoint:
+def read_restart(directory: Path, scene: Scene | BodiesScene) -> RestartPoint:
     """The checkpoint in ``directory``, checked to be whole, finite and of this scene's physics."""
     path = directory / "checkpoint.h5"
     if not path.is_file():
@@ -85,10 +103,11 @@ def read_restart(directory: Path, scene: Scene) -> RestartPoint:
             f"--restart {directory}: the checkpoint is from a different scene or resolution "
             f"(physics hash {attrs.get('physics_hash')} != {physics_hash(scene)})"
         )
-    problem = _checkpoint_problem(arrays, attrs, scene)
+    several = isinstance(scene, BodiesScene)
+    problem = (_bodies_checkpoint_problem if several else _checkpoint_problem)(arrays, attrs, scene)
     if problem:
         raise RunError(f"{path}: {problem}")
-    method = canonical_json(solution_method(scene))
+    method = canonical_json(solution_method(scene.first if several else scene))
     if attrs.get("solution_method") != method:
         log.warning(
             "--restart %s: continuing with solver settings %s instead of the checkpoint's %s; the continued "
@@ -100,7 +119,19 @@ def read_restart(directory: Path, scene: Scene) -> RestartPoint:
 
 def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
     """What is wrong with a checkpoint's contents, or None."""
-    names = ("position_dofs", "velocity_dofs", "position_nodal")
+    problem = _state_problem(arrays, scene, lambda name: name)
+    if problem:
+        return problem
+    problem = _reuse_problem(arrays, attrs, [np.shape(arrays["position_dofs"])], scene.static, lambda name, _: name)
+    if problem:
+        return problem
+    return _path_problem(arrays, attrs, np.shape(arrays["position_dofs"])) if scene.static else _clock_problem(attrs)
+
+
+def _state_problem(arrays: dict, scene: Scene, key) -> str | None:
+    """What is wrong with one body's position, velocity and surface in a checkpoint (arrays named
+    ``key(name)``), or None."""
+    names = [key(name) for name in ("position_dofs", "velocity_dofs", "position_nodal")]
     missing = [name for name in names if name not in arrays]
     if missing:
         return f"dataset {missing[0]!r} is missing"
@@ -111,24 +142,39 @@ def _checkpoint_problem(arrays: dict, attrs: dict, scene: Scene) -> str | None:
         return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
     if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
         return "it holds non-finite or non-numeric values"
-    problem = _reuse_problem(arrays, attrs, position.shape, scene.static)
-    if problem:
-        return problem
-    return _path_problem(arrays, attrs, position.shape) if scene.static else _clock_problem(attrs)
+    return None
 
 
-def _reuse_problem(arrays: dict, attrs: dict, shape: tuple, static: bool) -> str | None:
-    """What is wrong with a checkpoint's kept-factorization state (if it has one), or None."""
-    if "factorization_state_dofs" not in arrays:
+def _reuse_problem(arrays: dict, attrs: dict, shapes: list[tuple], static: bool, key) -> str | None:
+    """What is wrong with a checkpoint's kept-factorization state (if it has one), or None;
+    ``shapes``: each body's DOF shape, ``key(name, body)`` the name of a body's array."""
+    if key("factorization_state_dofs", 0) not in arrays:
         return None
-    for name in ("factorization_state_dofs",) + (() if static else ("factorization_previous_dofs",)):
-        kept = np.asarray(arrays.get(name, np.zeros(0)))
-        if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
-            return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
+    kept_names = ("factorization_state_dofs",) + (() if static else ("factorization_previous_dofs",))
+    for body, shape in enumerate(shapes):
+        for name in (key(name, body) for name in kept_names):
+            kept = np.asarray(arrays.get(name, np.zeros(0)))
+            if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
+                return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
     counters = [attrs.get(f"reuse_{k}") for k in FactorizationReuse.STATE_KEYS]
     if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
         return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
     return None
+
+
+def _bodies_checkpoint_problem(arrays: dict, attrs: dict, scene: BodiesScene) -> str | None:
+    """What is wrong with the checkpoint of a run of several bodies, or None."""
+    count = len(scene.bodies)
+
+    def key(array: str, body: int) -> str:
+        return body_array_name(array, body, count)
+
+    for k, (name, body) in enumerate(zip(scene.names, scene.bodies, strict=True)):
+        problem = _state_problem(arrays, body, lambda array, k=k: key(array, k))
+        if problem:
+            return f"body '{name}' (bodies[{k}]): {problem}"
+    shapes = [np.shape(arrays[key("position_dofs", k)]) for k in range(count)]
+    return _reuse_problem(arrays, attrs, shapes, False, key) or _clock_problem(attrs)
 
 
 def _path_problem(arrays: dict, attrs: dict, shape: tuple) -> str | None:

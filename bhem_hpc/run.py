@@ -195,7 +195,7 @@ def run_scene(options: RunOptions, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
         if isinstance(scene, BodiesScene):
             from bhem_hpc.bodies.run import run_bodies  # it builds on this module's stages
 
-            return run_bodies(options, scene, comm)
+            return run_bodies(options, scene, checkpoint, continuing, comm)
         return _run_locked(options, scene, checkpoint, continuing, comm)
     finally:
         if lock is not None:
@@ -213,7 +213,7 @@ def lock_output(out: Path, comm: MPI.Comm) -> OutputLock | None:
 def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | None, continuing: bool,
                 comm: MPI.Comm) -> dict:  # fmt: skip
     """The run itself, once its output directory is locked and checked (see :func:`run_scene`)."""
-    steps = _steps_to_run(scene, options, checkpoint)
+    steps = steps_to_run(scene, options, checkpoint)
     scene_text = options.scene.read_bytes()  # before the output directory (which may hold it) is replaced
 
     model = build_model(scene, comm)
@@ -301,26 +301,26 @@ def report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.Co
         log.warning("PETSc options never used (misspelled or not applicable): %s", ", ".join(unused))
 
 
-def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene | BodiesScene, dict | None, bool]:
+def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene | BodiesScene, RestartPoint | None, bool]:
     """Every check before anything is built but the output directory's (done under its lock): the
     scene, ``--steps`` and the restart. Returns the scene, the restart checkpoint (or None) and
     whether the restart continues the run in its own directory."""
     scene = load_any_scene(options.scene)
     if options.steps is not None and options.steps < 1:
         raise RunError(f"--steps must be >= 1, got {options.steps}")
-    checkpoint = None
-    continuing = False
-    if isinstance(scene, BodiesScene):
-        if options.restart is not None:
-            raise RunError(f"{options.scene}: a scene of several bodies writes no checkpoint; it cannot be restarted "
-                           f"(--restart {options.restart})")  # fmt: skip
+    if options.restart is None:
         return scene, None, False
-    if options.restart is not None:
-        checkpoint = read_restart(options.restart, scene)
-        continuing = _is_same_directory(options.restart, options.out)
-        check_path_left(scene, checkpoint)
+    checkpoint = read_restart(options.restart, scene)
+    continuing = _is_same_directory(options.restart, options.out)
+    if isinstance(scene, BodiesScene):
+        steps_to_run(scene.first, options, checkpoint)  # a finished run is refused before the output is touched
         if continuing:
-            check_same_probes(scene, options.restart)
+            for name, body in zip(scene.names, scene.bodies, strict=True):
+                check_same_probes(body, options.restart / name)
+        return scene, checkpoint, continuing
+    check_path_left(scene, checkpoint)
+    if continuing:
+        check_same_probes(scene, options.restart)
     return scene, checkpoint, continuing
 
 
@@ -359,7 +359,7 @@ def on_rank0(comm: MPI.Comm, action, what: str):
     return result
 
 
-def _steps_to_run(scene: Scene, options: RunOptions, checkpoint: RestartPoint | None) -> int:
+def steps_to_run(scene: Scene, options: RunOptions, checkpoint: RestartPoint | None) -> int:
     """``--steps``, or the steps left to the scene's end (all of them without a restart)."""
     if scene.static:  # --steps bounds the path points of this run
         return options.steps if options.steps is not None else scene.path_plan.point_count
@@ -625,11 +625,15 @@ def _checkpoint(
     if position is None:
         position = state.raw_position()
     data = {"position_dofs": position, "velocity_dofs": state.raw_velocity(), "position_nodal": surface.nodal}
-    meta = {"time": clock[0], "step": clock[1], "physics_hash": summary.physics_hash,
-            "solution_method": canonical_json(summary.solution_method),
-            "static": state.model.dynamics is None} | attrs  # fmt: skip
+    meta = checkpoint_attributes(clock, summary, state.model.dynamics is None) | attrs
     data |= arrays
     on_rank0(comm, lambda: write_checkpoint(path, data, meta), path.name)
+
+
+def checkpoint_attributes(clock: tuple[float, int], summary: RunSummary, static: bool) -> dict:
+    """A checkpoint's identity and clock: time, step, the run's physics hash and solution method."""
+    return {"time": clock[0], "step": clock[1], "physics_hash": summary.physics_hash,
+            "solution_method": canonical_json(summary.solution_method), "static": static}  # fmt: skip
 
 
 def progress_bar(total: int, enabled: bool):

@@ -7,10 +7,12 @@ import json
 import re
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import dolfinx.fem as fem
 import dolfinx.fem.petsc as fem_petsc
+import h5py
 import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -300,3 +302,19 @@ gravity = [0.0, 0.0, -9.81]
 type = "clamp"
 edge = "xi1_min"
 """
+
+
+def frame_times(directory: Path) -> list[float]:
+    """The frame times of the series in ``directory`` (``surface.*``), checked to be listed alike in its
+    XDMF, HDF5 and PVD files, with no stale frame file."""
+    root = ET.parse(directory / "surface.xdmf").getroot()
+    listed = [float(g.find("Time").get("Value")) for g in root.findall(".//Grid[@GridType='Uniform']")]
+    with h5py.File(directory / "surface.h5", "r") as f:
+        stored = [float(f[f"frames/{k}"].attrs["time"]) for k in range(len(f["frames"]))]
+    assert listed == stored  # the XDMF lists exactly the frames the HDF5 file holds
+    pvd = ET.parse(directory / "surface.pvd").getroot().findall(".//DataSet")
+    assert [float(d.get("timestep")) for d in pvd] == listed  # and so does the VTK collection,
+    assert sorted(p.name for p in (directory / "surface_frames").iterdir()) == [  # with no stale frame
+        Path(d.get("file")).name for d in pvd
+    ]
+    return listed

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import json
 import os
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
-from helpers import BASE
+from helpers import BASE, frame_times
 
 from bhem_hpc.io import read_checkpoint
 from bhem_hpc.run import RunError, RunOptions, run_scene
@@ -22,20 +21,6 @@ def write(comm, path: Path, text: str) -> Path:
         path.write_text(text)
     comm.Barrier()
     return path
-
-
-def frame_times(directory: Path) -> list[float]:
-    root = ET.parse(directory / "surface.xdmf").getroot()
-    listed = [float(g.find("Time").get("Value")) for g in root.findall(".//Grid[@GridType='Uniform']")]
-    with h5py.File(directory / "surface.h5", "r") as f:
-        stored = [float(f[f"frames/{k}"].attrs["time"]) for k in range(len(f["frames"]))]
-    assert listed == stored  # the XDMF lists exactly the frames the HDF5 file holds
-    pvd = ET.parse(directory / "surface.pvd").getroot().findall(".//DataSet")
-    assert [float(d.get("timestep")) for d in pvd] == listed  # and so does the VTK collection,
-    assert sorted(p.name for p in (directory / "surface_frames").iterdir()) == [  # with no stale frame
-        Path(d.get("file")).name for d in pvd
-    ]
-    return listed
 
 
 def files(directory: Path) -> dict[str, bytes]:

@@ -54,7 +54,7 @@ def test_a_small_job_run_twice_gives_the_same_state(shared_tmp_path, comm):
 
 
 def test_a_job_of_several_bodies_is_recorded_by_each_bodys_last_frame(shared_tmp_path, comm):
-    """A scene of several bodies writes no checkpoint: its state is each body's last frame."""
+    """A scene of several bodies is recorded by each body's last frame."""
     jobs = shared_tmp_path / "jobs"
     if comm.rank == 0:
         jobs.mkdir()

@@ -60,7 +60,7 @@ def job_files(names: list[str] | None, directory: Path = JOBS_DIRECTORY) -> list
 
 def run_job(scene_file: Path, runs: Path, steps: int, comm: MPI.Comm) -> JobState | None:
     """Run ``scene_file`` for ``steps`` steps into ``runs/<job>``; its final state (rank 0; None elsewhere):
-    the checkpoint's arrays, or for a scene of several bodies (no checkpoint) each body's last frame
+    the checkpoint's arrays, or for a scene of several bodies each body's last frame
     (``<body>/position_nodal``: nodal data or control points)."""
     from bhem_hpc.io import read_checkpoint, read_frame
     from bhem_hpc.run import RunOptions, run_scene

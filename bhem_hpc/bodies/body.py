@@ -51,8 +51,9 @@ class Body(Protocol):
         """The sparse map ``(P, N)`` from the flat entries to the points at ``parameters (P, 2)``."""
         ...
 
-    def writer(self, path: Path) -> SurfaceTimeSeries:
-        """The ParaView time series of the body's surface at ``path`` (``.xdmf``)."""
+    def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
+        """The ParaView time series of the body's surface at ``path`` (``.xdmf``); with
+        ``continue_at``, the series there continued after its frame at that time."""
         ...
 
 
@@ -96,5 +97,6 @@ class ShellBody:
         matrix.sum_duplicates()
         return matrix
 
-    def writer(self, path: Path) -> SurfaceTimeSeries:
-        return SurfaceTimeSeries(path, self.scene.surface, self.scene.material, self.scene.output_density)
+    def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
+        scene = self.scene
+        return SurfaceTimeSeries(path, scene.surface, scene.material, scene.output_density, continue_at=continue_at)

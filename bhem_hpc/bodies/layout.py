@@ -19,6 +19,12 @@ from collections.abc import Sequence
 import numpy as np
 
 
+def body_array_name(name: str, body: int, bodies: int) -> str:
+    """A checkpoint array's name for body ``body`` of ``bodies``: one body's as a run of one body
+    names it, several bodies' numbered (``position_dofs_1``)."""
+    return name if bodies == 1 else f"{name}_{body}"
+
+
 class StackedLayout:
     """Stacked global numbering of several bodies' entries.
 

@@ -4,35 +4,39 @@ each body's ParaView series in a folder of its own, one collection of them all.
 The output directory holds ``scene.toml``, ``summary.json`` and ``steps.jsonl`` as a run of one body
 does, ``<body>/surface.xdmf`` (``.h5``, ``.pvd`` and ``surface_frames/``) and ``<body>/probes.csv``
 for each body, ``bodies.pvd`` (every body's frames as the parts of one ParaView collection) and
-``last.png`` (every body ray traced, each in its colour). Collective: every rank calls
-:func:`run_bodies`; rank 0 writes files. A scene of several bodies writes no checkpoint: it is run
-from its start.
+``last.png`` (every body ray traced, each in its colour), and ``checkpoint.h5`` with every body's
+state (arrays numbered by body, :func:`~bhem_hpc.bodies.layout.body_array_name`) at each frame:
+``--restart`` continues the run in its own directory (its series, probe tables and step records)
+or into another one, as a run of one body. Collective: every rank calls :func:`run_bodies`; rank 0
+writes files.
 """
 
 from __future__ import annotations
 
-import hashlib
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from mpi4py import MPI
 
 from bhem_hpc.bodies.body import ShellBody
+from bhem_hpc.bodies.layout import body_array_name
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
-from bhem_hpc.io import render_surface_png
+from bhem_hpc.io import render_surface_png, write_checkpoint
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
-from bhem_hpc.io.path_table import CsvTable, probe_columns
+from bhem_hpc.io.path_table import CsvTable, probe_columns, read_rows
 from bhem_hpc.io.run_directory import start_output_directory, write_replacing
 from bhem_hpc.io.run_summary import RunSummary
 from bhem_hpc.io.vtu import write_pvd
 from bhem_hpc.model.path import ProbeSet
-from bhem_hpc.restart import canonical_json, solution_method
+from bhem_hpc.restart import RestartPoint, physics_hash, previous_steps, solution_method
 from bhem_hpc.run import (
     SOLVER_PREFIX,
     RunOptions,
     StepRecords,
     build_model,
+    checkpoint_attributes,
     close_solver,
     contact_detector,
     contact_settings,
@@ -42,6 +46,7 @@ from bhem_hpc.run import (
     progress_bar,
     record_failure,
     step_summary,
+    steps_to_run,
 )
 from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.solver import ShellSolver
@@ -51,17 +56,27 @@ from bhem_hpc.solver.petsc import library_versions
 
 class BodiesOutput:
     """Rank 0's files of a run of several bodies: each body's time series and probe table, and the
-    collection of all bodies' frames (``bodies.pvd``)."""
+    collection of all bodies' frames (``bodies.pvd``).
 
-    def __init__(self, out: Path, bodies: list[ShellBody]):
+    Args:
+        continued: the checkpoint of the run continued in ``out`` (its frames and probe rows up to
+            the checkpoint are kept), or None for a fresh ``out``.
+    """
+
+    def __init__(self, out: Path, bodies: list[ShellBody], continued: RestartPoint | None = None):
         self.out = out
         self.names = [body.name for body in bodies]
         self.series = []
+        continue_at = None if continued is None else float(continued.attrs["time"])
         for body in bodies:
-            (out / body.name).mkdir()
-            self.series.append(body.writer(out / body.name / "surface.xdmf"))
-        self.probe_tables = [CsvTable(out / body.name / "probes.csv", []) if body.scene.probes else None
-                             for body in bodies]  # fmt: skip
+            (out / body.name).mkdir(exist_ok=continued is not None)
+            self.series.append(body.writer(out / body.name / "surface.xdmf", continue_at))
+        self.probe_tables = [
+            CsvTable(out / body.name / "probes.csv",
+                     read_rows(out / body.name / "probes.csv", continued.step) if continued is not None else [])
+            if body.scene.probes else None
+            for body in bodies
+        ]  # fmt: skip
 
     def write(self, time_value: float, surfaces: list[HermiteSurface]) -> None:
         """A frame of every body at ``time_value``, and the collection listing every frame so far."""
@@ -79,46 +94,45 @@ class BodiesOutput:
             series.close()
 
 
-def _physics_hash(scene: BodiesScene) -> str:
-    raw = {k: v for k, v in scene.raw.items() if k != "output"}
-    return hashlib.sha256(canonical_json(raw).encode()).hexdigest()[:16]
-
-
 def _motions(scene: BodiesScene) -> list[PrescribedMotion]:
     """Every body's prescribed motions, each naming its body."""
     return [PrescribedMotion(m.constraint, m.values, body=k)
             for k, body in enumerate(scene.bodies) for m in prescribed_motions(body)]  # fmt: skip
 
 
-def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
-    """Run ``scene`` into ``options.out`` (locked and checked by the caller, which refuses a restart);
-    returns the summary."""
+def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint | None, continuing: bool,
+               comm: MPI.Comm) -> dict:  # fmt: skip
+    """Run ``scene`` into ``options.out`` (locked and checked by the caller), from its start or from
+    ``checkpoint`` (checked by the caller; ``continuing``: in its own directory); returns the summary."""
     first = scene.first
-    steps = options.steps if options.steps is not None else first.steps
+    steps = steps_to_run(first, options, checkpoint)
     scene_text = options.scene.read_bytes()
     bodies = [ShellBody(name, k, body, build_model(body, comm))
               for k, (name, body) in enumerate(zip(scene.names, scene.bodies, strict=True))]  # fmt: skip
     models = [body.model for body in bodies]
     solver = make_solver(models, first, options.scene)
     summary = RunSummary(
-        scene=str(options.scene), physics_hash=_physics_hash(scene), solution_method=solution_method(first),
+        scene=str(options.scene), physics_hash=physics_hash(scene), solution_method=solution_method(first),
         dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
         versions=library_versions(), static=False, linear_solver=solver.linear.as_dict(),
         factorization=first.factorization,
         bodies=[{"name": body.name, "dofs": 3 * body.model.discretization.num_closed, "mass_kg": body.mass(),
                  "discretization": body.scene.surface.discretization} for body in bodies],
+        steps=previous_steps(options.out, checkpoint) if continuing else [],
     )  # fmt: skip
     output: BodiesOutput | None = None
     try:
 
         def start() -> BodiesOutput:
-            start_output_directory(options.out, list(scene.names))
+            if not continuing:
+                start_output_directory(options.out, list(scene.names))
             write_replacing(options.out / "scene.toml", scene_text)
             summary.write(options.out)
-            return BodiesOutput(options.out, bodies)
+            return BodiesOutput(options.out, bodies, checkpoint if continuing else None)
 
         output = on_rank0(comm, start, f"the output directory {options.out}")
-        surfaces = _step(options, scene, bodies, solver, summary, output, steps)
+        run = _BodiesRun(options, scene, bodies, solver, summary, output, comm)
+        surfaces = _step(run, checkpoint, continuing, steps)
         title = f"{options.scene.name}, t = {summary.time or 0:.4g} s"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", surfaces, title), "last.png")
     except Exception as exc:
@@ -133,16 +147,19 @@ def run_bodies(options: RunOptions, scene: BodiesScene, comm: MPI.Comm) -> dict:
     return summary.as_dict()
 
 
-def _frame(output: BodiesOutput | None, models: list, probes: list, stepper: TimeStepper,
-           comm: MPI.Comm) -> list[HermiteSurface]:  # fmt: skip
-    """Write every body's frame and probe row at the stepper's state (collective); returns the surfaces."""
+def _frame(output: BodiesOutput | None, models: list, stepper: TimeStepper, comm: MPI.Comm) -> list[HermiteSurface]:
+    """Write every body's frame at the stepper's state (collective); returns the surfaces."""
     surfaces = [m.state_surface() for m in models]
     on_rank0(comm, lambda: output.write(stepper.time, surfaces), "a frame of the bodies")
+    return surfaces
+
+
+def _probe_rows(output: BodiesOutput | None, probes: list, stepper: TimeStepper, comm: MPI.Comm) -> None:
+    """Every body's probe row at the stepper's state (collective)."""
     for k, probe_set in enumerate(probes):
         if probe_set is not None:
             row = {"step": stepper.step, "time": stepper.time} | probe_columns(probe_set.record())
             on_rank0(comm, lambda k=k, row=row: output.probe_tables[k].add(row), "probes.csv")
-    return surfaces
 
 
 def bodies_contact(bodies: list[ShellBody], solver: ShellSolver):
@@ -165,49 +182,109 @@ def bodies_contact(bodies: list[ShellBody], solver: ShellSolver):
     return ContactHandler.between_bodies(models, solver.problem.problems, detector, settings, prefixes)
 
 
-def _step(options: RunOptions, scene: BodiesScene, bodies: list[ShellBody], solver: ShellSolver,
-          summary: RunSummary, output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
-    """Advance every body ``steps`` time steps with the bodies' contact handler (closed at the end);
-    returns the bodies' final surfaces."""
-    handler = bodies_contact(bodies, solver)
+def _step(run: _BodiesRun, checkpoint: RestartPoint | None, continuing: bool, steps: int) -> list[HermiteSurface]:
+    """Advance every body ``steps`` time steps with the bodies' contact handler (closed at the end),
+    from the start or from ``checkpoint``; returns the bodies' final surfaces."""
+    bodies, summary = run.bodies, run.summary
+    handler = bodies_contact(bodies, run.solver)
     if handler is not None:
         summary.contact = {body.name: {"colliders": len(body.scene.contact.colliders), "sample_points": d.num_samples}
                            for body, d in zip(bodies, handler.detector.detectors, strict=True)
                            if d is not None}  # fmt: skip
-    models = [body.model for body in bodies]
+    stepper = TimeStepper(run.models, run.solver, _motions(run.scene), contact=handler)
     try:
-        return _advance(options, scene, models, TimeStepper(models, solver, _motions(scene), contact=handler),
-                        summary, output, steps)  # fmt: skip
+        if checkpoint is not None:
+            _restore(run, stepper, checkpoint)
+        return _advance(run, stepper, steps, fresh_series=not continuing)
     finally:
         if handler is not None:
             handler.close()
 
 
-def _advance(options: RunOptions, scene: BodiesScene, models: list, stepper: TimeStepper, summary: RunSummary,
-             output: BodiesOutput | None, steps: int) -> list[HermiteSurface]:  # fmt: skip
-    """The time steps: frames every ``output.every`` steps, the last one and one a stop signal ends
-    with; a step record each; returns the bodies' final surfaces."""
+def _restore(run: _BodiesRun, stepper: TimeStepper, checkpoint: RestartPoint) -> None:
+    """Collective: every body's state, the clock and the kept factorization of ``checkpoint``."""
+    arrays, attrs = checkpoint.arrays, checkpoint.attrs
+    if run.key("factorization_state_dofs", 0) in arrays:
+        reuse = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
+        run.solver.restore_reuse_checkpoint(arrays, reuse)
+    for k, state in enumerate(stepper.state.states):
+        state.set_raw(arrays[run.key("position_dofs", k)], arrays[run.key("velocity_dofs", k)])
+    stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
+
+
+def _advance(run: _BodiesRun, stepper: TimeStepper, steps: int, fresh_series: bool) -> list[HermiteSurface]:
+    """The time steps: frames (with a checkpoint) every ``output.every`` steps, the last one and one
+    a stop signal ends with; a step record each; returns the bodies' final surfaces. A fresh series
+    starts with the current state's frame (a continued one has it)."""
+    options, scene, models, comm, summary = run.options, run.scene, run.models, run.comm, run.summary
     probes = [ProbeSet(m, body.probes) if body.probes else None for m, body in zip(models, scene.bodies, strict=True)]
-    surfaces = _frame(output, models, probes, stepper, comm := stepper.solver.bodies.comm)
+    if comm.bcast(fresh_series):
+        surfaces = _frame(run.output, models, stepper, comm)
+        _probe_rows(run.output, probes, stepper, comm)
+    else:
+        surfaces = [m.state_surface() for m in models]
     records = StepRecords(options.out, summary, comm)
     progress = progress_bar(steps, options.progress and comm.rank == 0)
     every = scene.first.output_every
+    checkpoint_s = 0.0  # a checkpoint's write time counts to the next step's output_s
     try:
         with Interruption() as interruption:
             for k in range(steps):
                 record = stepper.advance()
                 t_out = time.perf_counter()
                 stop = interruption.requested(comm)  # every rank stops after the same step
-                if stepper.step % every == 0 or k == steps - 1 or stop is not None:
-                    surfaces = _frame(output, models, probes, stepper, comm)
-                records.add(step_summary(record, time.perf_counter() - t_out, None))
+                wrote = stepper.step % every == 0 or k == steps - 1 or stop is not None
+                if wrote:
+                    surfaces = _frame(run.output, models, stepper, comm)
+                _probe_rows(run.output, probes, stepper, comm)
+                records.add(step_summary(record, time.perf_counter() - t_out + checkpoint_s, None))
+                t_checkpoint = time.perf_counter()
+                if wrote:  # after the step's rows: a restart from it finds them all
+                    run.write_checkpoint(stepper, surfaces)
+                checkpoint_s = time.perf_counter() - t_checkpoint
                 summary.time = stepper.time
                 progress(record, stepper)
                 if stop is not None:
                     raise RunInterrupted(f"{options.scene}: stopped by {stop} after step {stepper.step} "
-                                         f"(t = {stepper.time:.6g} s); its state is the last frame")  # fmt: skip
+                                         f"(t = {stepper.time:.6g} s); its state is the last frame and the "
+                                         f"checkpoint: continue with --restart {options.out}")  # fmt: skip
     except StepFailure as exc:
         raise RunError(str(exc)) from exc
     finally:
         progress(None, stepper)
     return surfaces
+
+
+@dataclass
+class _BodiesRun:
+    """What the stages of one run of several bodies share (collective, every rank; ``output`` on
+    rank 0 only)."""
+
+    options: RunOptions
+    scene: BodiesScene
+    bodies: list[ShellBody]
+    solver: ShellSolver
+    summary: RunSummary
+    output: BodiesOutput | None
+    comm: MPI.Comm
+
+    @property
+    def models(self) -> list:
+        return [body.model for body in self.bodies]
+
+    def key(self, name: str, body: int) -> str:
+        """The name of body ``body``'s array ``name`` in the checkpoint."""
+        return body_array_name(name, body, len(self.bodies))
+
+    def write_checkpoint(self, stepper: TimeStepper, surfaces: list[HermiteSurface]) -> None:
+        """Collective: ``checkpoint.h5`` with every body's raw position and velocity DOFs and surface,
+        the kept factorization's state and the clock."""
+        arrays, reuse = self.solver.reuse_checkpoint()  # a continued run remakes the kept factorization
+        for k, (state, surface) in enumerate(zip(stepper.state.states, surfaces, strict=True)):
+            arrays[self.key("position_dofs", k)] = state.raw_position()
+            arrays[self.key("velocity_dofs", k)] = state.raw_velocity()
+            arrays[self.key("position_nodal", k)] = surface.nodal
+        attrs = checkpoint_attributes((stepper.time, stepper.step), self.summary, False)
+        attrs |= {f"reuse_{k}": v for k, v in reuse.items()}
+        path = self.options.out / "checkpoint.h5"
+        on_rank0(self.comm, lambda: write_checkpoint(path, arrays, attrs), path.name)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from petsc4py import PETSc
 
+from bhem_hpc.bodies.layout import body_array_name
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.linear import LinearSolverChoice, available_memory, choose_linear_solver, mass_dominance
 
@@ -147,8 +148,7 @@ class FactoredState:
                 for m in self.models]  # fmt: skip
 
     def _key(self, name: str, body: int) -> str:
-        """A checkpoint array's name: one body's as it always was, several bodies' numbered."""
-        return name if len(self.models) == 1 else f"{name}_{body}"
+        return body_array_name(name, body, len(self.models))
 
     def remember(self, kind: int) -> None:
         """The Jacobian of Hessian kind ``kind`` was just assembled at the models' current state."""

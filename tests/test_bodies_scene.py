@@ -232,8 +232,9 @@ def test_a_run_of_several_bodies_restarts_as_the_uninterrupted_run(comm, shared_
     """Two free sheets with contact dropped onto a floor, 8 steps (a checkpoint every 2): stopped
     after 4 and restarted in place, or into another directory, they end as the run that was not
     stopped, with its step records, probe rows and frames; a finished run or another scene's
-    checkpoint is refused. Within round-off, not bit for bit: two fresh runs of a free sheet differ
-    by about 1e-15 of its size already."""
+    checkpoint is refused. Within round-off, not bit for bit: within one process a second run of a
+    free sheet already differs from the first by about 1e-15 of its size (first runs in separate
+    processes agree bit for bit; probably array alignment changing summation order)."""
     pair = _write(comm, shared_tmp_path / "dropped.toml", SHARED.replace("steps = 4", "steps = 8") + FLOOR
                   + "".join(_as_body(name, tables) for name, tables in DROPPED.items()))  # fmt: skip
     whole, part, other = (shared_tmp_path / name for name in ("whole", "part", "other"))

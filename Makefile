@@ -5,6 +5,8 @@ PY := $(VENV)/bin/python
 # One BLAS thread per MPI rank (see jobs/run.sh).
 MPIRUN := OPENBLAS_NUM_THREADS=1 mpirun --allow-run-as-root --oversubscribe -x OPENBLAS_NUM_THREADS
 RUFF_VERSION := 0.8.4
+# ipc-toolkit, the incremental potential contact library (contact/ipc.py)
+IPCTK_VERSION := 1.6.1
 # The main job: a scene and its output directory (overwritten).
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
@@ -13,11 +15,11 @@ OUT ?= out/demo
 
 setup: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml scripts/install-system-packages
+$(VENV)/.installed: pyproject.toml scripts/install-system-packages Makefile
 	scripts/install-system-packages
 	[ -x $(PY) ] || $(SYSTEM_PYTHON) -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
-	$(PY) -m pip install -q ruff==$(RUFF_VERSION)
+	$(PY) -m pip install -q ruff==$(RUFF_VERSION) ipctk==$(IPCTK_VERSION)
 	touch $@
 
 demo: setup

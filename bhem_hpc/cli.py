@@ -1,4 +1,4 @@
-"""Command line: ``bhem-hpc {run,render,study,bench,cantilever} ...``.
+"""Command line: ``bhem-hpc {run,render,study,bench,cantilever,states,intersections,...} ...``.
 
 Trailing ``-prefix_option value`` pairs go to PETSc.
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 import traceback
@@ -52,6 +53,15 @@ def _add_states(sub) -> None:
     states.add_argument("--tolerance", type=float, default=1e-12, help="largest relative difference that passes")
 
 
+def _add_intersections(sub) -> None:
+    """``bhem-hpc intersections``: whether a run's output meshes ever intersect."""
+    audit = sub.add_parser("intersections", help="test every frame of a run's output meshes for intersections "
+                           "(ipc-toolkit); exit 1 if one intersects")  # fmt: skip
+    audit.add_argument("directory", type=Path, help="output directory of `bhem-hpc run`")
+    audit.add_argument("--within", type=float, default=1e-3,
+                       help="report the smallest distance between triangles closer than this [m]")  # fmt: skip
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bhem-hpc",
@@ -83,6 +93,7 @@ def _parser() -> argparse.ArgumentParser:
     paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
     _add_cloth(sub)
     _add_states(sub)
+    _add_intersections(sub)
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
@@ -142,7 +153,7 @@ def _parser() -> argparse.ArgumentParser:
 def _render(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.io import read_frame
     from bhem_hpc.io.render import render, write_png
-    from bhem_hpc.io.run_directory import manifest_bodies
+    from bhem_hpc.io.run_directory import run_series
 
     if comm.rank != 0:  # serial: one rank renders
         return
@@ -152,12 +163,7 @@ def _render(args: argparse.Namespace, comm) -> None:
         raise InputError(f"--size must be WIDTHxHEIGHT, got {args.size!r}") from exc
     if not (1 <= width <= 4096 and 1 <= height <= 4096):
         raise InputError(f"--size must be between 1x1 and 4096x4096, got {args.size!r}")
-    # a run of one body has its series at the top; a run of several, one in each body's folder
-    bodies = manifest_bodies(args.directory) if not (args.directory / "surface.h5").is_file() else []
-    series = [args.directory / body / "surface.h5" for body in bodies] or [args.directory / "surface.h5"]
-    for h5 in series:
-        if not h5.is_file():
-            raise InputError(f"{h5} does not exist: render needs the output directory of `bhem-hpc run`")
+    series = run_series(args.directory)  # a run of one body's, or each body's of a run of several
     if args.out is not None and not args.out.parent.is_dir():
         raise InputError(f"--out {args.out}: the folder {args.out.parent} does not exist")
     surfaces = []
@@ -344,6 +350,22 @@ def _states(args: argparse.Namespace, comm) -> int:
     return reference_states(args.record, args.compare, args.jobs, args.steps, args.out, args.tolerance, comm)
 
 
+def _intersections(args: argparse.Namespace, comm) -> int:
+    from bhem_hpc.contact.audit import audit_run
+
+    if comm.rank != 0:  # serial: one rank reads and tests
+        return 0
+    audits = audit_run(args.directory, args.within)
+    crossing = [a for a in audits if a.intersecting]
+    closest = min(audits, key=lambda a: a.min_distance)
+    for a in crossing:
+        print(f"frame {a.index} (t = {a.time:.6g}): intersecting")
+    nearest = f"{closest.min_distance:.3g} m at frame {closest.index} (t = {closest.time:.6g})" \
+        if math.isfinite(closest.min_distance) else f"none closer than {args.within:g} m"
+    print(f"{len(audits)} frames, {len(crossing)} intersecting; smallest distance between triangles: {nearest}")
+    return 1 if crossing else 0
+
+
 def _summary(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.summary import update_readme
 
@@ -362,6 +384,7 @@ HANDLERS = {
     "paths": _paths,
     "cloth": _cloth,
     "states": _states,
+    "intersections": _intersections,
     "cantilever": _cantilever,
 }
 

@@ -52,6 +52,21 @@ def foreign_entries(out: Path, most: int = 5) -> list[str]:
     return _foreign_in(out, "", set(manifest_bodies(out)), most)
 
 
+def run_series(out: Path) -> list[Path]:
+    """The surface series (``surface.h5``) of the run in ``out``: its own, or each body's of a run of
+    several bodies (in the scene's order).
+
+    Raises:
+        OutputDirectoryError: ``out`` holds no run's series.
+    """
+    bodies = manifest_bodies(out) if not (out / "surface.h5").is_file() else []
+    series = [out / body / "surface.h5" for body in bodies] or [out / "surface.h5"]
+    for h5 in series:
+        if not h5.is_file():
+            raise OutputDirectoryError(f"{h5} does not exist: {out} is not the output directory of `bhem-hpc run`")
+    return series
+
+
 def manifest_bodies(out: Path) -> list[str]:
     """The body folders the manifest of ``out`` names, in the scene's order (none: a run of one
     body, or no manifest)."""

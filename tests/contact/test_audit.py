@@ -1,0 +1,59 @@
+"""The intersection audit of a run's output (``bhem-hpc intersections``): two rubber plates that
+pass through each other intersect in every frame where they cross; with the impulse contact between
+them they meet at the push-out distance and intersect in a frame at most."""
+
+from __future__ import annotations
+
+import pytest
+from helpers import REPO
+
+from bhem_hpc import cli
+from bhem_hpc.contact.audit import audit_run
+from bhem_hpc.errors import InputError, UserError
+from bhem_hpc.run import RunOptions, run_scene
+
+CONTACT = "effects = { contact = { push_out = 1.0e-4 }, friction = 0.2 }\n"
+
+
+def _plates(comm, directory, contact: bool):
+    """The two-plates job, a frame every step, with or without its contact."""
+    text = (REPO / "jobs" / "two-plates.toml").read_text().replace("every = 5", "every = 1")
+    assert text.count(CONTACT) == 2
+    path = directory / f"plates-{contact}.toml"
+    if comm.rank == 0:
+        path.write_text(text if contact else text.replace(CONTACT, ""))
+    comm.Barrier()
+    out = directory / f"plates-{contact}"
+    run_scene(RunOptions(path, out, steps=14, progress=False), comm)
+    return out
+
+
+def test_plates_passing_through_each_other_intersect_and_with_impulses_touch(comm, shared_tmp_path, capsys):
+    crossing = _plates(comm, shared_tmp_path, contact=False)
+    touching = _plates(comm, shared_tmp_path, contact=True)
+    if comm.rank != 0:
+        return
+    audits = audit_run(crossing, within=1e-3)
+    assert len(audits) == 15 and [a.index for a in audits] == list(range(15))
+    # 10 mm apart, closing at 1 m/s: the vertical plate's edge reaches the horizontal one at t = 0.01 s
+    hits = [a.time for a in audits if a.intersecting]
+    # at t = 0.01 s the vertical plate's edge touches the horizontal plate; after it, they cross
+    assert hits == pytest.approx([a.time for a in audits[6:]])
+    # With impulses the plates stay apart but for a frame or so: the response keeps samples at the
+    # push-out distance (1e-4 m), not the tessellated output meshes, and the vertical plate's edge
+    # lies between samples (measured: frame 7 of 15, t = 0.014 s).
+    touched = audit_run(touching, within=1e-3)
+    assert sum(a.intersecting for a in touched) <= 2 and not touched[5].intersecting
+    assert 5e-5 <= touched[5].min_distance <= 2e-4  # at the push-out distance where they meet
+    assert cli.main(["intersections", str(crossing)]) == 1
+    out = capsys.readouterr().out
+    assert "frame 6 (t = 0.012): intersecting" in out and "15 frames, 9 intersecting" in out
+
+
+def test_the_audit_refuses_what_is_not_a_run(comm, shared_tmp_path):
+    if comm.rank != 0:
+        return
+    with pytest.raises(UserError, match="does not exist: .* is not the output directory of `bhem-hpc run`"):
+        audit_run(shared_tmp_path, within=1e-3)
+    with pytest.raises(InputError, match=r"--within must be a positive distance, got -1.0"):
+        audit_run(shared_tmp_path, within=-1.0)

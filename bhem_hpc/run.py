@@ -140,10 +140,26 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
     return model
 
 
+def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
+    """The :class:`~bhem_hpc.contact.ipc_contribution.IpcBarrier` of a scene with contact by ``ipc``,
+    checked to start apart from its colliders (collective)."""
+    from bhem_hpc.contact.ipc_contribution import shell_barrier
+
+    c, material = scene.contact, scene.material
+    barrier = shell_barrier(model, [entry.collider for entry in c.colliders], c.dhat, c.barrier_stiffness,
+                            c.collision_cells, material.density, material.thickness)  # fmt: skip
+    problem = barrier.starting_problem(model.x.x.array)
+    if problem is not None:
+        raise RunError(f"{scene_file}: the shell starts in contact with its colliders ('ipc' needs it apart): "
+                       f"{problem}")  # fmt: skip
+    return barrier
+
+
 def build_contact(scene: Scene, model: ShellModel, problem: ShellProblem):
     """The scene's :class:`~bhem_hpc.contact.response.ContactHandler` for ``model`` and its ``problem``
-    in the solver, or None: only scenes that list contact effects load the collision code."""
-    if scene.contact is None:
+    in the solver, or None: only scenes that list contact effects load the collision code (contact
+    by ``ipc`` is the solver's barrier contribution, :func:`ipc_barrier`)."""
+    if scene.contact is None or scene.contact.method == "ipc":
         return None
     from bhem_hpc.contact.response import ContactHandler
 
@@ -264,10 +280,12 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
 
 def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: Path) -> ShellSolver:
     """The run's solver of ``model`` (or several bodies' models) with the scene's ``[solver]``
-    settings (a scene of several bodies: any body's, they share them)."""
+    settings (a scene of several bodies: any body's, they share them), and the barrier of contact
+    by ``ipc`` as an energy contribution."""
+    contributions = [ipc_barrier(scene, model, scene_file)] if scene.contact and scene.contact.method == "ipc" else []
     try:
         return ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
-                           factorization=scene.factorization, linear=scene.linear,
+                           factorization=scene.factorization, linear=scene.linear, contributions=contributions,
                            acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None

@@ -26,6 +26,7 @@ PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "sol
         ("bhem_hpc.contact.detection", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.bodies", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.ipc", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.contact.ipc_contribution", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.forms", ("dolfinx", "petsc4py", "mpi4py", "basix")),
         ("bhem_hpc.solver.contributions", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.bodies.layout", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),

@@ -175,7 +175,8 @@ class IpcContact:
         start must be free of them)."""
         start = self.vertices(entries)
         end = self.vertices(np.asarray(entries) + np.asarray(direction))
-        return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end))
+        return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None,
+                                                                 self._ipctk.AdditiveCCD()))  # fmt: skip
 
     def min_distance(self, entries: np.ndarray) -> float:
         """The smallest distance [m] between elements closer than ``dhat`` (``inf`` if none are)."""

@@ -130,6 +130,9 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
         except SceneError as exc:
             where = str(exc).removeprefix(f"{path}: ")
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None
+        if bodies[-1].contact is not None and bodies[-1].contact.method == "ipc":
+            raise SceneError(f"{path}: body '{name}' (bodies[{k}]): key 'effects.contact.method' = 'ipc': a scene "
+                             "of several bodies takes method = 'impulse'")  # fmt: skip
         names.append(name)
     if colliders and all(body.contact is None for body in bodies):
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")

@@ -175,6 +175,9 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     constraints = parse_constraints(top, surface, path)
     points = parse_point_constraints(top, surface, path)
     contact = _contact(top, path, static, other_bodies_in_contact)
+    if contact is not None and contact.method == "ipc" and hessian == "trust_region":
+        raise SceneError(f"{path}: key 'solver.hessian' = 'trust_region' does not bound its steps by the "
+                         "barrier's collision-free step; contact by 'ipc' takes the line-search Hessians")  # fmt: skip
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip
@@ -368,12 +371,15 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
         raise SceneError(f"{path}: contact effects {listed} need a dynamic scene ('time.static' is true)")
     if "contact" not in effects:
         raise SceneError(f"{path}: effects {listed} need 'effects.contact' as well")
-    from bhem_hpc.contact.metrics import CONTACT_METRICS  # the contact package loads only for contact scenes
+    from bhem_hpc.contact.metrics import CONTACT_METHODS, CONTACT_METRICS  # loaded only for contact scenes
 
     settings = effects["contact"]
     if settings is True:
         settings = {}
     et = Table(path, "effects.contact", settings)
+    method = et.get("method", "a string", "impulse", lambda v: v in CONTACT_METHODS, f"one of {CONTACT_METHODS}")
+    if method == "ipc":
+        return _ipc_contact(et, effects, colliders_raw, path, other_bodies)
     push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
     samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
     metric = et.get("metric", "a string", "mass", lambda v: v in CONTACT_METRICS, f"one of {CONTACT_METRICS}")
@@ -388,6 +394,38 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
         raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
     colliders = parse_colliders(colliders_raw, friction, path)
     return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric, friction)
+
+
+def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, other_bodies: bool) -> SceneContact:
+    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes and meshes."""
+    from bhem_hpc.collision.colliders import Plane, TriangleMesh
+    from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE
+
+    dhat = et.get("dhat", "a number", None, lambda v: 1e-9 <= v <= 1.0, "a length in [1e-9, 1] [m]")
+    kappa = et.get("barrier_stiffness", "a number", None, lambda v: 0 < v <= 1e15, "a number in (0, 1e15] [N/m]")
+    low, high = COLLISION_CELLS_RANGE
+    cells = et.get("collision_cells", "an integer", 4, lambda v: low <= v <= high, f"an integer in {low}..{high}")
+    et.done()
+    unsupported = [(key, value) for key, value in (("self_collision", effects.get("self_collision", False)),
+                                                   ("friction", effects.get("friction", 0.0))) if value]  # fmt: skip
+    if unsupported:
+        key, value = unsupported[0]
+        raise SceneError(f"{path}: key 'effects.{key}' = {value!r}: contact by 'ipc' meets static colliders without "
+                         "friction; self-contact and friction take method = 'impulse'")  # fmt: skip
+    if other_bodies:
+        raise SceneError(f"{path}: key 'effects.contact.method' = 'ipc': contact between bodies takes "
+                         "method = 'impulse'")  # fmt: skip
+    if not colliders_raw:
+        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes or meshes)")
+    colliders = parse_colliders(colliders_raw, 0.0, path)
+    for i, entry in enumerate(colliders):
+        collider = entry.collider
+        if not isinstance(collider, Plane | TriangleMesh) or np.any(collider.velocity != 0):
+            kind, moving = type(collider).__name__.lower(), list(collider.velocity)
+            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes and meshes, "
+                             f"got a {kind} moving at {moving}")  # fmt: skip
+    return SceneContact(colliders, 0.0, 1, False, 0.0, method="ipc", dhat=dhat, barrier_stiffness=kappa,
+                        collision_cells=cells)  # fmt: skip
 
 
 def _self_collision(value: Any, friction: float, path: Path) -> tuple[bool, float]:

@@ -73,6 +73,10 @@ class SceneContact:
     self_friction: float
     metric: str = "mass"  # the impulse metric: "mass" (M + S) or "jacobian" (dt^2 J + S)
     friction: float = 0.0  # the body's Coulomb coefficient (``effects.friction``)
+    method: str = "impulse"  # "impulse" (between steps) or "ipc" (a barrier inside the solve)
+    dhat: float | None = None  # ipc: the barrier's activation distance [m] (None: 1e-3 of the bounding box)
+    barrier_stiffness: float | None = None  # ipc: kappa [N/m] (None: ipc-toolkit's rule)
+    collision_cells: int = 4  # ipc: collision-lattice cells per patch side
 
 
 @dataclass(frozen=True)

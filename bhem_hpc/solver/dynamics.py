@@ -24,12 +24,15 @@ from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
-from bhem_hpc.solver.state import ShellState, StackedState
+from bhem_hpc.solver.state import ShellState, StackedState, StepStart
 
 if TYPE_CHECKING:  # a scene without contact never imports the collision code
     from bhem_hpc.contact.response import ContactHandler
 
 log = logging.getLogger(__name__)
+#: The part of the collision-free bound of the inertial prediction a first guess goes (a barrier's
+#: energy grows without bound at the bound itself).
+FIRST_GUESS_FRACTION = 0.9
 
 
 class StepFailure(UserError, RuntimeError):
@@ -152,6 +155,20 @@ class TimeStepper:
             values.append(model.prescribed_values(moved) if moved else model.constrained_target)
         return values[0] if len(values) == 1 else np.concatenate(values)
 
+    def _bound_first_guess(self, start: StepStart) -> None:
+        """Where a contribution bounds steps (a barrier), the inertial prediction is the first guess
+        only as far as the straight path from the step's start allows: ``x_n + a (x_pred - x_n)``
+        with ``a`` :data:`FIRST_GUESS_FRACTION` of the bound (the start is admissible, and so is
+        every Newton iterate after it)."""
+        problem = self.solver.problem
+        if len(self.models) != 1 or not problem.has_step_bounds:
+            return
+        predicted = np.array(self.state.position)
+        self.state.roll_back(start)
+        bound = problem.max_open_step(predicted - start.position)
+        fraction = 1.0 if bound >= 1.0 else FIRST_GUESS_FRACTION * bound
+        self.state.set_guess(start.position + fraction * (predicted - start.position))
+
     def advance(self) -> StepRecord:
         """One time step of the model's dt (possibly as recovered substeps)."""
         start = time.perf_counter()
@@ -176,6 +193,7 @@ class TimeStepper:
 
     def _advance(self, t_start: float, dt: float, depth: int, report: StepRecord) -> None:
         start = self.state.begin_step(dt)
+        self._bound_first_guess(start)
         try:
             self.solver.problem.set_point_targets(t_start + dt)
             report.newton_iterations += self.solver.solve_step(self.bc_values_at(t_start + dt))

@@ -311,6 +311,16 @@ class ShellProblem(PetscOwner):
         state = self.contribution_state()
         return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
 
+    def max_open_step(self, direction: np.ndarray) -> float:
+        """Collective: :meth:`max_step` of a direction given on this rank's open layout (owned and
+        ghost entries, ``model.x.x.array``'s layout)."""
+        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
+        if not bounded:
+            return 1.0
+        state = self.contribution_state()
+        blocks = np.asarray(direction).reshape(-1, 3)
+        return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
+
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a closed-DOF direction on this rank's open blocks (owned and ghosts), ``(blocks, 3)``."""
         open_direction = self.model.x.vector.duplicate()

@@ -73,6 +73,10 @@ class ShellState:
         """Return the position to the step's start (a failed solve)."""
         self.model.x.x.array[:] = start.position
 
+    def set_guess(self, position: np.ndarray) -> None:
+        """Set the position (open layout) the step's solve starts from."""
+        self.model.x.x.array[:] = position
+
     def finish_step(self, start: StepStart, dt: float, correction: StateCorrection | None = None) -> None:
         """``v = (x - x_n) / dt`` for the solved position, then the correction added to v and x."""
         model = self.model
@@ -138,6 +142,10 @@ class StackedState:
     def roll_back(self, start: StepStart) -> None:
         for state, body_start in zip(self.states, self._body_starts(start), strict=True):
             state.roll_back(body_start)
+
+    def set_guess(self, position: np.ndarray) -> None:
+        for state, body_position in zip(self.states, self._split(position), strict=True):
+            state.set_guess(body_position)
 
     def finish_step(self, start: StepStart, dt: float, correction: StateCorrection | None = None) -> None:
         corrections = [None] * len(self.states) if correction is None else [

@@ -175,6 +175,47 @@ class Sphere:
         # relative position at the start and relative motion over the step
         return _round_time_of_impact(start - self.center, (end - start) - dt * self.velocity, self.radius + gap)
 
+    def triangles(self, max_sagitta: float) -> tuple[np.ndarray, np.ndarray]:
+        """An icosphere on the sphere: ``(vertices (V, 3), triangles (T, 3))`` whose flat faces lie
+        at most ``max_sagitta`` inside it (the subdivisions of the icosahedron that need; at most
+        :data:`MAX_SPHERE_SUBDIVISIONS`, else :class:`ColliderError`)."""
+        for level in range(MAX_SPHERE_SUBDIVISIONS + 1):
+            unit, faces = icosphere(level)
+            edge = np.linalg.norm(unit[faces[:, 0]] - unit[faces[:, 1]], axis=1).max() * self.radius
+            # a face's deepest point lies at most its circumradius^2 / (2 R) inside, edge / sqrt(3) bounding it
+            if edge**2 / (6.0 * self.radius) <= max_sagitta:
+                return self.center + self.radius * unit, faces
+        raise ColliderError(f"a sphere of radius {self.radius:g} needs more than {MAX_SPHERE_SUBDIVISIONS} "
+                            f"subdivisions to lie within {max_sagitta:g} of its triangles")  # fmt: skip
+
+
+#: Subdivisions of the icosahedron a sphere's triangles may take (20 * 4^7 = 327680 triangles).
+MAX_SPHERE_SUBDIVISIONS = 7
+
+
+def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """The unit icosahedron subdivided ``subdivisions`` times, every vertex on the unit sphere:
+    ``(vertices (V, 3), triangles (T, 3))``, ``T = 20 * 4^subdivisions``, outward (counter-clockwise)."""
+    golden = (1.0 + math.sqrt(5.0)) / 2.0
+    vertices = np.array([[-1, golden, 0], [1, golden, 0], [-1, -golden, 0], [1, -golden, 0],
+                         [0, -1, golden], [0, 1, golden], [0, -1, -golden], [0, 1, -golden],
+                         [golden, 0, -1], [golden, 0, 1], [-golden, 0, -1], [-golden, 0, 1]], dtype=float)  # fmt: skip
+    faces = np.array([[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+                      [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+                      [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]], dtype=np.int64)  # fmt: skip
+    vertices /= np.linalg.norm(vertices, axis=1, keepdims=True)
+    for _ in range(subdivisions):
+        edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+        unique, inverse = np.unique(edges, axis=0, return_inverse=True)
+        middle = vertices[unique[:, 0]] + vertices[unique[:, 1]]
+        middle /= np.linalg.norm(middle, axis=1, keepdims=True)
+        m = len(vertices) + inverse.reshape(3, -1)  # the midpoints of edges 01, 12, 20 of each face
+        a, b, c = faces.T
+        faces = np.concatenate([np.stack([a, m[0], m[2]], 1), np.stack([b, m[1], m[0]], 1),
+                                np.stack([c, m[2], m[1]], 1), np.stack([m[0], m[1], m[2]], 1)])  # fmt: skip
+        vertices = np.concatenate([vertices, middle])
+    return vertices, faces.astype(np.int32)
+
 
 @dataclass(frozen=True)
 class Cylinder:

@@ -37,6 +37,9 @@ class Communicator(Protocol):
     def allgather(self, value: Any) -> list: ...
 
 
+#: A sphere meets the barrier as an icosphere whose faces lie at most this fraction of dhat inside
+#: it (a shell resting on it may sink that far into the exact sphere).
+SPHERE_SAGITTA = 0.25
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.
 WEIGHT_CUTOFF = 1e-12
@@ -202,14 +205,14 @@ class IpcBarrier:
 
 def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | None, stiffness: float | None,
                   cells_per_patch: int, density: float, thickness: float) -> IpcBarrier:  # fmt: skip
-    """The barrier between ``model``'s shell and static colliders (planes and triangle meshes): a
-    collision lattice of ``cells_per_patch`` cells per patch side (aligned with the patches, so each
-    lattice triangle lies in one cell), ``dhat`` by default 1e-3 of the rest mesh's bounding-box
-    diagonal, and ``kappa`` by default ipc-toolkit's initial stiffness for that ``dhat`` and the
-    mesh's mass per vertex."""
+    """The barrier between ``model``'s shell and static colliders (planes, spheres as icospheres
+    within :data:`SPHERE_SAGITTA` dhat, triangle meshes): a collision lattice of ``cells_per_patch``
+    cells per patch side (aligned with the patches, so each lattice triangle lies in one cell),
+    ``dhat`` by default 1e-3 of the rest mesh's bounding-box diagonal, and ``kappa`` by default the
+    top of ipc-toolkit's adaptive range for that ``dhat`` and the mesh's mass per vertex."""
     import ipctk
 
-    from bhem_hpc.collision.colliders import Plane
+    from bhem_hpc.collision.colliders import Plane, Sphere
 
     grid = model.rest_surface.grid
     per_side = (grid.n1 * cells_per_patch, grid.n2 * cells_per_patch)
@@ -233,5 +236,6 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
         stiffness = ipctk.initial_barrier_stiffness(diagonal, ipctk.ClampedLogBarrier(), dhat, mass_per_vertex,
                                                     zero, zero)[1]  # fmt: skip
     planes = [(c.normal / np.linalg.norm(c.normal), c.point) for c in colliders if isinstance(c, Plane)]
-    meshes = [(c.vertices, c.triangles) for c in colliders if not isinstance(c, Plane)]
+    meshes = [c.triangles(SPHERE_SAGITTA * dhat) if isinstance(c, Sphere) else (c.vertices, c.triangles)
+              for c in colliders if not isinstance(c, Plane)]  # fmt: skip
     return IpcBarrier(bases, model.global_open_blocks, triangles, meshes, planes, dhat, stiffness, model.comm)

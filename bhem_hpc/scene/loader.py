@@ -397,8 +397,8 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
 
 
 def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, other_bodies: bool) -> SceneContact:
-    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes and meshes."""
-    from bhem_hpc.collision.colliders import Plane, TriangleMesh
+    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes, spheres and meshes."""
+    from bhem_hpc.collision.colliders import Plane, Sphere, TriangleMesh
     from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE
 
     dhat = et.get("dhat", "a number", None, lambda v: 1e-9 <= v <= 1.0, "a length in [1e-9, 1] [m]")
@@ -416,13 +416,13 @@ def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, othe
         raise SceneError(f"{path}: key 'effects.contact.method' = 'ipc': contact between bodies takes "
                          "method = 'impulse'")  # fmt: skip
     if not colliders_raw:
-        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes or meshes)")
+        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes)")
     colliders = parse_colliders(colliders_raw, 0.0, path)
     for i, entry in enumerate(colliders):
         collider = entry.collider
-        if not isinstance(collider, Plane | TriangleMesh) or np.any(collider.velocity != 0):
+        if not isinstance(collider, Plane | Sphere | TriangleMesh) or np.any(collider.velocity != 0):
             kind, moving = type(collider).__name__.lower(), list(collider.velocity)
-            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes and meshes, "
+            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes, spheres and meshes, "
                              f"got a {kind} moving at {moving}")  # fmt: skip
     return SceneContact(colliders, 0.0, 1, False, 0.0, method="ipc", dhat=dhat, barrier_stiffness=kappa,
                         collision_cells=cells)  # fmt: skip

@@ -7,6 +7,7 @@ import pytest
 from helpers import REPO
 
 from bhem_hpc.collision import Capsule, ColliderError, Cylinder, PatchModel, Plane, Sphere, TriangleMesh
+from bhem_hpc.collision.colliders import icosphere
 
 MESHES = REPO / "meshes"
 
@@ -100,3 +101,28 @@ def test_bad_colliders_are_rejected(tmp_path):
     (tmp_path / "broken.obj").write_text("this is not a mesh")
     with pytest.raises(ColliderError, match="broken.obj"):
         TriangleMesh.read(tmp_path / "broken.obj")
+
+
+@pytest.mark.parametrize("subdivisions", [0, 1, 3])
+def test_the_icosphere_is_a_closed_outward_mesh_on_the_unit_sphere(subdivisions):
+    vertices, triangles = icosphere(subdivisions)
+    assert len(triangles) == 20 * 4**subdivisions and np.allclose(np.linalg.norm(vertices, axis=1), 1.0, atol=1e-15)
+    edges = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(counts == 2) and len(vertices) - len(unique) + len(triangles) == 2  # closed, genus 0
+    corners = vertices[triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    assert np.all(np.einsum("ij,ij->i", normals, corners.mean(axis=1)) > 0)  # outward
+
+
+@pytest.mark.parametrize("sagitta", [1e-2, 1e-3, 2.5e-4])
+def test_a_spheres_triangles_lie_within_the_sagitta_inside_it(sagitta):
+    sphere = Sphere([0.1, -0.2, 0.3], 0.25)
+    vertices, triangles = sphere.triangles(sagitta)
+    corners = vertices[triangles] - sphere.center
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    depth = sphere.radius - np.einsum("ij,ij->i", normals, corners[:, 0])  # the face's deepest point
+    assert depth.max() <= sagitta and depth.max() >= sagitta / 16  # no finer than one more subdivision needs
+    with pytest.raises(ColliderError, match="needs more than 7 subdivisions"):
+        sphere.triangles(1e-9)

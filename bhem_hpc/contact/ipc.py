@@ -26,13 +26,15 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+from bhem_hpc.errors import UserError
+
 #: Smallest and largest collision-lattice resolution per side of a body.
 LATTICE_RANGE = (2, 2000)
 #: ``dhat`` as a fraction of the scene's bounding-box diagonal, as IPC's examples choose it.
 DEFAULT_DHAT_FRACTION = 1e-3
 
 
-class IpcError(ValueError):
+class IpcError(UserError, ValueError):
     """A collision mesh or barrier setting that cannot be used (the message names what and why)."""
 
 

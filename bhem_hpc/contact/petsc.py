@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 
 import dolfinx.fem as fem
@@ -15,6 +16,8 @@ from bhem_hpc import forms
 from bhem_hpc.model.jit import compilation_report, default_jit_params
 from bhem_hpc.solver.petsc import PetscOwner, SolverError, mumps_infog, push_options
 from bhem_hpc.solver.problem import ShellProblem
+
+log = logging.getLogger(__name__)
 
 
 def dual_residual(targets: np.ndarray, current: np.ndarray | None, rows: tuple[np.ndarray, np.ndarray],
@@ -305,7 +308,8 @@ class ContactProjector(PetscOwner):
         owned = (closed >= self.first_owned) & (closed < self.first_owned + self.n_local)
         return closed, values, closed[owned] - self.first_owned, values[owned]
 
-    def _right_hand_sides(self, columns: list[tuple[np.ndarray, np.ndarray]], scalar: bool = False) -> PETSc.Mat:
+    def _right_hand_sides(self, columns: list[tuple[np.ndarray, np.ndarray]], scalar: bool = False,
+                          dense: bool = False) -> PETSc.Mat:  # fmt: skip
         """Right-hand sides ``(n, len(columns))`` from each column's global closed indices and values
         (duplicates add up) in the vector numbering (3 per closed nodal entry) or the scalar one (1
         per entry); constrained DOFs stay zero (they do not move). Serially the transpose of a
@@ -320,7 +324,7 @@ class ContactProjector(PetscOwner):
         keep = ~constrained[index]
         index, values, column_of = index[keep], values[keep], column_of[keep]
         comm = self.model.comm
-        if not self.sparse_rhs:
+        if dense or not self.sparse_rhs:
             owned = (index >= first) & (index < first + n_local)
             rhs = np.zeros((n_local, len(columns)), order="F")
             np.add.at(rhs, (index[owned] - first, column_of[owned]), values[owned])
@@ -337,6 +341,20 @@ class ContactProjector(PetscOwner):
         transposed = PETSc.Mat().createTranspose(g)
         g.destroy()  # the transpose keeps a reference
         return transposed
+
+    def _solve_for(self, ksp: PETSc.KSP, columns: list[tuple[np.ndarray, np.ndarray]], scalar: bool,
+                   what: str) -> np.ndarray:  # fmt: skip
+        """Collective: this rank's rows of ``W^-1`` applied to the right-hand sides of ``columns``
+        (:meth:`_right_hand_sides`). A sparse right-hand side that MUMPS refuses is solved again as a
+        dense one (PETSc 3.18's sparse path stopped once with INFOG(1) = -22 in a test of two cotton
+        bodies; it was not reproduced)."""
+        try:
+            return self._solve_columns(ksp, self._right_hand_sides(columns, scalar), what)
+        except SolverError as error:
+            if not self.sparse_rhs:
+                raise
+            log.warning("%s; solving again with dense right-hand sides", error)
+            return self._solve_columns(ksp, self._right_hand_sides(columns, scalar, dense=True), what)
 
     def _solve_columns(self, ksp: PETSc.KSP, rhs: PETSc.Mat, what: str) -> np.ndarray:
         """Collective: this rank's rows of ``W^-1 rhs`` through the factorization of ``ksp``."""
@@ -369,10 +387,8 @@ class ContactProjector(PetscOwner):
                 fresh.append(r)
             columns[r] = self._scalar_ids[key]
         if fresh:
-            rhs = self._right_hand_sides(
-                [(self.entry_block[index[r]], weights[r] / self.entry_scale[index[r]]) for r in fresh], scalar=True
-            )
-            solved = self._solve_columns(self.scalar_ksp, rhs, f"{len(fresh)} new contact points")
+            points = [(self.entry_block[index[r]], weights[r] / self.entry_scale[index[r]]) for r in fresh]
+            solved = self._solve_for(self.scalar_ksp, points, True, f"{len(fresh)} new contact points")
             self._scalar_z = np.hstack([self._scalar_z, solved])
         self._scalar_used.update(columns.tolist())
         return columns
@@ -414,8 +430,8 @@ class ContactProjector(PetscOwner):
             products = self._scalar_gz(index[new_rows], weights[new_rows])
             block = (directions[new_rows] @ np.array(self._row_direction).T) * products[:, self._row_column]
         else:
-            rhs = self._right_hand_sides([self._row_closed[row][:2] for row in new])
-            self._z = np.hstack([self._z, self._solve_columns(self.ksp, rhs, f"{len(new)} new contact rows")])
+            rows = [self._row_closed[row][:2] for row in new]
+            self._z = np.hstack([self._z, self._solve_for(self.ksp, rows, False, f"{len(new)} new contact rows")])
             block = np.zeros((len(new), self._z.shape[1]))
             for k, row in enumerate(new):
                 _, _, local, local_values = self._row_closed[row]

@@ -20,6 +20,7 @@ from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import Dynamics, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import TimeStepper
+from bhem_hpc.solver.petsc import SolverError
 from bhem_hpc.studies.study import flat_sheet
 
 SHEET = Material(young=1e6, poisson=0.3, thickness=1e-3, density=500.0)
@@ -235,6 +236,58 @@ def test_scalar_mass_metric_equals_the_vector_one(comm, rng):
         projector = ContactProjector(solver.problem)
         assert not projector.scalar_metric
         projector.close()
+
+
+def test_a_contact_row_on_held_entries_only_moves_nothing(comm):
+    """A contact point whose entries are all held (on a clamped edge) asks the metric for W^-1 0: no
+    correction, where MUMPS refuses the sparse right-hand side without nonzeros (INFOG(1) = -22)."""
+    rest = S.flat_rectangle(0.4, 0.3, 5, 4)
+    grid = rest.grid
+    model = ShellModel(rest, SHEET, constraints=[clamp(edge_nodes(grid, "xi1_min"))], comm=comm,
+                       dynamics=Dynamics(0.01))  # fmt: skip
+    m2 = grid.node_shape[1]
+    index = np.array([[(0 * m2 + i2) * 4 for i2 in (1, 2, 3)]])  # the positions of nodes on xi1 = 0
+    with ShellSolver(model, prefix="held_") as solver:
+        projector = ContactProjector(solver.problem)
+        projector.set_metric()
+        projector.set_rows(index, np.ones(index.shape), np.array([[0.0, 0.0, 1.0]]))
+        change = projector.solve(np.zeros((grid.num_nodes * 4, 3)), np.array([1.0]))
+        projector.close()
+    assert change.shape == (grid.num_nodes * 4, 3) and np.all(change == 0.0)
+
+
+def test_a_refused_sparse_right_hand_side_is_solved_again_dense(comm, rng, monkeypatch):
+    """Serially the metric's solves take sparse right-hand sides; where MUMPS refuses one, the same
+    columns are solved as dense ones, with the same correction."""
+    rest = S.flat_rectangle(0.4, 0.3, 5, 4)
+    grid = rest.grid
+    model = ShellModel(rest, SHEET, constraints=[clamp(edge_nodes(grid, "xi1_min"))], comm=comm,
+                       dynamics=Dynamics(0.01))  # fmt: skip
+    index, weights = point_weights(grid, rng.integers(0, 5, 4), rng.integers(0, 4, 4), rng.random(4), rng.random(4))
+    directions, targets = rng.normal(size=(4, 3)), rng.normal(size=4)
+    velocity = rng.normal(size=(grid.num_nodes * 4, 3))
+    refused = []
+    solve = ContactProjector._solve_columns
+
+    def refuse_sparse(self, ksp, rhs, what):
+        if rhs.getType() == "transpose":  # the sparse path: refused once, as MUMPS did (INFOG(1) = -22)
+            refused.append(what)
+            rhs.destroy()
+            raise SolverError(f"contact projection '{self.prefix}': solving for {what} failed (refused)")
+        return solve(self, ksp, rhs, what)
+
+    changes = []
+    with ShellSolver(model, prefix="refused_") as solver:
+        for patch in (False, True):
+            if patch:
+                monkeypatch.setattr(ContactProjector, "_solve_columns", refuse_sparse)
+            projector = ContactProjector(solver.problem)
+            projector.set_metric()
+            projector.set_rows(index, weights, directions)
+            changes.append(projector.solve(velocity, targets))
+            projector.close()
+    assert len(refused) == (1 if comm.size == 1 else 0)  # in parallel the right-hand sides are dense
+    assert np.abs(changes[0]).max() > 0 and np.abs(changes[1] - changes[0]).max() <= 1e-12 * np.abs(changes[0]).max()
 
 
 def test_closest_points_match_a_dense_search(rng):

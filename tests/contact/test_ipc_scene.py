@@ -36,7 +36,7 @@ contact = {contact}
 {colliders}
 [time]
 dt = 0.005
-steps = 30
+steps = 16
 """
 PLANE = """
 [[colliders]]
@@ -69,8 +69,8 @@ def test_a_sheet_dropped_on_a_floor_never_reaches_it_and_rests_within_dhat(comm,
     summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, discretization, discretization), out,
                                    progress=False), comm)  # fmt: skip
     steps = summary["steps"]
-    assert len(steps) == 30 and sum(s["recoveries"] for s in steps) == 0
-    assert sum(s["newton_iterations"] for s in steps) / 30 <= 5.0  # measured 3.9 (Hermite), 3.8 (bspline2)
+    assert len(steps) == 16 and sum(s["recoveries"] for s in steps) == 0
+    assert sum(s["newton_iterations"] for s in steps) / 16 <= 8.0  # measured 6.4 (Hermite), 6.2 (bspline2)
     if comm.rank == 0:
         lowest = _lowest_heights(out)
         # it falls 3.5 mm in the first 5 steps (t = 0.027 s), then lies on the floor, never below it
@@ -78,18 +78,17 @@ def test_a_sheet_dropped_on_a_floor_never_reaches_it_and_rests_within_dhat(comm,
         assert np.all(lowest > 0.0) and lowest[-1] < 1e-3 and np.all(lowest[10:] < 1e-3)
 
 
+@pytest.mark.parallel
 def test_two_ranks_drop_the_sheet_as_one_rank_does(comm, shared_tmp_path):
     """Every rank evaluates the barrier on the whole collision mesh (its vertices summed over the
     ranks), so the states agree to round-off."""
-    if comm.size == 1:
-        pytest.skip("compares a run on several ranks with the serial one")
     from mpi4py import MPI
 
     path = _scene(comm, shared_tmp_path, "parallel")
-    summary = run_scene(RunOptions(path, shared_tmp_path / "two", steps=12, progress=False), comm)
+    summary = run_scene(RunOptions(path, shared_tmp_path / "two", steps=9, progress=False), comm)
     serial = None
     if comm.rank == 0:
-        serial = run_scene(RunOptions(path, shared_tmp_path / "one", steps=12, progress=False), MPI.COMM_SELF)
+        serial = run_scene(RunOptions(path, shared_tmp_path / "one", steps=9, progress=False), MPI.COMM_SELF)
         ours, _ = read_checkpoint(shared_tmp_path / "two" / "checkpoint.h5")
         theirs, _ = read_checkpoint(shared_tmp_path / "one" / "checkpoint.h5")
         assert np.abs(ours["position_dofs"] - theirs["position_dofs"]).max() <= 1e-9
@@ -103,7 +102,7 @@ def test_a_sheet_dropped_on_a_mesh_stays_above_it(comm, shared_tmp_path):
         mesh.write_text("v -1 -0.7 0\nv 1.3 -1 0\nv 0.9 1.1 0\nv -1.2 0.8 0\nf 1 2 3\nf 1 3 4\n")
     colliders = f'[[colliders]]\ntype = "mesh"\nfile = "{mesh}"\n'
     out = shared_tmp_path / "on-mesh"
-    summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "mesh", colliders=colliders), out, steps=15,
+    summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "mesh", colliders=colliders), out, steps=10,
                                    progress=False), comm)  # fmt: skip
     assert sum(s["recoveries"] for s in summary["steps"]) == 0
     if comm.rank == 0:

@@ -16,6 +16,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from bhem_hpc.contact.ipc import minimum_distance
 from bhem_hpc.errors import InputError
 from bhem_hpc.io.run_directory import run_series
 
@@ -75,11 +76,7 @@ def audit_run(directory: Path, within: float) -> list[FrameAudit]:
         for k in range(counts.pop()):
             vertices = np.concatenate([h[f"frames/{k}/geometry"][...] for h in handles])
             mesh = ipctk.CollisionMesh(np.asfortranarray(vertices), edges, faces)
-            collisions = ipctk.NormalCollisions()
-            collisions.build(mesh, vertices, within)
-            # ipc-toolkit 1.6 returns the squared distance
-            distance = float(np.sqrt(collisions.compute_minimum_distance(mesh, vertices))) if not collisions.empty() \
-                else float("inf")
+            distance = minimum_distance(mesh, vertices, within)
             time = float(handles[0][f"frames/{k}"].attrs["time"])
             audits.append(FrameAudit(k, time, bool(ipctk.has_intersections(mesh, vertices)), distance))
         return audits

@@ -34,6 +34,20 @@ LATTICE_RANGE = (2, 2000)
 DEFAULT_DHAT_FRACTION = 1e-3
 
 
+def minimum_distance(mesh, vertices: np.ndarray, within: float) -> float:
+    """The smallest distance [m] between non-adjacent elements of an ipc-toolkit ``CollisionMesh``
+    at ``vertices (V, 3)`` that are closer than ``within`` (``inf`` if none are)."""
+    import ipctk
+
+    vertices = np.asfortranarray(vertices)
+    collisions = ipctk.NormalCollisions()
+    collisions.build(mesh, vertices, within)
+    if collisions.empty():
+        return float("inf")
+    # ipc-toolkit 1.6 returns the squared distance
+    return float(np.sqrt(collisions.compute_minimum_distance(mesh, vertices)))
+
+
 class IpcError(UserError, ValueError):
     """A collision mesh or barrier setting that cannot be used (the message names what and why)."""
 
@@ -182,12 +196,7 @@ class IpcContact:
 
     def min_distance(self, entries: np.ndarray) -> float:
         """The smallest distance [m] between elements closer than ``dhat`` (``inf`` if none are)."""
-        vertices = self.vertices(entries)
-        collisions = self._collisions(vertices)
-        if collisions.empty():
-            return float("inf")
-        # ipc-toolkit 1.6 returns the squared distance
-        return float(np.sqrt(collisions.compute_minimum_distance(self.mesh, vertices)))
+        return minimum_distance(self.mesh, self.vertices(entries), self.dhat)
 
     def intersects(self, entries: np.ndarray) -> bool:
         """Whether the collision mesh intersects itself (bodies, obstacles) at ``entries``."""

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import scipy.sparse
 
-from bhem_hpc.contact.ipc import collision_lattice
+from bhem_hpc.contact.ipc import collision_lattice, minimum_distance
 from bhem_hpc.solver.contributions import ContributionState, PointBasis
 
 if TYPE_CHECKING:
@@ -181,11 +181,7 @@ class IpcBarrier:
     def min_distance(self, positions: np.ndarray) -> float:
         """Collective: the smallest distance [m] between the mesh and the obstacles within ``dhat``
         (``inf`` if none is)."""
-        vertices = self._vertices(positions)
-        collisions = self._collisions(vertices)
-        if collisions.empty():
-            return float("inf")
-        return float(np.sqrt(collisions.compute_minimum_distance(self.mesh, vertices)))  # ipctk: squared
+        return minimum_distance(self.mesh, self._vertices(positions), self.dhat)
 
 
     def starting_problem(self, positions: np.ndarray) -> str | None:

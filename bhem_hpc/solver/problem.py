@@ -304,12 +304,9 @@ class ShellProblem(PetscOwner):
     def max_step(self, direction: PETSc.Vec) -> float:
         """Collective: the largest fraction of the step ``x -> x + direction`` (closed DOFs) that every
         step-bounded contribution admits from the current state (1: none bounds it)."""
-        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
-        if not bounded:
+        if not self.has_step_bounds:
             return 1.0
-        blocks = self.open_direction_blocks(direction)
-        state = self.contribution_state()
-        return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
+        return self.max_open_step(self.open_direction_blocks(direction))
 
     def max_open_step(self, direction: np.ndarray) -> float:
         """Collective: :meth:`max_step` of a direction given on this rank's open layout (owned and

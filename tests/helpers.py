@@ -265,6 +265,69 @@ def momentum(model: ShellModel) -> np.ndarray:
     return np.array([model.comm.allreduce(fem.assemble_scalar(form)) for form in parts])
 
 
+def hairpin(arm: float, radius: float):
+    """A strip folded into a U: two parallel arms ``2 radius`` apart joined by a half circle."""
+    bend = np.pi * radius
+
+    def position(u, v):
+        u, v = np.asarray(u, float), np.asarray(v, float)
+        phi = np.clip((u - arm) / radius, 0.0, np.pi)
+        x = np.where(u < arm, arm - u, np.where(u > arm + bend, u - arm - bend, -radius * np.sin(phi)))
+        z = np.where(u < arm, radius, np.where(u > arm + bend, -radius, radius * np.cos(phi)))
+        return np.stack([x, v, z], axis=-1)
+
+    def along(u, v):
+        u = np.asarray(u, float)
+        phi = np.clip((u - arm) / radius, 0.0, np.pi)
+        dx = np.where(u < arm, -1.0, np.where(u > arm + bend, 1.0, -np.cos(phi)))
+        dz = np.where((u < arm) | (u > arm + bend), 0.0, -np.sin(phi))
+        return np.stack([dx, np.zeros_like(dx), dz], axis=-1)
+
+    def across(u, v):
+        return np.broadcast_to([0.0, 1.0, 0.0], np.shape(u) + (3,)).copy()
+
+    def twist(u, v):
+        return np.zeros(np.shape(u) + (3,))
+
+    return position, (along, across, twist), 2 * arm + bend
+
+
+def hairpin_model(comm, discretization: str, patches: int) -> tuple[ShellModel, tuple[float, float, float]]:
+    """A soft strip folded into a hairpin (arms 0.25 m, 3 cm apart, width 8 cm; ``patches`` patches
+    or knot spans along it) whose arms fly at each other at 1 m/s each plus a common drift of
+    0.3 m/s along x; dt = 2 ms. On B-splines each control point gets the velocity of its Greville
+    point. Returns the model and ``(arm, length, width)``."""
+    from bhem_hpc.geometry import bspline as B
+    from bhem_hpc.geometry import surface as S
+    from bhem_hpc.model.material import Material
+    from bhem_hpc.model.shell import Dynamics
+
+    arm, radius, width = 0.25, 0.015, 0.08
+    position, derivatives, length = hairpin(arm, radius)
+    grid = S.ParameterGrid(patches, 3, (0.0, length), (0.0, width))
+
+    def arm_velocity(xi1: np.ndarray) -> np.ndarray:
+        velocity = np.zeros(np.shape(xi1) + (3,))
+        velocity[..., 2] = np.where(xi1 < arm, -1.0, np.where(xi1 > length - arm, 1.0, 0.0))
+        velocity[..., 0] = 0.3
+        return velocity
+
+    if discretization == "hermite":
+        rest = S.from_callable(position, grid, derivatives)
+        velocity = np.zeros_like(rest.nodal)
+        velocity[..., 0, :] = arm_velocity(grid.node_parameters()[0])
+        velocity_surface = S.HermiteSurface(grid, velocity)
+    else:
+        degree = int(discretization[-1])
+        rest = B.from_callable(position, grid, degree=degree)
+        xi1 = B.greville(grid.n1, degree, False, *grid.xi1_range)
+        control = np.broadcast_to(arm_velocity(xi1)[:, None, :], rest.control.shape)
+        velocity_surface = B.BSplineSurface(grid, degree, control.copy())
+    model = ShellModel(rest, Material(1e5, 0.3, 1e-3, 200.0), comm=comm, dynamics=Dynamics(0.002))
+    model.velocity.x.array[:] = model.discretization.surface_to_open(velocity_surface)
+    return model, (arm, length, width)
+
+
 def paraview_read(*paths: Path) -> dict:
     """What ParaView's readers give for ``paths`` (see ``io/paraview_reader.py``, run in its own process)."""
     done = subprocess.run([sys.executable, str(REPO / "tests" / "io" / "paraview_reader.py"), *map(str, paths)],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import hairpin_model, momentum
 
 from bhem_hpc.collision import Plane, Sphere
 from bhem_hpc.collision.bezier import evaluate_many
@@ -358,33 +359,6 @@ def test_detection_split_among_ranks_is_the_serial_detection(rng):
         np.testing.assert_array_equal(getattr(split, name), getattr(serial, name))
 
 
-def _hairpin(arm: float, radius: float):
-    """A strip folded into a U: two parallel arms ``2 radius`` apart joined by a half circle."""
-    bend = np.pi * radius
-
-    def position(u, v):
-        u, v = np.asarray(u, float), np.asarray(v, float)
-        phi = np.clip((u - arm) / radius, 0.0, np.pi)
-        x = np.where(u < arm, arm - u, np.where(u > arm + bend, u - arm - bend, -radius * np.sin(phi)))
-        z = np.where(u < arm, radius, np.where(u > arm + bend, -radius, radius * np.cos(phi)))
-        return np.stack([x, v, z], axis=-1)
-
-    def along(u, v):
-        u = np.asarray(u, float)
-        phi = np.clip((u - arm) / radius, 0.0, np.pi)
-        dx = np.where(u < arm, -1.0, np.where(u > arm + bend, 1.0, -np.cos(phi)))
-        dz = np.where((u < arm) | (u > arm + bend), 0.0, -np.sin(phi))
-        return np.stack([dx, np.zeros_like(dx), dz], axis=-1)
-
-    def across(u, v):
-        return np.broadcast_to([0.0, 1.0, 0.0], np.shape(u) + (3,)).copy()
-
-    def twist(u, v):
-        return np.zeros(np.shape(u) + (3,))
-
-    return position, (along, across, twist), 2 * arm + bend
-
-
 @pytest.mark.parametrize(("discretization", "patches"), [("hermite", 24), ("hermite", 2), ("bspline2", 24),
                                                        ("bspline3", 24)])  # fmt: skip
 def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm, discretization, patches):
@@ -392,47 +366,13 @@ def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm
     patches (knot spans) along the strip the arms are far apart in the patch grid; with 2 the fold
     lies inside two neighbouring patches (the folded-patch search). On B-splines the contact rows
     act on control points, each given the velocity of its Greville point."""
-    import dolfinx.fem as fem
-
-    from bhem_hpc.forms.kinematics import area_density
-    from bhem_hpc.geometry import bspline as B
-
-    arm, radius, width = 0.25, 0.015, 0.08
-    position, derivatives, length = _hairpin(arm, radius)
-    grid = S.ParameterGrid(patches, 3, (0.0, length), (0.0, width))
-
-    def arm_velocity(xi1: np.ndarray) -> np.ndarray:
-        velocity = np.zeros(np.shape(xi1) + (3,))
-        velocity[..., 2] = np.where(xi1 < arm, -1.0, np.where(xi1 > length - arm, 1.0, 0.0))
-        velocity[..., 0] = 0.3
-        return velocity
-
-    if discretization == "hermite":
-        rest, layout = S.from_callable(position, grid, derivatives), S.HermitePatches(grid)
-        velocity = np.zeros_like(rest.nodal)
-        velocity[..., 0, :] = arm_velocity(grid.node_parameters()[0])
-        velocity_surface = S.HermiteSurface(grid, velocity)
-    else:
-        degree = int(discretization[-1])
-        rest, layout = B.from_callable(position, grid, degree=degree), B.BSplinePatches(grid, degree)
-        xi1 = B.greville(grid.n1, degree, False, *grid.xi1_range)
-        control = np.broadcast_to(arm_velocity(xi1)[:, None, :], rest.control.shape)
-        velocity_surface = B.BSplineSurface(grid, degree, control.copy())
-    model = ShellModel(rest, Material(1e5, 0.3, 1e-3, 200.0), comm=comm, dynamics=Dynamics(0.002))
-    model.velocity.x.array[:] = model.discretization.surface_to_open(velocity_surface)
-    momentum_forms = [
-        fem.form(model.density * model.thickness * model.velocity[i] * area_density(model.x_rest) * model.dx)
-        for i in range(3)
-    ]
-
-    def momentum() -> np.ndarray:
-        return np.array([comm.allreduce(fem.assemble_scalar(f)) for f in momentum_forms])
-
+    model, (arm, length, width) = hairpin_model(comm, discretization, patches)
+    layout = model.discretization.patches
+    before = momentum(model)
     per_side = 2 if patches > 2 else 6
     detector = ContactDetector(layout, [], samples_per_side=per_side, self_collision=True)
     u = np.linspace(0.0, 0.95 * arm, 60)
     v = np.linspace(0.0, width, 9)
-    before = momentum()
     separations = []
     with ShellSolver(model, prefix="hairpin_") as solver:
         handler = ContactHandler(model, solver.problem, detector)
@@ -444,7 +384,7 @@ def test_head_on_self_collision_conserves_momentum_and_keeps_the_arms_apart(comm
             lower = surface.evaluate(*np.meshgrid(length - u, v, indexing="ij")).x
             separations.append((upper[..., 2] - lower[..., 2]).min())
         handler.close()
-        after = momentum()
+        after = momentum(model)
     assert max(r.contacts for r in stepper.history) > (50 if patches > 2 else 20)
     # 4 mm of relative travel per step; between the samples the arms may dip past each other by
     # a fraction of a millimetre within the impact step, never through

@@ -147,11 +147,11 @@ def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
 
     c, material = scene.contact, scene.material
     barrier = shell_barrier(model, [entry.collider for entry in c.colliders], c.dhat, c.barrier_stiffness,
-                            c.collision_cells, material.density, material.thickness)  # fmt: skip
+                            c.collision_cells, material.density, material.thickness, c.self_collision)  # fmt: skip
     problem = barrier.starting_problem(model.x.x.array)
     if problem is not None:
-        raise RunError(f"{scene_file}: the shell starts in contact with its colliders ('ipc' needs it apart): "
-                       f"{problem}")  # fmt: skip
+        raise RunError(f"{scene_file}: the shell starts in contact with its colliders or itself ('ipc' needs it "
+                       f"apart): {problem}")  # fmt: skip
     return barrier
 
 

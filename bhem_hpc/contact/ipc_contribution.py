@@ -57,19 +57,23 @@ class IpcBarrier:
         planes: static planes ``(normal (3,), point (3,))`` (the barrier distance to the plane).
         dhat: the barrier's activation distance [m]; stiffness: ``kappa`` [N/m].
         comm: the shell's communicator (``rank``, ``allreduce``, ``allgather``: an mpi4py one).
+        self_contact: whether the mesh meets itself too (triangles, edges and vertices that share no
+            vertex), or only the obstacles.
     """
 
     name = "ipc barrier"
 
     def __init__(self, bases: Sequence[PointBasis], global_blocks: np.ndarray, triangles: np.ndarray,
                  obstacles: Sequence[tuple[np.ndarray, np.ndarray]], planes: Sequence[tuple[np.ndarray, np.ndarray]],
-                 dhat: float, stiffness: float, comm: Communicator):  # fmt: skip
+                 dhat: float, stiffness: float, comm: Communicator, self_contact: bool = False):  # fmt: skip
         import ipctk  # loaded with IPC contact only
 
         self._ipctk = ipctk
         self.rank, self._comm = comm.rank, comm
         self.num_points = len(bases)
         self.dhat, self.stiffness = float(dhat), float(stiffness)
+        self.self_contact = bool(self_contact)
+        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
         global_blocks = np.asarray(global_blocks, dtype=np.int64)
         rows, cols, weights = [], [], []
         for point, (blocks, values) in enumerate(bases):
@@ -121,8 +125,13 @@ class IpcBarrier:
         self._obstacle_vertices = np.concatenate(vertices[1:]) if obstacles else np.zeros((0, 3))
         faces = np.ascontiguousarray(np.concatenate(faces).astype(np.int32))
         mesh = ipctk.CollisionMesh(np.asfortranarray(np.concatenate(vertices)), ipctk.edges(faces), faces)
-        if obstacles:  # obstacles never meet each other
-            mesh.can_collide = ipctk.make_static_obstacle_filter(self.num_points)
+        if self.self_contact:  # obstacles never meet each other
+            if obstacles:
+                mesh.can_collide = ipctk.make_static_obstacle_filter(self.num_points)
+        else:  # the shell's vertices one group, the obstacles' another: only pairs across them
+            groups = np.zeros(start, dtype=np.int32)
+            groups[self.num_points:] = 1
+            mesh.can_collide = ipctk.make_vertex_patches_filter(groups)
         mesh.planes = [ipctk.Hyperplane(np.asarray(n, dtype=float), np.asarray(p, dtype=float)) for n, p in planes]
         return mesh
 
@@ -164,14 +173,32 @@ class IpcBarrier:
         shell = scipy.sparse.csr_matrix(hessian)[:size, :size]
         mapped = scipy.sparse.kron(self.global_map, scipy.sparse.identity(3), format="csr")
         blocks = (mapped.T @ shell @ mapped).tobsr(blocksize=(3, 3))
+        return self._split(blocks)
+
+    def _split(self, blocks: scipy.sparse.bsr_matrix) -> np.ndarray:
+        """The Hessian's 3 x 3 ``blocks`` (mesh block indices) on the fixed pattern ``(k, 3, 3)``;
+        those outside it (two vertices of no common triangle: self-contact) are kept for
+        :meth:`hessian_beyond_pattern`."""
         rows, cols = self._pattern
         out = np.zeros((len(rows), 3, 3))
-        if blocks.nnz:
-            block_rows = np.repeat(np.arange(blocks.shape[0] // 3), np.diff(blocks.indptr))
-            keys = rows * len(self.blocks) + cols
-            where = np.searchsorted(keys, block_rows * len(self.blocks) + blocks.indices)
-            out[where] = blocks.data
+        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+        if not blocks.nnz:
+            return out
+        count = len(self.blocks)
+        pattern_keys = rows * count + cols
+        block_rows = np.repeat(np.arange(blocks.shape[0] // 3), np.diff(blocks.indptr))
+        keys = block_rows * count + blocks.indices
+        where = np.minimum(np.searchsorted(pattern_keys, keys), len(pattern_keys) - 1)
+        inside = pattern_keys[where] == keys
+        out[where[inside]] = blocks.data[inside]
+        outside = ~inside
+        self._beyond = (self.blocks[block_rows[outside]], self.blocks[blocks.indices[outside]], blocks.data[outside])
         return out
+
+    def hessian_beyond_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rank 0: the blocks of the last :meth:`hessian` outside its pattern, global ``(rows,
+        columns, values (k, 3, 3))`` (empty elsewhere and without self-contact)."""
+        return self._beyond
 
     def max_step(self, state: ContributionState, direction: np.ndarray) -> float:
         start = self._vertices(state.positions)
@@ -195,17 +222,19 @@ class IpcBarrier:
             if len(behind):
                 return f"plane {k} has {len(behind)} collision vertices on or behind it, e.g. {shell[behind[0]]}"
         if self._ipctk.has_intersections(self.mesh, vertices):
-            return "its collision mesh intersects a collider mesh"
+            return "its collision mesh intersects a collider mesh" + (" or itself" if self.self_contact else "")
         return None
 
 
 def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | None, stiffness: float | None,
-                  cells_per_patch: int, density: float, thickness: float) -> IpcBarrier:  # fmt: skip
+                  cells_per_patch: int, density: float, thickness: float, self_contact: bool = False,
+                  ) -> IpcBarrier:  # fmt: skip
     """The barrier between ``model``'s shell and static colliders (planes, spheres as icospheres
-    within :data:`SPHERE_SAGITTA` dhat, triangle meshes): a collision lattice of ``cells_per_patch``
-    cells per patch side (aligned with the patches, so each lattice triangle lies in one cell),
-    ``dhat`` by default 1e-3 of the rest mesh's bounding-box diagonal, and ``kappa`` by default the
-    top of ipc-toolkit's adaptive range for that ``dhat`` and the mesh's mass per vertex."""
+    within :data:`SPHERE_SAGITTA` dhat, triangle meshes), and within the shell with
+    ``self_contact``: a collision lattice of ``cells_per_patch`` cells per patch side (aligned with
+    the patches, so each lattice triangle lies in one cell), ``dhat`` by default 1e-3 of the rest
+    mesh's bounding-box diagonal, and ``kappa`` by default the top of ipc-toolkit's adaptive range
+    for that ``dhat`` and the mesh's mass per vertex."""
     import ipctk
 
     from bhem_hpc.collision.colliders import Plane, Sphere
@@ -234,4 +263,5 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
     planes = [(c.normal / np.linalg.norm(c.normal), c.point) for c in colliders if isinstance(c, Plane)]
     meshes = [c.triangles(SPHERE_SAGITTA * dhat) if isinstance(c, Sphere) else (c.vertices, c.triangles)
               for c in colliders if not isinstance(c, Plane)]  # fmt: skip
-    return IpcBarrier(bases, model.global_open_blocks, triangles, meshes, planes, dhat, stiffness, model.comm)
+    return IpcBarrier(bases, model.global_open_blocks, triangles, meshes, planes, dhat, stiffness, model.comm,
+                      self_contact)

@@ -81,6 +81,32 @@ class StepBounded(Contribution, Protocol):
         ...
 
 
+@runtime_checkable
+class GrowingPattern(Contribution, Protocol):
+    """A contribution whose Hessian may reach beyond its fixed pattern (a barrier between parts of
+    a mesh that share no triangle: self-contact, contact between bodies)."""
+
+    def hessian_beyond_pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The blocks of the last :meth:`hessian` call outside :meth:`hessian_pattern`: global open
+        block ``(rows, columns)`` ``(k,)`` and values ``(k, 3, 3)``; with those of the pattern a
+        positive semi-definite whole."""
+        ...
+
+
+def diagonal_compensation(rows: np.ndarray, columns: np.ndarray,
+                          values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Where a matrix's pattern cannot take blocks ``(rows, columns, values (k, 3, 3))`` of a
+    symmetric set (each block's transpose among them): diagonal blocks ``(rows, rows, D)`` to add
+    instead, ``D`` the absolute sums of each block's rows. Replacing the blocks so changes the
+    matrix by a diagonally dominant one, so a positive semi-definite matrix stays one: its steps
+    still go downhill, each side of a dropped coupling stepping as if the other held still."""
+    values = np.asarray(values, dtype=float).reshape(-1, 3, 3)
+    diagonal = np.zeros_like(values)
+    for r in range(3):
+        diagonal[:, r, r] = np.abs(values[:, r, :]).sum(axis=1)
+    return np.asarray(rows), np.asarray(rows), diagonal
+
+
 def _no_pattern() -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(0, np.int64), np.zeros(0, np.int64)
 

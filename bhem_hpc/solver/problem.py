@@ -22,9 +22,11 @@ from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.contributions import (
     Contribution,
     ContributionState,
+    GrowingPattern,
     PointConstraints,
     PointLoads,
     StepBounded,
+    diagonal_compensation,
 )
 from bhem_hpc.solver.form_terms import ShellFormTerms
 from bhem_hpc.solver.petsc import PetscOwner
@@ -78,12 +80,25 @@ def add_contribution_hessians(
     state: ContributionState,
 ) -> None:
     """Add each contribution's Hessian blocks at its pattern (block indices ``(k, 1)`` each) into the
-    unassembled ``matrix``; every contribution is asked on every rank (it may be collective)."""
+    unassembled ``matrix``; every contribution is asked on every rank (it may be collective). The
+    blocks a :class:`GrowingPattern` one has beyond its pattern go in as their
+    :func:`diagonal_compensation` (the matrix's pattern is fixed: MUMPS' analysis, the kept
+    factorizations and the seams' product rely on it)."""
     for contribution, (rows, columns) in zip(contributions, patterns, strict=True):
         values = contribution.hessian(state)
         if len(rows):
             values = np.asarray(values, dtype=float).reshape(len(rows), 1, 9)
             matrix.setValuesBlockedRCV(rows, columns, values, addv=PETSc.InsertMode.ADD)
+        if isinstance(contribution, GrowingPattern):
+            extra = contribution.hessian_beyond_pattern()
+            if len(extra[0]):
+                rows, columns, values = diagonal_compensation(*extra)
+                matrix.setValuesBlockedRCV(_column(rows), _column(columns), np.asarray(values).reshape(-1, 1, 9),
+                                           addv=PETSc.InsertMode.ADD)  # fmt: skip
+
+
+def _column(indices: np.ndarray) -> np.ndarray:
+    return np.asarray(indices, dtype=PETSc.IntType).reshape(-1, 1)
 
 
 def add_diagonal_regularization(jac: PETSc.Mat, regularization: float) -> None:

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PointSpring
+from helpers import PointSpring, gather_matrix
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from bhem_hpc.geometry import surface as S
@@ -184,3 +185,59 @@ def test_a_barrier_with_a_step_bound_is_never_crossed(comm, bounded):
         assert min(floor.gaps) > 0 and bounded_steps >= 1
     else:
         assert min(floor.gaps) <= 0  # a trial went through the floor (the energy rejected it)
+
+
+class GrowingSpring(Spring):
+    """The spring with only each point's own blocks in its fixed pattern; the blocks coupling the two
+    points come beyond it (:class:`~bhem_hpc.solver.contributions.GrowingPattern`)."""
+
+    def __init__(self, model, p, q, stiffness, rest_length):
+        super().__init__(model, p, q, stiffness, rest_length)
+        rows, cols = self._full = self._pattern
+        p_blocks = _gathered_point(model, p)[1][0]
+        self._own = np.isin(rows, p_blocks) == np.isin(cols, p_blocks)  # the points' blocks are apart
+        self._pattern = (rows[self._own], cols[self._own])
+        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+
+    def hessian(self, state):
+        full = super().hessian(state)
+        rows, cols = self._full
+        self._beyond = (rows[~self._own], cols[~self._own], full[~self._own])
+        return full[self._own]
+
+    def hessian_beyond_pattern(self):
+        return self._beyond
+
+
+#: MPISBAIJ cannot zero constrained rows and columns: symmetric storage is a serial format
+FORMATS = ("aij", "baij", "sbaij") if MPI.COMM_WORLD.size == 1 else ("aij", "baij")
+
+
+@pytest.mark.parametrize("matrix_format", FORMATS)
+def test_blocks_beyond_a_pattern_go_onto_the_diagonal_and_keep_the_jacobian_positive(comm, matrix_format):
+    """A stretched spring between two far corners of a clamped steel sheet whose pattern holds only
+    each corner's own blocks: its coupling blocks reach beyond the Jacobian's pattern, which stays
+    as it was; the Jacobian differs from that of the spring with the whole pattern by a positive
+    semi-definite matrix (the coupling taken out, its absolute row sums on the diagonal), nonzero."""
+    from bhem_hpc.solver.contributions import GrowingPattern
+
+    p, q = (0.02, 0.03), (0.19, 0.18)
+    jacobians = {}
+    for kind in (Spring, GrowingSpring):
+        model = clamped_sheet(comm)
+        spring = kind(model, p, q, 1e6, 0.05)  # 0.05 m rest length: stretched
+        problem = ShellProblem(model, matrix_format, SolveReport(), [spring])
+        stored = problem.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_allocated"]
+        problem.assemble_jacobian(problem.jacobian)
+        assert problem.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_allocated"] == stored
+        full = problem.jacobian.convert("aij")  # SBAIJ keeps one triangle
+        jacobians[kind.__name__] = gather_matrix(full)
+        full.destroy()
+        if kind is GrowingSpring:
+            assert isinstance(spring, GrowingPattern) and comm.allreduce(len(spring.hessian_beyond_pattern()[0])) > 0
+        problem.close()
+    change = jacobians["GrowingSpring"] - jacobians["Spring"]
+    scale = np.abs(jacobians["Spring"]).max()
+    assert np.abs(change).max() > 1e-3 * 1e6  # the spring's coupling moved (k = 1e6 N/m)
+    np.testing.assert_allclose(change, change.T, atol=1e-12 * scale)
+    assert np.linalg.eigvalsh(change).min() >= -1e-12 * scale

@@ -1,0 +1,51 @@
+"""Self-contact by incremental potential contact: the barrier between a shell's collision mesh and
+itself, and the diagonal compensation of Hessian blocks beyond a fixed pattern (which keeps it
+positive semi-definite)."""
+
+from __future__ import annotations
+
+import numpy as np
+from helpers import hairpin_model
+
+from bhem_hpc.contact.ipc_contribution import shell_barrier
+from bhem_hpc.solver.contributions import ContributionState, diagonal_compensation
+
+
+def _barrier(model, self_contact: bool = True, cells: int = 2):
+    return shell_barrier(model, [], None, None, cells, 200.0, 1e-3, self_contact=self_contact)
+
+
+def test_diagonal_compensation_keeps_a_band_restricted_matrix_positive_semi_definite(rng):
+    """A random PSD matrix on 6 blocks cut to a band (blocks i, j with |i - j| <= 1, as vertices of
+    neighbouring triangles): with the blocks outside the band simply dropped it is indefinite (for
+    this seed); with them replaced by their diagonal compensation it is PSD."""
+    blocks = 6
+    band = [(i, j) for i in range(blocks) for j in range(blocks) if abs(i - j) <= 1]
+    outside = np.array([(i, j) for i in range(blocks) for j in range(blocks) if abs(i - j) > 1]).T
+    factor = rng.standard_normal((3 * blocks, 4))
+    full = factor @ factor.T  # PSD of rank 4: strong couplings between every pair of blocks
+
+    def block(i: int, j: int) -> np.ndarray:
+        return full[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+
+    dropped = np.zeros_like(full)
+    for i, j in band:
+        dropped[3 * i:3 * i + 3, 3 * j:3 * j + 3] = block(i, j)
+    assert np.linalg.eigvalsh(dropped).min() < -1e-2 * np.abs(full).max()
+    rows, columns, values = diagonal_compensation(outside[0], outside[1], [block(i, j) for i, j in outside.T])
+    np.testing.assert_array_equal(rows, columns)
+    compensated = dropped.copy()
+    for i, value in zip(rows, values, strict=True):
+        compensated[3 * i:3 * i + 3, 3 * i:3 * i + 3] += value
+    assert np.linalg.eigvalsh(compensated).min() >= -1e-12 * np.abs(full).max()
+
+
+def test_without_self_contact_the_shell_does_not_meet_itself(comm):
+    """The hairpin squeezed until its arms are 0.1 mm apart: with self-contact the barrier is
+    active, without it the shell's own pairs are filtered out (no obstacle: nothing to meet)."""
+    model, _ = hairpin_model(comm, "hermite", 24)
+    positions = model.x.x.array.reshape(-1, 3).copy()
+    positions[:, 2] *= 0.1e-3 / 0.03  # the arms from 3 cm to 0.1 mm apart
+    state = ContributionState(positions, 1.0, np.zeros((0, 3)))
+    assert comm.allreduce(_barrier(model).energy(state)) > 0
+    assert comm.allreduce(_barrier(model, self_contact=False).energy(state)) == 0.0

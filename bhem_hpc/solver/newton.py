@@ -182,9 +182,10 @@ class ShellSolver(PetscOwner):
             self.matrix_format = "sbaij" if serial_sbaij else "baij" if blocked else "aij"
             self.report = SolveReport()
             self.problem = make_problem(self.bodies.models, self.matrix_format, self.report, contributions)
-            self.jacobian = self.problem.jacobian
+            self.jacobian, self.bc_rows = self.problem.jacobian, self.problem.bc_rows
+            # a pattern grown by contributions' blocks (problem.py): MUMPS analyses the matrix anew
+            self.problem.on_pattern_growth = lambda: self.snes.getKSP().getPC().reset()
             self._choose_hessian()
-            self.bc_rows = self.problem.bc_rows
 
             PETSc.Log.begin()  # event timers for counters() (idempotent, cheap)
             self._stage = PETSc.Log.Stage(f"{prefix}solve")  # one per prefix: the same stage if reused

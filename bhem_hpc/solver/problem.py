@@ -77,13 +77,13 @@ def _blocked_aij(
 
 def add_contribution_hessians(
     matrix: PETSc.Mat, contributions: Sequence[Contribution], patterns: Sequence[tuple[np.ndarray, np.ndarray]],
-    state: ContributionState,
+    state: ContributionState, grow: bool = False,
 ) -> None:
     """Add each contribution's Hessian blocks at its pattern (block indices ``(k, 1)`` each) into the
     unassembled ``matrix``; every contribution is asked on every rank (it may be collective). The
-    blocks a :class:`GrowingPattern` one has beyond its pattern go in as their
-    :func:`diagonal_compensation` (the matrix's pattern is fixed: MUMPS' analysis, the kept
-    factorizations and the seams' product rely on it)."""
+    blocks a :class:`GrowingPattern` one has beyond its pattern are added where they are with
+    ``grow`` (the matrix's pattern grows to take them and keeps them), or else as their
+    :func:`diagonal_compensation` (a fixed pattern: the seams' product relies on it)."""
     for contribution, (rows, columns) in zip(contributions, patterns, strict=True):
         values = contribution.hessian(state)
         if len(rows):
@@ -92,7 +92,7 @@ def add_contribution_hessians(
         if isinstance(contribution, GrowingPattern):
             extra = contribution.hessian_beyond_pattern()
             if len(extra[0]):
-                rows, columns, values = diagonal_compensation(*extra)
+                rows, columns, values = extra if grow else diagonal_compensation(*extra)
                 matrix.setValuesBlockedRCV(_column(rows), _column(columns), np.asarray(values).reshape(-1, 1, 9),
                                            addv=PETSc.InsertMode.ADD)  # fmt: skip
 
@@ -183,6 +183,19 @@ class ShellProblem(PetscOwner):
         self.bc_rows = model.constrained.rows.astype(PETSc.IntType)
         self.bc_values = model.constrained_initial.copy()
         self.regularization = 0.0  # the driver's diagonal regularizer r: J + r |diag J|
+        # contributions' blocks beyond their patterns grow the Jacobian's (without seams, and not in
+        # MPIBAIJ, where the grown matrix came out wrong); the count of its stored entries tells when
+        growing = any(isinstance(c, GrowingPattern) for c in self.contributions)
+        self._may_grow = growing and self.prolongation is None and not (matrix_format == "baij" and comm.size > 1)
+        self._stored = 0
+        if self._may_grow and self.jacobian_blocked is not None:
+            # converting into a matrix whose pattern grew loses entries under MPI: assembled in place
+            self.jacobian_blocked.destroy()
+            self.jacobian_blocked = None
+        if self._may_grow:
+            self.jacobian_open.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+        #: called when it grew: a factorization of the Jacobian must start again from its analysis
+        self.on_pattern_growth: Callable[[], None] | None = None
         #: the Hessian kind the next Jacobian is assembled with (a key of ``model.jacobian_forms``)
         self.hessian = self.form_terms.hessian_kinds()[0]
 
@@ -347,17 +360,26 @@ class ShellProblem(PetscOwner):
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
         self.form_terms.add_hessian(target, self.hessian)
-        add_contribution_hessians(target, self.contributions, self._patterns, self.contribution_state())
+        add_contribution_hessians(target, self.contributions, self._patterns, self.contribution_state(),
+                                  self._may_grow)  # fmt: skip
         target.assemble()
         if self.jacobian_blocked is not None:
             self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)
 
     def assemble_jacobian(self, jac: PETSc.Mat) -> None:
-        """``J = P^T J_open P`` with constrained rows and columns replaced by the identity."""
+        """``J = P^T J_open P`` with constrained rows and columns replaced by the identity. Hessian
+        blocks of contributions beyond their patterns (:class:`GrowingPattern`) grow the pattern of
+        ``J`` (without seams; :attr:`on_pattern_growth` is called when it grew), or go onto its
+        diagonal (:func:`diagonal_compensation`: the seams' product needs a fixed pattern)."""
         t0 = time.perf_counter()
         self._assemble_open_jacobian()
         if self.prolongation is not None:
             self.jacobian_open.PtAP(self.prolongation, result=jac)
+        elif self._may_grow:
+            stored = int(jac.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+            if stored > self._stored > 0 and self.on_pattern_growth is not None:
+                self.on_pattern_growth()
+            self._stored = stored
         jac.zeroRowsColumns(self.bc_rows, diag=1.0)
         add_diagonal_regularization(jac, self.regularization)
         self.report.assemble_jacobian_s += time.perf_counter() - t0

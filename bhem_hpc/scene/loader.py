@@ -44,6 +44,8 @@ MAX_NAME_LENGTH = 64
 
 MIN_DT, MAX_DT = 1e-12, 1e3  # s
 MIN_ACCELERATION, MAX_ACCELERATION = 1e-12, 1e6  # m/s^2: solver.acceleration_tolerance
+#: solver.acceleration_tolerance by default with contact by "ipc" [m/s^2] (0.1 % of g)
+IPC_ACCELERATION_TOLERANCE = 1e-2
 
 
 def _whole_steps(duration: float, dt: float) -> bool:
@@ -137,12 +139,12 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     # the Hessian Newton iterates with: exact for statics (its inertia tells stability), adaptive
     # for time steps (exact where it is positive definite, otherwise every Newton step goes downhill)
     default_hessian = "exact" if static else "adaptive"
-    hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", "reuse"
+    hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", None
     acceleration_tolerance = None
     if solver is not None:
         linear = solver.get("linear", "a string", "auto", lambda v: v in LINEAR_SOLVERS,
                             "'auto', 'direct' or 'iterative'")  # fmt: skip
-        factorization = solver.get("factorization", "a string", "reuse", lambda v: v in FACTORIZATION_POLICIES,
+        factorization = solver.get("factorization", "a string", None, lambda v: v in FACTORIZATION_POLICIES,
                                    "'reuse' or 'fresh'")  # fmt: skip
         # the energy trust region minimizes a time step's incremental potential
         kinds = tuple(k for k in HESSIAN_KINDS if not (static and k == "trust_region"))
@@ -178,6 +180,11 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     if contact is not None and contact.method == "ipc" and hessian == "trust_region":
         raise SceneError(f"{path}: key 'solver.hessian' = 'trust_region' does not bound its steps by the "
                          "barrier's collision-free step; contact by 'ipc' takes the line-search Hessians")  # fmt: skip
+    if contact is not None and contact.method == "ipc":
+        # a barrier's Newton: kept factorizations' chord steps stall in contact, and a relative residual
+        # of 1e-9 lies below the barrier's round-off (the hairpin's arms meeting: dt halvings either way)
+        factorization, acceleration_tolerance = (factorization or "fresh",
+                                                 acceleration_tolerance or IPC_ACCELERATION_TOLERANCE)
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip
@@ -198,7 +205,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
         hessian=hessian,
         quadrature=quadrature,
         linear=linear,
-        factorization=factorization,
+        factorization=factorization or "reuse",
         acceleration_tolerance=acceleration_tolerance,
         petsc_options=dict(options),
         point_constraints=points,

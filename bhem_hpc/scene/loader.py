@@ -46,6 +46,8 @@ MIN_DT, MAX_DT = 1e-12, 1e3  # s
 MIN_ACCELERATION, MAX_ACCELERATION = 1e-12, 1e6  # m/s^2: solver.acceleration_tolerance
 #: solver.acceleration_tolerance by default with contact by "ipc" [m/s^2] (0.1 % of g)
 IPC_ACCELERATION_TOLERANCE = 1e-2
+#: the most Newton iterations of an attempt with contact by "ipc" (solver.options.snes_max_it)
+IPC_NEWTON_ITERATIONS = 100
 
 
 def _whole_steps(duration: float, dt: float) -> bool:
@@ -181,10 +183,12 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
         raise SceneError(f"{path}: key 'solver.hessian' = 'trust_region' does not bound its steps by the "
                          "barrier's collision-free step; contact by 'ipc' takes the line-search Hessians")  # fmt: skip
     if contact is not None and contact.method == "ipc":
-        # a barrier's Newton: kept factorizations' chord steps stall in contact, and a relative residual
-        # of 1e-9 lies below the barrier's round-off (the hairpin's arms meeting: dt halvings either way)
-        factorization, acceleration_tolerance = (factorization or "fresh",
-                                                 acceleration_tolerance or IPC_ACCELERATION_TOLERANCE)
+        # a barrier's Newton: kept factorizations' chord steps stall in contact, a relative residual of
+        # 1e-9 lies below the barrier's round-off (the hairpin's arms meeting: dt halvings either way),
+        # and its collision-bounded steps need more iterations where contacts close (33 there)
+        factorization, acceleration_tolerance, options = (
+            factorization or "fresh", acceleration_tolerance or IPC_ACCELERATION_TOLERANCE,
+            {"snes_max_it": IPC_NEWTON_ITERATIONS, **options})  # fmt: skip
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip
@@ -413,17 +417,19 @@ def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, othe
     low, high = COLLISION_CELLS_RANGE
     cells = et.get("collision_cells", "an integer", 4, lambda v: low <= v <= high, f"an integer in {low}..{high}")
     et.done()
-    unsupported = [(key, value) for key, value in (("self_collision", effects.get("self_collision", False)),
-                                                   ("friction", effects.get("friction", 0.0))) if value]  # fmt: skip
-    if unsupported:
-        key, value = unsupported[0]
-        raise SceneError(f"{path}: key 'effects.{key}' = {value!r}: contact by 'ipc' meets static colliders without "
-                         "friction; self-contact and friction take method = 'impulse'")  # fmt: skip
+    self_collision = effects.get("self_collision", False)
+    if not isinstance(self_collision, bool):
+        raise SceneError(f"{path}: key 'effects.self_collision' = {self_collision!r}: contact by 'ipc' takes a "
+                         "boolean (friction within the shell takes method = 'impulse')")  # fmt: skip
+    if effects.get("friction", 0.0):
+        raise SceneError(f"{path}: key 'effects.friction' = {effects['friction']!r}: contact by 'ipc' is "
+                         "frictionless; friction takes method = 'impulse'")  # fmt: skip
     if other_bodies:
         raise SceneError(f"{path}: key 'effects.contact.method' = 'ipc': contact between bodies takes "
                          "method = 'impulse'")  # fmt: skip
-    if not colliders_raw:
-        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes)")
+    if not colliders_raw and not self_collision:
+        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes) "
+                         "or 'effects.self_collision' = true")  # fmt: skip
     colliders = parse_colliders(colliders_raw, 0.0, path)
     for i, entry in enumerate(colliders):
         collider = entry.collider
@@ -431,7 +437,7 @@ def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, othe
             kind, moving = type(collider).__name__.lower(), list(collider.velocity)
             raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes, spheres and meshes, "
                              f"got a {kind} moving at {moving}")  # fmt: skip
-    return SceneContact(colliders, 0.0, 1, False, 0.0, method="ipc", dhat=dhat, barrier_stiffness=kappa,
+    return SceneContact(colliders, 0.0, 1, self_collision, 0.0, method="ipc", dhat=dhat, barrier_stiffness=kappa,
                         collision_cells=cells)  # fmt: skip
 
 

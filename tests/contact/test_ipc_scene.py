@@ -130,8 +130,8 @@ def test_a_sheet_dropped_on_a_sphere_stays_outside_it(comm, shared_tmp_path):
     [
         (lambda s: s.replace("dhat = 1e-3", "dhat = -1e-3"), r"'effects.contact.dhat' must be a length in \[1e-9, 1\]"),
         (lambda s: s.replace("dhat = 1e-3", "dhat = 1e-3, push_out = 1e-4"), r"unknown key 'effects.contact.push_out'"),
-        (lambda s: s.replace("contact = {", "self_collision = true\ncontact = {"),
-         r"key 'effects.self_collision' = True: contact by 'ipc' meets static colliders without friction"),
+        (lambda s: s.replace("contact = {", "self_collision = { friction = 0.2 }\ncontact = {"),
+         r"key 'effects.self_collision' = \{'friction': 0.2\}: contact by 'ipc' takes a boolean"),
         (lambda s: s.replace("contact = {", "friction = 0.3\ncontact = {"), r"key 'effects.friction' = 0.3"),
         (lambda s: s.replace('normal = [0.0, 0.0, 1.0]', 'normal = [0.0, 0.0, 1.0]\nvelocity = [0.0, 0.0, 0.1]'),
          r"key 'colliders\[0\]': contact by 'ipc' meets static planes, spheres and meshes, got a plane moving"),
@@ -156,3 +156,24 @@ def test_a_sheet_starting_below_the_plane_is_refused_before_the_first_step(comm,
     path = _scene(comm, shared_tmp_path, "below", colliders=colliders)
     with pytest.raises(RunError, match=r"starts in contact with its colliders .*plane 0 has \d+ collision vertices"):
         run_scene(RunOptions(path, shared_tmp_path / "below", progress=False), comm)
+
+
+def test_self_contact_by_ipc_needs_no_collider_and_sets_the_barriers_solve(comm, shared_tmp_path):
+    """A scene with self_collision and contact by 'ipc' but no collider loads; contact by 'ipc' sets
+    its solve's defaults (fresh factorizations, the acceleration test, 100 Newton iterations) where
+    the scene does not, and a scene's own choice stands."""
+    text = DROP.format(discretization="hermite", contact=IPC, colliders="", **RUBBER)
+    path = shared_tmp_path / "self.toml"
+    own = shared_tmp_path / "self-own.toml"
+    if comm.rank == 0:
+        path.write_text(text.replace("contact = {", "self_collision = true\ncontact = {"))
+        own.write_text(text.replace("contact = {", "self_collision = true\ncontact = {") + '[solver]\n'
+                       'factorization = "reuse"\nacceleration_tolerance = 0.5\noptions = { snes_max_it = 40 }\n')
+    comm.Barrier()
+    scene = load_scene(path)
+    assert scene.contact.method == "ipc" and scene.contact.self_collision and not scene.contact.colliders
+    assert (scene.factorization, scene.acceleration_tolerance, scene.petsc_options) == ("fresh", 1e-2,
+                                                                                     {"snes_max_it": 100})
+    scene = load_scene(own)
+    assert (scene.factorization, scene.acceleration_tolerance, scene.petsc_options) == ("reuse", 0.5,
+                                                                                     {"snes_max_it": 40})

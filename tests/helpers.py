@@ -239,6 +239,27 @@ class PointSpring:
         return np.concatenate(parts) if parts else np.zeros((0, 3, 3))
 
 
+class CouplingBeyondPattern:
+    """For a :class:`PointSpring`: only each point's own blocks in its fixed pattern; the blocks that
+    couple the two points come beyond it (:class:`~bhem_hpc.solver.contributions.GrowingPattern`),
+    as a contact barrier's between parts far apart do."""
+
+    def _split_pattern(self, first_point_blocks: np.ndarray) -> None:
+        rows, cols = self._full = self._pattern
+        self._own = np.isin(rows, first_point_blocks) == np.isin(cols, first_point_blocks)  # the points are apart
+        self._pattern = (rows[self._own], cols[self._own])
+        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+
+    def hessian(self, state):
+        full = super().hessian(state)
+        rows, cols = self._full
+        self._beyond = (rows[~self._own], cols[~self._own], full[~self._own])
+        return full[self._own]
+
+    def hessian_beyond_pattern(self):
+        return self._beyond
+
+
 class TwoBodySpring(PointSpring):
     """The spring between material point ``p`` of body 0 and ``q`` of body 1, named through the
     public layout of several bodies only (``blocks``: a stacked problem or its
@@ -381,3 +402,12 @@ def frame_times(directory: Path) -> list[float]:
         Path(d.get("file")).name for d in pvd
     ]
     return listed
+
+
+class GrowingTwoBodySpring(CouplingBeyondPattern, TwoBodySpring):
+    """The :class:`TwoBodySpring` whose coupling blocks come beyond its pattern."""
+
+    def __init__(self, blocks, p, q, stiffness: float, rest_length: float):
+        super().__init__(blocks, p, q, stiffness, rest_length)
+        rows, _ = blocks.point_basis(0, *p)
+        self._split_pattern(np.concatenate(blocks.comm.allgather(blocks.global_open_blocks[rows])))

@@ -21,7 +21,7 @@ identity again, then the diagonal regularizer.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from petsc4py import PETSc
@@ -123,6 +123,9 @@ class StackedProblem(PetscOwner):
                                        for b, p in enumerate(self.problems)]).astype(PETSc.IntType)  # fmt: skip
         self._bc_counts = np.cumsum([0] + [len(p.bc_local) for p in self.problems])
         self.regularization = 0.0
+        #: called when the Jacobian's pattern grew: a factorization must start again from its analysis
+        self.on_pattern_growth: Callable[[], None] | None = None
+        self._coupling_stored = 0  # stored entries of the coupling Hessian (it grows: contact between bodies)
         #: the coupling Hessian on the stacked open blocks, the prolongation and P^T H P (None: no coupling)
         self._coupling: tuple[PETSc.Mat, PETSc.Mat, PETSc.Mat] | None = None
         self.jacobian = self._create_jacobian()
@@ -182,7 +185,8 @@ class StackedProblem(PetscOwner):
             if len(rows):
                 hessian.setValuesBlockedRCV(rows, cols, np.zeros((len(rows), 1, 9)), addv=PETSc.InsertMode.ADD)
         hessian.assemble()
-        hessian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        # contributions' blocks beyond their patterns grow it (contact between bodies)
+        self._coupling_stored = int(hessian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
         prolongation = self._prolongation()
         return hessian, prolongation, hessian.PtAP(prolongation)
 
@@ -326,14 +330,31 @@ class StackedProblem(PetscOwner):
                              rowmap=self._rows[body].astype(PETSc.IntType))  # fmt: skip
         jac.assemble()
         if self._coupling is not None:
-            hessian, prolongation, coupled = self._coupling
-            hessian.zeroEntries()
-            add_contribution_hessians(hessian, self.contributions, self._patterns, self.contribution_state())
-            hessian.assemble()
-            hessian.PtAP(prolongation, result=coupled)
-            jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            self._add_coupling(jac)
             jac.zeroRowsColumns(self.bc_rows, diag=1.0)
         add_diagonal_regularization(jac, self.regularization)
+
+    def _add_coupling(self, jac: PETSc.Mat) -> None:
+        """``jac += P^T H P`` of the coupling contributions. Blocks of :class:`GrowingPattern` ones
+        beyond their patterns (contact between bodies) grow ``H``; then its product is formed anew
+        and added with its own pattern, which grows ``jac``'s (:attr:`on_pattern_growth` is called)."""
+        hessian, prolongation, coupled = self._coupling
+        hessian.zeroEntries()
+        add_contribution_hessians(hessian, self.contributions, self._patterns, self.contribution_state(),
+                                  grow=True)  # fmt: skip
+        hessian.assemble()
+        stored = int(hessian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        if stored == self._coupling_stored:
+            hessian.PtAP(prolongation, result=coupled)
+            jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            return
+        self._coupling_stored = stored
+        coupled.destroy()
+        coupled = hessian.PtAP(prolongation)  # the product's structure follows H's
+        self._coupling = (hessian, prolongation, coupled)
+        jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        if self.on_pattern_growth is not None:
+            self.on_pattern_growth()
 
     def potential_energy(self) -> float:
         """Collective: every body's potential plus the coupling contributions' energies."""

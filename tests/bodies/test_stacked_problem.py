@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import CLAMPED, RUBBER, SHEET, STEEL, TwoBodySpring, gather, gather_matrix
+from helpers import CLAMPED, RUBBER, SHEET, STEEL, GrowingTwoBodySpring, TwoBodySpring, gather, gather_matrix
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import StackedLayout
@@ -236,3 +236,25 @@ def test_bad_bodies_and_contributions_are_refused_by_name(comm, shared_tmp_path)
         values = stacked.bc_values
         stacked.bc_values = values + 1.0  # split back to the bodies in order
         assert np.array_equal(np.concatenate([p.bc_values for p in stacked.problems]), values + 1.0)
+
+
+def test_coupling_blocks_beyond_a_pattern_grow_the_stacked_jacobian_to_the_full_one(comm, shared_tmp_path):
+    """A spring between the two bodies whose pattern holds only each point's own blocks (as contact
+    between bodies has it): the stacked Jacobian grows to take the coupling (the growth reported
+    once) and equals, at three assemblies in a row, the one of the spring with its whole pattern."""
+    jacobians = {}
+    for kind in (TwoBodySpring, GrowingTwoBodySpring):
+        stacked = _stacked(_models(comm, shared_tmp_path))
+        stacked.add_contributions([kind(stacked, (SIZE, SIZE), (0.8 * SIZE, 0.5 * SIZE), 5e3, 0.01)])
+        growths = []
+        stacked.on_pattern_growth = lambda growths=growths: growths.append(1)
+        stored = stacked.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]
+        for _ in range(3):
+            stacked.assemble_jacobian(stacked.jacobian)
+            jacobians.setdefault(kind.__name__, []).append(gather_matrix(stacked.jacobian))
+        grown = stacked.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"] - stored
+        assert (grown > 0, len(growths)) == ((True, 1) if kind is GrowingTwoBodySpring else (False, 0))
+        stacked.close()
+    scale = np.abs(jacobians["TwoBodySpring"][0]).max()
+    for fixed, growing in zip(jacobians["TwoBodySpring"], jacobians["GrowingTwoBodySpring"], strict=True):
+        np.testing.assert_allclose(growing, fixed, rtol=0, atol=1e-12 * scale)

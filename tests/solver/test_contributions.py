@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import PointSpring, gather_matrix
+from helpers import CouplingBeyondPattern, PointSpring, gather_matrix
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -187,26 +187,12 @@ def test_a_barrier_with_a_step_bound_is_never_crossed(comm, bounded):
         assert min(floor.gaps) <= 0  # a trial went through the floor (the energy rejected it)
 
 
-class GrowingSpring(Spring):
-    """The spring with only each point's own blocks in its fixed pattern; the blocks coupling the two
-    points come beyond it (:class:`~bhem_hpc.solver.contributions.GrowingPattern`)."""
+class GrowingSpring(CouplingBeyondPattern, Spring):
+    """The spring between two points of one sheet whose coupling blocks come beyond its pattern."""
 
     def __init__(self, model, p, q, stiffness, rest_length):
         super().__init__(model, p, q, stiffness, rest_length)
-        rows, cols = self._full = self._pattern
-        p_blocks = _gathered_point(model, p)[1][0]
-        self._own = np.isin(rows, p_blocks) == np.isin(cols, p_blocks)  # the points' blocks are apart
-        self._pattern = (rows[self._own], cols[self._own])
-        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
-
-    def hessian(self, state):
-        full = super().hessian(state)
-        rows, cols = self._full
-        self._beyond = (rows[~self._own], cols[~self._own], full[~self._own])
-        return full[self._own]
-
-    def hessian_beyond_pattern(self):
-        return self._beyond
+        self._split_pattern(_gathered_point(model, p)[1][0])
 
 
 #: where a Jacobian's pattern grows (MPISBAIJ cannot zero constrained rows and columns: symmetric

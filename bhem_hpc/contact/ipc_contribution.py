@@ -167,6 +167,8 @@ class IpcBarrier:
         vertices = self._vertices(state.positions)
         if self.rank != 0:
             return np.zeros((0, 3, 3))
+        # negative eigenvalues clamped to zero: with their absolute values instead, the hairpin's
+        # arms meeting halved dt and failed where clamping converges without recovery (measured)
         method = self._ipctk.PSDProjectionMethod.CLAMP
         hessian = self.barrier.hessian(self._collisions(vertices), self.mesh, vertices, method)
         size = 3 * self.num_points

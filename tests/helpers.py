@@ -245,10 +245,12 @@ class CouplingBeyondPattern:
     as a contact barrier's between parts far apart do."""
 
     def _split_pattern(self, first_point_blocks: np.ndarray) -> None:
+        from bhem_hpc.solver.contributions import no_blocks
+
         rows, cols = self._full = self._pattern
         self._own = np.isin(rows, first_point_blocks) == np.isin(cols, first_point_blocks)  # the points are apart
         self._pattern = (rows[self._own], cols[self._own])
-        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+        self._beyond = no_blocks()
 
     def hessian(self, state):
         full = super().hessian(state)

@@ -30,7 +30,12 @@ from bhem_hpc.bodies.layout import StackedLayout
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis, StepBounded
 from bhem_hpc.solver.petsc import PetscOwner
-from bhem_hpc.solver.problem import ShellProblem, add_contribution_hessians, add_diagonal_regularization
+from bhem_hpc.solver.problem import (
+    ShellProblem,
+    add_contribution_hessians,
+    add_diagonal_regularization,
+    stored_entries,
+)
 from bhem_hpc.solver.report import SolveReport
 
 
@@ -186,7 +191,7 @@ class StackedProblem(PetscOwner):
                 hessian.setValuesBlockedRCV(rows, cols, np.zeros((len(rows), 1, 9)), addv=PETSc.InsertMode.ADD)
         hessian.assemble()
         # contributions' blocks beyond their patterns grow it (contact between bodies)
-        self._coupling_stored = int(hessian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        self._coupling_stored = stored_entries(hessian)
         prolongation = self._prolongation()
         return hessian, prolongation, hessian.PtAP(prolongation)
 
@@ -343,7 +348,7 @@ class StackedProblem(PetscOwner):
         add_contribution_hessians(hessian, self.contributions, self._patterns, self.contribution_state(),
                                   grow=True)  # fmt: skip
         hessian.assemble()
-        stored = int(hessian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        stored = stored_entries(hessian)
         if stored == self._coupling_stored:
             hessian.PtAP(prolongation, result=coupled)
             jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
@@ -400,7 +405,7 @@ class StackedProblem(PetscOwner):
 
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the stacked Jacobian."""
-        return int(self.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        return stored_entries(self.jacobian)
 
     def close(self) -> None:
         """Destroy the stacked objects and close every body's problem (idempotent)."""

@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse
 
 from bhem_hpc.contact.ipc import collision_lattice, minimum_distance
-from bhem_hpc.solver.contributions import ContributionState, PointBasis
+from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
 if TYPE_CHECKING:
     from bhem_hpc.model.shell import ShellModel
@@ -73,7 +73,7 @@ class IpcBarrier:
         self.num_points = len(bases)
         self.dhat, self.stiffness = float(dhat), float(stiffness)
         self.self_contact = bool(self_contact)
-        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+        self._beyond = no_blocks()
         global_blocks = np.asarray(global_blocks, dtype=np.int64)
         rows, cols, weights = [], [], []
         for point, (blocks, values) in enumerate(bases):
@@ -183,7 +183,7 @@ class IpcBarrier:
         :meth:`hessian_beyond_pattern`."""
         rows, cols = self._pattern
         out = np.zeros((len(rows), 3, 3))
-        self._beyond = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+        self._beyond = no_blocks()
         if not blocks.nnz:
             return out
         count = len(self.blocks)
@@ -211,7 +211,6 @@ class IpcBarrier:
         """Collective: the smallest distance [m] between the mesh and the obstacles within ``dhat``
         (``inf`` if none is)."""
         return minimum_distance(self.mesh, self._vertices(positions), self.dhat)
-
 
     def starting_problem(self, positions: np.ndarray) -> str | None:
         """Collective: why the mesh at ``positions`` cannot start a barrier solve (it intersects an

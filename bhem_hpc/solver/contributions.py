@@ -111,6 +111,12 @@ def _no_pattern() -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(0, np.int64), np.zeros(0, np.int64)
 
 
+def no_blocks() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """No Hessian blocks: empty ``(rows, columns, values (0, 3, 3))``, as
+    :meth:`GrowingPattern.hessian_beyond_pattern` gives them."""
+    return (*_no_pattern(), np.zeros((0, 3, 3)))
+
+
 class PointLoads:
     """Dead point forces ``f`` scaled by the load factor ``lambda``: energy ``-lambda f.x``.
 

@@ -101,6 +101,12 @@ def _column(indices: np.ndarray) -> np.ndarray:
     return np.asarray(indices, dtype=PETSc.IntType).reshape(-1, 1)
 
 
+def stored_entries(matrix: PETSc.Mat) -> int:
+    """Collective: the entries ``matrix`` stores over all ranks (its pattern's size: it tells when
+    the pattern grew)."""
+    return int(matrix.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+
+
 def add_diagonal_regularization(jac: PETSc.Mat, regularization: float) -> None:
     """The paper's diagonal regularizer, scaled per row: ``J + r |diag J|`` (nothing for ``r = 0``)."""
     if regularization > 0:
@@ -376,7 +382,7 @@ class ShellProblem(PetscOwner):
         if self.prolongation is not None:
             self.jacobian_open.PtAP(self.prolongation, result=jac)
         elif self._may_grow:
-            stored = int(jac.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+            stored = stored_entries(jac)
             if stored > self._stored > 0 and self.on_pattern_growth is not None:
                 self.on_pattern_growth()
             self._stored = stored
@@ -401,7 +407,7 @@ class ShellProblem(PetscOwner):
 
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the (closed) Jacobian as a full matrix (SBAIJ stores the upper triangle)."""
-        stored = int(self.jacobian.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        stored = stored_entries(self.jacobian)
         if self.jacobian.getType().endswith("sbaij"):
             bs = self.jacobian.getBlockSize()
             diagonal_blocks = self.jacobian.getSize()[0] // bs

@@ -1,0 +1,292 @@
+"""NURBS surfaces of any degree on non-uniform knots, numpy only.
+
+A :class:`NurbsSurface` is a rational tensor-product B-spline
+``x(u, v) = sum_ij N_i(u) M_j(v) w_ij q_ij / sum_ij N_i(u) M_j(v) w_ij`` with control points
+``q (n, m, 3)`` indexed ``[i, j, xyz]``, positive weights ``w (n, m)``, degrees ``(p, q)`` and
+clamped or unclamped knot vectors of lengths ``n + p + 1`` and ``m + q + 1``. Its parameter domain
+is ``[knots_u[p], knots_u[n]] x [knots_v[q], knots_v[m]]``.
+
+Every nonempty knot span pair is a rational Bezier patch: in homogeneous coordinates
+``(w x, w y, w z, w)`` the B-spline basis of a span is ``N_local(t) = C @ B(t)`` with the Bernstein
+polynomials ``B`` of the span's local coordinate ``t in [0, 1]`` and the span's Bezier extraction
+matrix ``C`` (Borden et al. 2011), so :meth:`NurbsSurface.bezier_patches` is exact. The ray and
+closest-point queries of :mod:`.rational_bezier` work on those patches.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from bhem_hpc.geometry.bspline import basis_functions, bernstein
+from bhem_hpc.geometry.surface import SurfaceError
+
+#: Highest degree accepted: the Bernstein evaluation is exact far beyond, but modellers stop at 11.
+MAX_DEGREE = 11
+
+
+@dataclass(frozen=True)
+class KnotDirection:
+    """One parameter direction: degree ``p``, knots ``(n + p + 1,)`` and its nonempty spans.
+
+    ``spans (S,)`` holds the knot indices ``k`` of the nonempty intervals ``[knots[k], knots[k+1])``
+    with ``p <= k < n``; ``extraction (S, p + 1, p + 1)`` maps Bernstein polynomials on span ``s``
+    to its basis functions ``k - p .. k``: ``N_local(t) = extraction[s] @ B(t)``.
+    """
+
+    degree: int
+    knots: np.ndarray
+    spans: np.ndarray
+    extraction: np.ndarray
+
+    @staticmethod
+    def of(knots: np.ndarray, degree: int, count: int, name: str) -> KnotDirection:
+        """Checked direction of ``count`` control points (``name`` appears in errors)."""
+        knots = np.asarray(knots, dtype=float)
+        if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or not 1 <= degree <= MAX_DEGREE:
+            raise SurfaceError(f"NURBS {name} degree must be an integer in [1, {MAX_DEGREE}], got {degree!r}")
+        degree = int(degree)
+        if count < degree + 1:
+            raise SurfaceError(
+                f"a degree-{degree} NURBS {name} direction needs at least {degree + 1} control points, got {count}"
+            )
+        if knots.shape != (count + degree + 1,):
+            raise SurfaceError(
+                f"NURBS {name} knot vector must have {count + degree + 1} entries (control points + degree + 1), "
+                f"got shape {knots.shape}"
+            )
+        if not np.all(np.isfinite(knots)) or np.any(np.diff(knots) < 0.0):
+            raise SurfaceError(f"NURBS {name} knots must be finite and non-decreasing, got {knots.tolist()}")
+        interior = np.arange(degree, count)
+        spans = interior[knots[interior + 1] > knots[interior]]
+        if not len(spans):
+            raise SurfaceError(f"NURBS {name} knot vector has no nonempty span in its domain: {knots.tolist()}")
+        multiplicity = np.diff(np.flatnonzero(np.r_[True, np.diff(knots[degree : count + 1]) > 0, True]))
+        if np.any(multiplicity[1:-1] > degree):
+            raise SurfaceError(
+                f"NURBS {name} knots repeat more than the degree {degree} inside the domain: {knots.tolist()}"
+            )
+        samples = (np.arange(degree + 1) + 0.5) / (degree + 1)  # interior points: no knot ambiguity
+        inverse = np.linalg.inv(bernstein(samples, degree))
+        extraction = np.empty((len(spans), degree + 1, degree + 1))
+        for s, k in enumerate(spans):
+            local = basis_functions(knots, degree, int(k), knots[k] + samples * (knots[k + 1] - knots[k]))
+            extraction[s] = (inverse @ local).T
+        return KnotDirection(degree, knots, spans, extraction)
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return float(self.knots[self.degree]), float(self.knots[len(self.knots) - self.degree - 1])
+
+    def locate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Span position ``s`` (index into :attr:`spans`) and local coordinate ``t in [0, 1]`` of
+        parameters ``x``; the domain's end belongs to the last span."""
+        x = np.asarray(x, dtype=float)
+        lo, hi = self.domain
+        if (
+            np.any(~np.isfinite(x))
+            or np.any(x < lo - 1e-12 * max(1.0, abs(lo)))
+            or np.any(x > hi + 1e-12 * max(1.0, abs(hi)))
+        ):
+            raise SurfaceError(f"NURBS parameters must lie in the domain [{lo}, {hi}]")
+        starts = self.knots[self.spans]
+        s = np.clip(np.searchsorted(starts, x, side="right") - 1, 0, len(self.spans) - 1)
+        a, b = starts[s], self.knots[self.spans[s] + 1]
+        return s, np.clip((x - a) / (b - a), 0.0, 1.0)
+
+    def basis(self, x: np.ndarray, derivative: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """First control index ``(S,)`` and the ``p + 1`` nonzero basis functions (or their
+        ``derivative`` in ``x``) ``S + (p + 1,)`` at parameters ``x (S,)``."""
+        s, t = self.locate(x)
+        width = self.knots[self.spans[s] + 1] - self.knots[self.spans[s]]
+        values = np.einsum("...ab,...b->...a", self.extraction[s], bernstein(t, self.degree, derivative))
+        return self.spans[s] - self.degree, values / width[..., None] ** derivative
+
+
+@dataclass(frozen=True)
+class RationalBezierPatches:
+    """The rational Bezier patches of one surface: homogeneous nets and their parameter boxes.
+
+    ``nets (P, p + 1, q + 1, 4)`` holds ``(w x, w y, w z, w)`` indexed ``[patch, i, j, xyzw]`` of
+    ``x(s, t) = sum_ij B_i(s) B_j(t) nets[..., :3] / sum_ij B_i(s) B_j(t) nets[..., 3]``, local
+    ``s, t in [0, 1]``; ``boxes (P, 4)`` is each patch's ``(u0, u1, v0, v1)`` in the surface's parameters.
+    """
+
+    nets: np.ndarray
+    boxes: np.ndarray
+
+    @property
+    def degrees(self) -> tuple[int, int]:
+        return self.nets.shape[1] - 1, self.nets.shape[2] - 1
+
+    @property
+    def control_points(self) -> np.ndarray:
+        """Cartesian control points ``(P, p + 1, q + 1, 3)`` (their hull contains each patch: w > 0)."""
+        return self.nets[..., :3] / self.nets[..., 3:]
+
+
+class NurbsSurface:
+    """A checked NURBS surface (see the module docstring for the index order)."""
+
+    def __init__(
+        self,
+        degrees: tuple[int, int],
+        knots_u: np.ndarray,
+        knots_v: np.ndarray,
+        control: np.ndarray,
+        weights: np.ndarray | None = None,
+        name: str = "NURBS surface",
+    ):
+        control = np.asarray(control, dtype=float)
+        if control.ndim != 3 or control.shape[2] != 3:
+            raise SurfaceError(f"{name}: control points must have shape (n, m, 3), got {control.shape}")
+        if not np.all(np.isfinite(control)):
+            raise SurfaceError(f"{name}: control points must be finite")
+        weights = np.ones(control.shape[:2]) if weights is None else np.asarray(weights, dtype=float)
+        if weights.shape != control.shape[:2]:
+            raise SurfaceError(f"{name}: weights must have shape {control.shape[:2]}, got {weights.shape}")
+        if not np.all(np.isfinite(weights)) or np.any(weights <= 0.0):
+            i, j = np.argwhere(~(np.isfinite(weights) & (weights > 0.0)))[0]
+            raise SurfaceError(
+                f"{name}: weights must be positive and finite, got {weights[i, j]!r} at control point ({i}, {j})"
+            )
+        self.name = name
+        self.u = KnotDirection.of(knots_u, degrees[0], control.shape[0], f"{name} u")
+        self.v = KnotDirection.of(knots_v, degrees[1], control.shape[1], f"{name} v")
+        self.control = control
+        self.weights = weights
+
+    @property
+    def degrees(self) -> tuple[int, int]:
+        return self.u.degree, self.v.degree
+
+    @property
+    def homogeneous(self) -> np.ndarray:
+        """``(n, m, 4)``: ``(w x, w y, w z, w)``."""
+        return np.concatenate([self.control * self.weights[..., None], self.weights[..., None]], axis=2)
+
+    def with_control(self, control: np.ndarray) -> NurbsSurface:
+        """The same knots and weights with other control points ``(n, m, 3)`` (a deformed part)."""
+        return NurbsSurface(self.degrees, self.u.knots, self.v.knots, control, self.weights, self.name)
+
+    def _weighted_basis(self, u: np.ndarray, v: np.ndarray, du: int, dv: int):
+        first_u, basis_u = self.u.basis(u, du)
+        first_v, basis_v = self.v.basis(v, dv)
+        rows = first_u[:, None] + np.arange(self.u.degree + 1)
+        cols = first_v[:, None] + np.arange(self.v.degree + 1)
+        local = self.homogeneous[rows[:, :, None], cols[:, None, :]]  # (S, p + 1, q + 1, 4)
+        return np.einsum("sa,sb,sabc->sc", basis_u, basis_v, local)
+
+    def evaluate(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points and first partial derivatives at parameters ``u, v (S,)``: three ``(S, 3)`` arrays."""
+        u, v = np.atleast_1d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(v, dtype=float))
+        a = self._weighted_basis(u, v, 0, 0)
+        a_u, a_v = self._weighted_basis(u, v, 1, 0), self._weighted_basis(u, v, 0, 1)
+        point = a[:, :3] / a[:, 3:]
+        # quotient rule: x = A / W, x_u = (A_u - x W_u) / W
+        return point, (a_u[:, :3] - point * a_u[:, 3:]) / a[:, 3:], (a_v[:, :3] - point * a_v[:, 3:]) / a[:, 3:]
+
+    def basis_matrix(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rational basis ``phi_ij`` at ``u, v (S,)``: control indices ``(S, (p+1)(q+1))`` into
+        the flattened ``(n * m)`` control points and their values (rows sum to 1): ``x = phi q``."""
+        u, v = np.atleast_1d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(v, dtype=float))
+        first_u, basis_u = self.u.basis(u)
+        first_v, basis_v = self.v.basis(v)
+        rows = first_u[:, None] + np.arange(self.u.degree + 1)
+        cols = first_v[:, None] + np.arange(self.v.degree + 1)
+        weighted = basis_u[:, :, None] * basis_v[:, None, :] * self.weights[rows[:, :, None], cols[:, None, :]]
+        values = weighted / weighted.sum(axis=(1, 2), keepdims=True)
+        index = rows[:, :, None] * self.control.shape[1] + cols[:, None, :]
+        return index.reshape(len(u), -1), values.reshape(len(u), -1)
+
+    @cached_property
+    def bezier_patches(self) -> RationalBezierPatches:
+        """Exact rational Bezier extraction, patches in order ``span_u * S_v + span_v``."""
+        p, q = self.degrees
+        pw = self.homogeneous
+        nets, boxes = [], []
+        for a, ku in enumerate(self.u.spans):
+            for b, kv in enumerate(self.v.spans):
+                local = pw[ku - p : ku + 1, kv - q : kv + 1]
+                nets.append(np.einsum("ia,jb,ijc->abc", self.u.extraction[a], self.v.extraction[b], local))
+                boxes.append((self.u.knots[ku], self.u.knots[ku + 1], self.v.knots[kv], self.v.knots[kv + 1]))
+        return RationalBezierPatches(np.array(nets), np.array(boxes, dtype=float))
+
+    def tessellate(self, density: int = 8) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices ``(V, 3)`` and triangles ``(T, 3)`` from ``density`` cells per Bezier patch side
+        (vertices are not shared between patches)."""
+        grid = np.linspace(0.0, 1.0, density + 1)
+        vertices, triangles = [], []
+        for u0, u1, v0, v1 in self.bezier_patches.boxes:
+            uu, vv = np.meshgrid(u0 + grid * (u1 - u0), v0 + grid * (v1 - v0), indexing="ij")
+            offset = sum(len(x) for x in vertices)
+            vertices.append(self.evaluate(uu.ravel(), vv.ravel())[0])
+            corner = (np.arange(density)[:, None] * (density + 1) + np.arange(density)[None, :]).ravel() + offset
+            triangles.append(np.stack([corner, corner + density + 1, corner + density + 2], axis=1))
+            triangles.append(np.stack([corner, corner + density + 2, corner + 1], axis=1))
+        return np.concatenate(vertices), np.concatenate(triangles)
+
+
+# ---- exact shapes ----------------------------------------------------------------------------
+
+_CIRCLE_KNOTS = np.array([0, 0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 4], dtype=float) / 4.0
+_HALF_CIRCLE_KNOTS = np.array([0, 0, 0, 1, 1, 2, 2, 2], dtype=float) / 2.0
+
+
+def _circle(count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Control points ``(count, 2)`` and weights of the unit circle (9 points) or the half circle
+    from angle -pi/2 to pi/2 (5 points), quarter arcs of weight ``cos(pi / 4)`` at their corners."""
+    angles = -0.5 * math.pi + 0.25 * math.pi * np.arange(count) if count == 5 else 0.25 * math.pi * np.arange(count)
+    corner = np.arange(count) % 2 == 1
+    radius = np.where(corner, math.sqrt(2.0), 1.0)
+    points = radius[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    return np.round(points, 15), np.where(corner, math.sqrt(0.5), 1.0)
+
+
+def revolve(
+    profile: np.ndarray, profile_weights: np.ndarray, profile_knots: np.ndarray, profile_degree: int, name: str
+) -> NurbsSurface:
+    """The exact surface of revolution about the z axis of a rational profile ``(m, 2)`` of
+    ``(radius, z)`` points: ``u`` goes round (9 control points), ``v`` along the profile."""
+    circle, circle_weights = _circle(9)
+    control = np.empty((9, len(profile), 3))
+    control[..., 0] = circle[:, None, 0] * profile[None, :, 0]
+    control[..., 1] = circle[:, None, 1] * profile[None, :, 0]
+    control[..., 2] = profile[None, :, 1]
+    weights = circle_weights[:, None] * profile_weights[None, :]
+    return NurbsSurface((2, profile_degree), _CIRCLE_KNOTS, profile_knots, control, weights, name)
+
+
+def sphere(radius: float, center=(0.0, 0.0, 0.0)) -> NurbsSurface:
+    """The exact NURBS sphere (degree 2 x 2, 9 x 5 control points; outward normal ``x_u x x_v``)."""
+    half, weights = _circle(5)
+    surface = revolve(radius * half, weights, _HALF_CIRCLE_KNOTS, 2, "sphere")
+    return surface.with_control(surface.control + np.asarray(center, dtype=float))
+
+
+def torus(major_radius: float, minor_radius: float) -> NurbsSurface:
+    """The exact NURBS torus about the z axis (degree 2 x 2, 9 x 9 control points)."""
+    circle, weights = _circle(9)
+    profile = np.stack([major_radius + minor_radius * circle[:, 0], minor_radius * circle[:, 1]], axis=1)
+    return revolve(profile, weights, _CIRCLE_KNOTS, 2, "torus")
+
+
+def box_faces(lo, hi) -> list[NurbsSurface]:
+    """The six faces of an axis-aligned box as bilinear NURBS parts, normals ``x_u x x_v`` outward."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    faces = []
+    knots = np.array([0.0, 0.0, 1.0, 1.0])
+    for axis in range(3):
+        a, b = (axis + 1) % 3, (axis + 2) % 3
+        for side, level in ((-1, lo[axis]), (1, hi[axis])):
+            first, second = (a, b) if side > 0 else (b, a)  # right-handed (first, second, outward)
+            control = np.empty((2, 2, 3))
+            control[..., axis] = level
+            for i, x in enumerate((lo[first], hi[first])):
+                for j, y in enumerate((lo[second], hi[second])):
+                    control[i, j, first], control[i, j, second] = x, y
+            faces.append(NurbsSurface((1, 1), knots, knots, control, name=f"box face {'-+'[side > 0]}{'xyz'[axis]}"))
+    return faces

@@ -1,0 +1,293 @@
+"""Rational Bezier patches of any degree: evaluation, sub-patches, and the crossings of
+axis-parallel lines, numpy only.
+
+A net is ``(p + 1, q + 1, 4)`` in homogeneous coordinates ``(w x, w y, w z, w)`` (see
+:class:`bhem_hpc.geometry.nurbs.RationalBezierPatches`); batches carry a leading patch axis.
+With positive weights a patch lies in the convex hull of its Cartesian control points, so the
+boxes of those points bound every sub-patch.
+
+:func:`axis_line_crossings` finds every point where lines parallel to a coordinate axis cross the
+patches: the ray-cast volume quadrature of solids needs all crossings along a line with the
+direction in which the surface is crossed, not the first hit. Pieces of patches are split
+(exactly, de Casteljau in homogeneous coordinates) while some line falls into their projected
+box and their projection onto the plane across the lines folds (the normal's component along the
+axis changes sign on the piece) or is larger than a set size; Newton's method from the centre of
+each remaining piece then solves for the crossing of every line in its box. Every loop is bounded.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+#: Newton iterations for one crossing (quadratic convergence from the centre of a small piece).
+NEWTON_ITERATIONS = 30
+#: Splitting levels of a patch (4^level pieces at most): bounds the search.
+MAX_LEVEL = 14
+#: Largest side, in a patch's local parameters, of a piece Newton starts from.
+MAX_PIECE = 1.0 / 8.0
+#: Samples per side of a piece where the sign of the normal's axis component is tested.
+SIGN_SAMPLES = 4
+#: Crossings closer than this (relative to the model's size) on one line, crossed the same way,
+#: are one crossing found twice (a line through a seam between patches or pieces).
+DUPLICATE_DISTANCE = 1e-9
+#: How far outside its patch's parameter square a crossing may land and still count.
+EDGE_SLACK = 1e-9
+
+
+@lru_cache(maxsize=32)
+def _binomials(degree: int) -> np.ndarray:
+    return np.array([math.comb(degree, i) for i in range(degree + 1)], dtype=float)
+
+
+def bernstein(t: np.ndarray, degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bernstein polynomials of ``degree`` and their first derivatives at ``t (S,)``: ``(S, p + 1)`` each."""
+    t = np.asarray(t, dtype=float)[..., None]
+    i = np.arange(degree + 1)
+    s = 1.0 - t
+    values = _binomials(degree) * t**i * s ** (degree - i)
+    if degree == 0:
+        return values, np.zeros_like(values)
+    lower = _binomials(degree - 1) * t ** i[:-1] * s ** (degree - 1 - i[:-1])  # degree p - 1
+    derivative = np.zeros_like(values)
+    derivative[..., 1:] += degree * lower
+    derivative[..., :-1] -= degree * lower
+    return values, derivative
+
+
+def evaluate(nets: np.ndarray, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One point per net with its two partial derivatives: nets ``(N, p+1, q+1, 4)``, local
+    parameters ``s, t (N,)`` -> three ``(N, 3)`` arrays."""
+    p, q = nets.shape[1] - 1, nets.shape[2] - 1
+    bs, dbs = bernstein(s, p)
+    bt, dbt = bernstein(t, q)
+    a = np.einsum("ni,nj,nijc->nc", bs, bt, nets)
+    a_s = np.einsum("ni,nj,nijc->nc", dbs, bt, nets)
+    a_t = np.einsum("ni,nj,nijc->nc", bs, dbt, nets)
+    point = a[:, :3] / a[:, 3:]
+    return point, (a_s[:, :3] - point * a_s[:, 3:]) / a[:, 3:], (a_t[:, :3] - point * a_t[:, 3:]) / a[:, 3:]
+
+
+def restriction_matrices(degree: int, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
+    """``(N, p + 1, p + 1)`` matrices taking a degree-``p`` Bezier curve's control points to those
+    of its piece on ``[t0, t1]`` (``0 <= t0 < t1 <= 1``): the Bernstein polynomials of the piece
+    are those of the curve reparametrized by ``t0 + (t1 - t0) x``, a blossom evaluated at
+    ``(t0, .., t0, t1, .., t1)``."""
+    t0, t1 = np.asarray(t0, dtype=float), np.asarray(t1, dtype=float)
+    count = len(t0)
+    out = np.empty((count, degree + 1, degree + 1))
+    for k in range(degree + 1):  # k-th control point of the piece: blossom at k copies of t1
+        # de Casteljau with (p - k) steps at t0 and k steps at t1, applied to the identity
+        points = np.broadcast_to(np.eye(degree + 1), (count, degree + 1, degree + 1))
+        for step in range(degree):
+            t = (t1 if step < k else t0)[:, None, None]
+            points = (1.0 - t) * points[:, :-1] + t * points[:, 1:]
+        out[:, k] = points[:, 0]
+    return out
+
+
+def subpatches(nets: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Nets of the local sub-rectangles ``boxes (N, 4)`` = ``(s0, s1, t0, t1)`` of ``nets (N, p+1, q+1, 4)``."""
+    p, q = nets.shape[1] - 1, nets.shape[2] - 1
+    along_s = restriction_matrices(p, boxes[:, 0], boxes[:, 1])
+    along_t = restriction_matrices(q, boxes[:, 2], boxes[:, 3])
+    return np.einsum("nai,nbj,nijc->nabc", along_s, along_t, nets)
+
+
+@dataclass(frozen=True)
+class LineCrossings:
+    """Crossings of lines with patches, ``(K,)`` arrays sorted by line, then position.
+
+    ``line`` indexes the lines, ``position`` is the coordinate along the axis, ``direction`` is
+    ``+1`` where the surface's normal ``x_s x x_t`` points along the axis (the line leaves an
+    outward-oriented solid) and ``-1`` where against it; ``patch``, ``s``, ``t`` locate the point.
+    """
+
+    line: np.ndarray
+    position: np.ndarray
+    direction: np.ndarray
+    patch: np.ndarray
+    s: np.ndarray
+    t: np.ndarray
+
+
+_QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
+
+
+def _lines_in_box(lo: np.ndarray, hi: np.ndarray, first: np.ndarray, second: np.ndarray):
+    """Index ranges of the sorted line coordinates inside each box ``lo, hi (N, 2)``: ``(N, 2)`` starts and stops."""
+    start = np.stack([np.searchsorted(first, lo[:, 0], "left"), np.searchsorted(second, lo[:, 1], "left")], axis=1)
+    stop = np.stack([np.searchsorted(first, hi[:, 0], "right"), np.searchsorted(second, hi[:, 1], "right")], axis=1)
+    return start, stop
+
+
+def _piece_boxes(nets: np.ndarray, across: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    points = nets[..., :3] / nets[..., 3:]
+    flat = points[..., list(across)].reshape(len(nets), -1, 2)
+    return flat.min(axis=1), flat.max(axis=1)
+
+
+def _axis_normal_signs(nets: np.ndarray, rects: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest normal component along ``axis`` over ``SIGN_SAMPLES^2`` points of each
+    piece ``rects (N, 4)`` of ``nets (N, ...)``, each normalized by the piece's largest normal."""
+    grid = (np.arange(SIGN_SAMPLES) + 0.5) / SIGN_SAMPLES
+    s = rects[:, 0, None, None] + grid[None, :, None] * (rects[:, 1] - rects[:, 0])[:, None, None]
+    t = rects[:, 2, None, None] + grid[None, None, :] * (rects[:, 3] - rects[:, 2])[:, None, None]
+    shape = np.broadcast_shapes(s.shape, t.shape)
+    s, t = np.broadcast_to(s, shape).reshape(-1), np.broadcast_to(t, shape).reshape(-1)
+    repeated = np.repeat(nets, SIGN_SAMPLES**2, axis=0)
+    _, x_s, x_t = evaluate(repeated, s, t)
+    normal = np.cross(x_s, x_t).reshape(len(nets), -1, 3)
+    size = np.linalg.norm(normal, axis=2).max(axis=1)
+    component = normal[..., axis] / np.where(size > 0.0, size, 1.0)[:, None]
+    return component.min(axis=1), component.max(axis=1)
+
+
+def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
+    """Pieces ``(patch (M,), rect (M, 4))`` with lines in their boxes, each small and unfolded (or at
+    :data:`MAX_LEVEL`); pieces whose projection has no area (a face along the axis) are dropped."""
+    across = tuple(a for a in range(3) if a != axis)
+    patch = np.arange(len(nets))
+    rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(nets), 1))
+    kept_patch, kept_rect = [], []
+    for level in range(MAX_LEVEL + 1):
+        if not len(patch):
+            break
+        pieces = subpatches(nets[patch], rect)
+        lo, hi = _piece_boxes(pieces, across)
+        start, stop = _lines_in_box(lo - tolerance, hi + tolerance, first, second)
+        holds_lines = np.all(stop > start, axis=1)
+        low, high = _axis_normal_signs(nets[patch], rect, axis)
+        flat = np.maximum(np.abs(low), np.abs(high)) <= 1e-12  # projects onto a curve: no crossing of measure
+        unfolded = (low > 0.0) | (high < 0.0)
+        small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
+        done = holds_lines & ~flat & ((unfolded & small) | (level == MAX_LEVEL))
+        kept_patch.append(patch[done])
+        kept_rect.append(rect[done])
+        split = holds_lines & ~flat & ~done
+        parent = rect[split]
+        width = np.stack([parent[:, 1] - parent[:, 0], parent[:, 3] - parent[:, 2]], axis=1)
+        patch = np.repeat(patch[split], 4)
+        quarters = np.tile(_QUARTERS, (len(parent), 1))
+        parent, width = np.repeat(parent, 4, axis=0), np.repeat(width, 4, axis=0)
+        rect = np.stack(
+            [
+                parent[:, 0] + quarters[:, 0] * width[:, 0],
+                parent[:, 0] + quarters[:, 1] * width[:, 0],
+                parent[:, 2] + quarters[:, 2] * width[:, 1],
+                parent[:, 2] + quarters[:, 3] * width[:, 1],
+            ],
+            axis=1,
+        )
+    return np.concatenate(kept_patch), np.concatenate(kept_rect)
+
+
+def _candidate_pairs(nets, patch, rect, axis, first, second, tolerance):
+    """``(piece (K,), line (K,))`` for every line inside each piece's projected box."""
+    across = tuple(a for a in range(3) if a != axis)
+    lo, hi = _piece_boxes(subpatches(nets[patch], rect), across)
+    start, stop = _lines_in_box(lo - tolerance, hi + tolerance, first, second)
+    count_first, count_second = stop[:, 0] - start[:, 0], stop[:, 1] - start[:, 1]
+    per_piece = count_first * count_second
+    piece = np.repeat(np.arange(len(patch)), per_piece)
+    offset = np.arange(per_piece.sum()) - np.repeat(np.cumsum(per_piece) - per_piece, per_piece)
+    i = start[piece, 0] + offset // count_second[piece]
+    j = start[piece, 1] + offset % count_second[piece]
+    return piece, i * len(second) + j
+
+
+def _newton(nets, s, t, target, across, tolerance):
+    """Solve ``x(s, t)[across] = target (K, 2)`` from ``s, t (K,)``: the solution and a success mask."""
+    converged = np.zeros(len(s), dtype=bool)
+    active = np.arange(len(s))
+    for _ in range(NEWTON_ITERATIONS):
+        if not len(active):
+            break
+        point, x_s, x_t = evaluate(nets[active], s[active], t[active])
+        residual = point[:, across] - target[active]
+        done = np.linalg.norm(residual, axis=1) <= tolerance
+        converged[active[done]] = True
+        keep = ~done
+        active, residual = active[keep], residual[keep]
+        jacobian = np.stack([x_s[keep][:, across], x_t[keep][:, across]], axis=2)
+        regular = np.abs(np.linalg.det(jacobian)) > 1e-300
+        active, residual, jacobian = active[regular], residual[regular], jacobian[regular]
+        step = np.linalg.solve(jacobian, residual[..., None])[..., 0]
+        s[active] -= step[:, 0]
+        t[active] -= step[:, 1]
+        inside = (s[active] > -0.5) & (s[active] < 1.5) & (t[active] > -0.5) & (t[active] < 1.5)
+        active = active[inside]
+    return s, t, converged
+
+
+def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray) -> LineCrossings:
+    """Every crossing of the lines parallel to coordinate ``axis`` with the patches ``nets``.
+
+    Args:
+        nets: ``(P, p + 1, q + 1, 4)`` homogeneous nets (positive weights).
+        axis: 0, 1 or 2; the lines run along it.
+        first, second: sorted coordinates ``(A,)`` and ``(B,)`` of the lines in the two other axes,
+            in increasing axis order; line ``i * B + j`` passes through ``(first[i], second[j])``.
+
+    A crossing in a piece's box is accepted where Newton converges inside the piece (half-open
+    pieces own their lower edges, so seams inside a patch count once; crossings found twice on a
+    seam between patches are merged). A crossing can be missed only where a line grazes a fold
+    closer than the last split can separate; the volume quadrature then finds its line unbalanced.
+    """
+    nets = np.asarray(nets, dtype=float)
+    first, second = np.asarray(first, dtype=float), np.asarray(second, dtype=float)
+    points = nets[..., :3] / nets[..., 3:]
+    size = float(np.ptp(points.reshape(-1, 3), axis=0).max())
+    tolerance = 1e-12 * max(size, 1e-300)
+    across = [a for a in range(3) if a != axis]
+    patch, rect = _split_until_simple(nets, axis, first, second, tolerance)
+    if not len(patch):
+        empty = np.zeros(0)
+        return LineCrossings(empty.astype(int), empty, empty.astype(int), empty.astype(int), empty, empty)
+    piece, line = _candidate_pairs(nets, patch, rect, axis, first, second, tolerance)
+    box = rect[piece]
+    s0, t0 = 0.5 * (box[:, 0] + box[:, 1]), 0.5 * (box[:, 2] + box[:, 3])
+    target = np.stack([first[line // len(second)], second[line % len(second)]], axis=1)
+    s, t, converged = _newton(nets[patch[piece]], s0.copy(), t0.copy(), target, across, 1e2 * tolerance)
+    # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
+    # every piece keeps crossings up to a slack beyond its edges, and the merge below counts once
+    # what two pieces or two patches found
+    own = (
+        converged
+        & (s >= box[:, 0] - EDGE_SLACK)
+        & (s <= box[:, 1] + EDGE_SLACK)
+        & (t >= box[:, 2] - EDGE_SLACK)
+        & (t <= box[:, 3] + EDGE_SLACK)
+    )
+    piece, line, s, t = piece[own], line[own], np.clip(s[own], 0.0, 1.0), np.clip(t[own], 0.0, 1.0)
+    patch_nets = nets[patch[piece]]
+    point, x_s, x_t = evaluate(patch_nets, s, t)
+    normal = np.cross(x_s, x_t)
+    degenerate = (
+        np.linalg.norm(normal, axis=1) <= 1e-12 * (np.linalg.norm(x_s, axis=1) + np.linalg.norm(x_t, axis=1)) ** 2
+    )
+    if degenerate.any():  # a pole or a collapsed edge: the side is that of the nearby surface
+        nudge_s = s[degenerate] + 1e-6 * (0.5 - s[degenerate])
+        nudge_t = t[degenerate] + 1e-6 * (0.5 - t[degenerate])
+        _, n_s, n_t = evaluate(patch_nets[degenerate], nudge_s, nudge_t)
+        normal[degenerate] = np.cross(n_s, n_t)
+    direction = np.sign(normal[:, axis])
+    position = point[:, axis]
+    order = np.lexsort((position, line))
+    line, position, direction, piece, s, t = (a[order] for a in (line, position, direction, piece, s, t))
+    keep = first_of_repeated(line, position, direction, DUPLICATE_DISTANCE * size) & (direction != 0.0)
+    return LineCrossings(line[keep], position[keep], direction[keep].astype(int), patch[piece][keep], s[keep], t[keep])
+
+
+def first_of_repeated(line: np.ndarray, position: np.ndarray, direction: np.ndarray, distance: float) -> np.ndarray:
+    """Mask ``(K,)`` keeping one of each run of crossings (sorted by line, then position) on one
+    line, crossed the same way, each within ``distance`` of the one before: one crossing found on
+    a seam by both pieces or patches (or parts) that meet there."""
+    repeated = np.zeros(len(line), dtype=bool)
+    repeated[1:] = (
+        (line[1:] == line[:-1]) & (direction[1:] == direction[:-1]) & (position[1:] - position[:-1] <= distance)
+    )
+    return ~repeated

@@ -1,0 +1,133 @@
+"""NURBS surfaces: exact conics, derivatives, the rational basis, Bezier extraction, sub-patches,
+the crossings of axis-parallel lines, and bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import assert_imports_without
+
+from bhem_hpc.geometry import nurbs
+from bhem_hpc.geometry import rational_bezier as rb
+from bhem_hpc.geometry.surface import SurfaceError
+
+
+def random_surface(rng) -> nurbs.NurbsSurface:
+    """Degree 3 x 2 on non-uniform knots with a double interior knot, random positive weights."""
+    knots_u = np.array([0, 0, 0, 0, 0.2, 0.5, 0.5, 0.9, 1.3, 1.3, 1.3, 1.3])  # 8 control points
+    knots_v = np.array([-1, -1, -1, 0.1, 0.6, 2, 2, 2])  # 5 control points
+    control = rng.normal(size=(8, 5, 3))
+    return nurbs.NurbsSurface((3, 2), knots_u, knots_v, control, 0.3 + rng.random((8, 5)))
+
+
+def random_parameters(surface, rng, count=200):
+    (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
+    return u0 + (u1 - u0) * rng.random(count), v0 + (v1 - v0) * rng.random(count)
+
+
+def test_nurbs_modules_import_numpy_only():
+    assert_imports_without("bhem_hpc.geometry.nurbs")
+    assert_imports_without("bhem_hpc.geometry.rational_bezier")
+    assert_imports_without("bhem_hpc.solids.quadrature")
+
+
+def test_sphere_and_torus_are_exact_with_outward_normals(rng):
+    sphere = nurbs.sphere(2.0, center=(1.0, -1.0, 0.5))
+    u, v = random_parameters(sphere, rng)
+    point, x_u, x_v = sphere.evaluate(u, v)
+    offset = point - (1.0, -1.0, 0.5)
+    np.testing.assert_allclose(np.linalg.norm(offset, axis=1), 2.0, atol=1e-14)
+    assert np.all(np.einsum("sc,sc->s", np.cross(x_u, x_v), offset) > 0.0)
+    torus = nurbs.torus(1.0, 0.3)
+    point, x_u, x_v = torus.evaluate(u, v)
+    rho = np.hypot(point[:, 0], point[:, 1])
+    np.testing.assert_allclose(np.hypot(rho - 1.0, point[:, 2]), 0.3, atol=1e-14)
+    tube_centre = np.c_[point[:, :2] / rho[:, None], np.zeros(len(u))]
+    assert np.all(np.einsum("sc,sc->s", np.cross(x_u, x_v), point - tube_centre) > 0.0)
+
+
+def test_derivatives_match_central_differences(rng):
+    surface = random_surface(rng)
+    u, v = random_parameters(surface, rng, 50)
+    u = np.clip(u, 1e-4, 1.3 - 1e-4)
+    v = np.clip(v, -1 + 1e-4, 2 - 1e-4)
+    _, x_u, x_v = surface.evaluate(u, v)
+    h = 1e-6
+    fd_u = (surface.evaluate(u + h, v)[0] - surface.evaluate(u - h, v)[0]) / (2 * h)
+    fd_v = (surface.evaluate(u, v + h)[0] - surface.evaluate(u, v - h)[0]) / (2 * h)
+    scale = np.abs(x_u).max() + np.abs(x_v).max()
+    np.testing.assert_allclose(x_u, fd_u, atol=1e-7 * scale)
+    np.testing.assert_allclose(x_v, fd_v, atol=1e-7 * scale)
+
+
+def test_rational_basis_partitions_unity_and_maps_control_points(rng):
+    surface = random_surface(rng)
+    u, v = random_parameters(surface, rng)
+    index, values = surface.basis_matrix(u, v)
+    np.testing.assert_allclose(values.sum(axis=1), 1.0, atol=1e-14)
+    assert values.min() >= 0.0
+    mapped = np.einsum("sk,skc->sc", values, surface.control.reshape(-1, 3)[index])
+    np.testing.assert_allclose(mapped, surface.evaluate(u, v)[0], atol=1e-13)
+
+
+def test_bezier_extraction_is_exact(rng):
+    surface = random_surface(rng)
+    patches = surface.bezier_patches
+    assert patches.nets.shape == (4 * 3, 4, 3, 4)  # spans: u 4 nonempty, v 3 nonempty
+    s, t = rng.random(len(patches.nets)), rng.random(len(patches.nets))
+    boxes = patches.boxes
+    u, v = boxes[:, 0] + s * (boxes[:, 1] - boxes[:, 0]), boxes[:, 2] + t * (boxes[:, 3] - boxes[:, 2])
+    point, x_u, x_v = surface.evaluate(u, v)
+    bezier, x_s, x_t = rb.evaluate(patches.nets, s, t)
+    np.testing.assert_allclose(bezier, point, atol=1e-13)
+    np.testing.assert_allclose(x_s, x_u * (boxes[:, 1] - boxes[:, 0])[:, None], atol=1e-12)
+    np.testing.assert_allclose(x_t, x_v * (boxes[:, 3] - boxes[:, 2])[:, None], atol=1e-12)
+
+
+def test_subpatches_are_exact_restrictions(rng):
+    surface = random_surface(rng)
+    nets = surface.bezier_patches.nets
+    lo = 0.8 * rng.random((len(nets), 2))
+    hi = lo + 0.05 + (1.0 - lo - 0.05) * rng.random((len(nets), 2))
+    boxes = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
+    s, t = rng.random(len(nets)), rng.random(len(nets))
+    inner = rb.evaluate(rb.subpatches(nets, boxes), s, t)[0]
+    outer = rb.evaluate(nets, lo[:, 0] + s * (hi[:, 0] - lo[:, 0]), lo[:, 1] + t * (hi[:, 1] - lo[:, 1]))[0]
+    np.testing.assert_allclose(inner, outer, atol=1e-13)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_axis_lines_cross_the_sphere_exactly_twice(axis):
+    radius, count = 1.5, 48
+    sphere = nurbs.sphere(radius)
+    # an odd count puts lines through the seams between patches (they must count once)
+    coordinates = -radius + (np.arange(count + 1) + 0.5) * 2 * radius / (count + 1)
+    crossings = rb.axis_line_crossings(sphere.bezier_patches.nets, axis, coordinates, coordinates)
+    a = coordinates[crossings.line // len(coordinates)]
+    b = coordinates[crossings.line % len(coordinates)]
+    depth = np.sqrt(radius**2 - a**2 - b**2)
+    np.testing.assert_allclose(np.abs(crossings.position), depth, atol=1e-8)
+    # entering (against the outward normal) below the centre, leaving above
+    np.testing.assert_array_equal(crossings.direction, np.sign(crossings.position))
+    inside = (coordinates[:, None] ** 2 + coordinates[None, :] ** 2 < radius**2).ravel()
+    counts = np.bincount(crossings.line, minlength=inside.size)
+    np.testing.assert_array_equal(counts, 2 * inside)
+
+
+def test_bad_nurbs_input_is_refused_with_its_value():
+    knots = np.array([0, 0, 0, 1, 1, 1.0])
+    control = np.zeros((3, 3, 3))
+    with pytest.raises(SurfaceError, match=r"weights must be positive.*0\.0.*\(1, 2\)"):
+        weights = np.ones((3, 3))
+        weights[1, 2] = 0.0
+        nurbs.NurbsSurface((2, 2), knots, knots, control, weights, name="part 4")
+    with pytest.raises(SurfaceError, match="non-decreasing"):
+        nurbs.NurbsSurface((2, 2), np.array([0, 0, 1, 0.5, 1, 1.0]), knots, control)
+    with pytest.raises(SurfaceError, match="must have 6 entries"):
+        nurbs.NurbsSurface((2, 2), knots[:-1], knots, control)
+    with pytest.raises(SurfaceError, match="degree must be an integer"):
+        nurbs.NurbsSurface((0, 2), knots, knots, control)
+    with pytest.raises(SurfaceError, match="repeat more than the degree"):
+        nurbs.NurbsSurface((1, 2), np.array([0, 0, 0.5, 0.5, 0.5, 1, 1.0]), knots, np.zeros((5, 3, 3)))
+    with pytest.raises(SurfaceError, match="domain"):
+        nurbs.sphere(1.0).evaluate(np.array([1.5]), np.array([0.5]))

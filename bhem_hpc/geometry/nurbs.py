@@ -172,22 +172,48 @@ class NurbsSurface:
         """The same knots and weights with other control points ``(n, m, 3)`` (a deformed part)."""
         return NurbsSurface(self.degrees, self.u.knots, self.v.knots, control, self.weights, self.name)
 
-    def _weighted_basis(self, u: np.ndarray, v: np.ndarray, du: int, dv: int):
-        first_u, basis_u = self.u.basis(u, du)
-        first_v, basis_v = self.v.basis(v, dv)
+    def _homogeneous_derivatives(self, u: np.ndarray, v: np.ndarray, order: int) -> dict[tuple[int, int], np.ndarray]:
+        """``{(a, b): d^(a+b) A / du^a dv^b}`` ``(S, 4)`` of the homogeneous map for ``a + b <= order``."""
+        first_u, _ = self.u.basis(u)
+        first_v, _ = self.v.basis(v)
+        basis_u = [self.u.basis(u, k)[1] for k in range(order + 1)]
+        basis_v = [self.v.basis(v, k)[1] for k in range(order + 1)]
         rows = first_u[:, None] + np.arange(self.u.degree + 1)
         cols = first_v[:, None] + np.arange(self.v.degree + 1)
         local = self.homogeneous[rows[:, :, None], cols[:, None, :]]  # (S, p + 1, q + 1, 4)
-        return np.einsum("sa,sb,sabc->sc", basis_u, basis_v, local)
+        along_v = [np.einsum("sb,sabc->sac", basis_v[b], local) for b in range(order + 1)]
+        return {
+            (a, b): np.einsum("sa,sac->sc", basis_u[a], along_v[b])
+            for a in range(order + 1)
+            for b in range(order + 1 - a)
+        }
 
     def evaluate(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points and first partial derivatives at parameters ``u, v (S,)``: three ``(S, 3)`` arrays."""
         u, v = np.atleast_1d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(v, dtype=float))
-        a = self._weighted_basis(u, v, 0, 0)
-        a_u, a_v = self._weighted_basis(u, v, 1, 0), self._weighted_basis(u, v, 0, 1)
-        point = a[:, :3] / a[:, 3:]
+        a = self._homogeneous_derivatives(u, v, 1)
+        weight = a[0, 0][:, 3:]
+        point = a[0, 0][:, :3] / weight
         # quotient rule: x = A / W, x_u = (A_u - x W_u) / W
-        return point, (a_u[:, :3] - point * a_u[:, 3:]) / a[:, 3:], (a_v[:, :3] - point * a_v[:, 3:]) / a[:, 3:]
+        return (
+            point,
+            (a[1, 0][:, :3] - point * a[1, 0][:, 3:]) / weight,
+            (a[0, 1][:, :3] - point * a[0, 1][:, 3:]) / weight,
+        )
+
+    def second_derivatives(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``x, x_u, x_v, x_uu, x_uv, x_vv`` at ``u, v (S,)``, each ``(S, 3)``."""
+        u, v = np.atleast_1d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(v, dtype=float))
+        a = self._homogeneous_derivatives(u, v, 2)
+        weight = a[0, 0][:, 3:]
+        x = a[0, 0][:, :3] / weight
+        x_u = (a[1, 0][:, :3] - x * a[1, 0][:, 3:]) / weight
+        x_v = (a[0, 1][:, :3] - x * a[0, 1][:, 3:]) / weight
+        # differentiate A = W x twice: A_uv = W_uv x + W_u x_v + W_v x_u + W x_uv
+        x_uu = (a[2, 0][:, :3] - a[2, 0][:, 3:] * x - 2.0 * a[1, 0][:, 3:] * x_u) / weight
+        x_uv = (a[1, 1][:, :3] - a[1, 1][:, 3:] * x - a[1, 0][:, 3:] * x_v - a[0, 1][:, 3:] * x_u) / weight
+        x_vv = (a[0, 2][:, :3] - a[0, 2][:, 3:] * x - 2.0 * a[0, 1][:, 3:] * x_v) / weight
+        return x, x_u, x_v, x_uu, x_uv, x_vv
 
     def basis_matrix(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rational basis ``phi_ij`` at ``u, v (S,)``: control indices ``(S, (p+1)(q+1))`` into
@@ -290,3 +316,75 @@ def box_faces(lo, hi) -> list[NurbsSurface]:
                     control[i, j, first], control[i, j, second] = x, y
             faces.append(NurbsSurface((1, 1), knots, knots, control, name=f"box face {'-+'[side > 0]}{'xyz'[axis]}"))
     return faces
+
+
+#: Newton iterations of a closest-point projection.
+PROJECTION_ITERATIONS = 40
+#: Step halvings per projection iteration.
+BACKTRACKS = 12
+
+
+def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: int = 8, chunk: int = 4096):
+    """Closest points on ``surface`` to ``points (Q, 3)``: parameters ``(Q, 2)``, the surface points
+    ``(Q, 3)`` and the distances ``(Q,)``.
+
+    Starts from the nearest of ``seeds_per_side^2`` samples per Bezier patch (brute force in chunks
+    of ``chunk`` points), then Newton steps on ``|x(u, v) - X|^2 / 2`` (Gauss-Newton where its
+    Hessian is indefinite) clamped to the domain, with backtracking, at most
+    :data:`PROJECTION_ITERATIONS`; a point stops when its step no longer moves it.
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    grid = (np.arange(seeds_per_side) + 0.5) / seeds_per_side
+    boxes = surface.bezier_patches.boxes
+    seed_u = (boxes[:, None, None, 0] + grid[None, :, None] * (boxes[:, 1] - boxes[:, 0])[:, None, None]).repeat(
+        seeds_per_side, axis=2
+    )
+    seed_v = (boxes[:, None, None, 2] + grid[None, None, :] * (boxes[:, 3] - boxes[:, 2])[:, None, None]).repeat(
+        seeds_per_side, axis=1
+    )
+    seed_u, seed_v = seed_u.ravel(), seed_v.ravel()
+    seeds = surface.evaluate(seed_u, seed_v)[0]
+    nearest = np.empty(len(points), dtype=int)
+    for first in range(0, len(points), chunk):
+        block = points[first : first + chunk]
+        distance = (block**2).sum(axis=1)[:, None] - 2.0 * block @ seeds.T + (seeds**2).sum(axis=1)[None, :]
+        nearest[first : first + chunk] = distance.argmin(axis=1)
+    u, v = seed_u[nearest].copy(), seed_v[nearest].copy()
+    (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
+    active = np.arange(len(points))
+    for _ in range(PROJECTION_ITERATIONS):
+        if not len(active):
+            break
+        x, x_u, x_v, x_uu, x_uv, x_vv = surface.second_derivatives(u[active], v[active])
+        residual = x - points[active]
+        g1, g2 = (x_u * residual).sum(1), (x_v * residual).sum(1)
+        # Newton on |x - X|^2 / 2; where its Hessian is not positive definite, Gauss-Newton's
+        h11, h12, h22 = (x_u * x_u).sum(1), (x_u * x_v).sum(1), (x_v * x_v).sum(1)
+        n11, n12, n22 = h11 + (x_uu * residual).sum(1), h12 + (x_uv * residual).sum(1), h22 + (x_vv * residual).sum(1)
+        newton = (n11 > 0.0) & (n11 * n22 - n12**2 > 1e-12 * (n11 + n22) ** 2)
+        h11, h12, h22 = np.where(newton, n11, h11), np.where(newton, n12, h12), np.where(newton, n22, h22)
+        det = h11 * h22 - h12**2
+        safe = det > 1e-14 * (h11 + h22) ** 2
+        # singular metric (a pole): a gradient step along the nonzero tangent
+        du = np.where(safe, -(h22 * g1 - h12 * g2) / np.where(safe, det, 1.0), -g1 / np.maximum(h11, 1e-300))
+        dv = np.where(safe, -(h11 * g2 - h12 * g1) / np.where(safe, det, 1.0), -g2 / np.maximum(h22, 1e-300))
+        # backtracking: far outside a convex part a full step can overshoot
+        distance = (residual**2).sum(1)
+        pending = np.arange(len(active))
+        moved = np.zeros(len(active))
+        for halving in range(BACKTRACKS):
+            scale = 0.5**halving
+            at = active[pending]
+            u_try = np.clip(u[at] + scale * du[pending], u0, u1)
+            v_try = np.clip(v[at] + scale * dv[pending], v0, v1)
+            better = ((surface.evaluate(u_try, v_try)[0] - points[at]) ** 2).sum(1) <= distance[pending]
+            moved[pending[better]] = np.abs(u_try[better] - u[at[better]]) / (u1 - u0) + np.abs(
+                v_try[better] - v[at[better]]
+            ) / (v1 - v0)
+            u[at[better]], v[at[better]] = u_try[better], v_try[better]
+            pending = pending[~better]
+            if not len(pending):
+                break
+        active = active[moved > 1e-14]
+    x = surface.evaluate(u, v)[0]
+    return np.stack([u, v], axis=1), x, np.linalg.norm(x - points, axis=1)

@@ -291,3 +291,136 @@ def first_of_repeated(line: np.ndarray, position: np.ndarray, direction: np.ndar
         (line[1:] == line[:-1]) & (direction[1:] == direction[:-1]) & (position[1:] - position[:-1] <= distance)
     )
     return ~repeated
+
+
+@dataclass(frozen=True)
+class RayHits:
+    """First hits ``(R,)``: ray parameter ``tau`` (inf: none), ``patch`` (-1: none), local ``s, t``."""
+
+    tau: np.ndarray
+    patch: np.ndarray
+    s: np.ndarray
+    t: np.ndarray
+
+
+def _ray_frames(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(R, 3)`` each, orthogonal to each other and to every unit direction."""
+    helper = np.where(np.abs(directions[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    first = np.cross(directions, helper)
+    first /= np.linalg.norm(first, axis=1)[:, None]
+    return first, np.cross(directions, first)
+
+
+def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
+    """Solve ``x(s, t) = origin + tau direction`` from ``(s, t, tau) (K,)``: solution and success."""
+    converged = np.zeros(len(s), dtype=bool)
+    active = np.arange(len(s))
+    for _ in range(NEWTON_ITERATIONS):
+        if not len(active):
+            break
+        point, x_s, x_t = evaluate(nets[active], s[active], t[active])
+        residual = point - origins[active] - tau[active, None] * directions[active]
+        done = np.linalg.norm(residual, axis=1) <= tolerance
+        converged[active[done]] = True
+        keep = ~done
+        active, residual = active[keep], residual[keep]
+        jacobian = np.stack([x_s[keep], x_t[keep], -directions[active]], axis=2)
+        regular = np.abs(np.linalg.det(jacobian)) > 1e-300
+        active, residual, jacobian = active[regular], residual[regular], jacobian[regular]
+        step = np.linalg.solve(jacobian, residual[..., None])[..., 0]
+        s[active] -= step[:, 0]
+        t[active] -= step[:, 1]
+        tau[active] -= step[:, 2]
+        inside = (s[active] > -0.5) & (s[active] < 1.5) & (t[active] > -0.5) & (t[active] < 1.5)
+        active = active[inside]
+    return s, t, tau, converged
+
+
+def _split_rects(rect: np.ndarray) -> np.ndarray:
+    """The four quarters ``(4 N, 4)`` of rectangles ``(N, 4)``, each parent's four in a row."""
+    width = np.repeat(np.stack([rect[:, 1] - rect[:, 0], rect[:, 3] - rect[:, 2]], axis=1), 4, axis=0)
+    parent, quarters = np.repeat(rect, 4, axis=0), np.tile(_QUARTERS, (len(rect), 1))
+    return np.stack(
+        [
+            parent[:, 0] + quarters[:, 0] * width[:, 0],
+            parent[:, 0] + quarters[:, 1] * width[:, 0],
+            parent[:, 2] + quarters[:, 2] * width[:, 1],
+            parent[:, 2] + quarters[:, 3] * width[:, 1],
+        ],
+        axis=1,
+    )
+
+
+def first_hits(
+    nets: np.ndarray, origins: np.ndarray, directions: np.ndarray, tau_min: np.ndarray, tau_max: np.ndarray
+) -> RayHits:
+    """The first hit of each ray with ``tau_min < tau <= tau_max`` on the patches ``nets``.
+
+    Args:
+        nets: ``(P, p + 1, q + 1, 4)`` homogeneous nets (positive weights).
+        origins, directions: ``(R, 3)`` rays, directions of unit length.
+        tau_min, tau_max: ``(R,)`` the searched stretch of each ray.
+
+    Pieces of (ray, patch) pairs are kept while the ray's two planes both cut the box of the
+    piece's control points (in the ray's frame) within the stretch; a piece no larger than
+    :data:`MAX_PIECE` runs Newton's method from its centre, and a hit inside it shortens the
+    ray's stretch; other pieces split into quarters, down to :data:`MAX_LEVEL` levels.
+    """
+    nets = np.asarray(nets, dtype=float)
+    origins, directions = np.asarray(origins, dtype=float), np.asarray(directions, dtype=float)
+    best = np.asarray(tau_max, dtype=float).copy()
+    tau_min = np.asarray(tau_min, dtype=float)
+    hit_patch, hit_s, hit_t = np.full(len(origins), -1), np.zeros(len(origins)), np.zeros(len(origins))
+    points = nets[..., :3] / nets[..., 3:]
+    tolerance = 1e-12 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
+    first_axis, second_axis = _ray_frames(directions)
+    ray = np.repeat(np.arange(len(origins)), len(nets))
+    patch = np.tile(np.arange(len(nets)), len(origins))
+    rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(ray), 1))
+    for level in range(MAX_LEVEL + 1):
+        if not len(ray):
+            break
+        piece = subpatches(nets[patch], rect)
+        relative = (piece[..., :3] / piece[..., 3:]).reshape(len(ray), -1, 3) - origins[ray][:, None]
+        across_1 = np.einsum("kpc,kc->kp", relative, first_axis[ray])
+        across_2 = np.einsum("kpc,kc->kp", relative, second_axis[ray])
+        along = np.einsum("kpc,kc->kp", relative, directions[ray])
+        cut = (
+            (across_1.min(axis=1) <= tolerance)
+            & (across_1.max(axis=1) >= -tolerance)
+            & (across_2.min(axis=1) <= tolerance)
+            & (across_2.max(axis=1) >= -tolerance)
+            & (along.max(axis=1) > tau_min[ray])
+            & (along.min(axis=1) <= best[ray] + tolerance)
+        )
+        ray, patch, rect = ray[cut], patch[cut], rect[cut]
+        small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
+        found = np.zeros(len(ray), dtype=bool)
+        if small.any():
+            at = np.flatnonzero(small)
+            s, t = 0.5 * (rect[at, 0] + rect[at, 1]), 0.5 * (rect[at, 2] + rect[at, 3])
+            centre = evaluate(nets[patch[at]], s, t)[0]
+            tau = np.einsum("kc,kc->k", centre - origins[ray[at]], directions[ray[at]])
+            s, t, tau, converged = _ray_newton(
+                nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance
+            )
+            box = rect[at]
+            inside = (
+                converged
+                & (s >= box[:, 0] - EDGE_SLACK)
+                & (s <= box[:, 1] + EDGE_SLACK)
+                & (t >= box[:, 2] - EDGE_SLACK)
+                & (t <= box[:, 3] + EDGE_SLACK)
+                & (tau > tau_min[ray[at]])
+                & (tau <= best[ray[at]])
+            )
+            found[at[inside]] = True
+            order = np.argsort(-tau[inside])  # the smallest tau written last wins
+            rays = ray[at[inside]][order]
+            best[rays] = tau[inside][order]
+            hit_patch[rays] = patch[at[inside]][order]
+            hit_s[rays], hit_t[rays] = np.clip(s[inside][order], 0, 1), np.clip(t[inside][order], 0, 1)
+        split = ~found & (level < MAX_LEVEL)
+        ray, patch, rect = np.repeat(ray[split], 4), np.repeat(patch[split], 4), _split_rects(rect[split])
+    tau = np.where(hit_patch >= 0, best, np.inf)
+    return RayHits(tau, hit_patch, hit_s, hit_t)

@@ -1,4 +1,7 @@
 """Solids bounded by NURBS parts: the Shape Matching Element Method (Trusty, Chen, Levin 2021).
 
-:mod:`.quadrature` holds the ray-cast volume quadrature (numpy only).
+Numpy and scipy only: the ray-cast volume quadrature (:mod:`.quadrature`), boundary samples
+(:mod:`.sampling`), ray-cast blending weights (:mod:`.blending`), hierarchical shape matching
+(:mod:`.shape_matching`), hyperelastic densities (:mod:`.elasticity`) and the solid that joins them
+(:mod:`.sem`).
 """

@@ -131,3 +131,52 @@ def test_bad_nurbs_input_is_refused_with_its_value():
         nurbs.NurbsSurface((1, 2), np.array([0, 0, 0.5, 0.5, 0.5, 1, 1.0]), knots, np.zeros((5, 3, 3)))
     with pytest.raises(SurfaceError, match="domain"):
         nurbs.sphere(1.0).evaluate(np.array([1.5]), np.array([0.5]))
+
+
+def test_second_derivatives_match_central_differences(rng):
+    surface = random_surface(rng)
+    u, v = random_parameters(surface, rng, 40)
+    u, v = np.clip(u, 1e-4, 1.3 - 1e-4), np.clip(v, -1 + 1e-4, 2 - 1e-4)
+    _, _, _, x_uu, x_uv, x_vv = surface.second_derivatives(u, v)
+    h = 1e-6
+    scale = np.abs(x_uu).max() + np.abs(x_vv).max()
+    np.testing.assert_allclose(
+        x_uu, (surface.evaluate(u + h, v)[1] - surface.evaluate(u - h, v)[1]) / (2 * h), atol=1e-6 * scale
+    )
+    np.testing.assert_allclose(
+        x_uv, (surface.evaluate(u, v + h)[1] - surface.evaluate(u, v - h)[1]) / (2 * h), atol=1e-6 * scale
+    )
+    np.testing.assert_allclose(
+        x_vv, (surface.evaluate(u, v + h)[2] - surface.evaluate(u, v - h)[2]) / (2 * h), atol=1e-6 * scale
+    )
+
+
+def test_closest_points_on_sphere_torus_and_face(rng):
+    points = 0.6 * rng.normal(size=(3000, 3))
+    _, nearest, distance = nurbs.closest_points(nurbs.sphere(1.0), points)
+    np.testing.assert_allclose(distance, np.abs(np.linalg.norm(points, axis=1) - 1.0), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(nearest, axis=1), 1.0, atol=1e-14)
+    _, _, distance = nurbs.closest_points(nurbs.torus(1.0, 0.3), points)
+    rho = np.hypot(points[:, 0], points[:, 1])
+    np.testing.assert_allclose(distance, np.abs(np.hypot(rho - 1.0, points[:, 2]) - 0.3), atol=1e-12)
+    face = nurbs.box_faces([0.0, 0.0, 0.0], [1.0, 1.0, 1.0])[0]  # x = 0, 0 <= y, z <= 1
+    _, _, distance = nurbs.closest_points(face, points)
+    clamped = np.c_[np.zeros(len(points)), np.clip(points[:, 1:], 0.0, 1.0)]
+    np.testing.assert_allclose(distance, np.linalg.norm(points - clamped, axis=1), atol=1e-12)
+
+
+def test_first_hits_of_rays_inside_a_sphere(rng):
+    origins = 0.4 * rng.normal(size=(600, 3))
+    origins = origins[np.linalg.norm(origins, axis=1) < 0.9]
+    directions = rng.normal(size=origins.shape)
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    far = np.full(len(origins), 10.0)
+    hits = rb.first_hits(nurbs.sphere(1.0).bezier_patches.nets, origins, directions, np.zeros(len(origins)), far)
+    along = np.einsum("ij,ij->i", origins, directions)
+    exact = -along + np.sqrt(along**2 - (origins**2).sum(axis=1) + 1.0)
+    np.testing.assert_allclose(hits.tau, exact, atol=1e-9)
+    # a stretch that ends before the sphere finds nothing
+    short = rb.first_hits(
+        nurbs.sphere(1.0).bezier_patches.nets, origins, directions, np.zeros(len(origins)), 0.5 * exact
+    )
+    assert np.all(short.patch == -1) and np.all(np.isinf(short.tau))

@@ -1,0 +1,231 @@
+"""A solid of the Shape Matching Element Method: preprocessing (Alg. 1) and its energy, gradient,
+Hessian and mass, numpy and scipy only.
+
+The DOFs are the parts' control points stacked part after part, ``q (n_q, 3)``; flattened they
+are interleaved (``3 * point + component``), the layout PETSc's block size 3 wants. The
+coefficients of the blended polynomial map are ``C = Pi q`` (:mod:`.shape_matching`); at the
+volume quadrature points ``F = sum_d G_d C`` is the deformation gradient and the elastic energy is
+``sum_k v_k psi(F_k)``. The error energy ``gamma |Phi_b Pi q - J q|^2_S`` (§7.6) ties the boundary
+of the polynomial map to the parts; ``gamma`` defaults to Young's modulus, as the paper advises.
+Every stage of the preprocessing is timed (:attr:`ShapeMatchingSolid.seconds`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.solids.blending import ray_distances
+from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
+from bhem_hpc.solids.quadrature import model_bounds, ray_cast_quadrature
+from bhem_hpc.solids.sampling import sample_parts
+from bhem_hpc.solids.shape_matching import shape_matching
+
+
+@dataclass(frozen=True)
+class SolidMaterial:
+    """Density [kg/m^3], Young's modulus [Pa], Poisson's ratio and energy model
+    (``"neo-hookean"`` or ``"stvk"``)."""
+
+    density: float
+    young: float
+    poisson: float
+    model: str = "neo-hookean"
+
+    def checked(self, name: str) -> SolidMaterial:
+        if not (np.isfinite(self.density) and self.density > 0.0):
+            raise SurfaceError(f"{name}: density must be positive, got {self.density!r}")
+        if self.model not in MODELS:
+            raise SurfaceError(f"{name}: model must be one of {sorted(MODELS)}, got {self.model!r}")
+        Lame.of(self.young, self.poisson, name)
+        return self
+
+
+@dataclass(frozen=True)
+class SolidOptions:
+    """Preprocessing settings: shape-matching ``degree`` (1, 2), ray-cast ``lines_per_side`` and
+    Gauss ``quadrature_order`` along lines, boundary ``sample_order`` (None: the NURBS order),
+    blending ``sparsity`` target T (None: the cutoff ``alpha`` given, or all parts everywhere),
+    ``origin_of_part`` (None: one origin), ``error_stiffness`` gamma (None: Young's modulus)."""
+
+    degree: int = 2
+    lines_per_side: int = 24
+    quadrature_order: int = 2
+    sample_order: int | None = None
+    sparsity: float | None = None
+    alpha: float | None = None
+    origin_of_part: tuple[int, ...] | None = None
+    error_stiffness: float | None = None
+
+
+def _interleave(scalar: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
+    """``scalar ⊗ I_3``: the operator on interleaved 3-vectors acting on each component alike."""
+    return scipy.sparse.kron(scalar, scipy.sparse.identity(3), format="csr")
+
+
+class ShapeMatchingSolid:
+    """One SEM solid of NURBS ``parts`` with a ``material`` (one per part, or one for all).
+
+    Attributes:
+        reference: ``(n_q, 3)`` the parts' control points stacked.
+        offsets: ``(parts + 1,)`` where each part's control points start.
+        quadrature: the ray-cast volume rule; ``blend`` its points' weights ``(Q, parts)``.
+        matching: the shape-matching projection and kinematic map.
+        seconds: wall time of each stage (``sample``, ``quadrature``, ``weights``, ``projection``,
+            ``operators``).
+    """
+
+    def __init__(
+        self,
+        parts: Sequence[NurbsSurface],
+        material: SolidMaterial | Sequence[SolidMaterial],
+        options: SolidOptions | None = None,
+        name: str = "solid",
+    ):
+        options = options or SolidOptions()
+        self.name, self.parts, self.options = name, list(parts), options
+        materials = [material] * len(parts) if isinstance(material, SolidMaterial) else list(material)
+        if len(materials) != len(parts):
+            raise SurfaceError(f"{name}: {len(materials)} materials for {len(parts)} parts")
+        self.materials = [m.checked(f"{name} material of {p.name}") for m, p in zip(materials, parts, strict=True)]
+        self.seconds: dict[str, float] = {}
+        clock = time.perf_counter()
+        self.offsets = np.r_[0, np.cumsum([p.control[..., 0].size for p in parts])]
+        self.reference = np.concatenate([p.control.reshape(-1, 3) for p in parts])
+        samples = sample_parts(parts, options.sample_order)
+        self.seconds["sample"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        self.quadrature = ray_cast_quadrature(parts, options.lines_per_side, options.quadrature_order, name=name)
+        self.seconds["quadrature"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        self.blend, self.alpha = self._blending_weights()
+        self.seconds["weights"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        origins = None if options.origin_of_part is None else np.asarray(options.origin_of_part)
+        self.matching = shape_matching(samples, options.degree, origins, [p.name for p in parts])
+        self.seconds["projection"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        self._build_operators(samples)
+        self.seconds["operators"] = time.perf_counter() - clock
+
+    def _blending_weights(self) -> tuple[scipy.sparse.csr_matrix, float]:
+        points, options = self.quadrature.points, self.options
+        if len(self.parts) == 1:
+            return scipy.sparse.csr_matrix(np.ones((len(points), 1))), np.inf
+        lo, hi = model_bounds(self.parts)
+        diagonal = float(np.linalg.norm(hi - lo))
+        if options.alpha is not None:
+            if not (np.isfinite(options.alpha) and options.alpha > 0.0):
+                raise SurfaceError(f"{self.name}: alpha must be positive, got {options.alpha!r}")
+            distances = ray_distances(self.parts, points, options.alpha)
+            return distances.weights(options.alpha), options.alpha
+        distances = ray_distances(self.parts, points, 0.5 * diagonal)
+        alpha = 0.5 * diagonal if options.sparsity is None else distances.cutoff_for(options.sparsity, self.name)
+        return distances.weights(alpha), alpha
+
+    def _build_operators(self, samples) -> None:
+        matching, rule = self.matching, self.quadrature
+        phi, grad = matching.kinematic_maps(rule.points, self.blend)
+        projection = matching.projection
+        # deformation gradient rows: F[k, c, d] = sum_m G_d[k, m] C[m, c]; in interleaved columns
+        # (3 m + c) of the coefficients, row 9 k + 3 c + d
+        blocks = []
+        for c in range(3):
+            for d in range(3):
+                select = scipy.sparse.csr_matrix(([1.0], ([0], [c])), shape=(1, 3))
+                blocks.append((c, d, scipy.sparse.kron(grad[d], select, format="csr")))
+        count = len(rule.points)
+        stacked = scipy.sparse.vstack([b for _, _, b in blocks]).tocsr()  # rows (3c + d) * Q + k
+        order = np.arange(9 * count).reshape(9, count).T.ravel()  # to rows 9 k + 3 c + d
+        self._gradient_map = stacked[order] @ _interleave(projection)  # (9 Q, 3 n_q)
+        # material per quadrature point: the part of largest blending weight
+        part_of_point = np.asarray(self.blend.argmax(axis=1)).ravel()
+        lame = [Lame.of(m.young, m.poisson) for m in self.materials]
+        self._mu = np.array([lame[i].mu for i in part_of_point])
+        self._lam = np.array([lame[i].lam for i in part_of_point])
+        self._density = np.array([self.materials[i].density for i in part_of_point])
+        self._model = MODELS[self.materials[0].model]
+        # consistent mass: Pi^T Phi^T diag(rho v) Phi Pi per component
+        position_map = phi @ projection  # (Q, n_q): x = position_map @ q
+        self.position_map = position_map
+        self.mass_scalar = (position_map.T @ scipy.sparse.diags(self._density * rule.weights) @ position_map).tocsr()
+        # error energy: boundary samples of each part under its own polynomial alone (Kronecker weights)
+        gamma = self.options.error_stiffness
+        gamma = max(m.young for m in self.materials) if gamma is None else gamma
+        rows = []
+        for i, s in enumerate(samples):
+            own = scipy.sparse.csr_matrix(
+                (np.ones(len(s.points)), (np.arange(len(s.points)), np.full(len(s.points), i))),
+                shape=(len(s.points), len(self.parts)),
+            )
+            boundary_phi, _ = matching.kinematic_maps(s.points, own)
+            part_basis = scipy.sparse.hstack(
+                [
+                    scipy.sparse.csr_matrix((len(s.points), int(self.offsets[i]))),
+                    s.basis,
+                    scipy.sparse.csr_matrix((len(s.points), int(self.offsets[-1] - self.offsets[i + 1]))),
+                ]
+            )
+            difference = boundary_phi @ projection - part_basis
+            rows.append(difference.T @ scipy.sparse.diags(s.weights) @ difference)
+        self.error_scalar = (gamma * sum(rows)).tocsr()
+        self._error = _interleave(self.error_scalar)
+
+    # ---- the solid as an energy -----------------------------------------------------------
+
+    @property
+    def dof_count(self) -> int:
+        return 3 * len(self.reference)
+
+    def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
+        """``(Q, 3, 3)`` at the quadrature points for control points ``q (n_q, 3)``."""
+        return (self._gradient_map @ np.asarray(q, dtype=float).reshape(-1)).reshape(-1, 3, 3)
+
+    def energy(self, q: np.ndarray) -> float:
+        """Elastic plus error energy [J] (inf where some ``det F <= 0``)."""
+        flat = np.asarray(q, dtype=float).reshape(-1)
+        psi, _, _ = self._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
+        return float(self.quadrature.weights @ psi + 0.5 * flat @ (self._error @ flat))
+
+    def gradient(self, q: np.ndarray) -> np.ndarray:
+        """``(3 n_q,)`` interleaved."""
+        flat = np.asarray(q, dtype=float).reshape(-1)
+        _, stress, _ = self._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
+        weighted = (self.quadrature.weights[:, None, None] * stress).reshape(-1)
+        return self._gradient_map.T @ weighted + self._error @ flat
+
+    def hessian(self, q: np.ndarray, projected: bool = True) -> scipy.sparse.csr_matrix:
+        """``(3 n_q, 3 n_q)``; ``projected``: each point's tangent clamped positive semi-definite."""
+        _, _, tangent = self._model(self.deformation_gradients(q), self._mu, self._lam)
+        if projected:
+            tangent = project_psd(tangent)
+        count = len(tangent)
+        rows = np.repeat(np.arange(9 * count).reshape(count, 9), 9, axis=1)
+        cols = np.tile(np.arange(9 * count).reshape(count, 9), (1, 9))
+        blocks = scipy.sparse.csr_matrix(
+            (
+                (self.quadrature.weights[:, None, None] * tangent).reshape(count, -1).ravel(),
+                (rows.ravel(), cols.ravel()),
+            ),
+            shape=(9 * count, 9 * count),
+        )
+        return (self._gradient_map.T @ blocks @ self._gradient_map + self._error).tocsr()
+
+    def mass_matrix(self) -> scipy.sparse.csr_matrix:
+        """``(3 n_q, 3 n_q)`` consistent mass [kg]."""
+        return _interleave(self.mass_scalar)
+
+    def gravity_force(self, gravity: np.ndarray) -> np.ndarray:
+        """``(3 n_q,)`` generalized force of ``rho g`` [N]: ``(Pi^T Phi^T rho v) ⊗ g``."""
+        weights = self.position_map.T @ (self._density * self.quadrature.weights)
+        return np.outer(weights, np.asarray(gravity, dtype=float)).reshape(-1)
+
+    @property
+    def mass(self) -> float:
+        return float(self._density @ self.quadrature.weights)

@@ -1,0 +1,181 @@
+"""Hierarchical shape matching (SEM paper §5-§6, eq. 7) and the blended kinematic map, numpy and
+scipy only.
+
+Every part ``i`` has a deformation origin ``Xbar_j`` (``j = origin[i]``, shared by several parts)
+and a polynomial deformation ``x(X) = sum_a p_a(X - Xbar_j) C_i[a] + t_j`` of the monomials
+``p`` of degree 1 (``X Y Z``) or 2 (adding ``XY XZ YZ XX YY ZZ``), ``C_i[a]`` a row of 3. The
+coefficients are one array ``(n_c, 3)``: each part's ``k`` rows in part order, then one
+translation row per origin. They are a linear map of the stacked control points ``q (n_q, 3)``:
+``C = Pi @ q`` with the sparse scalar projection ``Pi (n_c, n_q)`` (it acts on each coordinate
+alike). The translation ``t_j`` is the weighted centroid of the samples of the origin's parts; the
+linear and then the quadratic rows are least-squares fits of what is left on the part's own
+samples, lower orders first.
+
+The blended map at volume points ``X (Q, 3)`` with blending weights ``W (Q, parts)`` is
+``x(X) = Phi(X) @ C`` and its deformation gradient ``F[:, :, d] = G_d(X) @ C`` (weights held
+constant near each point, as the paper does, §7.3).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.solids.sampling import PartSamples
+
+#: Monomials per degree: degree 1 -> 3, degree 2 -> 9.
+TERMS = {1: 3, 2: 9}
+#: Relative singular-value cutoff of the per-part least-squares fits (a planar part cannot fix
+#: the coefficients of monomials that vanish on it: they take the minimum-norm value 0).
+FIT_RCOND = 1e-10
+
+
+def monomials(offset: np.ndarray, degree: int) -> np.ndarray:
+    """``(Q, k)`` monomials of ``offset (Q, 3)``: ``Y0 Y1 Y2`` then ``Y0Y1 Y0Y2 Y1Y2 Y0^2 Y1^2 Y2^2``."""
+    y0, y1, y2 = offset[:, 0], offset[:, 1], offset[:, 2]
+    columns = [y0, y1, y2]
+    if degree == 2:
+        columns += [y0 * y1, y0 * y2, y1 * y2, y0**2, y1**2, y2**2]
+    return np.stack(columns, axis=1)
+
+
+def monomial_gradients(offset: np.ndarray, degree: int) -> np.ndarray:
+    """``(Q, k, 3)``: ``d p_a / d X_d`` at ``offset (Q, 3)``."""
+    count = len(offset)
+    out = np.zeros((count, TERMS[degree], 3))
+    out[:, 0, 0] = out[:, 1, 1] = out[:, 2, 2] = 1.0
+    if degree == 2:
+        y0, y1, y2 = offset[:, 0], offset[:, 1], offset[:, 2]
+        out[:, 3, 0], out[:, 3, 1] = y1, y0
+        out[:, 4, 0], out[:, 4, 2] = y2, y0
+        out[:, 5, 1], out[:, 5, 2] = y2, y1
+        out[:, 6, 0], out[:, 7, 1], out[:, 8, 2] = 2 * y0, 2 * y1, 2 * y2
+    return out
+
+
+@dataclass(frozen=True)
+class ShapeMatching:
+    """The projection and what the kinematic map needs of it.
+
+    Attributes:
+        projection: ``Pi (n_c, n_q)`` sparse.
+        degree: 1 or 2.
+        origin_of_part: ``(parts,)`` origin index of each part.
+        origins: ``(origins, 3)`` reference positions ``Xbar``.
+        part_rows: ``(parts,)`` first coefficient row of each part (``TERMS[degree]`` rows each);
+            origin ``j``'s translation is row ``parts * k + j``.
+    """
+
+    projection: scipy.sparse.csr_matrix
+    degree: int
+    origin_of_part: np.ndarray
+    origins: np.ndarray
+    part_rows: np.ndarray
+
+    @property
+    def terms(self) -> int:
+        return TERMS[self.degree]
+
+    @property
+    def coefficient_count(self) -> int:
+        return self.projection.shape[0]
+
+    def translation_row(self, origin: int) -> int:
+        return len(self.part_rows) * self.terms + origin
+
+    def kinematic_maps(self, points: np.ndarray, weights: scipy.sparse.spmatrix):
+        """``Phi (Q, n_c)`` and ``G (3, Q, n_c)`` at reference ``points (Q, 3)`` with blending
+        ``weights (Q, parts)`` (sparse; rows sum to 1): ``x = Phi @ C``, ``F[:, :, d] = G[d] @ C``."""
+        weights = scipy.sparse.coo_matrix(weights)
+        point, part, w = weights.row, weights.col, weights.data
+        offset = points[point] - self.origins[self.origin_of_part[part]]
+        k = self.terms
+        columns = self.part_rows[part][:, None] + np.arange(k)[None, :]
+        shape = (len(points), self.coefficient_count)
+        rows = np.repeat(point, k)
+        values = (w[:, None] * monomials(offset, self.degree)).ravel()
+        translation = self.translation_row(0) + self.origin_of_part[part]
+        phi = scipy.sparse.csr_matrix(
+            (np.r_[values, w], (np.r_[rows, point], np.r_[columns.ravel(), translation])), shape=shape
+        )
+        gradients = w[:, None, None] * monomial_gradients(offset, self.degree)
+        grad = [
+            scipy.sparse.csr_matrix((gradients[:, :, d].ravel(), (rows, columns.ravel())), shape=shape)
+            for d in range(3)
+        ]
+        return phi, grad
+
+
+def _fit(basis: np.ndarray, weights: np.ndarray, name: str, order: str) -> np.ndarray:
+    """``(P^T S P)^+ P^T S``: the weighted least-squares fit ``(k, s)`` on ``basis (s, k)``."""
+    if len(basis) < basis.shape[1]:
+        raise SurfaceError(
+            f"{name}: {len(basis)} boundary samples cannot fit the {basis.shape[1]} {order} shape-matching terms; "
+            "raise the sampling order"
+        )
+    normal = basis.T @ (weights[:, None] * basis)
+    return np.linalg.pinv(normal, rcond=FIT_RCOND, hermitian=True) @ (basis.T * weights)
+
+
+def shape_matching(
+    samples: Sequence[PartSamples],
+    degree: int,
+    origin_of_part: np.ndarray | None = None,
+    names: Sequence[str] | None = None,
+) -> ShapeMatching:
+    """The hierarchical projection ``Pi`` of parts with their boundary samples (eq. 7).
+
+    Args:
+        samples: per part, its samples over its own control points; the stacked control points
+            take the parts in order.
+        degree: 1 (linear) or 2 (quadratic) shape matching.
+        origin_of_part: ``(parts,)`` origin indices ``0 .. origins - 1`` (default: one origin).
+        names: the parts' names in errors.
+    """
+    if degree not in TERMS:
+        raise SurfaceError(f"shape-matching degree must be 1 or 2, got {degree!r}")
+    count = len(samples)
+    names = list(names or [f"part {i}" for i in range(count)])
+    origin_of_part = np.zeros(count, dtype=int) if origin_of_part is None else np.asarray(origin_of_part, dtype=int)
+    origins_count = int(origin_of_part.max()) + 1
+    offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
+    total = int(offsets[-1])
+    global_basis = [
+        scipy.sparse.hstack(
+            [scipy.sparse.csr_matrix((s.basis.shape[0], int(offsets[i]))), s.basis,
+             scipy.sparse.csr_matrix((s.basis.shape[0], total - int(offsets[i + 1])))]
+        ).tocsr()
+        for i, s in enumerate(samples)
+    ]  # fmt: skip
+    # the translation of each origin: the weighted centroid of its parts' samples
+    origins = np.zeros((origins_count, 3))
+    translation = []
+    for j in range(origins_count):
+        members = np.flatnonzero(origin_of_part == j)
+        if not len(members):
+            raise SurfaceError(f"deformation origin {j} has no part")
+        sigma = sum(samples[i].weights.sum() for i in members)
+        row = sum(scipy.sparse.csr_matrix(samples[i].weights / sigma) @ global_basis[i] for i in members)
+        translation.append(scipy.sparse.csr_matrix(row))
+        origins[j] = sum(samples[i].weights @ samples[i].points for i in members) / sigma
+    k = TERMS[degree]
+    blocks = []
+    for i, s in enumerate(samples):
+        offset = s.points - origins[origin_of_part[i]]
+        ones = scipy.sparse.csr_matrix(np.ones((len(offset), 1)))
+        residual = global_basis[i] - ones @ translation[origin_of_part[i]]  # (s, n_q): J q - 1 t
+        linear = monomials(offset, 1)
+        rows = scipy.sparse.csr_matrix(_fit(linear, s.weights, names[i], "linear")) @ residual
+        part_rows = [rows]
+        if degree == 2:
+            quadratic = monomials(offset, 2)[:, 3:]
+            left = residual - scipy.sparse.csr_matrix(linear) @ rows
+            part_rows.append(scipy.sparse.csr_matrix(_fit(quadratic, s.weights, names[i], "quadratic")) @ left)
+        blocks.append(scipy.sparse.vstack(part_rows))
+    projection = scipy.sparse.vstack(blocks + translation).tocsr()
+    projection.eliminate_zeros()
+    return ShapeMatching(projection, degree, origin_of_part, origins, np.arange(count) * k)

@@ -1,0 +1,167 @@
+"""The Shape Matching Element Method on NURBS solids: energy densities, blending weights, the
+patch test (affine and rigid motions reproduced exactly, a static uniaxial stretch solved to the
+homogeneous state), derivatives against central differences, mass and gravity, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.optimize
+import scipy.sparse.linalg
+
+from bhem_hpc.geometry import nurbs
+from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.solids.blending import ray_distances
+from bhem_hpc.solids.elasticity import Lame, neo_hookean, project_psd, st_venant_kirchhoff
+from bhem_hpc.solids.quadrature import ray_cast_quadrature
+from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
+
+RUBBER = SolidMaterial(density=1000.0, young=1e6, poisson=0.45)
+BOX = ([0.0, 0.0, 0.0], [2.0, 1.0, 0.5])
+
+
+@pytest.fixture(scope="module", params=[1, 2], ids=["linear", "quadratic"])
+def box_solid(request) -> ShapeMatchingSolid:
+    """A 2 x 1 x 0.5 m box of six unconnected bilinear faces, blending sparsity target 0.5."""
+    options = SolidOptions(degree=request.param, lines_per_side=12, sparsity=0.5)
+    return ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, options, name="box")
+
+
+@pytest.mark.parametrize("energy", [neo_hookean, st_venant_kirchhoff])
+def test_stress_and_tangent_match_central_differences(energy, rng):
+    f = np.eye(3) + 0.3 * rng.normal(size=(6, 3, 3))
+    _, stress, tangent = energy(f, 2.0, 3.0)
+    h = 1e-6
+    for a in range(9):
+        step = np.zeros(9)
+        step[a] = h
+        step = step.reshape(3, 3)
+        plus, minus = energy(f + step, 2.0, 3.0), energy(f - step, 2.0, 3.0)
+        np.testing.assert_allclose((plus[0] - minus[0]) / (2 * h), stress.reshape(6, 9)[:, a], rtol=1e-7, atol=1e-7)
+        np.testing.assert_allclose(((plus[1] - minus[1]) / (2 * h)).reshape(6, 9), tangent[:, :, a], atol=1e-6)
+    projected = project_psd(tangent)
+    assert np.linalg.eigvalsh(projected).min() > -1e-10
+    spd = np.einsum("qab,qcb->qac", tangent, tangent)
+    np.testing.assert_allclose(project_psd(spd), spd)
+
+
+def test_neo_hookean_refuses_inverted_elements():
+    f = np.diag([1.0, 1.0, -0.5])[None]
+    assert neo_hookean(f, 1.0, 1.0, tangent=False)[0][0] == np.inf
+
+
+def test_blending_weights_partition_unity_and_meet_the_sparsity_target():
+    parts = nurbs.box_faces(*BOX)
+    rule = ray_cast_quadrature(parts, 12)
+    distances = ray_distances(parts, rule.points, reach=1.2)
+    for target in (0.3, 0.5, 0.8):
+        alpha = distances.cutoff_for(target)
+        weights = distances.weights(alpha).toarray()
+        np.testing.assert_allclose(weights.sum(axis=1), 1.0, atol=1e-14)
+        assert weights.min() >= 0.0
+        share = np.count_nonzero(weights) / weights.size
+        assert target - 0.05 < share <= target
+    # a point next to one face and far from the rest belongs to that face alone
+    near = ray_distances(parts, np.array([[1.0, 0.5, 0.01]]), reach=1.2)
+    np.testing.assert_allclose(near.weights(0.2).toarray(), [[0, 0, 0, 0, 1, 0]], atol=1e-12)
+    with pytest.raises(SurfaceError, match="sparsity target must lie in"):
+        distances.cutoff_for(1.5, "box")
+
+
+def test_affine_and_rigid_motions_are_reproduced_exactly(box_solid, rng):
+    q0 = box_solid.reference
+    affine, shift = np.eye(3) + 0.2 * rng.normal(size=(3, 3)), rng.normal(size=3)
+    q = q0 @ affine.T + shift
+    np.testing.assert_allclose(
+        box_solid.deformation_gradients(q),
+        np.broadcast_to(affine, (len(box_solid.quadrature.weights), 3, 3)),
+        atol=1e-12,
+    )
+    np.testing.assert_allclose(box_solid.position_map @ q, box_solid.quadrature.points @ affine.T + shift, atol=1e-12)
+    # the error energy vanishes to round-off (gamma = Young's modulus)
+    assert abs(q.reshape(-1) @ (box_solid._error @ q.reshape(-1))) < 1e-14 * RUBBER.young * (q**2).sum()
+    rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    rotation *= np.sign(np.linalg.det(rotation))
+    rigid = q0 @ rotation.T + shift
+    assert abs(box_solid.energy(rigid)) < 1e-9
+    assert np.abs(box_solid.gradient(rigid)).max() < 1e-6  # against forces of order Y * area = 1e6 N
+
+
+def test_gradient_and_hessian_match_central_differences(box_solid, rng):
+    q = box_solid.reference + 0.02 * rng.normal(size=box_solid.reference.shape)
+    gradient, hessian = box_solid.gradient(q), box_solid.hessian(q, projected=False)
+    h = 1e-6
+    for _ in range(3):
+        direction = rng.normal(size=q.size)
+        plus, minus = q.reshape(-1) + h * direction, q.reshape(-1) - h * direction
+        assert (box_solid.energy(plus) - box_solid.energy(minus)) / (2 * h) == pytest.approx(
+            gradient @ direction, rel=1e-7
+        )
+        change = (box_solid.gradient(plus) - box_solid.gradient(minus)) / (2 * h)
+        np.testing.assert_allclose(change, hessian @ direction, atol=1e-7 * np.abs(hessian @ direction).max())
+    eigenvalues = np.linalg.eigvalsh(box_solid.hessian(q).toarray())
+    assert eigenvalues.min() > -1e-9 * eigenvalues.max()
+
+
+def test_mass_and_gravity(box_solid):
+    volume = 2.0 * 1.0 * 0.5
+    assert box_solid.mass == pytest.approx(RUBBER.density * volume, rel=1e-12)
+    mass_matrix = box_solid.mass_matrix()
+    ones = np.tile([1.0, 0.0, 0.0], len(box_solid.reference))
+    assert ones @ (mass_matrix @ ones) == pytest.approx(box_solid.mass, rel=1e-12)  # a translation's kinetic energy
+    force = box_solid.gravity_force(np.array([0.0, 0.0, -9.81])).reshape(-1, 3).sum(axis=0)
+    np.testing.assert_allclose(force, [0.0, 0.0, -9.81 * box_solid.mass], atol=1e-9)
+
+
+def minimize(solid: ShapeMatchingSolid, q: np.ndarray, free: np.ndarray, tolerance: float) -> tuple[np.ndarray, int]:
+    """Projected Newton with a backtracking energy line search over the ``free`` DOFs."""
+    q = q.reshape(-1).copy()
+    for iteration in range(30):
+        gradient = solid.gradient(q)[free]
+        if np.linalg.norm(gradient) < tolerance:
+            return q.reshape(-1, 3), iteration
+        hessian = solid.hessian(q)[free][:, free]
+        step = -scipy.sparse.linalg.spsolve(hessian.tocsc(), gradient)
+        energy, length = solid.energy(q), 1.0
+        for _ in range(40):
+            trial = q.copy()
+            trial[free] += length * step
+            if solid.energy(trial) <= energy + 1e-4 * length * (gradient @ step):
+                break
+            length *= 0.5
+        q = trial
+    raise AssertionError("Newton did not converge")
+
+
+def test_static_uniaxial_stretch_is_the_homogeneous_state(box_solid):
+    """Ends pulled to 1.2 times the length, symmetry planes at x = 0, y = 0 and z = 0: the
+    Neo-Hookean equilibrium is homogeneous, F = diag(1.2, m, m) with zero lateral stress."""
+    q0, stretch = box_solid.reference, 1.2
+    fixed = np.zeros(q0.shape, dtype=bool)
+    fixed[np.isclose(q0[:, 0], 0.0) | np.isclose(q0[:, 0], 2.0), 0] = True
+    fixed[np.isclose(q0[:, 1], 0.0), 1] = True
+    fixed[np.isclose(q0[:, 2], 0.0), 2] = True
+    q = q0.copy()
+    q[:, 0] *= np.where(fixed[:, 0], stretch, 1.0)
+    solution, iterations = minimize(box_solid, q, ~fixed.reshape(-1), tolerance=1e-6)
+    lame = Lame.of(RUBBER.young, RUBBER.poisson)
+    lateral = scipy.optimize.brentq(
+        lambda m: lame.mu * (m - 1 / m) + lame.lam * np.log(stretch * m * m) / m, 0.5, 1.5, xtol=1e-15
+    )
+    f = box_solid.deformation_gradients(solution)
+    np.testing.assert_allclose(f, np.broadcast_to(np.diag([stretch, lateral, lateral]), f.shape), atol=1e-10)
+    assert iterations <= 8
+
+
+def test_bad_solid_input_is_refused():
+    faces = nurbs.box_faces(*BOX)
+    with pytest.raises(SurfaceError, match=r"young must be positive, got -1"):
+        ShapeMatchingSolid(faces, SolidMaterial(1000.0, -1.0, 0.3), name="box")
+    with pytest.raises(SurfaceError, match=r"poisson must lie in \(-1, 0.5\), got 0.5"):
+        ShapeMatchingSolid(faces, SolidMaterial(1000.0, 1e6, 0.5), name="box")
+    with pytest.raises(SurfaceError, match=r"model must be one of"):
+        ShapeMatchingSolid(faces, SolidMaterial(1000.0, 1e6, 0.3, model="hooke"), name="box")
+    with pytest.raises(SurfaceError, match=r"box: alpha must be positive, got 0.0"):
+        ShapeMatchingSolid(faces, RUBBER, SolidOptions(alpha=0.0, lines_per_side=8), name="box")
+    with pytest.raises(SurfaceError, match=r"box: 2 materials for 6 parts"):
+        ShapeMatchingSolid(faces, [RUBBER, RUBBER], name="box")

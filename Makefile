@@ -7,6 +7,8 @@ MPIRUN := OPENBLAS_NUM_THREADS=1 mpirun --allow-run-as-root --oversubscribe -x O
 RUFF_VERSION := 0.8.4
 # ipc-toolkit, the incremental potential contact library (contact/ipc.py)
 IPCTK_VERSION := 1.6.1
+# McNeel's OpenNURBS for Rhino .3dm files (bhem_hpc/io/cad.py)
+RHINO3DM_VERSION := 8.35.0
 # The main job: a scene and its output directory (overwritten).
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
@@ -19,7 +21,7 @@ $(VENV)/.installed: pyproject.toml scripts/install-system-packages Makefile
 	scripts/install-system-packages
 	[ -x $(PY) ] || $(SYSTEM_PYTHON) -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
-	$(PY) -m pip install -q ruff==$(RUFF_VERSION) ipctk==$(IPCTK_VERSION)
+	$(PY) -m pip install -q ruff==$(RUFF_VERSION) ipctk==$(IPCTK_VERSION) rhino3dm==$(RHINO3DM_VERSION)
 	touch $@
 
 demo: setup

@@ -2,7 +2,7 @@
 
 The solid's integral ``int f dV`` becomes, over the bounding box, an integral over the box's face
 across ``axis`` of line integrals along ``axis`` (Khosravifard and Hematiyan 2010): lines through
-the centres of a square grid of cells on that face carry the outer midpoint rule; each line's
+the centres of a grid of cells that tiles that face carry the outer midpoint rule; each line's
 inside intervals carry Gauss-Legendre rules of ``order`` points per segment no longer than the
 cell's side. Inside is where the winding number of the crossings is nonzero: the CSG union of
 overlapping closed parts, whatever they are made of (a part may be one closed surface or one face
@@ -59,13 +59,15 @@ def model_bounds(parts: Sequence[NurbsSurface]) -> tuple[np.ndarray, np.ndarray]
 
 
 def _line_grid(lo: np.ndarray, hi: np.ndarray, axis: int, lines_per_side: int):
+    """Line spacing along the line (the longer side's cell width), the cell area, and the lines'
+    coordinates across ``axis``: cell centres of a grid that tiles the box's face exactly."""
     across = [a for a in range(3) if a != axis]
-    extent = hi[across] - lo[across]
+    extent = np.maximum(hi[across] - lo[across], 1e-300)
     spacing = float(extent.max()) / lines_per_side
     counts = np.maximum(1, np.ceil(extent / spacing - 1e-9).astype(int))
-    # centre the grid on the box (cells may overhang it a little along the shorter side)
-    start = lo[across] + 0.5 * (extent - counts * spacing) + 0.5 * spacing
-    return spacing, [start[k] + spacing * np.arange(counts[k]) for k in range(2)]
+    widths = extent / counts
+    centres = [lo[across[k]] + widths[k] * (np.arange(counts[k]) + 0.5) for k in range(2)]
+    return spacing, float(widths[0] * widths[1]), centres
 
 
 def inside_intervals(line: np.ndarray, position: np.ndarray, direction: np.ndarray, lines: int):
@@ -110,7 +112,7 @@ def ray_cast_quadrature(
     seconds = {}
     clock = time.perf_counter()
     lo, hi = model_bounds(parts)
-    spacing, (first, second) = _line_grid(lo, hi, axis, lines_per_side)
+    spacing, cell_area, (first, second) = _line_grid(lo, hi, axis, lines_per_side)
     lines = len(first) * len(second)
     crossings = [axis_line_crossings(part.bezier_patches.nets, axis, first, second) for part in parts]
     line = np.concatenate([c.line for c in crossings])
@@ -143,7 +145,7 @@ def ray_cast_quadrature(
     width = (length / segments)[interval]
     left = start[interval] + index * width
     along = left[:, None] + 0.5 * width[:, None] * (nodes[None, :] + 1.0)
-    weights = (0.5 * width[:, None] * node_weights[None, :]) * spacing**2
+    weights = (0.5 * width[:, None] * node_weights[None, :]) * cell_area
     across = [a for a in range(3) if a != axis]
     points = np.empty((along.size, 3))
     points[:, axis] = along.ravel()

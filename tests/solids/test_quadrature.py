@@ -53,11 +53,11 @@ def test_volume_and_second_moment_converge(name):
             (abs(rule.volume - volume) / volume, abs(rule.integrate(rule.points[:, 2] ** 2) - second) / second)
         )
     errors = np.array(errors)
-    # the outer midpoint rule meets the silhouette's square-root edge: about h^1.5 on average
-    rates = np.log2(errors[0] / errors[-1]) / 3.0
-    assert np.all(rates > 1.2), (errors, rates)
-    assert np.all(errors[-1] < 1.5e-2), errors
-
+    # the outer midpoint rule meets the silhouette's square-root edge: about h^1.5 on average, with
+    # scatter from where the silhouette falls between lines; the least-squares slope over 16..128
+    slopes = -np.polyfit(np.log2([16, 32, 64, 128]), np.log2(errors), 1)[0]
+    assert np.all(slopes > 1.0), (errors, slopes)
+    assert np.all(errors[-1] < 1e-2), errors
 
 def test_points_lie_inside_and_the_rule_integrates_linear_functions_by_symmetry():
     rule = ray_cast_quadrature([nurbs.sphere(1.0, center=(0.3, -0.2, 0.1))], 48, order=3)

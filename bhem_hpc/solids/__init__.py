@@ -2,6 +2,6 @@
 
 Numpy and scipy only: the ray-cast volume quadrature (:mod:`.quadrature`), boundary samples
 (:mod:`.sampling`), ray-cast blending weights (:mod:`.blending`), hierarchical shape matching
-(:mod:`.shape_matching`), hyperelastic densities (:mod:`.elasticity`) and the solid that joins them
+(:mod:`.shape_matching`), deformation origins by network flow (:mod:`.origins`), hyperelastic densities (:mod:`.elasticity`) and the solid that joins them
 (:mod:`.sem`).
 """

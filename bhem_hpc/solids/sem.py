@@ -23,6 +23,7 @@ from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.blending import ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
+from bhem_hpc.solids.origins import deformation_origins
 from bhem_hpc.solids.quadrature import model_bounds, ray_cast_quadrature
 from bhem_hpc.solids.sampling import sample_parts
 from bhem_hpc.solids.shape_matching import shape_matching
@@ -52,7 +53,8 @@ class SolidOptions:
     """Preprocessing settings: shape-matching ``degree`` (1, 2), ray-cast ``lines_per_side`` and
     Gauss ``quadrature_order`` along lines, boundary ``sample_order`` (None: the NURBS order),
     blending ``sparsity`` target T (None: the cutoff ``alpha`` given, or all parts everywhere),
-    ``origin_of_part`` (None: one origin), ``error_stiffness`` gamma (None: Young's modulus)."""
+    deformation ``origins``: ``"flow"`` (the min-cost network flow of §6.2), ``"single"`` (one for
+    all parts) or one origin index per part; ``error_stiffness`` gamma (None: Young's modulus)."""
 
     degree: int = 2
     lines_per_side: int = 24
@@ -60,7 +62,7 @@ class SolidOptions:
     sample_order: int | None = None
     sparsity: float | None = None
     alpha: float | None = None
-    origin_of_part: tuple[int, ...] | None = None
+    origins: str | tuple[int, ...] = "flow"
     error_stiffness: float | None = None
 
 
@@ -77,8 +79,8 @@ class ShapeMatchingSolid:
         offsets: ``(parts + 1,)`` where each part's control points start.
         quadrature: the ray-cast volume rule; ``blend`` its points' weights ``(Q, parts)``.
         matching: the shape-matching projection and kinematic map.
-        seconds: wall time of each stage (``sample``, ``quadrature``, ``weights``, ``projection``,
-            ``operators``).
+        seconds: wall time of each stage (``sample``, ``quadrature``, ``weights``, ``origins``,
+            ``projection``, ``operators``).
     """
 
     def __init__(
@@ -107,8 +109,10 @@ class ShapeMatchingSolid:
         self.blend, self.alpha = self._blending_weights()
         self.seconds["weights"] = time.perf_counter() - clock
         clock = time.perf_counter()
-        origins = None if options.origin_of_part is None else np.asarray(options.origin_of_part)
-        self.matching = shape_matching(samples, options.degree, origins, [p.name for p in parts])
+        self.origin_of_part = self._origins()
+        self.seconds["origins"] = time.perf_counter() - clock
+        clock = time.perf_counter()
+        self.matching = shape_matching(samples, options.degree, self.origin_of_part, [p.name for p in parts])
         self.seconds["projection"] = time.perf_counter() - clock
         clock = time.perf_counter()
         self._build_operators(samples)
@@ -128,6 +132,23 @@ class ShapeMatchingSolid:
         distances = ray_distances(self.parts, points, 0.5 * diagonal)
         alpha = 0.5 * diagonal if options.sparsity is None else distances.cutoff_for(options.sparsity, self.name)
         return distances.weights(alpha), alpha
+
+    def _origins(self) -> np.ndarray:
+        origins = self.options.origins
+        if isinstance(origins, str):
+            if origins not in ("flow", "single"):
+                raise SurfaceError(
+                    f"{self.name}: origins must be 'flow', 'single' or one index per part, got {origins!r}"
+                )
+            if origins == "single" or len(self.parts) == 1:
+                return np.zeros(len(self.parts), dtype=int)
+            return deformation_origins(self.blend, self.name)
+        indices = np.asarray(origins)
+        if indices.shape != (len(self.parts),) or not np.issubdtype(indices.dtype, np.integer) or indices.min() < 0:
+            raise SurfaceError(
+                f"{self.name}: origins must give one index >= 0 per part ({len(self.parts)}), got {origins!r}"
+            )
+        return indices
 
     def _build_operators(self, samples) -> None:
         matching, rule = self.matching, self.quadrature

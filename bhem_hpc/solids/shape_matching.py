@@ -121,6 +121,12 @@ def _fit(basis: np.ndarray, weights: np.ndarray, name: str, order: str) -> np.nd
     return np.linalg.pinv(normal, rcond=FIT_RCOND, hermitian=True) @ (basis.T * weights)
 
 
+def _unseen_directions(basis: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Orthonormal directions ``(3, r)`` the linear fit on ``basis (s, 3)`` cannot determine."""
+    values, vectors = np.linalg.eigh(basis.T @ (weights[:, None] * basis))
+    return vectors[:, values <= FIT_RCOND * max(values.max(), 1e-300)]
+
+
 def shape_matching(
     samples: Sequence[PartSamples],
     degree: int,
@@ -163,6 +169,12 @@ def shape_matching(
         translation.append(scipy.sparse.csr_matrix(row))
         origins[j] = sum(samples[i].weights @ samples[i].points for i in members) / sigma
     k = TERMS[degree]
+    whole = PartSamples(
+        scipy.sparse.vstack(global_basis).tocsr(),
+        np.concatenate([s.weights for s in samples]),
+        np.concatenate([s.points for s in samples]),
+        np.concatenate([s.parameters for s in samples]),
+    )
     blocks = []
     for i, s in enumerate(samples):
         offset = s.points - origins[origin_of_part[i]]
@@ -170,6 +182,19 @@ def shape_matching(
         residual = global_basis[i] - ones @ translation[origin_of_part[i]]  # (s, n_q): J q - 1 t
         linear = monomials(offset, 1)
         rows = scipy.sparse.csr_matrix(_fit(linear, s.weights, names[i], "linear")) @ residual
+        unseen = _unseen_directions(linear, s.weights)
+        if unseen.shape[1]:
+            # a planar part sees no stretch along its normal: that column of its linear map comes
+            # from the fit over every part's samples about the same origin (exact for affine motions)
+            everything = whole.points - origins[origin_of_part[i]]
+            whole_residual = (
+                whole.basis - scipy.sparse.csr_matrix(np.ones((len(everything), 1))) @ translation[origin_of_part[i]]
+            )
+            whole_linear = monomials(everything, 1)
+            if _unseen_directions(whole_linear, whole.weights).shape[1]:
+                raise SurfaceError("the parts' samples lie in one plane: they bound no volume")
+            whole_rows = scipy.sparse.csr_matrix(_fit(whole_linear, whole.weights, "model", "linear")) @ whole_residual
+            rows = rows + scipy.sparse.csr_matrix(unseen @ unseen.T) @ whole_rows
         part_rows = [rows]
         if degree == 2:
             quadratic = monomials(offset, 2)[:, 3:]

@@ -13,6 +13,7 @@ from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.blending import ray_distances
 from bhem_hpc.solids.elasticity import Lame, neo_hookean, project_psd, st_venant_kirchhoff
+from bhem_hpc.solids.origins import assign_candidates, candidate_groups, deformation_origins
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
 
@@ -165,3 +166,29 @@ def test_bad_solid_input_is_refused():
         ShapeMatchingSolid(faces, RUBBER, SolidOptions(alpha=0.0, lines_per_side=8), name="box")
     with pytest.raises(SurfaceError, match=r"box: 2 materials for 6 parts"):
         ShapeMatchingSolid(faces, [RUBBER, RUBBER], name="box")
+
+
+def test_deformation_origins_solve_the_network_flow():
+    """Every part draws one unit through a candidate whose set of parts holds it, at the least total
+    cost (with unbounded candidates, each part's cheapest edge), and parts drawing through one
+    candidate share one origin."""
+    parts = nurbs.box_faces(*BOX)
+    rule = ray_cast_quadrature(parts, 12)
+    weights = ray_distances(parts, rule.points, reach=1.2).weights(0.4)
+    patterns, group = candidate_groups(weights)
+    dense = weights.toarray()
+    cost = np.array([dense[group == g].sum(axis=0) for g in range(len(patterns))])
+    candidate, edge_cost = assign_candidates(weights, "box")
+    np.testing.assert_allclose(edge_cost, np.where(patterns, cost, np.inf))
+    assert np.all(patterns[candidate, np.arange(6)])
+    assert cost[candidate, np.arange(6)].sum() == pytest.approx(np.where(patterns, cost, np.inf).min(axis=0).sum())
+    origins = deformation_origins(weights, "box")
+    np.testing.assert_array_equal(candidate[:, None] == candidate[None, :], origins[:, None] == origins[None, :])
+    assert origins[0] == 0 and len(np.unique(origins)) > 1
+
+
+def test_origins_option_is_checked():
+    with pytest.raises(SurfaceError, match=r"box: origins must be 'flow', 'single' or one index per part, got 'many'"):
+        ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins="many", lines_per_side=8), name="box")
+    with pytest.raises(SurfaceError, match=r"box: origins must give one index >= 0 per part \(6\)"):
+        ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins=(0, 1), lines_per_side=8), name="box")

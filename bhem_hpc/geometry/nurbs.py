@@ -168,6 +168,9 @@ class NurbsSurface:
         """``(n, m, 4)``: ``(w x, w y, w z, w)``."""
         return np.concatenate([self.control * self.weights[..., None], self.weights[..., None]], axis=2)
 
+    def with_name(self, name: str) -> NurbsSurface:
+        return NurbsSurface(self.degrees, self.u.knots, self.v.knots, self.control, self.weights, name)
+
     def with_control(self, control: np.ndarray) -> NurbsSurface:
         """The same knots and weights with other control points ``(n, m, 3)`` (a deformed part)."""
         return NurbsSurface(self.degrees, self.u.knots, self.v.knots, control, self.weights, self.name)
@@ -300,8 +303,22 @@ def torus(major_radius: float, minor_radius: float) -> NurbsSurface:
     return revolve(profile, weights, _CIRCLE_KNOTS, 2, "torus")
 
 
+def beam_faces(lo, hi, sections: int) -> list[NurbsSurface]:
+    """An axis-aligned box cut into ``sections`` along x: its four long sides as ``sections``
+    bilinear parts each, and its two ends (``4 sections + 2`` parts, unconnected, outward normals)."""
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    cuts = np.linspace(lo[0], hi[0], sections + 1)
+    parts = []
+    for k in range(sections):
+        piece = box_faces([cuts[k], lo[1], lo[2]], [cuts[k + 1], hi[1], hi[2]])
+        parts += [face.with_name(f"{face.name} section {k}") for face in piece[2:]]  # the four sides
+    whole = box_faces(lo, hi)
+    return parts + whole[:2]
+
+
 def box_faces(lo, hi) -> list[NurbsSurface]:
-    """The six faces of an axis-aligned box as bilinear NURBS parts, normals ``x_u x x_v`` outward."""
+    """The six faces of an axis-aligned box as bilinear NURBS parts (-x, +x, -y, +y, -z, +z),
+    normals ``x_u x x_v`` outward."""
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
     faces = []
     knots = np.array([0.0, 0.0, 1.0, 1.0])

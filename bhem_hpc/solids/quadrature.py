@@ -59,11 +59,12 @@ def model_bounds(parts: Sequence[NurbsSurface]) -> tuple[np.ndarray, np.ndarray]
 
 
 def _line_grid(lo: np.ndarray, hi: np.ndarray, axis: int, lines_per_side: int):
-    """Line spacing along the line (the longer side's cell width), the cell area, and the lines'
-    coordinates across ``axis``: cell centres of a grid that tiles the box's face exactly."""
+    """Segment length along the lines (the box's longest side over ``lines_per_side``), the cell
+    area, and the lines' coordinates across ``axis``: cell centres of a grid that tiles the box's
+    face exactly, with cells no wider than the segment length."""
     across = [a for a in range(3) if a != axis]
     extent = np.maximum(hi[across] - lo[across], 1e-300)
-    spacing = float(extent.max()) / lines_per_side
+    spacing = float(np.max(hi - lo)) / lines_per_side  # the box's longest side sets the resolution
     counts = np.maximum(1, np.ceil(extent / spacing - 1e-9).astype(int))
     widths = extent / counts
     centres = [lo[across[k]] + widths[k] * (np.arange(counts[k]) + 0.5) for k in range(2)]
@@ -97,7 +98,8 @@ def ray_cast_quadrature(
     Args:
         parts: the model's NURBS parts (any orientation that is consistent per closed shell: the
             winding rule counts both orientations as inside).
-        lines_per_side: lines across the longer side of the bounding box's face across ``axis``.
+        lines_per_side: the resolution: the bounding box's longest side over the cells' width
+            (and the longest segment along a line).
         order: Gauss-Legendre points per segment of an inside interval.
         name: the model's name in errors.
 

@@ -24,7 +24,7 @@ BOX = ([0.0, 0.0, 0.0], [2.0, 1.0, 0.5])
 @pytest.fixture(scope="module", params=[1, 2], ids=["linear", "quadratic"])
 def box_solid(request) -> ShapeMatchingSolid:
     """A 2 x 1 x 0.5 m box of six unconnected bilinear faces, blending sparsity target 0.5."""
-    options = SolidOptions(degree=request.param, lines_per_side=12, sparsity=0.5)
+    options = SolidOptions(degree=request.param, lines_per_side=16, sparsity=0.5)
     return ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, options, name="box")
 
 
@@ -53,7 +53,7 @@ def test_neo_hookean_refuses_inverted_elements():
 
 def test_blending_weights_partition_unity_and_meet_the_sparsity_target():
     parts = nurbs.box_faces(*BOX)
-    rule = ray_cast_quadrature(parts, 12)
+    rule = ray_cast_quadrature(parts, 24)
     distances = ray_distances(parts, rule.points, reach=1.2)
     for target in (0.3, 0.5, 0.8):
         alpha = distances.cutoff_for(target)

@@ -13,6 +13,7 @@ from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.blending import ray_distances
 from bhem_hpc.solids.elasticity import Lame, neo_hookean, project_psd, st_venant_kirchhoff
+from bhem_hpc.solids.equilibrium import linearly_implicit_step, solve_static
 from bhem_hpc.solids.origins import assign_candidates, candidate_groups, deformation_origins
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
@@ -114,26 +115,6 @@ def test_mass_and_gravity(box_solid):
     np.testing.assert_allclose(force, [0.0, 0.0, -9.81 * box_solid.mass], atol=1e-9)
 
 
-def minimize(solid: ShapeMatchingSolid, q: np.ndarray, free: np.ndarray, tolerance: float) -> tuple[np.ndarray, int]:
-    """Projected Newton with a backtracking energy line search over the ``free`` DOFs."""
-    q = q.reshape(-1).copy()
-    for iteration in range(30):
-        gradient = solid.gradient(q)[free]
-        if np.linalg.norm(gradient) < tolerance:
-            return q.reshape(-1, 3), iteration
-        hessian = solid.hessian(q)[free][:, free]
-        step = -scipy.sparse.linalg.spsolve(hessian.tocsc(), gradient)
-        energy, length = solid.energy(q), 1.0
-        for _ in range(40):
-            trial = q.copy()
-            trial[free] += length * step
-            if solid.energy(trial) <= energy + 1e-4 * length * (gradient @ step):
-                break
-            length *= 0.5
-        q = trial
-    raise AssertionError("Newton did not converge")
-
-
 def test_static_uniaxial_stretch_is_the_homogeneous_state(box_solid):
     """Ends pulled to 1.2 times the length, symmetry planes at x = 0, y = 0 and z = 0: the
     Neo-Hookean equilibrium is homogeneous, F = diag(1.2, m, m) with zero lateral stress."""
@@ -144,7 +125,8 @@ def test_static_uniaxial_stretch_is_the_homogeneous_state(box_solid):
     fixed[np.isclose(q0[:, 2], 0.0), 2] = True
     q = q0.copy()
     q[:, 0] *= np.where(fixed[:, 0], stretch, 1.0)
-    solution, iterations = minimize(box_solid, q, ~fixed.reshape(-1), tolerance=1e-6)
+    equilibrium = solve_static(box_solid, q, fixed, tolerance=1e-12)
+    solution, iterations = equilibrium.q, equilibrium.iterations
     lame = Lame.of(RUBBER.young, RUBBER.poisson)
     lateral = scipy.optimize.brentq(
         lambda m: lame.mu * (m - 1 / m) + lame.lam * np.log(stretch * m * m) / m, 0.5, 1.5, xtol=1e-15
@@ -192,3 +174,14 @@ def test_origins_option_is_checked():
         ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins="many", lines_per_side=8), name="box")
     with pytest.raises(SurfaceError, match=r"box: origins must give one index >= 0 per part \(6\)"):
         ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins=(0, 1), lines_per_side=8), name="box")
+
+
+def test_a_linearly_implicit_step_of_free_fall_is_exact(box_solid):
+    """Gravity on a free solid: the generalized force is the mass matrix times a uniform
+    acceleration and a translation costs no elastic energy, so one step gains exactly g dt."""
+    gravity, dt = np.array([0.0, 0.0, -9.81]), 0.01
+    q, velocity = box_solid.reference, np.tile([0.3, 0.0, 0.0], (len(box_solid.reference), 1))
+    fixed = np.zeros(q.shape, dtype=bool)
+    q1, v1 = linearly_implicit_step(box_solid, q, velocity, dt, fixed, box_solid.gravity_force(gravity))
+    np.testing.assert_allclose(v1, velocity + dt * gravity, atol=1e-9)
+    np.testing.assert_allclose(q1, q + dt * v1, atol=1e-12)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.optimize
-import scipy.sparse.linalg
 
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError

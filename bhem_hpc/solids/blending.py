@@ -30,11 +30,14 @@ ALPHA_BISECTIONS = 40
 @dataclass(frozen=True)
 class RayDistances:
     """Per point and part ``(Q, parts)``: primary distance, total distance (inf: no surface within
-    ``reach``), and whether the secondary ray met the same part; ``reach`` bounds every cutoff."""
+    ``reach``), and whether the secondary ray met the same part; ``away (Q, parts, 3)`` the unit
+    vector from the closest point to the point (the primary distance's gradient); ``reach`` bounds
+    every cutoff."""
 
     primary: np.ndarray
     total: np.ndarray
     same_part: np.ndarray
+    away: np.ndarray
     reach: float
     seconds: float
 
@@ -52,6 +55,24 @@ class RayDistances:
         theta[alone, np.argmin(self.primary[alone], axis=1)] = 1.0
         theta /= theta.sum(axis=1, keepdims=True)
         return scipy.sparse.csr_matrix(theta)
+
+    def weight_gradients(self, alpha: float) -> np.ndarray:
+        """``(Q, parts, 3)``: the gradients of :meth:`weights` in the point, the total distances held
+        fixed (the secondary ray's far end moves little next to the point itself): ``theta_i``
+        falls as ``-away_i / min(d_t, alpha)`` where it is positive and not set to 1, and the
+        normalization's quotient rule keeps the gradients summing to zero."""
+        theta = self.theta(alpha)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = np.where((theta > 0.0) & ~self.same_part, -1.0 / np.minimum(self.total, alpha), 0.0)
+        d_theta = slope[..., None] * self.away
+        total = theta.sum(axis=1)
+        alone = total <= 0.0
+        total = np.where(alone, 1.0, total)
+        gradients = d_theta / total[:, None, None] - theta[..., None] * d_theta.sum(axis=1, keepdims=True) / (
+            total[:, None, None] ** 2
+        )
+        gradients[alone] = 0.0  # a point no part reaches belongs to its nearest part alone
+        return gradients
 
     def nonzero_share(self, alpha: float) -> float:
         return self.weights(alpha).nnz / self.primary.size
@@ -78,9 +99,12 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
     primary = np.empty((count, len(parts)))
     total = np.full((count, len(parts)), np.inf)
     same = np.zeros((count, len(parts)), dtype=bool)
+    away = np.zeros((count, len(parts), 3))
     for i, part in enumerate(parts):
         _, nearest, distance = closest_points(part, points)
         primary[:, i] = distance
+        inside = distance > 0.0
+        away[inside, i] = (points[inside] - nearest[inside]) / distance[inside, None]
         cast = np.flatnonzero((distance < reach) & (distance > 0.0))
         direction = (points[cast] - nearest[cast]) / distance[cast, None]
         tau_min = distance[cast] * (1.0 + 1e-9)
@@ -92,4 +116,4 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
         total[cast, i] = best
         same[cast, i] = owner == i
         same[distance == 0.0, i] = True
-    return RayDistances(primary, total, same, float(reach), time.perf_counter() - clock)
+    return RayDistances(primary, total, same, away, float(reach), time.perf_counter() - clock)

@@ -21,7 +21,7 @@ import scipy.sparse
 
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.blending import ray_distances
+from bhem_hpc.solids.blending import RayDistances, ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
 from bhem_hpc.solids.origins import deformation_origins
 from bhem_hpc.solids.quadrature import model_bounds, ray_cast_quadrature
@@ -54,7 +54,9 @@ class SolidOptions:
     Gauss ``quadrature_order`` along lines, boundary ``sample_order`` (None: the NURBS order),
     blending ``sparsity`` target T (None: the cutoff ``alpha`` given, or all parts everywhere),
     deformation ``origins``: ``"flow"`` (the min-cost network flow of §6.2), ``"single"`` (one for
-    all parts) or one origin index per part; ``error_stiffness`` gamma (None: Young's modulus)."""
+    all parts) or one origin index per part; ``weight_gradients``: keep the blending weights'
+    gradients in ``F`` (eq. 15 whole; False: the paper's constant weights, under which parts may
+    turn against each other at no strain); ``error_stiffness`` gamma (None: Young's modulus)."""
 
     degree: int = 2
     lines_per_side: int = 24
@@ -63,6 +65,7 @@ class SolidOptions:
     sparsity: float | None = None
     alpha: float | None = None
     origins: str | tuple[int, ...] = "flow"
+    weight_gradients: bool = True
     error_stiffness: float | None = None
 
 
@@ -106,7 +109,7 @@ class ShapeMatchingSolid:
         self.quadrature = ray_cast_quadrature(parts, options.lines_per_side, options.quadrature_order, name=name)
         self.seconds["quadrature"] = time.perf_counter() - clock
         clock = time.perf_counter()
-        self.blend, self.alpha = self._blending_weights()
+        self.blend, self.blend_gradients, self.alpha = self._blending_weights()
         self.seconds["weights"] = time.perf_counter() - clock
         clock = time.perf_counter()
         self.origin_of_part = self._origins()
@@ -118,20 +121,23 @@ class ShapeMatchingSolid:
         self._build_operators(samples)
         self.seconds["operators"] = time.perf_counter() - clock
 
-    def _blending_weights(self) -> tuple[scipy.sparse.csr_matrix, float]:
+    def _blending_weights(self) -> tuple[scipy.sparse.csr_matrix, np.ndarray | None, float]:
         points, options = self.quadrature.points, self.options
         if len(self.parts) == 1:
-            return scipy.sparse.csr_matrix(np.ones((len(points), 1))), np.inf
+            return scipy.sparse.csr_matrix(np.ones((len(points), 1))), None, np.inf
         lo, hi = model_bounds(self.parts)
         diagonal = float(np.linalg.norm(hi - lo))
         if options.alpha is not None:
             if not (np.isfinite(options.alpha) and options.alpha > 0.0):
                 raise SurfaceError(f"{self.name}: alpha must be positive, got {options.alpha!r}")
             distances = ray_distances(self.parts, points, options.alpha)
-            return distances.weights(options.alpha), options.alpha
+            return distances.weights(options.alpha), self._gradients(distances, options.alpha), options.alpha
         distances = ray_distances(self.parts, points, 0.5 * diagonal)
         alpha = 0.5 * diagonal if options.sparsity is None else distances.cutoff_for(options.sparsity, self.name)
-        return distances.weights(alpha), alpha
+        return distances.weights(alpha), self._gradients(distances, alpha), alpha
+
+    def _gradients(self, distances: RayDistances, alpha: float) -> np.ndarray | None:
+        return distances.weight_gradients(alpha) if self.options.weight_gradients else None
 
     def _origins(self) -> np.ndarray:
         origins = self.options.origins
@@ -152,7 +158,7 @@ class ShapeMatchingSolid:
 
     def _build_operators(self, samples) -> None:
         matching, rule = self.matching, self.quadrature
-        phi, grad = matching.kinematic_maps(rule.points, self.blend)
+        phi, grad = matching.kinematic_maps(rule.points, self.blend, self.blend_gradients)
         projection = matching.projection
         # deformation gradient rows: F[k, c, d] = sum_m G_d[k, m] C[m, c]; in interleaved columns
         # (3 m + c) of the coefficients, row 9 k + 3 c + d

@@ -87,9 +87,16 @@ class ShapeMatching:
     def translation_row(self, origin: int) -> int:
         return len(self.part_rows) * self.terms + origin
 
-    def kinematic_maps(self, points: np.ndarray, weights: scipy.sparse.spmatrix):
+    def kinematic_maps(
+        self, points: np.ndarray, weights: scipy.sparse.spmatrix, weight_gradients: np.ndarray | None = None
+    ):
         """``Phi (Q, n_c)`` and ``G (3, Q, n_c)`` at reference ``points (Q, 3)`` with blending
-        ``weights (Q, parts)`` (sparse; rows sum to 1): ``x = Phi @ C``, ``F[:, :, d] = G[d] @ C``."""
+        ``weights (Q, parts)`` (sparse; rows sum to 1): ``x = Phi @ C``, ``F[:, :, d] = G[d] @ C``.
+
+        With ``weight_gradients (Q, parts, 3)`` (zero wherever the weight is), ``F`` keeps the
+        second term of eq. (15), ``sum_i grad w_i P_i C_i``, which the paper drops; without it parts
+        may turn rigidly against each other at no strain (a blend of rotations is a rotation).
+        """
         weights = scipy.sparse.coo_matrix(weights)
         point, part, w = weights.row, weights.col, weights.data
         offset = points[point] - self.origins[self.origin_of_part[part]]
@@ -97,16 +104,19 @@ class ShapeMatching:
         columns = self.part_rows[part][:, None] + np.arange(k)[None, :]
         shape = (len(points), self.coefficient_count)
         rows = np.repeat(point, k)
-        values = (w[:, None] * monomials(offset, self.degree)).ravel()
+        basis = monomials(offset, self.degree)
+        values = (w[:, None] * basis).ravel()
         translation = self.translation_row(0) + self.origin_of_part[part]
-        phi = scipy.sparse.csr_matrix(
-            (np.r_[values, w], (np.r_[rows, point], np.r_[columns.ravel(), translation])), shape=shape
-        )
+        all_rows, all_columns = np.r_[rows, point], np.r_[columns.ravel(), translation]
+        phi = scipy.sparse.csr_matrix((np.r_[values, w], (all_rows, all_columns)), shape=shape)
         gradients = w[:, None, None] * monomial_gradients(offset, self.degree)
-        grad = [
-            scipy.sparse.csr_matrix((gradients[:, :, d].ravel(), (rows, columns.ravel())), shape=shape)
-            for d in range(3)
-        ]
+        grad = []
+        for d in range(3):
+            entries = np.r_[gradients[:, :, d].ravel(), np.zeros(len(point))]
+            if weight_gradients is not None:
+                slope = weight_gradients[point, part, d]
+                entries = entries + np.r_[(slope[:, None] * basis).ravel(), slope]
+            grad.append(scipy.sparse.csr_matrix((entries, (all_rows, all_columns)), shape=shape))
         return phi, grad
 
 

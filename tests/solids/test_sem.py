@@ -184,3 +184,15 @@ def test_a_linearly_implicit_step_of_free_fall_is_exact(box_solid):
     q1, v1 = linearly_implicit_step(box_solid, q, velocity, dt, fixed, box_solid.gravity_force(gravity))
     np.testing.assert_allclose(v1, velocity + dt * gravity, atol=1e-9)
     np.testing.assert_allclose(q1, q + dt * v1, atol=1e-12)
+
+
+@pytest.mark.parametrize(("weight_gradients", "null_directions"), [(False, 12), (True, 0)])
+def test_weight_gradients_remove_the_rigid_turns_between_sections(weight_gradients, null_directions):
+    """A beam of two sections clamped at one end: with constant weights (the paper's F) the second
+    section's parts turn and shift against the first at no strain; the weights' gradients see it."""
+    parts = nurbs.beam_faces([0.0, 0.0, 0.0], [1.0, 0.2, 0.2], 2)
+    options = SolidOptions(degree=2, lines_per_side=20, origins="single", weight_gradients=weight_gradients)
+    solid = ShapeMatchingSolid(parts, SolidMaterial(1000.0, 1e7, 0.45), options, name="beam")
+    free = ~np.isclose(solid.reference[:, 0], 0.0).repeat(3)
+    eigenvalues = np.linalg.eigvalsh(solid.hessian(solid.reference).toarray()[free][:, free])
+    assert np.count_nonzero(eigenvalues < 1e-9 * eigenvalues.max()) == null_directions

@@ -199,30 +199,6 @@ def _candidate_pairs(nets, patch, rect, axis, first, second, tolerance):
     return piece, i * len(second) + j
 
 
-def _newton(nets, s, t, target, across, tolerance):
-    """Solve ``x(s, t)[across] = target (K, 2)`` from ``s, t (K,)``: the solution and a success mask."""
-    converged = np.zeros(len(s), dtype=bool)
-    active = np.arange(len(s))
-    for _ in range(NEWTON_ITERATIONS):
-        if not len(active):
-            break
-        point, x_s, x_t = evaluate(nets[active], s[active], t[active])
-        residual = point[:, across] - target[active]
-        done = np.linalg.norm(residual, axis=1) <= tolerance
-        converged[active[done]] = True
-        keep = ~done
-        active, residual = active[keep], residual[keep]
-        jacobian = np.stack([x_s[keep][:, across], x_t[keep][:, across]], axis=2)
-        regular = np.abs(np.linalg.det(jacobian)) > 1e-300
-        active, residual, jacobian = active[regular], residual[regular], jacobian[regular]
-        step = np.linalg.solve(jacobian, residual[..., None])[..., 0]
-        s[active] -= step[:, 0]
-        t[active] -= step[:, 1]
-        inside = (s[active] > -0.5) & (s[active] < 1.5) & (t[active] > -0.5) & (t[active] < 1.5)
-        active = active[inside]
-    return s, t, converged
-
-
 def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray) -> LineCrossings:
     """Every crossing of the lines parallel to coordinate ``axis`` with the patches ``nets``.
 
@@ -251,7 +227,15 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     box = rect[piece]
     s0, t0 = 0.5 * (box[:, 0] + box[:, 1]), 0.5 * (box[:, 2] + box[:, 3])
     target = np.stack([first[line // len(second)], second[line % len(second)]], axis=1)
-    s, t, converged = _newton(nets[patch[piece]], s0.copy(), t0.copy(), target, across, 1e2 * tolerance)
+    # the line through target along the axis, as a ray from the plane through the origin
+    origins = np.zeros((len(line), 3))
+    origins[:, across] = target
+    directions = np.zeros((len(line), 3))
+    directions[:, axis] = 1.0
+    start_tau = evaluate(nets[patch[piece]], s0, t0)[0][:, axis]
+    s, t, _, converged = _ray_newton(
+        nets[patch[piece]], s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance
+    )
     # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
     # every piece keeps crossings up to a slack beyond its edges, and the merge below counts once
     # what two pieces or two patches found

@@ -117,6 +117,17 @@ class LineCrossings:
 _QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
 
 
+def _within(s: np.ndarray, t: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """Local parameters ``(K,)`` inside their pieces ``box (K, 4)`` up to :data:`EDGE_SLACK` (Newton
+    lands a rounding error outside a piece whose edge holds the solution)."""
+    return (
+        (s >= box[:, 0] - EDGE_SLACK)
+        & (s <= box[:, 1] + EDGE_SLACK)
+        & (t >= box[:, 2] - EDGE_SLACK)
+        & (t <= box[:, 3] + EDGE_SLACK)
+    )
+
+
 def _lines_in_box(lo: np.ndarray, hi: np.ndarray, first: np.ndarray, second: np.ndarray):
     """Index ranges of the sorted line coordinates inside each box ``lo, hi (N, 2)``: ``(N, 2)`` starts and stops."""
     start = np.stack([np.searchsorted(first, lo[:, 0], "left"), np.searchsorted(second, lo[:, 1], "left")], axis=1)
@@ -239,13 +250,7 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
     # every piece keeps crossings up to a slack beyond its edges, and the merge below counts once
     # what two pieces or two patches found
-    own = (
-        converged
-        & (s >= box[:, 0] - EDGE_SLACK)
-        & (s <= box[:, 1] + EDGE_SLACK)
-        & (t >= box[:, 2] - EDGE_SLACK)
-        & (t <= box[:, 3] + EDGE_SLACK)
-    )
+    own = converged & _within(s, t, box)
     piece, line, s, t = piece[own], line[own], np.clip(s[own], 0.0, 1.0), np.clip(t[own], 0.0, 1.0)
     patch_nets = nets[patch[piece]]
     point, x_s, x_t = evaluate(patch_nets, s, t)
@@ -389,15 +394,7 @@ def first_hits(
                 nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance
             )
             box = rect[at]
-            inside = (
-                converged
-                & (s >= box[:, 0] - EDGE_SLACK)
-                & (s <= box[:, 1] + EDGE_SLACK)
-                & (t >= box[:, 2] - EDGE_SLACK)
-                & (t <= box[:, 3] + EDGE_SLACK)
-                & (tau > tau_min[ray[at]])
-                & (tau <= best[ray[at]])
-            )
+            inside = converged & _within(s, t, box) & (tau > tau_min[ray[at]]) & (tau <= best[ray[at]])
             found[at[inside]] = True
             order = np.argsort(-tau[inside])  # the smallest tau written last wins
             rays = ray[at[inside]][order]

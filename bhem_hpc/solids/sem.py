@@ -69,6 +69,10 @@ class SolidOptions:
     error_stiffness: float | None = None
 
 
+#: Entries of the dense rows of the gradient map one chunk of the Hessian's assembly holds (8 bytes each).
+CHUNK_ENTRIES = 4_000_000
+
+
 def _interleave(scalar: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
     """``scalar ⊗ I_3``: the operator on interleaved 3-vectors acting on each component alike."""
     return scipy.sparse.kron(scalar, scipy.sparse.identity(3), format="csr")
@@ -232,17 +236,19 @@ class ShapeMatchingSolid:
         _, _, tangent = self._model(self.deformation_gradients(q), self._mu, self._lam)
         if projected:
             tangent = project_psd(tangent)
-        count = len(tangent)
-        rows = np.repeat(np.arange(9 * count).reshape(count, 9), 9, axis=1)
-        cols = np.tile(np.arange(9 * count).reshape(count, 9), (1, 9))
-        blocks = scipy.sparse.csr_matrix(
-            (
-                (self.quadrature.weights[:, None, None] * tangent).reshape(count, -1).ravel(),
-                (rows.ravel(), cols.ravel()),
-            ),
-            shape=(9 * count, 9 * count),
-        )
-        return (self._gradient_map.T @ blocks @ self._gradient_map + self._error).tocsr()
+        weighted = self.quadrature.weights[:, None, None] * tangent
+        size = self._gradient_map.shape[1]
+        # B^T D B in chunks of points, each chunk's rows of B dense: B holds a good share of its
+        # entries (each point sees every control point of the parts blended there), where a sparse
+        # triple product costs several times more than BLAS on dense rows
+        chunk = max(1, CHUNK_ENTRIES // (9 * size))
+        stiffness = np.zeros((size, size))
+        for first in range(0, len(weighted), chunk):
+            last = min(first + chunk, len(weighted))
+            rows = self._gradient_map[9 * first : 9 * last].toarray().reshape(last - first, 9, size)
+            product = np.einsum("qij,qjn->qin", weighted[first:last], rows)
+            stiffness += rows.reshape(-1, size).T @ product.reshape(-1, size)
+        return (scipy.sparse.csr_matrix(stiffness) + self._error).tocsr()
 
     def mass_matrix(self) -> scipy.sparse.csr_matrix:
         """``(3 n_q, 3 n_q)`` consistent mass [kg]."""

@@ -103,6 +103,9 @@ class ShapeMatchingSolid:
         if len(materials) != len(parts):
             raise SurfaceError(f"{name}: {len(materials)} materials for {len(parts)} parts")
         self.materials = [m.checked(f"{name} material of {p.name}") for m, p in zip(materials, parts, strict=True)]
+        models = sorted({m.model for m in self.materials})
+        if len(models) > 1:
+            raise SurfaceError(f"{name}: the parts' materials must share one energy model, got {models}")
         self.seconds: dict[str, float] = {}
         clock = time.perf_counter()
         self.offsets = np.r_[0, np.cumsum([p.control[..., 0].size for p in parts])]

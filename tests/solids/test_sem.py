@@ -196,3 +196,10 @@ def test_weight_gradients_remove_the_rigid_turns_between_sections(weight_gradien
     free = ~np.isclose(solid.reference[:, 0], 0.0).repeat(3)
     eigenvalues = np.linalg.eigvalsh(solid.hessian(solid.reference).toarray()[free][:, free])
     assert np.count_nonzero(eigenvalues < 1e-9 * eigenvalues.max()) == null_directions
+
+
+def test_materials_of_one_solid_share_an_energy_model():
+    faces = nurbs.box_faces(*BOX)
+    stvk = SolidMaterial(1000.0, 1e6, 0.3, model="stvk")
+    with pytest.raises(SurfaceError, match=r"box: the parts' materials must share one energy model"):
+        ShapeMatchingSolid(faces, [RUBBER] * 5 + [stvk], SolidOptions(lines_per_side=8), name="box")

@@ -74,6 +74,7 @@ docs: setup
 	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc study --docs docs
 	$(VENV)/bin/bhem-hpc bench --docs docs
 	$(VENV)/bin/bhem-hpc paths --docs docs
+	$(VENV)/bin/bhem-hpc solids --docs docs
 	$(VENV)/bin/bhem-hpc summary --docs docs --readme README.md
 
 clean:

@@ -42,6 +42,13 @@ def _add_cloth(sub) -> None:
                        "locking-cotton)")  # fmt: skip
 
 
+def _add_solids(sub) -> None:
+    """``bhem-hpc solids``: the SEM solids page."""
+    solids = sub.add_parser("solids", help="SEM solids: quadrature convergence, cost as parts are added, a cantilever "
+                            "against tetrahedral FEM (serial)")  # fmt: skip
+    solids.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/solids.md, .json, .png")
+
+
 def _add_states(sub) -> None:
     """``bhem-hpc states``: the shipped jobs' final states recorded, or compared with a record."""
     states = sub.add_parser("states", help="record the shipped jobs' final states, or compare with a record")
@@ -92,6 +99,7 @@ def _parser() -> argparse.ArgumentParser:
     paths.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/path-following.md and its PNGs")
     paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
     _add_cloth(sub)
+    _add_solids(sub)
     _add_states(sub)
     _add_intersections(sub)
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
@@ -336,6 +344,15 @@ def _cloth(args: argparse.Namespace, comm) -> None:
         print(f"wrote {page} ({len(cases)} cases, {args.steps} steps each)")
 
 
+def _solids(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.studies.solids_page import write_solids_page
+
+    if comm.size > 1:
+        raise InputError("bhem-hpc solids runs serially (the SEM solids are serial); run it without mpirun")
+    page = write_solids_page(args.docs, f"bhem-hpc solids --docs {args.docs}")
+    print(f"wrote {page}")
+
+
 def _paths(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.path_page import write_path_following
 
@@ -383,6 +400,7 @@ HANDLERS = {
     "summary": _summary,
     "paths": _paths,
     "cloth": _cloth,
+    "solids": _solids,
     "states": _states,
     "intersections": _intersections,
     "cantilever": _cantilever,

@@ -122,7 +122,11 @@ class ShapeMatchingSolid:
         self.origin_of_part = self._origins()
         self.seconds["origins"] = time.perf_counter() - clock
         clock = time.perf_counter()
-        self.matching = shape_matching(samples, options.degree, self.origin_of_part, [p.name for p in parts])
+        touching = (self.blend != 0).astype(float)
+        blended = (touching.T @ touching).tocsr()
+        neighbours = [blended.indices[blended.indptr[i] : blended.indptr[i + 1]] for i in range(len(parts))]
+        names = [p.name for p in parts]
+        self.matching = shape_matching(samples, options.degree, self.origin_of_part, names, neighbours)
         self.seconds["projection"] = time.perf_counter() - clock
         clock = time.perf_counter()
         self._build_operators(samples)

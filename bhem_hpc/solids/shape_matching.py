@@ -137,11 +137,25 @@ def _unseen_directions(basis: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return vectors[:, values <= FIT_RCOND * max(values.max(), 1e-300)]
 
 
+def _group_linear_fit(samples, global_basis, group, origin, translation) -> scipy.sparse.csr_matrix | None:
+    """Rows ``(3, n_q)`` of the linear fit over the samples of the parts ``group`` about ``origin``
+    with the translation row ``translation``; None where those samples lie in one plane."""
+    points = np.concatenate([samples[g].points for g in group]) - origin
+    weights = np.concatenate([samples[g].weights for g in group])
+    linear = monomials(points, 1)
+    if _unseen_directions(linear, weights).shape[1]:
+        return None
+    basis = scipy.sparse.vstack([global_basis[g] for g in group]).tocsr()
+    residual = basis - scipy.sparse.csr_matrix(np.ones((len(points), 1))) @ translation
+    return scipy.sparse.csr_matrix(_fit(linear, weights, "parts", "linear")) @ residual
+
+
 def shape_matching(
     samples: Sequence[PartSamples],
     degree: int,
     origin_of_part: np.ndarray | None = None,
     names: Sequence[str] | None = None,
+    neighbours: Sequence[np.ndarray] | None = None,
 ) -> ShapeMatching:
     """The hierarchical projection ``Pi`` of parts with their boundary samples (eq. 7).
 
@@ -151,6 +165,8 @@ def shape_matching(
         degree: 1 (linear) or 2 (quadratic) shape matching.
         origin_of_part: ``(parts,)`` origin indices ``0 .. origins - 1`` (default: one origin).
         names: the parts' names in errors.
+        neighbours: per part, the parts blended with it somewhere (nonzero weights at one point):
+            a planar part completes its linear map from their samples.
     """
     if degree not in TERMS:
         raise SurfaceError(f"shape-matching degree must be 1 or 2, got {degree!r}")
@@ -179,12 +195,7 @@ def shape_matching(
         translation.append(scipy.sparse.csr_matrix(row))
         origins[j] = sum(samples[i].weights @ samples[i].points for i in members) / sigma
     k = TERMS[degree]
-    whole = PartSamples(
-        scipy.sparse.vstack(global_basis).tocsr(),
-        np.concatenate([s.weights for s in samples]),
-        np.concatenate([s.points for s in samples]),
-        np.concatenate([s.parameters for s in samples]),
-    )
+    every_part = np.arange(count)
     blocks = []
     for i, s in enumerate(samples):
         offset = s.points - origins[origin_of_part[i]]
@@ -195,16 +206,18 @@ def shape_matching(
         unseen = _unseen_directions(linear, s.weights)
         if unseen.shape[1]:
             # a planar part sees no stretch along its normal: that column of its linear map comes
-            # from the fit over every part's samples about the same origin (exact for affine motions)
-            everything = whole.points - origins[origin_of_part[i]]
-            whole_residual = (
-                whole.basis - scipy.sparse.csr_matrix(np.ones((len(everything), 1))) @ translation[origin_of_part[i]]
-            )
-            whole_linear = monomials(everything, 1)
-            if _unseen_directions(whole_linear, whole.weights).shape[1]:
+            # from the fit over the samples of the parts blended with it (all parts if those are
+            # coplanar too) about the same origin; exact for affine motions, and local
+            groups = [np.union1d(neighbours[i], [i])] if neighbours is not None else []
+            for group in [*groups, every_part]:
+                fit = _group_linear_fit(
+                    samples, global_basis, group, origins[origin_of_part[i]], translation[origin_of_part[i]]
+                )
+                if fit is not None:
+                    break
+            else:
                 raise SurfaceError("the parts' samples lie in one plane: they bound no volume")
-            whole_rows = scipy.sparse.csr_matrix(_fit(whole_linear, whole.weights, "model", "linear")) @ whole_residual
-            rows = rows + scipy.sparse.csr_matrix(unseen @ unseen.T) @ whole_rows
+            rows = rows + scipy.sparse.csr_matrix(unseen @ unseen.T) @ fit
         part_rows = [rows]
         if degree == 2:
             quadratic = monomials(offset, 2)[:, 3:]

@@ -15,7 +15,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "bhem_hpc"
 PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py",
                  "solver/linear_strategy.py", "solver/load_steps.py", "solver/acceleration.py",
                  "solver/trust_region.py", "solver/energy_trust_region.py", "solver/form_terms.py",
-                 "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py"}
+                 "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py",
+                 "studies/petsc.py"}
 
 
 @pytest.mark.parametrize(

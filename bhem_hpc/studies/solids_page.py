@@ -17,6 +17,7 @@ from bhem_hpc.geometry import nurbs
 from bhem_hpc.solids.equilibrium import linearly_implicit_step, solve_static
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
+from bhem_hpc.studies.petsc import fem_tip_deflection
 
 #: The cantilever: length, width, height [m]; rubber-like, stiff enough for a moderate sag.
 BEAM = (1.0, 0.2, 0.2)
@@ -81,41 +82,6 @@ def scaling_rows(sections: tuple[int, ...], sparsity: float = 0.3, lines: int = 
     return rows
 
 
-def fem_tip_deflection(cells: int = 40) -> float:
-    """The cantilever's tip sag [m] (z displacement at the end face's centre) with P2 tetrahedra
-    on ``cells x cells/10 x cells/10`` boxes cut in six, the same Neo-Hookean energy, dolfinx."""
-    import ufl
-    from dolfinx import fem, geometry, mesh
-    from dolfinx.fem.petsc import NonlinearProblem
-    from dolfinx.nls.petsc import NewtonSolver
-    from mpi4py import MPI
-    from petsc4py import PETSc
-
-    length, width, height = BEAM
-    comm = MPI.COMM_SELF
-    across = max(2, cells // 10)
-    domain = mesh.create_box(comm, [np.zeros(3), np.array(BEAM)], [cells, across, across], mesh.CellType.tetrahedron)
-    space = fem.VectorFunctionSpace(domain, ("Lagrange", 2))
-    u = fem.Function(space)
-    facets = mesh.locate_entities_boundary(domain, 2, lambda x: np.isclose(x[0], 0.0))
-    bc = fem.dirichletbc(np.zeros(3, dtype=PETSc.ScalarType), fem.locate_dofs_topological(space, 2, facets), space)
-    young, poisson = BEAM_MATERIAL.young, BEAM_MATERIAL.poisson
-    mu, lam = young / (2 * (1 + poisson)), young * poisson / ((1 + poisson) * (1 - 2 * poisson))
-    f = ufl.Identity(3) + ufl.grad(u)
-    log_j = ufl.ln(ufl.det(f))
-    psi = mu / 2 * (ufl.tr(f.T * f) - 3) - mu * log_j + lam / 2 * log_j**2
-    weight = fem.Constant(domain, PETSc.ScalarType(tuple(BEAM_MATERIAL.density * GRAVITY)))
-    dx = ufl.dx(metadata={"quadrature_degree": 4})  # P2 displacements: the energy needs degree 4
-    residual = ufl.derivative(psi * dx - ufl.dot(weight, u) * dx, u, ufl.TestFunction(space))
-    solver = NewtonSolver(comm, NonlinearProblem(residual, u, [bc]))
-    solver.convergence_criterion, solver.rtol, solver.atol = "incremental", 1e-10, 1e-12
-    solver.solve(u)
-    point = np.array([[length, width / 2, height / 2]])
-    tree = geometry.BoundingBoxTree(domain, 3)
-    cell = geometry.compute_colliding_cells(domain, geometry.compute_collisions(tree, point), point).links(0)[0]
-    return float(u.eval(point, [cell])[2])
-
-
 def cantilever_rows(sections: tuple[int, ...], sparsity: float = 0.3, lines: int = 40) -> list[dict]:
     """SEM tip sag (the end part's centre) against sections."""
     rows = []
@@ -161,7 +127,7 @@ def write_solids_page(
     quadrature = quadrature_rows()
     scaling = scaling_rows(tuple(scaling_sections))
     cantilever = cantilever_rows(tuple(cantilever_sections))
-    reference = fem_tip_deflection()
+    reference = fem_tip_deflection(BEAM, BEAM_MATERIAL, GRAVITY)
     record = {"quadrature": quadrature, "scaling": scaling, "cantilever": cantilever, "fem_sag": reference}
     (docs / "solids.json").write_text(json.dumps(record, indent=1))
     _plot(docs / "solids.png", scaling, cantilever, reference)

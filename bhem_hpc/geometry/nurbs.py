@@ -97,13 +97,17 @@ class KnotDirection:
         a, b = starts[s], self.knots[self.spans[s] + 1]
         return s, np.clip((x - a) / (b - a), 0.0, 1.0)
 
-    def basis(self, x: np.ndarray, derivative: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """First control index ``(S,)`` and the ``p + 1`` nonzero basis functions (or their
-        ``derivative`` in ``x``) ``S + (p + 1,)`` at parameters ``x (S,)``."""
+    def basis(self, x: np.ndarray, order: int = 0) -> tuple[np.ndarray, list[np.ndarray]]:
+        """First control index ``(S,)`` and the ``p + 1`` nonzero basis functions and their
+        derivatives in ``x`` up to ``order``, ``order + 1`` arrays ``S + (p + 1,)``, at ``x (S,)``."""
         s, t = self.locate(x)
         width = self.knots[self.spans[s] + 1] - self.knots[self.spans[s]]
-        values = np.einsum("...ab,...b->...a", self.extraction[s], bernstein(t, self.degree, derivative))
-        return self.spans[s] - self.degree, values / width[..., None] ** derivative
+        extraction = self.extraction[s]
+        values = [
+            np.einsum("...ab,...b->...a", extraction, bernstein(t, self.degree, k)) / width[..., None] ** k
+            for k in range(order + 1)
+        ]
+        return self.spans[s] - self.degree, values
 
 
 @dataclass(frozen=True)
@@ -117,15 +121,6 @@ class RationalBezierPatches:
 
     nets: np.ndarray
     boxes: np.ndarray
-
-    @property
-    def degrees(self) -> tuple[int, int]:
-        return self.nets.shape[1] - 1, self.nets.shape[2] - 1
-
-    @property
-    def control_points(self) -> np.ndarray:
-        """Cartesian control points ``(P, p + 1, q + 1, 3)`` (their hull contains each patch: w > 0)."""
-        return self.nets[..., :3] / self.nets[..., 3:]
 
 
 class NurbsSurface:
@@ -177,10 +172,8 @@ class NurbsSurface:
 
     def _homogeneous_derivatives(self, u: np.ndarray, v: np.ndarray, order: int) -> dict[tuple[int, int], np.ndarray]:
         """``{(a, b): d^(a+b) A / du^a dv^b}`` ``(S, 4)`` of the homogeneous map for ``a + b <= order``."""
-        first_u, _ = self.u.basis(u)
-        first_v, _ = self.v.basis(v)
-        basis_u = [self.u.basis(u, k)[1] for k in range(order + 1)]
-        basis_v = [self.v.basis(v, k)[1] for k in range(order + 1)]
+        first_u, basis_u = self.u.basis(u, order)
+        first_v, basis_v = self.v.basis(v, order)
         rows = first_u[:, None] + np.arange(self.u.degree + 1)
         cols = first_v[:, None] + np.arange(self.v.degree + 1)
         local = self.homogeneous[rows[:, :, None], cols[:, None, :]]  # (S, p + 1, q + 1, 4)
@@ -222,8 +215,7 @@ class NurbsSurface:
         """The rational basis ``phi_ij`` at ``u, v (S,)``: control indices ``(S, (p+1)(q+1))`` into
         the flattened ``(n * m)`` control points and their values (rows sum to 1): ``x = phi q``."""
         u, v = np.atleast_1d(np.asarray(u, dtype=float)), np.atleast_1d(np.asarray(v, dtype=float))
-        first_u, basis_u = self.u.basis(u)
-        first_v, basis_v = self.v.basis(v)
+        (first_u, (basis_u,)), (first_v, (basis_v,)) = self.u.basis(u), self.v.basis(v)
         rows = first_u[:, None] + np.arange(self.u.degree + 1)
         cols = first_v[:, None] + np.arange(self.v.degree + 1)
         weighted = basis_u[:, :, None] * basis_v[:, None, :] * self.weights[rows[:, :, None], cols[:, None, :]]
@@ -243,20 +235,6 @@ class NurbsSurface:
                 nets.append(np.einsum("ia,jb,ijc->abc", self.u.extraction[a], self.v.extraction[b], local))
                 boxes.append((self.u.knots[ku], self.u.knots[ku + 1], self.v.knots[kv], self.v.knots[kv + 1]))
         return RationalBezierPatches(np.array(nets), np.array(boxes, dtype=float))
-
-    def tessellate(self, density: int = 8) -> tuple[np.ndarray, np.ndarray]:
-        """Vertices ``(V, 3)`` and triangles ``(T, 3)`` from ``density`` cells per Bezier patch side
-        (vertices are not shared between patches)."""
-        grid = np.linspace(0.0, 1.0, density + 1)
-        vertices, triangles = [], []
-        for u0, u1, v0, v1 in self.bezier_patches.boxes:
-            uu, vv = np.meshgrid(u0 + grid * (u1 - u0), v0 + grid * (v1 - v0), indexing="ij")
-            offset = sum(len(x) for x in vertices)
-            vertices.append(self.evaluate(uu.ravel(), vv.ravel())[0])
-            corner = (np.arange(density)[:, None] * (density + 1) + np.arange(density)[None, :]).ravel() + offset
-            triangles.append(np.stack([corner, corner + density + 1, corner + density + 2], axis=1))
-            triangles.append(np.stack([corner, corner + density + 2, corner + 1], axis=1))
-        return np.concatenate(vertices), np.concatenate(triangles)
 
 
 # ---- exact shapes ----------------------------------------------------------------------------

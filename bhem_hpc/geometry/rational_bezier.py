@@ -157,6 +157,21 @@ def _axis_normal_signs(nets: np.ndarray, rects: np.ndarray, axis: int) -> tuple[
     return component.min(axis=1), component.max(axis=1)
 
 
+def _split_rects(rect: np.ndarray) -> np.ndarray:
+    """The four quarters ``(4 N, 4)`` of rectangles ``(N, 4)``, each parent's four in a row."""
+    width = np.repeat(np.stack([rect[:, 1] - rect[:, 0], rect[:, 3] - rect[:, 2]], axis=1), 4, axis=0)
+    parent, quarters = np.repeat(rect, 4, axis=0), np.tile(_QUARTERS, (len(rect), 1))
+    return np.stack(
+        [
+            parent[:, 0] + quarters[:, 0] * width[:, 0],
+            parent[:, 0] + quarters[:, 1] * width[:, 0],
+            parent[:, 2] + quarters[:, 2] * width[:, 1],
+            parent[:, 2] + quarters[:, 3] * width[:, 1],
+        ],
+        axis=1,
+    )
+
+
 def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
     """Pieces ``(patch (M,), rect (M, 4))`` with lines in their boxes, each small and unfolded (or at
     :data:`MAX_LEVEL`); pieces whose projection has no area (a face along the axis) are dropped."""
@@ -179,20 +194,7 @@ def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: 
         kept_patch.append(patch[done])
         kept_rect.append(rect[done])
         split = holds_lines & ~flat & ~done
-        parent = rect[split]
-        width = np.stack([parent[:, 1] - parent[:, 0], parent[:, 3] - parent[:, 2]], axis=1)
-        patch = np.repeat(patch[split], 4)
-        quarters = np.tile(_QUARTERS, (len(parent), 1))
-        parent, width = np.repeat(parent, 4, axis=0), np.repeat(width, 4, axis=0)
-        rect = np.stack(
-            [
-                parent[:, 0] + quarters[:, 0] * width[:, 0],
-                parent[:, 0] + quarters[:, 1] * width[:, 0],
-                parent[:, 2] + quarters[:, 2] * width[:, 1],
-                parent[:, 2] + quarters[:, 3] * width[:, 1],
-            ],
-            axis=1,
-        )
+        patch, rect = np.repeat(patch[split], 4), _split_rects(rect[split])
     return np.concatenate(kept_patch), np.concatenate(kept_rect)
 
 
@@ -323,21 +325,6 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
         inside = (s[active] > -0.5) & (s[active] < 1.5) & (t[active] > -0.5) & (t[active] < 1.5)
         active = active[inside]
     return s, t, tau, converged
-
-
-def _split_rects(rect: np.ndarray) -> np.ndarray:
-    """The four quarters ``(4 N, 4)`` of rectangles ``(N, 4)``, each parent's four in a row."""
-    width = np.repeat(np.stack([rect[:, 1] - rect[:, 0], rect[:, 3] - rect[:, 2]], axis=1), 4, axis=0)
-    parent, quarters = np.repeat(rect, 4, axis=0), np.tile(_QUARTERS, (len(rect), 1))
-    return np.stack(
-        [
-            parent[:, 0] + quarters[:, 0] * width[:, 0],
-            parent[:, 0] + quarters[:, 1] * width[:, 0],
-            parent[:, 2] + quarters[:, 2] * width[:, 1],
-            parent[:, 2] + quarters[:, 3] * width[:, 1],
-        ],
-        axis=1,
-    )
 
 
 def first_hits(

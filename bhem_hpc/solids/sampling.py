@@ -35,17 +35,11 @@ def gauss_lobatto(count: int) -> tuple[np.ndarray, np.ndarray]:
 class PartSamples:
     """Samples of one part: ``basis`` the sparse ``(s, n * m)`` rational basis ``J`` over the part's
     flattened control points, ``weights (s,)`` the diagonal of ``S``, ``points (s, 3)`` the
-    reference points ``J q0``, ``parameters (s, 2)`` their ``(u, v)``."""
+    reference points ``J q0``."""
 
     basis: scipy.sparse.csr_matrix
     weights: np.ndarray
     points: np.ndarray
-    parameters: np.ndarray
-
-    @property
-    def centroid(self) -> np.ndarray:
-        """``(3,)``: the samples' weighted mean."""
-        return self.weights @ self.points / self.weights.sum()
 
 
 def sample_part(part: NurbsSurface, order: int | None = None) -> PartSamples:
@@ -68,8 +62,21 @@ def sample_part(part: NurbsSurface, order: int | None = None) -> PartSamples:
     index, values = part.basis_matrix(u, v)
     rows = np.repeat(np.arange(len(u)), index.shape[1])
     basis = scipy.sparse.csr_matrix((values.ravel(), (rows, index.ravel())), shape=(len(u), part.control[..., 0].size))
-    return PartSamples(basis, w, basis @ part.control.reshape(-1, 3), np.stack([u, v], axis=1))
+    return PartSamples(basis, w, basis @ part.control.reshape(-1, 3))
 
 
 def sample_parts(parts: Sequence[NurbsSurface], order: int | None = None) -> list[PartSamples]:
     return [sample_part(part, order) for part in parts]
+
+
+def stacked_bases(samples: Sequence[PartSamples]) -> list[scipy.sparse.csr_matrix]:
+    """Each part's ``J`` over the control points of all parts stacked in order: ``(s_i, n_q)``."""
+    offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
+    total = int(offsets[-1])
+    return [
+        scipy.sparse.hstack(
+            [scipy.sparse.csr_matrix((s.basis.shape[0], int(offsets[i]))), s.basis,
+             scipy.sparse.csr_matrix((s.basis.shape[0], total - int(offsets[i + 1])))]
+        ).tocsr()
+        for i, s in enumerate(samples)
+    ]  # fmt: skip

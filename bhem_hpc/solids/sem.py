@@ -25,7 +25,7 @@ from bhem_hpc.solids.blending import RayDistances, ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
 from bhem_hpc.solids.origins import deformation_origins
 from bhem_hpc.solids.quadrature import model_bounds, ray_cast_quadrature
-from bhem_hpc.solids.sampling import sample_parts
+from bhem_hpc.solids.sampling import sample_parts, stacked_bases
 from bhem_hpc.solids.shape_matching import shape_matching
 
 
@@ -197,19 +197,12 @@ class ShapeMatchingSolid:
         gamma = self.options.error_stiffness
         gamma = max(m.young for m in self.materials) if gamma is None else gamma
         rows = []
-        for i, s in enumerate(samples):
+        for i, (s, part_basis) in enumerate(zip(samples, stacked_bases(samples), strict=True)):
             own = scipy.sparse.csr_matrix(
                 (np.ones(len(s.points)), (np.arange(len(s.points)), np.full(len(s.points), i))),
                 shape=(len(s.points), len(self.parts)),
             )
             boundary_phi, _ = matching.kinematic_maps(s.points, own)
-            part_basis = scipy.sparse.hstack(
-                [
-                    scipy.sparse.csr_matrix((len(s.points), int(self.offsets[i]))),
-                    s.basis,
-                    scipy.sparse.csr_matrix((len(s.points), int(self.offsets[-1] - self.offsets[i + 1]))),
-                ]
-            )
             difference = boundary_phi @ projection - part_basis
             rows.append(difference.T @ scipy.sparse.diags(s.weights) @ difference)
         self.error_scalar = (gamma * sum(rows)).tocsr()

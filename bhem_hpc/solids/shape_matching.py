@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse
 
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.sampling import PartSamples
+from bhem_hpc.solids.sampling import PartSamples, stacked_bases
 
 #: Monomials per degree: degree 1 -> 3, degree 2 -> 9.
 TERMS = {1: 3, 2: 9}
@@ -174,15 +174,7 @@ def shape_matching(
     names = list(names or [f"part {i}" for i in range(count)])
     origin_of_part = np.zeros(count, dtype=int) if origin_of_part is None else np.asarray(origin_of_part, dtype=int)
     origins_count = int(origin_of_part.max()) + 1
-    offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
-    total = int(offsets[-1])
-    global_basis = [
-        scipy.sparse.hstack(
-            [scipy.sparse.csr_matrix((s.basis.shape[0], int(offsets[i]))), s.basis,
-             scipy.sparse.csr_matrix((s.basis.shape[0], total - int(offsets[i + 1])))]
-        ).tocsr()
-        for i, s in enumerate(samples)
-    ]  # fmt: skip
+    global_basis = stacked_bases(samples)
     # the translation of each origin: the weighted centroid of its parts' samples
     origins = np.zeros((origins_count, 3))
     translation = []

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import re
 import sys
@@ -198,7 +199,10 @@ class SurfaceTimeSeries:
         count = len(frames) if frames is not None else 0
         tolerance = 1e-9 * max(abs(until), 1e-300)
         for k in range(count):
-            t = float(frames[str(k)].attrs["time"])
+            try:
+                t = float(frames[str(k)].attrs["time"])
+            except (KeyError, OSError):  # torn by a kill during its write: after the checkpoint
+                t = math.inf
             if t > until + tolerance or len(self.times) < k:
                 del frames[str(k)]  # written after the checkpoint (or after a gap): not part of this run
             else:

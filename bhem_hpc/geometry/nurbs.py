@@ -281,35 +281,47 @@ def torus(major_radius: float, minor_radius: float) -> NurbsSurface:
     return revolve(profile, weights, _CIRCLE_KNOTS, 2, "torus")
 
 
-def beam_faces(lo, hi, sections: int) -> list[NurbsSurface]:
-    """An axis-aligned box cut into ``sections`` along x: its four long sides as ``sections``
-    bilinear parts each, and its two ends (``4 sections + 2`` parts, unconnected, outward normals)."""
+def beam_faces(lo, hi, sections: int, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[NurbsSurface]:
+    """An axis-aligned box cut into ``sections`` along x: its four long sides as ``sections`` parts
+    each, and its two ends (``4 sections + 2`` parts, unconnected, outward normals), each part of
+    ``degree`` with ``spans`` knot spans as :func:`box_faces` (the sides' first direction runs along
+    the cut when the face's first parameter does)."""
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
     cuts = np.linspace(lo[0], hi[0], sections + 1)
     parts = []
     for k in range(sections):
-        piece = box_faces([cuts[k], lo[1], lo[2]], [cuts[k + 1], hi[1], hi[2]])
+        piece = box_faces([cuts[k], lo[1], lo[2]], [cuts[k + 1], hi[1], hi[2]], degree, spans)
         parts += [face.with_name(f"{face.name} section {k}") for face in piece[2:]]  # the four sides
-    whole = box_faces(lo, hi)
+    whole = box_faces(lo, hi, degree, spans)
     return parts + whole[:2]
 
 
-def box_faces(lo, hi) -> list[NurbsSurface]:
-    """The six faces of an axis-aligned box as bilinear NURBS parts (-x, +x, -y, +y, -z, +z),
-    normals ``x_u x x_v`` outward."""
+def _flat_knots(degree: int, spans: int) -> tuple[np.ndarray, np.ndarray]:
+    """A clamped uniform knot vector on [0, 1] and its Greville abscissae (control points there
+    make the parametrization linear)."""
+    knots = np.r_[np.zeros(degree), np.linspace(0.0, 1.0, spans + 1), np.ones(degree)]
+    count = spans + degree
+    greville = np.array([knots[i + 1 : i + degree + 1].mean() for i in range(count)])
+    return knots, greville
+
+
+def box_faces(lo, hi, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[NurbsSurface]:
+    """The six faces of an axis-aligned box as flat NURBS parts (-x, +x, -y, +y, -z, +z), normals
+    ``x_u x x_v`` outward: of ``degree`` in both directions with ``spans`` uniform knot spans, the
+    control points on the Greville abscissae (bilinear with four control points by default)."""
     lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    (knots_u, greville_u), (knots_v, greville_v) = (_flat_knots(degree, n) for n in spans)
     faces = []
-    knots = np.array([0.0, 0.0, 1.0, 1.0])
     for axis in range(3):
         a, b = (axis + 1) % 3, (axis + 2) % 3
         for side, level in ((-1, lo[axis]), (1, hi[axis])):
             first, second = (a, b) if side > 0 else (b, a)  # right-handed (first, second, outward)
-            control = np.empty((2, 2, 3))
+            control = np.empty((len(greville_u), len(greville_v), 3))
             control[..., axis] = level
-            for i, x in enumerate((lo[first], hi[first])):
-                for j, y in enumerate((lo[second], hi[second])):
-                    control[i, j, first], control[i, j, second] = x, y
-            faces.append(NurbsSurface((1, 1), knots, knots, control, name=f"box face {'-+'[side > 0]}{'xyz'[axis]}"))
+            control[..., first] = (lo[first] + greville_u * (hi[first] - lo[first]))[:, None]
+            control[..., second] = (lo[second] + greville_v * (hi[second] - lo[second]))[None, :]
+            faces.append(NurbsSurface((degree, degree), knots_u, knots_v, control,
+                                      name=f"box face {'-+'[side > 0]}{'xyz'[axis]}"))  # fmt: skip
     return faces
 
 

@@ -2,6 +2,6 @@
 
 Numpy and scipy only: the ray-cast volume quadrature (:mod:`.quadrature`), boundary samples
 (:mod:`.sampling`), ray-cast blending weights (:mod:`.blending`), deformation origins by network
-flow (:mod:`.origins`), hierarchical shape matching (:mod:`.shape_matching`), hyperelastic
+flow (:mod:`.origins`), shape matching (:mod:`.shape_matching`), hyperelastic
 densities (:mod:`.elasticity`) and the solid that joins them (:mod:`.sem`).
 """

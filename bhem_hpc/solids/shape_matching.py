@@ -1,5 +1,4 @@
-"""Hierarchical shape matching (SEM paper §5-§6, eq. 7) and the blended kinematic map, numpy and
-scipy only.
+"""Shape matching (SEM paper §5-§6, eq. 7) and the blended kinematic map, numpy and scipy only.
 
 Every part ``i`` has a deformation origin ``Xbar_j`` (``j = origin[i]``, shared by several parts)
 and a polynomial deformation ``x(X) = sum_a p_a(X - Xbar_j) C_i[a] + t_j`` of the monomials
@@ -7,9 +6,10 @@ and a polynomial deformation ``x(X) = sum_a p_a(X - Xbar_j) C_i[a] + t_j`` of th
 coefficients are one array ``(n_c, 3)``: each part's ``k`` rows in part order, then one
 translation row per origin. They are a linear map of the stacked control points ``q (n_q, 3)``:
 ``C = Pi @ q`` with the sparse scalar projection ``Pi (n_c, n_q)`` (it acts on each coordinate
-alike). The translation ``t_j`` is the weighted centroid of the samples of the origin's parts; the
-linear and then the quadratic rows are least-squares fits of what is left on the part's own
-samples, lower orders first.
+alike). The translation ``t_j`` is the constant of the polynomial fitted over the samples of the
+origin's parts; each part's rows are the least-squares fit of what is left on its own samples,
+all orders at once, completed from its neighbours where its samples cannot see a term (see
+:func:`shape_matching`), so that every polynomial motion of the degree is reproduced exactly.
 
 The blended map at volume points ``X (Q, 3)`` with blending weights ``W (Q, parts)`` is
 ``x(X) = Phi(X) @ C`` and its deformation gradient ``F[:, :, d] = G_d(X) @ C`` (weights held
@@ -120,34 +120,44 @@ class ShapeMatching:
         return phi, grad
 
 
-def _fit(basis: np.ndarray, weights: np.ndarray, name: str, order: str) -> np.ndarray:
-    """``(P^T S P)^+ P^T S``: the weighted least-squares fit ``(k, s)`` on ``basis (s, k)``."""
-    if len(basis) < basis.shape[1]:
-        raise SurfaceError(
-            f"{name}: {len(basis)} boundary samples cannot fit the {basis.shape[1]} {order} shape-matching terms; "
-            "raise the sampling order"
-        )
+def _fit(basis: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``(P^T S P)^+ P^T S``: the weighted least-squares fit ``(k, s)`` on ``basis (s, k)`` (minimum
+    norm along the directions the samples cannot determine)."""
     normal = basis.T @ (weights[:, None] * basis)
     return np.linalg.pinv(normal, rcond=FIT_RCOND, hermitian=True) @ (basis.T * weights)
 
 
 def _unseen_directions(basis: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Orthonormal directions ``(3, r)`` the linear fit on ``basis (s, 3)`` cannot determine."""
+    """Orthonormal coefficient directions ``(k, r)`` the fit on ``basis (s, k)`` cannot determine."""
     values, vectors = np.linalg.eigh(basis.T @ (weights[:, None] * basis))
     return vectors[:, values <= FIT_RCOND * max(values.max(), 1e-300)]
 
 
-def _group_linear_fit(samples, global_basis, group, origin, translation) -> scipy.sparse.csr_matrix | None:
-    """Rows ``(3, n_q)`` of the linear fit over the samples of the parts ``group`` about ``origin``
-    with the translation row ``translation``; None where those samples lie in one plane."""
+def _group_fit(samples, global_basis, group, origin, translation, degree):
+    """The least-squares rows ``(k, n_q)`` of the monomials about ``origin`` on the samples of the
+    parts ``group``, fitted to ``J q - t`` (``translation``: the row ``(1, n_q)`` of ``t``), and the
+    coefficient directions ``(k, r)`` those samples cannot determine (they get 0)."""
     points = np.concatenate([samples[g].points for g in group]) - origin
     weights = np.concatenate([samples[g].weights for g in group])
-    linear = monomials(points, 1)
-    if _unseen_directions(linear, weights).shape[1]:
-        return None
-    basis = scipy.sparse.vstack([global_basis[g] for g in group]).tocsr()
-    residual = basis - scipy.sparse.csr_matrix(np.ones((len(points), 1))) @ translation
-    return scipy.sparse.csr_matrix(_fit(linear, weights, "parts", "linear")) @ residual
+    basis = monomials(points, degree)
+    data = scipy.sparse.vstack([global_basis[g] for g in group]).tocsr()
+    data = data - scipy.sparse.csr_matrix(np.ones((len(points), 1))) @ translation
+    return scipy.sparse.csr_matrix(_fit(basis, weights)) @ data, _unseen_directions(basis, weights)
+
+
+def _translation(samples, global_basis, members, origin, degree) -> scipy.sparse.csr_matrix:
+    """The row ``(1, n_q)`` of an origin's translation: the constant of the polynomial fitted with it
+    over its parts' samples, so that every polynomial motion of the parts' degree is reproduced
+    exactly; where those samples cannot separate the constant from the other terms (a sphere's
+    ``X^2 + Y^2 + Z^2``), the weighted centroid of the samples (the paper's)."""
+    points = np.concatenate([samples[i].points for i in members]) - origin
+    weights = np.concatenate([samples[i].weights for i in members])
+    data = scipy.sparse.vstack([global_basis[i] for i in members]).tocsr()
+    basis = np.hstack([np.ones((len(points), 1)), monomials(points, degree)])
+    unseen = _unseen_directions(basis, weights)
+    if unseen.shape[1] and np.abs(unseen[0]).max() > 1e-8:
+        return scipy.sparse.csr_matrix(weights / weights.sum()) @ data
+    return scipy.sparse.csr_matrix(_fit(basis, weights)[:1]) @ data
 
 
 def shape_matching(
@@ -157,7 +167,16 @@ def shape_matching(
     names: Sequence[str] | None = None,
     neighbours: Sequence[np.ndarray] | None = None,
 ) -> ShapeMatching:
-    """The hierarchical projection ``Pi`` of parts with their boundary samples (eq. 7).
+    """The projection ``Pi`` of parts with their boundary samples (eq. 7, fitted jointly).
+
+    Each origin's translation is the constant of the polynomial fitted over its parts' samples; each
+    part's coefficients (linear and quadratic together) are the least-squares fit of what is left on
+    its own samples. Coefficients that a part's samples cannot determine (a planar part sees no
+    variation along its normal: ``Z``, ``XZ``, ``YZ``, ``ZZ`` of a part in ``Z = 0``) come from the fit
+    over the samples of the parts blended with it (all parts where those cannot determine them
+    either). So every polynomial motion of the degree is reproduced exactly by every part, which the
+    paper's hierarchical fit (lower orders first, each order on the part alone) does not do for
+    planar parts: their quadratic terms along the normal vanish, and a bent beam locks in shear.
 
     Args:
         samples: per part, its samples over its own control points; the stacked control points
@@ -165,8 +184,7 @@ def shape_matching(
         degree: 1 (linear) or 2 (quadratic) shape matching.
         origin_of_part: ``(parts,)`` origin indices ``0 .. origins - 1`` (default: one origin).
         names: the parts' names in errors.
-        neighbours: per part, the parts blended with it somewhere (nonzero weights at one point):
-            a planar part completes its linear map from their samples.
+        neighbours: per part, the parts blended with it somewhere (nonzero weights at one point).
     """
     if degree not in TERMS:
         raise SurfaceError(f"shape-matching degree must be 1 or 2, got {degree!r}")
@@ -175,7 +193,6 @@ def shape_matching(
     origin_of_part = np.zeros(count, dtype=int) if origin_of_part is None else np.asarray(origin_of_part, dtype=int)
     origins_count = int(origin_of_part.max()) + 1
     global_basis = stacked_bases(samples)
-    # the translation of each origin: the weighted centroid of its parts' samples
     origins = np.zeros((origins_count, 3))
     translation = []
     for j in range(origins_count):
@@ -183,39 +200,28 @@ def shape_matching(
         if not len(members):
             raise SurfaceError(f"deformation origin {j} has no part")
         sigma = sum(samples[i].weights.sum() for i in members)
-        row = sum(scipy.sparse.csr_matrix(samples[i].weights / sigma) @ global_basis[i] for i in members)
-        translation.append(scipy.sparse.csr_matrix(row))
         origins[j] = sum(samples[i].weights @ samples[i].points for i in members) / sigma
-    k = TERMS[degree]
+        translation.append(_translation(samples, global_basis, members, origins[j], degree))
     every_part = np.arange(count)
     blocks = []
     for i, s in enumerate(samples):
-        offset = s.points - origins[origin_of_part[i]]
-        ones = scipy.sparse.csr_matrix(np.ones((len(offset), 1)))
-        residual = global_basis[i] - ones @ translation[origin_of_part[i]]  # (s, n_q): J q - 1 t
-        linear = monomials(offset, 1)
-        rows = scipy.sparse.csr_matrix(_fit(linear, s.weights, names[i], "linear")) @ residual
-        unseen = _unseen_directions(linear, s.weights)
+        if len(s.points) < TERMS[degree]:
+            raise SurfaceError(
+                f"{names[i]}: {len(s.points)} boundary samples cannot fit the {TERMS[degree]} shape-matching "
+                "terms; raise the sampling order"
+            )
+        origin, shift = origins[origin_of_part[i]], translation[origin_of_part[i]]
+        rows, unseen = _group_fit(samples, global_basis, [i], origin, shift, degree)
         if unseen.shape[1]:
-            # a planar part sees no stretch along its normal: that column of its linear map comes
-            # from the fit over the samples of the parts blended with it (all parts if those are
-            # coplanar too) about the same origin; exact for affine motions, and local
             groups = [np.union1d(neighbours[i], [i])] if neighbours is not None else []
             for group in [*groups, every_part]:
-                fit = _group_linear_fit(
-                    samples, global_basis, group, origins[origin_of_part[i]], translation[origin_of_part[i]]
-                )
-                if fit is not None:
+                completion, still_unseen = _group_fit(samples, global_basis, group, origin, shift, degree)
+                if not still_unseen.shape[1]:
                     break
             else:
-                raise SurfaceError("the parts' samples lie in one plane: they bound no volume")
-            rows = rows + scipy.sparse.csr_matrix(unseen @ unseen.T) @ fit
-        part_rows = [rows]
-        if degree == 2:
-            quadratic = monomials(offset, 2)[:, 3:]
-            left = residual - scipy.sparse.csr_matrix(linear) @ rows
-            part_rows.append(scipy.sparse.csr_matrix(_fit(quadratic, s.weights, names[i], "quadratic")) @ left)
-        blocks.append(scipy.sparse.vstack(part_rows))
+                raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
+            rows = rows + scipy.sparse.csr_matrix(unseen @ unseen.T) @ completion
+        blocks.append(rows)
     projection = scipy.sparse.vstack(blocks + translation).tocsr()
     projection.eliminate_zeros()
-    return ShapeMatching(projection, degree, origin_of_part, origins, np.arange(count) * k)
+    return ShapeMatching(projection, degree, origin_of_part, origins, np.arange(count) * TERMS[degree])

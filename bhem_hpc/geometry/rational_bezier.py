@@ -25,6 +25,9 @@ import numpy as np
 
 #: Newton iterations for one crossing (quadratic convergence from the centre of a small piece).
 NEWTON_ITERATIONS = 30
+#: Below this cosine between a ray and a piece's normal where Newton starts, the ray grazes the
+#: piece (lies in its plane, for a flat one) and the piece is not searched further.
+GRAZING_COSINE = 1e-9
 #: Splitting levels of a patch (4^level pieces at most): bounds the search.
 MAX_LEVEL = 14
 #: Largest side, in a patch's local parameters, of a piece Newton starts from.
@@ -246,7 +249,7 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     directions = np.zeros((len(line), 3))
     directions[:, axis] = 1.0
     start_tau = evaluate(nets[patch[piece]], s0, t0)[0][:, axis]
-    s, t, _, converged = _ray_newton(
+    s, t, _, converged, _ = _ray_newton(
         nets[patch[piece]], s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance
     )
     # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
@@ -303,10 +306,12 @@ def _ray_frames(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
-    """Solve ``x(s, t) = origin + tau direction`` from ``(s, t, tau) (K,)``: solution and success."""
-    converged = np.zeros(len(s), dtype=bool)
+    """Solve ``x(s, t) = origin + tau direction`` from ``(s, t, tau) (K,)``: the solution, its
+    success, and whether the ray grazes the surface where Newton starts (the cosine between the
+    ray and the surface normal below :data:`GRAZING_COSINE`: a ray in the plane of a flat piece)."""
+    converged, grazing = np.zeros(len(s), dtype=bool), np.zeros(len(s), dtype=bool)
     active = np.arange(len(s))
-    for _ in range(NEWTON_ITERATIONS):
+    for iteration in range(NEWTON_ITERATIONS):
         if not len(active):
             break
         point, x_s, x_t = evaluate(nets[active], s[active], t[active])
@@ -316,7 +321,11 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
         keep = ~done
         active, residual = active[keep], residual[keep]
         jacobian = np.stack([x_s[keep], x_t[keep], -directions[active]], axis=2)
-        regular = np.abs(np.linalg.det(jacobian)) > 1e-300
+        determinant = np.abs(np.linalg.det(jacobian))
+        if iteration == 0:  # |det| = |(x_s x x_t) . d|, d of unit length
+            area = np.linalg.norm(np.cross(x_s[keep], x_t[keep]), axis=1)
+            grazing[active] = determinant <= GRAZING_COSINE * area
+        regular = determinant > 1e-300
         active, residual, jacobian = active[regular], residual[regular], jacobian[regular]
         step = np.linalg.solve(jacobian, residual[..., None])[..., 0]
         s[active] -= step[:, 0]
@@ -324,7 +333,7 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
         tau[active] -= step[:, 2]
         inside = (s[active] > -0.5) & (s[active] < 1.5) & (t[active] > -0.5) & (t[active] < 1.5)
         active = active[inside]
-    return s, t, tau, converged
+    return s, t, tau, converged, grazing
 
 
 def first_hits(
@@ -371,24 +380,27 @@ def first_hits(
         )
         ray, patch, rect = ray[cut], patch[cut], rect[cut]
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
-        found = np.zeros(len(ray), dtype=bool)
+        settled = np.zeros(len(ray), dtype=bool)
         if small.any():
             at = np.flatnonzero(small)
             s, t = 0.5 * (rect[at, 0] + rect[at, 1]), 0.5 * (rect[at, 2] + rect[at, 3])
             centre = evaluate(nets[patch[at]], s, t)[0]
             tau = np.einsum("kc,kc->k", centre - origins[ray[at]], directions[ray[at]])
-            s, t, tau, converged = _ray_newton(
+            s, t, tau, converged, grazing = _ray_newton(
                 nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance
             )
             box = rect[at]
             inside = converged & _within(s, t, box) & (tau > tau_min[ray[at]]) & (tau <= best[ray[at]])
-            found[at[inside]] = True
+            settled[at[inside]] = True
+            # a ray in the plane of a flat piece meets it nowhere transversally: splitting such a
+            # piece would follow the ray through ever more pieces (twice as many per level)
+            settled[at[grazing]] = True
             order = np.argsort(-tau[inside])  # the smallest tau written last wins
             rays = ray[at[inside]][order]
             best[rays] = tau[inside][order]
             hit_patch[rays] = patch[at[inside]][order]
             hit_s[rays], hit_t[rays] = np.clip(s[inside][order], 0, 1), np.clip(t[inside][order], 0, 1)
-        split = ~found & (level < MAX_LEVEL)
+        split = ~settled & (level < MAX_LEVEL)
         ray, patch, rect = np.repeat(ray[split], 4), np.repeat(patch[split], 4), _split_rects(rect[split])
     tau = np.where(hit_patch >= 0, best, np.inf)
     return RayHits(tau, hit_patch, hit_s, hit_t)

@@ -21,6 +21,7 @@ import scipy.sparse
 
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.solids.assembly import coefficient_stiffness, point_groups
 from bhem_hpc.solids.blending import RayDistances, ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
 from bhem_hpc.solids.origins import deformation_origins
@@ -67,10 +68,6 @@ class SolidOptions:
     origins: str | tuple[int, ...] = "flow"
     weight_gradients: bool = True
     error_stiffness: float | None = None
-
-
-#: Entries of the dense rows of the gradient map one chunk of the Hessian's assembly holds (8 bytes each).
-CHUNK_ENTRIES = 4_000_000
 
 
 def _interleave(scalar: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
@@ -182,6 +179,8 @@ class ShapeMatchingSolid:
         stacked = scipy.sparse.vstack([b for _, _, b in blocks]).tocsr()  # rows (3c + d) * Q + k
         order = np.arange(9 * count).reshape(9, count).T.ravel()  # to rows 9 k + 3 c + d
         self._gradient_map = stacked[order] @ _interleave(projection)  # (9 Q, 3 n_q)
+        self._point_groups = point_groups(grad)  # the stiffness is assembled on the coefficients
+        self._projection = _interleave(projection)
         # material per quadrature point: the part of largest blending weight
         part_of_point = np.asarray(self.blend.argmax(axis=1)).ravel()
         lame = [Lame.of(m.young, m.poisson) for m in self.materials]
@@ -237,18 +236,8 @@ class ShapeMatchingSolid:
         if projected:
             tangent = project_psd(tangent)
         weighted = self.quadrature.weights[:, None, None] * tangent
-        size = self._gradient_map.shape[1]
-        # B^T D B in chunks of points, each chunk's rows of B dense: B holds a good share of its
-        # entries (each point sees every control point of the parts blended there), where a sparse
-        # triple product costs several times more than BLAS on dense rows
-        chunk = max(1, CHUNK_ENTRIES // (9 * size))
-        stiffness = np.zeros((size, size))
-        for first in range(0, len(weighted), chunk):
-            last = min(first + chunk, len(weighted))
-            rows = self._gradient_map[9 * first : 9 * last].toarray().reshape(last - first, 9, size)
-            product = np.einsum("qij,qjn->qin", weighted[first:last], rows)
-            stiffness += rows.reshape(-1, size).T @ product.reshape(-1, size)
-        return (scipy.sparse.csr_matrix(stiffness) + self._error).tocsr()
+        coefficients = coefficient_stiffness(self._point_groups, weighted, self.matching.coefficient_count)
+        return (self._projection.T @ coefficients @ self._projection + self._error).tocsr()
 
     def mass_matrix(self) -> scipy.sparse.csr_matrix:
         """``(3 n_q, 3 n_q)`` consistent mass [kg]."""

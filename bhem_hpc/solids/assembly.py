@@ -1,0 +1,76 @@
+"""The SEM stiffness ``K = Pi^T (sum_k v_k G_k^T D_k G_k) Pi`` assembled in coefficient space, by
+groups of quadrature points that see the same coefficients (numpy and scipy).
+
+At a quadrature point ``k`` the deformation gradient is ``F[k, c, d] = sum_m G_d[k, m] C[m, c]`` with
+the scalar maps ``G_d (Q, n_c)`` of :meth:`~bhem_hpc.solids.shape_matching.ShapeMatching.kinematic_maps`
+and the coefficients ``C = Pi q (n_c, 3)``. A point sees only the coefficients of the parts blended
+there (and their origins' translations); points that see the same ones (the same parts) form a
+group whose rows of ``G_d`` are one dense block, so the stiffness of a group is two BLAS products
+of its own size, ``O(points m^2)`` for ``m`` coefficients seen, where a product over the control
+points costs ``O(points n_q^2)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+
+
+@dataclass(frozen=True)
+class PointGroup:
+    """Quadrature points ``points (n,)`` that see the coefficients ``columns (m,)``; ``gradients
+    (n, 3, m)``: ``G_d[points][:, columns]`` with ``d`` the middle index."""
+
+    points: np.ndarray
+    columns: np.ndarray
+    gradients: np.ndarray
+
+
+def point_groups(gradients: Sequence[scipy.sparse.spmatrix]) -> list[PointGroup]:
+    """The groups of the scalar maps ``G_0, G_1, G_2 (Q, n_c)`` (points with the same columns)."""
+    maps = [scipy.sparse.csr_matrix(g) for g in gradients]
+    pattern = (abs(maps[0]) + abs(maps[1]) + abs(maps[2])).tocsr()
+    pattern.sort_indices()
+    members: dict[bytes, list[int]] = {}
+    for k in range(pattern.shape[0]):
+        members.setdefault(pattern.indices[pattern.indptr[k] : pattern.indptr[k + 1]].tobytes(), []).append(k)
+    groups = []
+    for key, points in members.items():
+        columns = np.frombuffer(key, dtype=pattern.indices.dtype).astype(np.int64)
+        points = np.asarray(points, dtype=np.int64)
+        dense = np.stack([m[points][:, columns].toarray() for m in maps], axis=1)
+        groups.append(PointGroup(points, columns, dense))
+    return groups
+
+
+def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, count: int) -> scipy.sparse.csr_matrix:
+    """``sum_k G_k^T W_k G_k`` on the interleaved coefficients (row ``3 m + c``), ``(3 count, 3 count)``.
+
+    Args:
+        groups: from :func:`point_groups`.
+        weighted: ``(Q, 9, 9)`` quadrature weight times the tangent ``d^2 psi / dF[c, d] dF[c', d']``
+            at row ``3 c + d``, column ``3 c' + d'``.
+        count: the number of coefficients ``n_c``.
+    """
+    rows, columns, values = [], [], []
+    for group in groups:
+        n, m = len(group.points), len(group.columns)
+        # W[k, c, d, c', d'] -> (k, (c, c', d'), d) times G[k, d, m]: A[k, c, c', d', m]
+        tangent = weighted[group.points].reshape(n, 3, 3, 3, 3).transpose(0, 1, 3, 4, 2).reshape(n, 27, 3)
+        first = np.matmul(tangent, group.gradients)  # (n, 27, m): [k, (c, c', d'), m]
+        # sum over k and d': ((k, d'), (c, c', m)) against G[(k, d'), m']
+        left = first.reshape(n, 9, 3, m).transpose(0, 2, 1, 3).reshape(3 * n, 9 * m)
+        block = (left.T @ group.gradients.reshape(3 * n, m)).reshape(3, 3, m, m)  # [c, c', m, m']
+        block = block.transpose(2, 0, 3, 1).reshape(3 * m, 3 * m)  # [(m, c), (m', c')]
+        index = (3 * group.columns[:, None] + np.arange(3)[None, :]).reshape(-1)
+        rows.append(np.repeat(index, 3 * m))
+        columns.append(np.tile(index, 3 * m))
+        values.append(block.reshape(-1))
+    size = 3 * count
+    stiffness = scipy.sparse.coo_matrix(
+        (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(size, size)
+    )
+    return stiffness.tocsr()

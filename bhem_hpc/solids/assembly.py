@@ -18,6 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
+#: Up to this many interleaved coefficients the groups' blocks are added into a dense matrix (128 MB
+#: at most): many groups that each see most coefficients (a small model blended everywhere) would
+#: otherwise give a triplet list far longer than the matrix.
+DENSE_LIMIT = 4000
+
 
 @dataclass(frozen=True)
 class PointGroup:
@@ -55,6 +60,8 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
             at row ``3 c + d``, column ``3 c' + d'``.
         count: the number of coefficients ``n_c``.
     """
+    size = 3 * count
+    dense = np.zeros((size, size)) if size <= DENSE_LIMIT else None
     rows, columns, values = [], [], []
     for group in groups:
         n, m = len(group.points), len(group.columns)
@@ -66,10 +73,14 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
         block = (left.T @ group.gradients.reshape(3 * n, m)).reshape(3, 3, m, m)  # [c, c', m, m']
         block = block.transpose(2, 0, 3, 1).reshape(3 * m, 3 * m)  # [(m, c), (m', c')]
         index = (3 * group.columns[:, None] + np.arange(3)[None, :]).reshape(-1)
+        if dense is not None:
+            dense[np.ix_(index, index)] += block
+            continue
         rows.append(np.repeat(index, 3 * m))
         columns.append(np.tile(index, 3 * m))
         values.append(block.reshape(-1))
-    size = 3 * count
+    if dense is not None:
+        return scipy.sparse.csr_matrix(dense)
     stiffness = scipy.sparse.coo_matrix(
         (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(size, size)
     )

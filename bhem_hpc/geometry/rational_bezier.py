@@ -365,7 +365,7 @@ def first_hits(
     for level in range(MAX_LEVEL + 1):
         if not len(ray):
             break
-        piece = subpatches(nets[patch], rect)
+        piece = nets[patch] if level == 0 else subpatches(nets[patch], rect)  # level 0: the whole patches
         relative = (piece[..., :3] / piece[..., 3:]).reshape(len(ray), -1, 3) - origins[ray][:, None]
         across_1 = np.einsum("kpc,kc->kp", relative, first_axis[ray])
         across_2 = np.einsum("kpc,kc->kp", relative, second_axis[ray])

@@ -110,7 +110,8 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
         tau_min = distance[cast] * (1.0 + 1e-9)
         best, owner = np.full(len(cast), np.inf), np.full(len(cast), -1)
         for k, other in enumerate(parts):
-            hits = first_hits(other.bezier_patches.nets, nearest[cast], direction, tau_min, np.full(len(cast), reach))
+            # searched no farther than the nearest hit so far
+            hits = first_hits(other.bezier_patches.nets, nearest[cast], direction, tau_min, np.minimum(best, reach))
             closer = hits.tau < best
             best[closer], owner[closer] = hits.tau[closer], k
         total[cast, i] = best

@@ -1,0 +1,57 @@
+"""Solids built like the SEM paper's Table 1 models from NURBS parts that overlap as a modeller
+leaves them (numpy only): a rocket (a body of revolution and four fins through it), a mug (a cup
+of revolution and a torus handle through its wall) and a castle (blocks and round towers)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bhem_hpc.geometry import nurbs
+
+
+def _solid_of_revolution(profile: list[tuple[float, float]], name: str, offset=(0.0, 0.0, 0.0)) -> nurbs.NurbsSurface:
+    """The closed surface of revolution about the z axis of a polyline ``(radius, z)`` running from
+    the axis back to the axis, moved by ``offset``."""
+    points = np.asarray(profile, dtype=float)
+    knots = np.r_[0.0, np.linspace(0.0, 1.0, len(points)), 1.0]
+    surface = nurbs.revolve(points, np.ones(len(points)), knots, 1, name)
+    return surface.with_control(surface.control + np.asarray(offset, dtype=float))
+
+
+def _turned_about_z(part: nurbs.NurbsSurface, angle: float) -> nurbs.NurbsSurface:
+    c, s = np.cos(angle), np.sin(angle)
+    return part.with_control(part.control @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]))
+
+
+def rocket() -> list[nurbs.NurbsSurface]:
+    """A 0.85 m rocket: a body of revolution (radius 0.1 m, a cone on top) and four biquadratic fins
+    (6 faces each) reaching into it: 25 parts."""
+    body = _solid_of_revolution([(0.0, 0.0), (0.1, 0.0), (0.1, 0.3), (0.1, 0.6), (0.06, 0.75), (0.0, 0.85)], "body")
+    fin = nurbs.box_faces([0.05, -0.008, 0.0], [0.22, 0.008, 0.18], degree=2)
+    fins = [_turned_about_z(face, k * np.pi / 2).with_name(f"fin {k} {face.name}") for k in range(4) for face in fin]
+    return [body, *fins]
+
+
+def mug() -> list[nurbs.NurbsSurface]:
+    """A mug: a cup of revolution (outer radius 45 mm, 100 mm tall, 5 mm walls) and a torus handle
+    standing in the x-z plane whose tube runs through the cup's wall: 2 overlapping parts."""
+    cup = _solid_of_revolution(
+        [(0.0, 0.01), (0.04, 0.01), (0.04, 0.055), (0.04, 0.1), (0.045, 0.1), (0.045, 0.05), (0.045, 0.0), (0.0, 0.0)],
+        "cup",
+    )
+    handle = nurbs.torus(0.022, 0.006)
+    standing = handle.control[..., [0, 2, 1]] * np.array([1.0, -1.0, 1.0])  # the ring in the x-z plane
+    handle = handle.with_control(standing + np.array([0.069, 0.0, 0.05])).with_name("handle")
+    return [cup, handle]
+
+
+def castle() -> list[nurbs.NurbsSurface]:
+    """A castle: a base block, a keep and four round towers at the base's corners, overlapping:
+    16 parts."""
+    base = [f.with_name(f"base {f.name}") for f in nurbs.box_faces([0.0, 0.0, 0.0], [1.0, 1.0, 0.3])]
+    keep = [f.with_name(f"keep {f.name}") for f in nurbs.box_faces([0.3, 0.3, 0.2], [0.7, 0.7, 0.7], degree=2)]
+    towers = [
+        _solid_of_revolution([(0.0, 0.0), (0.12, 0.0), (0.12, 0.3), (0.12, 0.6), (0.0, 0.6)], f"tower {k}", (x, y, 0.0))
+        for k, (x, y) in enumerate([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)])
+    ]
+    return base + keep + towers

@@ -11,6 +11,7 @@ import pytest
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
+from bhem_hpc.studies import sem_models
 
 
 def rodrigues(axis, angle: float) -> np.ndarray:
@@ -59,6 +60,7 @@ def test_volume_and_second_moment_converge(name):
     assert np.all(slopes > 1.0), (errors, slopes)
     assert np.all(errors[-1] < 1e-2), errors
 
+
 def test_points_lie_inside_and_the_rule_integrates_linear_functions_by_symmetry():
     rule = ray_cast_quadrature([nurbs.sphere(1.0, center=(0.3, -0.2, 0.1))], 48, order=3)
     assert np.all(np.linalg.norm(rule.points - (0.3, -0.2, 0.1), axis=1) < 1.0)
@@ -88,3 +90,12 @@ def test_open_or_inconsistent_models_are_refused():
         ray_cast_quadrature([faces[2]], 16, name="cube")  # a face along x alone
     with pytest.raises(SurfaceError, match="lines per side"):
         ray_cast_quadrature(faces, 0)
+
+
+def test_a_castle_of_overlapping_blocks_and_towers_has_the_volume_of_their_union():
+    """The Table 1 castle: a base block, a keep standing in it and four round towers whose quarters
+    stand in the base's corners; the volume is the union's (2.8 %, 0.4 %, 0.9 % off at 24, 48, 96
+    lines per side)."""
+    radius = 0.12
+    union = 0.3 + 0.4**3 + 4 * (math.pi * radius**2 * 0.6 - math.pi * radius**2 / 4 * 0.3)
+    assert ray_cast_quadrature(sem_models.castle(), 96).volume == pytest.approx(union, rel=0.02)

@@ -16,7 +16,8 @@ import numpy as np
 
 from bhem_hpc.io.run_directory import write_replacing
 
-_VTK_QUAD = 9
+#: VTK cell types: a vertex, a quadrilateral.
+VTK_VERTEX, VTK_QUAD = 1, 9
 _TYPE_NAMES = {np.dtype(np.float64): "Float64", np.dtype(np.int64): "Int64", np.dtype(np.uint8): "UInt8"}
 
 
@@ -28,16 +29,25 @@ def _data_array(name: str, array: np.ndarray, offset: int) -> str:
     )
 
 
-def vtu_bytes(points: np.ndarray, quads: np.ndarray, fields: dict[str, np.ndarray], normals: str = "normal") -> bytes:
-    """A VTK XML unstructured grid of quadrilaterals with raw appended float64 data.
+def vtu_bytes(
+    points: np.ndarray,
+    quads: np.ndarray,
+    fields: dict[str, np.ndarray],
+    normals: str | None = "normal",
+    cell_type: int = VTK_QUAD,
+) -> bytes:
+    """A VTK XML unstructured grid of one cell type with raw appended float64 data.
 
     Args:
         points: ``(n, 3)`` point coordinates.
-        quads: ``(m, 4)`` point indices of each quadrilateral, counter-clockwise.
-        fields: per-point arrays, ``(n,)`` scalars or ``(n, k)`` vectors, by name.
-        normals: the field declared as the active normals (must be in ``fields``, ``(n, 3)``).
+        quads: ``(m, k)`` point indices of each cell: quadrilaterals counter-clockwise (``k = 4``),
+            or vertices (``k = 1``) with ``cell_type = VTK_VERTEX``.
+        fields: per-point arrays, ``(n,)`` scalars or ``(n, k)`` vectors and tensors, by name.
+        normals: the field declared as the active normals (must be in ``fields``, ``(n, 3)``), or
+            None (a point cloud).
+        cell_type: :data:`VTK_QUAD` or :data:`VTK_VERTEX`.
     """
-    if normals not in fields or fields[normals].shape != points.shape:
+    if normals is not None and (normals not in fields or fields[normals].shape != points.shape):
         raise ValueError(f"normals field {normals!r} must be one of the fields, shaped like the points")
     blocks: list[np.ndarray] = []
     offset = 0
@@ -53,13 +63,14 @@ def vtu_bytes(points: np.ndarray, quads: np.ndarray, fields: dict[str, np.ndarra
     point_data = "".join(add(name, array, np.float64) for name, array in fields.items())
     geometry = add("Points", points, np.float64)
     connectivity = add("connectivity", quads.reshape(-1), np.int64)
-    offsets = add("offsets", 4 * np.arange(1, len(quads) + 1), np.int64)
-    types = add("types", np.full(len(quads), _VTK_QUAD), np.uint8)
+    offsets = add("offsets", quads.shape[1] * np.arange(1, len(quads) + 1), np.int64)
+    types = add("types", np.full(len(quads), cell_type), np.uint8)
+    active = "" if normals is None else f' Normals="{normals}"'
     header = (
         '<?xml version="1.0"?>\n'
         '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64">\n'
         f'<UnstructuredGrid><Piece NumberOfPoints="{len(points)}" NumberOfCells="{len(quads)}">\n'
-        f'<PointData Normals="{normals}">{point_data}</PointData>\n'
+        f"<PointData{active}>{point_data}</PointData>\n"
         f"<Points>{geometry}</Points>\n"
         f"<Cells>{connectivity}{offsets}{types}</Cells>\n"
         "</Piece></UnstructuredGrid>\n"
@@ -70,10 +81,12 @@ def vtu_bytes(points: np.ndarray, quads: np.ndarray, fields: dict[str, np.ndarra
     return header.encode() + body + b"\n</AppendedData>\n</VTKFile>\n"
 
 
-def write_vtu(path: str | Path, points, quads, fields: dict[str, np.ndarray], normals: str = "normal") -> Path:
+def write_vtu(
+    path: str | Path, points, quads, fields: dict[str, np.ndarray], normals: str | None = "normal", cell_type=VTK_QUAD
+) -> Path:
     """Write :func:`vtu_bytes` to ``path`` by rename."""
     path = Path(path)
-    write_replacing(path, vtu_bytes(points, quads, fields, normals))
+    write_replacing(path, vtu_bytes(points, quads, fields, normals, cell_type))
     return path
 
 

@@ -217,6 +217,24 @@ class ShapeMatchingSolid:
         """``(Q, 3, 3)`` at the quadrature points for control points ``q (n_q, 3)``."""
         return (self._gradient_map @ np.asarray(q, dtype=float).reshape(-1)).reshape(-1, 3, 3)
 
+    def positions(self, q: np.ndarray) -> np.ndarray:
+        """``(Q, 3)`` deformed quadrature points for control points ``q (n_q, 3)``."""
+        return self.position_map @ np.asarray(q, dtype=float).reshape(-1, 3)
+
+    def deformed_parts(self, q: np.ndarray) -> list[NurbsSurface]:
+        """The parts with control points ``q (n_q, 3)`` (stacked in part order)."""
+        q = np.asarray(q, dtype=float).reshape(-1, 3)
+        return [
+            part.with_control(q[start:stop].reshape(part.control.shape))
+            for part, start, stop in zip(self.parts, self.offsets[:-1], self.offsets[1:], strict=True)
+        ]
+
+    def cauchy_stresses(self, q: np.ndarray) -> np.ndarray:
+        """``(Q, 3, 3)`` Cauchy stresses [Pa] ``P F^T / det F`` at the quadrature points."""
+        f = self.deformation_gradients(q)
+        _, first_piola, _ = self._model(f, self._mu, self._lam, tangent=False)
+        return np.einsum("kij,klj->kil", first_piola.reshape(-1, 3, 3), f) / np.linalg.det(f)[:, None, None]
+
     def energy(self, q: np.ndarray) -> float:
         """Elastic plus error energy [J] (inf where some ``det F <= 0``)."""
         flat = np.asarray(q, dtype=float).reshape(-1)

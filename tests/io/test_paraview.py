@@ -6,12 +6,17 @@ from __future__ import annotations
 
 import h5py
 import numpy as np
+import pytest
 from helpers import BASE, paraview_read
 
+from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import write_surface_xdmf
+from bhem_hpc.io.solid_output import write_solid_files
 from bhem_hpc.model.material import Material
 from bhem_hpc.run import RunOptions, run_scene
+from bhem_hpc.solids.elasticity import Lame, neo_hookean
+from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
 
 WIDTHS = {"normal": 3, "mean_curvature": 1, "membrane_energy_density": 1, "bending_energy_density": 1}
 
@@ -66,3 +71,33 @@ def test_paraview_reads_a_surface_file_with_its_physical_fields(tmp_path):
         assert (frame["points"], frame["cells"]) == ((3 * 2 + 1) * (2 * 2 + 1), 3 * 2 * 4), name
         _check_arrays(frame, widths, normals_active=name == ".vtu")
         assert frame["arrays"]["displacement"]["first"] == first_displacement, name
+
+
+def test_paraview_reads_a_solid_boundary_and_its_stressed_quadrature_points(tmp_path):
+    """A box solid stretched 10 % along x: its six parts as one quadrilateral surface with normals,
+    displacements and part indices; its quadrature points with the homogeneous Cauchy stress of the
+    Neo-Hookean material (checked against the energy density's own stress) and von Mises."""
+    material = SolidMaterial(density=1000.0, young=1e6, poisson=0.45)
+    solid = ShapeMatchingSolid(nurbs.box_faces([0, 0, 0], [2.0, 1.0, 0.5]), material,
+                               SolidOptions(degree=1, lines_per_side=8, sparsity=0.5), name="box")  # fmt: skip
+    stretch = np.diag([1.1, 1.0, 1.0])
+    q = solid.reference @ stretch.T
+    stresses = solid.cauchy_stresses(q)
+    lame = Lame.of(material.young, material.poisson)
+    _, first_piola, _ = neo_hookean(stretch[None], lame.mu, lame.lam, tangent=False)
+    expected = first_piola.reshape(3, 3) @ stretch.T / np.linalg.det(stretch)
+    np.testing.assert_allclose(stresses, np.broadcast_to(expected, stresses.shape), atol=1e-6 * abs(expected).max())
+    boundary, cloud = write_solid_files(tmp_path, solid.deformed_parts(q), solid.parts, solid.positions(q), stresses,
+                                        solid.quadrature.weights, samples=5)  # fmt: skip
+    read = paraview_read(boundary, cloud)
+    (surface,) = read[str(boundary)][".vtu"]["frames"].values()
+    assert (surface["points"], surface["cells"]) == (6 * 25, 6 * 16)
+    assert surface["arrays"]["normal"]["normals"] is True
+    assert surface["arrays"]["displacement"]["components"] == 3 and surface["arrays"]["part"]["components"] == 1
+    (points,) = read[str(cloud)][".vtu"]["frames"].values()
+    assert (points["points"], points["cells"]) == (len(solid.quadrature.weights),) * 2
+    assert points["arrays"]["stress"]["components"] == 9
+    np.testing.assert_allclose(
+        points["arrays"]["stress"]["first"], expected.reshape(-1), atol=1e-6 * abs(expected).max()
+    )
+    assert points["arrays"]["von_mises"]["first"][0] == pytest.approx(abs(expected[0, 0] - expected[1, 1]), rel=1e-6)

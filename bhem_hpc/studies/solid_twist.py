@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from bhem_hpc.geometry import nurbs
+from bhem_hpc.io.solid_output import tessellate_parts
 from bhem_hpc.solids.equilibrium import solve_static
 from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
 
@@ -96,15 +97,13 @@ def plot_twist(path: Path, solid: ShapeMatchingSolid, states: list[np.ndarray], 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    grid = np.linspace(0.0, 1.0, 9)
-    u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    samples = 9
     fig = plt.figure(figsize=(4.5 * len(states), 2.6))
     for k, (q, label) in enumerate(zip(states, labels, strict=True)):
         axis = fig.add_subplot(1, len(states), k + 1, projection="3d")
-        for i, part in enumerate(solid.parts):
-            moved = part.with_control(q[solid.offsets[i] : solid.offsets[i + 1]].reshape(part.control.shape))
-            points = moved.evaluate(u, v)[0].reshape(len(grid), len(grid), 3)
-            axis.plot_surface(*points.transpose(2, 0, 1), color=f"C{i % 4}", alpha=0.9, linewidth=0.2, edgecolor="k")
+        points = tessellate_parts(solid.deformed_parts(q), samples)[0].reshape(len(solid.parts), samples, samples, 3)
+        for i, grid in enumerate(points):
+            axis.plot_surface(*grid.transpose(2, 0, 1), color=f"C{i % 4}", alpha=0.9, linewidth=0.2, edgecolor="k")
         reach = 1.5 * SIDE
         axis.set(title=label, xlim=(0, LENGTH), ylim=(-reach, reach), zlim=(-reach, reach))
         axis.set_box_aspect((LENGTH, 2 * reach, 2 * reach))

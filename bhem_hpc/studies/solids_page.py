@@ -112,8 +112,7 @@ def cantilever_rows(
             clock = time.perf_counter()
             state = solve_static(solid, solid.reference, _clamped(solid), solid.gravity_force(GRAVITY))
             seconds = time.perf_counter() - clock
-            end, k = solid.parts[-1], len(solid.parts) - 1
-            moved = end.with_control(state.q[solid.offsets[k] : solid.offsets[k + 1]].reshape(end.control.shape))
+            end, moved = solid.parts[-1], solid.deformed_parts(state.q)[-1]
             centre = (np.array([0.5]), np.array([0.5]))
             sag = float(moved.evaluate(*centre)[0][0, 2] - end.evaluate(*centre)[0][0, 2])
             rows.append({"cutoff": _cutoff_label(cutoff), "alpha": solid.alpha, "sections": count,

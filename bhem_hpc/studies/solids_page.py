@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from bhem_hpc.geometry import nurbs
-from bhem_hpc.solids.equilibrium import linearly_implicit_step, solve_static
+from bhem_hpc.solids.equilibrium import solve_static
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
 from bhem_hpc.studies.petsc import fem_tip_deflection
-from bhem_hpc.studies.sem_table import table_lines, table_rows
+from bhem_hpc.studies.sem_table import step_cost, table_lines, table_rows
 from bhem_hpc.studies.solid_twist import LENGTH, RUBBER, SECTIONS, SIDE, plot_twist, twist, twist_solid
 
 #: The cantilever: length, width, height [m]; rubber-like, stiff enough for a moderate sag.
@@ -69,19 +69,11 @@ def scaling_rows(sections: tuple[int, ...], steps: int = 3) -> list[dict]:
         parts = nurbs.beam_faces([0.0, 0.0, 0.0], [float(count), 1.0, 1.0], count)
         options = SolidOptions(degree=2, lines_per_side=SCALING_LINES_PER_CUBE * count, alpha=SCALING_CUTOFF)
         solid = ShapeMatchingSolid(parts, BEAM_MATERIAL, options, name="beam")
-        fixed, forces = _clamped(solid), solid.gravity_force(GRAVITY)
-        stiffness = solid.hessian(solid.reference)
-        mass = solid.mass_matrix()
-        q, velocity = solid.reference, np.zeros_like(solid.reference)
-        clock = time.perf_counter()
-        for _ in range(steps):
-            q, velocity = linearly_implicit_step(solid, q, velocity, 0.01, fixed, forces, mass)
-        step = (time.perf_counter() - clock) / steps
-        stiffness.eliminate_zeros()
+        step, nonzero = step_cost(solid, _clamped(solid), steps)
         rows.append(
             {"sections": count, "parts": len(solid.parts), "dofs": solid.dof_count,
              "points": len(solid.quadrature.weights), "alpha": solid.alpha,
-             **{stage: solid.seconds[stage] for stage in STAGES}, "nnz": stiffness.nnz / stiffness.shape[0] ** 2,
+             **{stage: solid.seconds[stage] for stage in STAGES}, "nnz": nonzero,
              "step": step}
         )  # fmt: skip
     return rows

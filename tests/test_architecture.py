@@ -12,7 +12,7 @@ from helpers import assert_imports_without
 
 PACKAGE = Path(__file__).resolve().parents[1] / "bhem_hpc"
 #: The only modules that may import petsc4py (as dolfinx keeps PETSc code in petsc.py files).
-PETSC_MODULES = {"solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py",
+PETSC_MODULES = {"solids/petsc.py", "solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py",
                  "solver/linear_strategy.py", "solver/load_steps.py", "solver/acceleration.py",
                  "solver/trust_region.py", "solver/energy_trust_region.py", "solver/form_terms.py",
                  "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py",

@@ -1,7 +1,8 @@
 """Several bodies' problems as one: a stacked residual, Jacobian, potential and constraint rows.
 
-:class:`StackedProblem` joins the :class:`~bhem_hpc.solver.problem.ShellProblem` of each body into
-one problem on one stacked vector (:class:`~bhem_hpc.bodies.layout.StackedLayout`: each rank's
+:class:`StackedProblem` joins the problem of each body (a shell's
+:class:`~bhem_hpc.solver.problem.ShellProblem`, a solid's :class:`~bhem_hpc.solids.petsc.SolidProblem`)
+into one problem on one stacked vector (:class:`~bhem_hpc.bodies.layout.StackedLayout`: each rank's
 range holds the closed DOFs each body owns there, body after body). Each body assembles its own
 UFL terms and contributions as it does alone; the stacked problem adds energy contributions that
 couple bodies (a spring between material points of two bodies; contact between bodies), which
@@ -27,8 +28,12 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.model.hessian import COMPOSED_HESSIANS
 from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solids.model import SolidModel
+from bhem_hpc.solids.petsc import SolidProblem
 from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis, StepBounded
+from bhem_hpc.solver.model_group import BodyModel
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import (
     ShellProblem,
@@ -61,19 +66,19 @@ class StackedBlocks:
         global_open_blocks: the stacked global open block of each of those rows.
     """
 
-    def __init__(self, models: Sequence[ShellModel]):
+    def __init__(self, models: Sequence[BodyModel]):
         self.models = list(models)
         self.comm = comm = self.models[0].comm
-        index_maps = [m.x.function_space.dofmap.index_map for m in self.models]
-        self.open = StackedLayout(comm.allgather([m.size_local for m in index_maps]), comm.rank)
-        self.open_offsets = np.concatenate([[0], np.cumsum([m.size_local + m.num_ghosts for m in index_maps])])
+        counts = [m.open_blocks for m in self.models]  # (owned, ghosts) of each body
+        self.open = StackedLayout(comm.allgather([owned for owned, _ in counts]), comm.rank)
+        self.open_offsets = np.concatenate([[0], np.cumsum([owned + ghosts for owned, ghosts in counts])])
         self.global_open_blocks = np.concatenate(
             [self.open.to_stacked(b, m.global_open_blocks) for b, m in enumerate(self.models)])  # fmt: skip
 
     def point_basis(self, body: int, xi1: float, xi2: float) -> PointBasis:
         """A material point of ``body`` in the contributions' rows: ``(rows, basis values)`` on the rank
         that owns its patch (empty elsewhere)."""
-        blocks, values = self.models[body].discretization.point_basis(xi1, xi2)
+        blocks, values = self.models[body].point_basis(xi1, xi2)
         return np.asarray(blocks, dtype=np.int64) + self.open_offsets[body], values
 
 
@@ -90,7 +95,7 @@ class StackedProblem(PetscOwner):
         TypeError: an object that is not a :class:`Contribution`.
     """
 
-    def __init__(self, problems: Sequence[ShellProblem], contributions: Sequence[Contribution] = (),
+    def __init__(self, problems: Sequence[ShellProblem | SolidProblem], contributions: Sequence[Contribution] = (),
                  names: Sequence[str] | None = None):  # fmt: skip
         if not problems:
             raise ValueError("a stacked problem needs at least one body")
@@ -111,14 +116,13 @@ class StackedProblem(PetscOwner):
                 raise ValueError(f"body {k}: its Jacobian must be AIJ to be stacked, got {problem.matrix_format!r}")
         self.contributions: list[Contribution] = []
         self._patterns: list[tuple[np.ndarray, np.ndarray]] = []
-        discretizations = [p.model.discretization for p in self.problems]
-        self.closed = StackedLayout(comm.allgather([3 * d.num_owned_closed for d in discretizations]), comm.rank)
+        sizes = [p.model.closed_dofs for p in self.problems]  # (owned, all) DOFs of each body
+        self.closed = StackedLayout(comm.allgather([owned for owned, _ in sizes]), comm.rank)
         #: the coupling contributions' rows and blocks
         self.blocks = StackedBlocks([p.model for p in self.problems])
         self.open, self.open_offsets = self.blocks.open, self.blocks.open_offsets
         self.global_open_blocks = self.blocks.global_open_blocks
-        self._x = [PETSc.Vec().createMPI((3 * d.num_owned_closed, 3 * d.num_closed), comm=comm)
-                   for d in discretizations]  # fmt: skip
+        self._x = [PETSc.Vec().createMPI(size, comm=comm) for size in sizes]
         self._f = [v.duplicate() for v in self._x]
         self._rows = [self.closed.rank_start[comm.rank] + np.arange(s.start, s.stop, dtype=np.int64)
                       for s in map(self.closed.local_slice, range(len(self.problems)))]  # fmt: skip
@@ -292,12 +296,12 @@ class StackedProblem(PetscOwner):
 
     def contribution_state(self) -> ContributionState:
         """What the coupling contributions see: every body's open blocks, side by side."""
-        positions = np.concatenate([p.model.x.x.array.reshape(-1, 3) for p in self.problems])
+        positions = np.concatenate([p.model.open_positions for p in self.problems])
         return ContributionState(positions, float(self.problems[0].model.load_factor.value), self.point_positions)
 
     def point_positions(self, bases: Sequence[PointBasis]) -> np.ndarray:
         """Collective: positions ``(points, 3)`` of material points given by :meth:`point_basis`."""
-        positions = np.concatenate([p.model.x.x.array.reshape(-1, 3) for p in self.problems])
+        positions = np.concatenate([p.model.open_positions for p in self.problems])
         local = np.zeros((len(bases), 3))
         for k, (rows, values) in enumerate(bases):
             if len(rows):
@@ -418,19 +422,39 @@ class StackedProblem(PetscOwner):
             problem.close()
 
 
-def make_problem(models: Sequence[ShellModel], matrix_format: str, report: SolveReport,
-                 contributions: Sequence[Contribution] = ()) -> ShellProblem | StackedProblem:  # fmt: skip
-    """The problem a Newton driver solves: one model's :class:`ShellProblem` (its Jacobian in
-    ``matrix_format``, ``contributions`` on its open blocks), or several models' problems stacked
-    (AIJ; ``contributions`` couple the bodies)."""
+def _solid_kinds(models: Sequence[BodyModel]) -> tuple[str, ...]:
+    """The Hessian kinds a solid's problem names: its shells' (a solid assembles the exact Hessian
+    for ``"exact"``, the projected one for every other kind), or its own kind's."""
+    for model in models:
+        if isinstance(model, ShellModel):
+            return tuple(model.jacobian_forms)
+    kind = models[0].hessian
+    return COMPOSED_HESSIANS.get(kind, (kind,))
+
+
+def _body_problem(model: BodyModel, matrix_format: str, report: SolveReport, kinds: tuple[str, ...],
+                  contributions: Sequence[Contribution] = ()) -> ShellProblem | SolidProblem:  # fmt: skip
+    if isinstance(model, SolidModel):
+        return SolidProblem(model, report, kinds, contributions)
+    return ShellProblem(model, matrix_format, report, contributions)
+
+
+def make_problem(
+    models: Sequence[BodyModel], matrix_format: str, report: SolveReport, contributions: Sequence[Contribution] = ()
+) -> ShellProblem | SolidProblem | StackedProblem:
+    """The problem a Newton driver solves: one model's (a shell's :class:`ShellProblem` with its
+    Jacobian in ``matrix_format``, ``contributions`` on its open blocks; a solid's
+    :class:`SolidProblem`), or several models' problems stacked (AIJ; ``contributions`` couple the
+    bodies)."""
+    kinds = _solid_kinds(models)
     if len(models) == 1:
-        return ShellProblem(models[0], matrix_format, report, contributions)
+        return _body_problem(models[0], matrix_format, report, kinds, contributions)
     if matrix_format != "aij":
         raise ValueError(f"several bodies are assembled into one AIJ matrix, not {matrix_format!r}")
-    problems: list[ShellProblem] = []
+    problems: list[ShellProblem | SolidProblem] = []
     try:
         for model in models:
-            problems.append(ShellProblem(model, "aij", report))
+            problems.append(_body_problem(model, "aij", report, kinds))
         return StackedProblem(problems, contributions)
     except Exception:
         for problem in problems:

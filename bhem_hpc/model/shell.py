@@ -481,6 +481,71 @@ class ShellModel:
         return np.asarray(index_map.local_to_global(np.arange(index_map.size_local + index_map.num_ghosts,
                                                               dtype=np.int32)), dtype=np.int64)  # fmt: skip
 
+    # -- what the Newton driver asks of every body (a solid answers the same) -----------------
+    @property
+    def has_potential(self) -> bool:
+        """Whether the loads are conservative (no follower pressure): an energy line search applies."""
+        return self.potential_form is not None
+
+    @property
+    def closed_dofs(self) -> tuple[int, int]:
+        """Closed DOFs this rank owns and in all."""
+        return 3 * self.discretization.num_owned_closed, 3 * self.discretization.num_closed
+
+    @property
+    def closed_is_open(self) -> bool:
+        """No seams or ties: the closed DOFs are the open ones."""
+        return self.discretization.closed_is_open
+
+    @property
+    def open_blocks(self) -> tuple[int, int]:
+        """Open blocks this rank owns and its ghosts."""
+        index_map = self.x.function_space.dofmap.index_map
+        return index_map.size_local, index_map.num_ghosts
+
+    @property
+    def open_positions(self) -> np.ndarray:
+        """``(open blocks, 3)`` the position on this rank's open blocks (a view)."""
+        return self.x.x.array.reshape(-1, 3)
+
+    @property
+    def force_scale(self) -> float:
+        """``Y h`` times the largest patch size [N]: the scale of the internal forces (their round-off)."""
+        grid = self.rest_surface.grid
+        return self.material.young * self.material.thickness * max(grid.h1, grid.h2)
+
+    @property
+    def linear_scales(self) -> tuple[float, float, float, float]:
+        """Density, Young's modulus, Poisson's ratio and the median patch edge [m] (how much the
+        mass dominates the stiffness: the choice of linear solver)."""
+        nodes = self.rest_surface.nodal[..., 0, :]  # nodes (Hermite) or control points (B-splines)
+        edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
+        element = float(np.median(np.concatenate([e.ravel() for e in edges])))
+        material = self.material
+        return material.density, material.young, material.poisson, element
+
+    def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """The open blocks and basis values of the material point ``(xi1, xi2)`` (on the rank owning
+        its patch; empty elsewhere)."""
+        return self.discretization.point_basis(xi1, xi2)
+
+    def open_state(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Copies of the position and, in dynamics, the previous position (open layout)."""
+        return self.x.x.array.copy(), self.x_previous.x.array.copy() if self.dynamics is not None else None
+
+    def set_open_state(self, position: np.ndarray, previous: np.ndarray | None) -> None:
+        self.x.x.array[:] = position
+        if previous is not None:
+            self.x_previous.x.array[:] = previous
+
+    def gather_raw(self, array: np.ndarray) -> np.ndarray:
+        """Collective: an open array as raw DOFs, gathered (checkpoints)."""
+        return self.discretization.gather_raw_dofs(array)
+
+    def scatter_raw(self, raw: np.ndarray) -> np.ndarray:
+        """Raw DOFs as this rank's open array."""
+        return self.discretization.scatter_raw_dofs(raw)
+
     def point_positions(self, bases: Sequence[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         """Collective: positions ``(points, 3)`` at the current state of material points given by their
         ``discretization.point_basis`` (each on the rank owning its patch, so summed over ranks)."""

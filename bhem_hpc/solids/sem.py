@@ -70,6 +70,46 @@ class SolidOptions:
     error_stiffness: float | None = None
 
 
+class QuadratureShare:
+    """The elastic energy of the solid's quadrature points ``start <= k < stop`` (a rank's share
+    under MPI, or all of them), with its gradient and Hessian on the interleaved DOFs ``(3 n_q,)``.
+
+    Args:
+        solid: the solid; ``start, stop``: the points of the share.
+    """
+
+    def __init__(self, solid: ShapeMatchingSolid, start: int, stop: int):
+        self.solid, self.start, self.stop = solid, start, stop
+        self.weights = solid.quadrature.weights[start:stop]
+        self._gradient_map = solid._gradient_map[9 * start : 9 * stop]
+        self._groups = point_groups([g[start:stop] for g in solid._scalar_gradients])
+        self._mu, self._lam = solid._mu[start:stop], solid._lam[start:stop]
+
+    def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
+        """``(stop - start, 3, 3)`` at the share's points for control points ``q (n_q, 3)``."""
+        return (self._gradient_map @ np.asarray(q, dtype=float).reshape(-1)).reshape(-1, 3, 3)
+
+    def energy(self, q: np.ndarray) -> float:
+        """Elastic energy of the share [J] (inf where some ``det F <= 0``)."""
+        psi, _, _ = self.solid._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
+        return float(self.weights @ psi)
+
+    def gradient(self, q: np.ndarray) -> np.ndarray:
+        """``(3 n_q,)`` interleaved."""
+        _, stress, _ = self.solid._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
+        return self._gradient_map.T @ (self.weights[:, None, None] * stress).reshape(-1)
+
+    def hessian(self, q: np.ndarray, projected: bool = True) -> scipy.sparse.csr_matrix:
+        """``(3 n_q, 3 n_q)``; ``projected``: each point's tangent clamped positive semi-definite."""
+        _, _, tangent = self.solid._model(self.deformation_gradients(q), self._mu, self._lam)
+        if projected:
+            tangent = project_psd(tangent)
+        solid = self.solid
+        coefficients = coefficient_stiffness(self._groups, self.weights[:, None, None] * tangent,
+                                             solid.matching.coefficient_count)  # fmt: skip
+        return (solid._projection.T @ coefficients @ solid._projection).tocsr()
+
+
 def _interleave(scalar: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
     """``scalar ⊗ I_3``: the operator on interleaved 3-vectors acting on each component alike."""
     return scipy.sparse.kron(scalar, scipy.sparse.identity(3), format="csr")
@@ -180,7 +220,7 @@ class ShapeMatchingSolid:
         order = np.arange(9 * count).reshape(9, count).T.ravel()  # to rows 9 k + 3 c + d
         self._projection = _interleave(projection)
         self._gradient_map = stacked[order] @ self._projection  # (9 Q, 3 n_q)
-        self._point_groups = point_groups(grad)  # the stiffness is assembled on the coefficients
+        self._scalar_gradients = grad  # the stiffness is assembled on the coefficients, by groups of points
         # material per quadrature point: the part of largest blending weight
         part_of_point = np.asarray(self.blend.argmax(axis=1)).ravel()
         lame = [Lame.of(m.young, m.poisson) for m in self.materials]
@@ -206,6 +246,12 @@ class ShapeMatchingSolid:
             rows.append(difference.T @ scipy.sparse.diags(s.weights) @ difference)
         self.error_scalar = (gamma * sum(rows)).tocsr()
         self._error = _interleave(self.error_scalar)
+        self.whole = QuadratureShare(self, 0, len(rule.points))
+
+    def share(self, part: int, parts: int) -> QuadratureShare:
+        """The ``part``-th of ``parts`` contiguous shares of the quadrature points (a rank's)."""
+        count = len(self.quadrature.points)
+        return QuadratureShare(self, count * part // parts, count * (part + 1) // parts)
 
     # ---- the solid as an energy -----------------------------------------------------------
 
@@ -235,27 +281,23 @@ class ShapeMatchingSolid:
         _, first_piola, _ = self._model(f, self._mu, self._lam, tangent=False)
         return np.einsum("kij,klj->kil", first_piola.reshape(-1, 3, 3), f) / np.linalg.det(f)[:, None, None]
 
+    @property
+    def error_matrix(self) -> scipy.sparse.csr_matrix:
+        """``(3 n_q, 3 n_q)``: the error energy is ``q^T E q / 2`` (interleaved ``q``)."""
+        return self._error
+
     def energy(self, q: np.ndarray) -> float:
         """Elastic plus error energy [J] (inf where some ``det F <= 0``)."""
         flat = np.asarray(q, dtype=float).reshape(-1)
-        psi, _, _ = self._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
-        return float(self.quadrature.weights @ psi + 0.5 * flat @ (self._error @ flat))
+        return self.whole.energy(q) + 0.5 * float(flat @ (self._error @ flat))
 
     def gradient(self, q: np.ndarray) -> np.ndarray:
         """``(3 n_q,)`` interleaved."""
-        flat = np.asarray(q, dtype=float).reshape(-1)
-        _, stress, _ = self._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
-        weighted = (self.quadrature.weights[:, None, None] * stress).reshape(-1)
-        return self._gradient_map.T @ weighted + self._error @ flat
+        return self.whole.gradient(q) + self._error @ np.asarray(q, dtype=float).reshape(-1)
 
     def hessian(self, q: np.ndarray, projected: bool = True) -> scipy.sparse.csr_matrix:
         """``(3 n_q, 3 n_q)``; ``projected``: each point's tangent clamped positive semi-definite."""
-        _, _, tangent = self._model(self.deformation_gradients(q), self._mu, self._lam)
-        if projected:
-            tangent = project_psd(tangent)
-        weighted = self.quadrature.weights[:, None, None] * tangent
-        coefficients = coefficient_stiffness(self._point_groups, weighted, self.matching.coefficient_count)
-        return (self._projection.T @ coefficients @ self._projection + self._error).tocsr()
+        return (self.whole.hessian(q, projected) + self._error).tocsr()
 
     def mass_matrix(self) -> scipy.sparse.csr_matrix:
         """``(3 n_q, 3 n_q)`` consistent mass [kg]."""

@@ -21,6 +21,7 @@ import numpy as np
 from bhem_hpc.errors import UserError
 from bhem_hpc.model.bcs import NodalConstraint
 from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solids.model import SolidModel, SolidState
 from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS, ShellSolver
 from bhem_hpc.solver.petsc import SolverError, SolverSetupError
@@ -110,12 +111,12 @@ class TimeStepper:
             :class:`StackedState` of several); the stepper writes position and velocity through it only.
     """
 
-    model: ShellModel | Sequence[ShellModel]
+    model: ShellModel | SolidModel | Sequence[ShellModel | SolidModel]
     solver: ShellSolver
     motions: Sequence[PrescribedMotion] = ()
     max_halvings: int = 4
     contact: ContactHandler | None = None
-    state: ShellState | StackedState | None = None
+    state: ShellState | SolidState | StackedState | None = None
     time: float = 0.0
     step: int = 0
     history: list[StepRecord] = field(default_factory=list)
@@ -123,7 +124,7 @@ class TimeStepper:
     def __post_init__(self) -> None:
         self.models = ModelGroup(self.model).models
         if any(m.dynamics is None for m in self.models):
-            raise ValueError("TimeStepper needs a ShellModel built with dynamics=Dynamics(...)")
+            raise ValueError("TimeStepper needs models built with dynamics (Dynamics, or a solid's SolidDynamics)")
         handled = 0 if self.contact is None else len(self.contact.entries.discretizations)
         if self.contact is not None and handled != len(self.models):
             raise ValueError(f"the contact handler covers {handled} bodies; the stepper has {len(self.models)}")
@@ -131,7 +132,7 @@ class TimeStepper:
         self._clock = (self.time, self.step, self.dt)  # (time, step, dt) after the last advance
         self._origin = (self.time, self.step)  # where the clock was last set
         if self.state is None:  # the one writer of x, v and the step's previous state
-            states = [ShellState(m) for m in self.models]
+            states = [SolidState(m) if isinstance(m, SolidModel) else ShellState(m) for m in self.models]
             self.state = states[0] if len(states) == 1 else StackedState(states)
         for motion in self.motions:
             _check_motion(self.models, motion)

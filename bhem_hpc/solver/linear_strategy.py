@@ -15,8 +15,8 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.layout import body_array_name
-from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.linear import LinearSolverChoice, available_memory, choose_linear_solver, mass_dominance
+from bhem_hpc.solver.model_group import BodyModel
 
 if TYPE_CHECKING:
     from bhem_hpc.solver.problem import ShellProblem
@@ -30,17 +30,16 @@ NONZEROS_PER_DOF = 130
 ITERATIVE_REFACTOR_COST = 8.0
 
 
-def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]:
+def default_options(model: BodyModel, linear: str = "direct") -> dict[str, str]:
     """Solver defaults for a model and a linear solver kind (all overridable under the prefix)."""
-    m = model.material
-    grid = model.rest_surface.grid
-    # Absolute residual floor: round-off of the internal force is ~eps * Y h * patch size.
-    force_scale = m.young * m.thickness * max(grid.h1, grid.h2)
+    # Absolute residual floor: round-off of the internal force is ~eps * its scale (a shell's
+    # Y h * patch size)
+    force_scale = model.force_scale
     nonlinear = {
         "snes_type": "newtonls",
         # Conservative problems: full step damped by the energy precheck (ShellSolver.damp_step);
         # follower loads have no potential: backtracking on the residual norm.
-        "snes_linesearch_type": "basic" if model.potential_form is not None else "bt",
+        "snes_linesearch_type": "basic" if model.has_potential else "bt",
         "snes_rtol": "1e-9",
         "snes_atol": f"{1e-13 * force_scale:.3e}",
         "snes_stol": "1e-14",
@@ -75,7 +74,7 @@ def default_options(model: ShellModel, linear: str = "direct") -> dict[str, str]
     return nonlinear | krylov | pc
 
 
-def default_direct_options(model: ShellModel) -> dict[str, str]:
+def default_direct_options(model: BodyModel) -> dict[str, str]:
     """The direct solver's options (MUMPS)."""
     return {
         "ksp_type": "preonly",
@@ -86,7 +85,7 @@ def default_direct_options(model: ShellModel) -> dict[str, str]:
     }
 
 
-def choose_for_model(model: ShellModel, requested: str, available: float | None = None) -> LinearSolverChoice:
+def choose_for_model(model: BodyModel, requested: str, available: float | None = None) -> LinearSolverChoice:
     """The linear solver for ``model``: ``requested`` (``"direct"``, ``"iterative"`` or ``"auto"``),
     judged by its size, how much the mass term dominates its stiffness and the memory ``available``
     (bytes; default: what this machine has free).
@@ -97,11 +96,11 @@ def choose_for_model(model: ShellModel, requested: str, available: float | None 
     return choose_for_models([model], requested, available)
 
 
-def choose_for_models(models: Sequence[ShellModel], requested: str, available: float | None = None
+def choose_for_models(models: Sequence[BodyModel], requested: str, available: float | None = None
                       ) -> LinearSolverChoice:  # fmt: skip
     """:func:`choose_for_model` for several bodies in one solve: their DoFs added up, the mass
     dominance of the least mass-dominated body (the one a Krylov solve would struggle with)."""
-    dofs = sum(3 * model.discretization.num_closed for model in models)
+    dofs = sum(model.closed_dofs[1] for model in models)
     dominance = min(map(_mass_dominance, models))
     first = models[0]
     available = available_memory(first.comm) if available is None else available
@@ -109,13 +108,10 @@ def choose_for_models(models: Sequence[ShellModel], requested: str, available: f
                                 first.dynamics is not None)  # fmt: skip
 
 
-def _mass_dominance(model: ShellModel) -> float:
-    nodes = model.rest_surface.nodal[..., 0, :]  # nodes (Hermite) or control points (B-splines)
-    edges = [np.linalg.norm(np.diff(nodes, axis=a), axis=-1) for a in (0, 1)]
-    element = float(np.median(np.concatenate([e.ravel() for e in edges])))  # patch edge length
+def _mass_dominance(model: BodyModel) -> float:
+    density, young, poisson, element = model.linear_scales
     dt = float(model.time_step.value) if model.dynamics is not None else None
-    material = model.material
-    return mass_dominance(material.density, material.young, material.poisson, element, dt)
+    return mass_dominance(density, young, poisson, element, dt)
 
 
 def switch_to_mumps(ksp: PETSc.KSP, symmetric: bool, matrix_format: str) -> None:
@@ -137,15 +133,14 @@ class FactoredState:
         models: the bodies' models in the problem's order (one for a single body).
     """
 
-    def __init__(self, models: Sequence[ShellModel]):
+    def __init__(self, models: Sequence[BodyModel]):
         self.models = list(models)
         #: per body: (position, previous position or None), None before the first assembly
         self.arrays: list[tuple[np.ndarray, np.ndarray | None]] | None = None
         self.kind = 0
 
     def _current(self) -> list[tuple[np.ndarray, np.ndarray | None]]:
-        return [(m.x.x.array.copy(), m.x_previous.x.array.copy() if m.dynamics is not None else None)
-                for m in self.models]  # fmt: skip
+        return [m.open_state() for m in self.models]
 
     def _key(self, name: str, body: int) -> str:
         return body_array_name(name, body, len(self.models))
@@ -161,10 +156,9 @@ class FactoredState:
             return {}, {}
         arrays = {}
         for body, (model, (position, previous)) in enumerate(zip(self.models, self.arrays, strict=True)):
-            disc = model.discretization
-            arrays[self._key("factorization_state_dofs", body)] = disc.gather_raw_dofs(position)
+            arrays[self._key("factorization_state_dofs", body)] = model.gather_raw(position)
             if previous is not None:
-                arrays[self._key("factorization_previous_dofs", body)] = disc.gather_raw_dofs(previous)
+                arrays[self._key("factorization_previous_dofs", body)] = model.gather_raw(previous)
         return arrays, reuse.state() | {"hessian_kind": self.kind}
 
     def restore(self, arrays: dict[str, np.ndarray], state: dict[str, float], problem: ShellProblem,
@@ -189,16 +183,14 @@ class FactoredState:
         kind ``kind`` (remembered); afterwards back at their own."""
         saved = self._current()
         for body, model in enumerate(self.models):
-            disc = model.discretization
-            model.x.x.array[:] = disc.scatter_raw_dofs(arrays[self._key("factorization_state_dofs", body)])
+            position = model.scatter_raw(arrays[self._key("factorization_state_dofs", body)])
+            previous = None
             if model.dynamics is not None:
-                previous = arrays[self._key("factorization_previous_dofs", body)]
-                model.x_previous.x.array[:] = disc.scatter_raw_dofs(previous)
+                previous = model.scatter_raw(arrays[self._key("factorization_previous_dofs", body)])
+            model.set_open_state(position, previous)
         self.remember(kind)
         try:
             yield
         finally:
             for model, (position, previous) in zip(self.models, saved, strict=True):
-                model.x.x.array[:] = position
-                if previous is not None:
-                    model.x_previous.x.array[:] = previous
+                model.set_open_state(position, previous)

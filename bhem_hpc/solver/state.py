@@ -107,13 +107,14 @@ class StackedState:
     ghosts), as :class:`~bhem_hpc.bodies.petsc.StackedProblem` lays out its contributions' rows.
 
     Args:
-        states: one :class:`ShellState` per body, in the stacked order.
+        states: one state per body (a :class:`ShellState`, a solid's
+            :class:`~bhem_hpc.solids.model.SolidState`), in the stacked order.
     """
 
-    def __init__(self, states: list[ShellState]):
+    def __init__(self, states: list):
         self.states = list(states)
         #: where each body's entries start in the side-by-side arrays, ``(bodies + 1,)``
-        self.offsets = np.cumsum([0] + [s.model.x.x.array.size for s in self.states])
+        self.offsets = np.cumsum([0] + [s.position.size for s in self.states])
 
     def _split(self, array: np.ndarray) -> list[np.ndarray]:
         return [array[a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:], strict=True)]

@@ -119,7 +119,7 @@ def test_bodies_that_cannot_share_a_solve_are_refused(comm, shared_tmp_path):
     slower = _model(comm, shared_tmp_path, "slower", "hermite", STEEL, dt=0.02)
     with pytest.raises(ValueError, match="share one time step"):
         ModelGroup([steel, slower])
-    with pytest.raises(ValueError, match="at least one shell model"):
+    with pytest.raises(ValueError, match="at least one body.s model"):
         ModelGroup([])
     with pytest.raises(ValueError, match="all be static or all be time-stepped"):
         ModelGroup([steel, _model(comm, shared_tmp_path, "static", "hermite", STEEL, time="static = true")])

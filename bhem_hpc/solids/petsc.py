@@ -1,0 +1,168 @@
+"""An SEM solid's problem in PETSc form, for the Newton driver (as
+:class:`~bhem_hpc.solver.problem.ShellProblem` is a shell's).
+
+:class:`SolidProblem` owns the residual and the Jacobian of a :class:`~bhem_hpc.solids.model.SolidModel`
+on its DOFs (the control points, each rank owning a contiguous range). Each rank adds its share of
+the quadrature points and, on rank 0, the terms over all DOFs (:mod:`bhem_hpc.solids.model`); the
+gradient is summed over the ranks (an allreduce of ``3 n_q`` values: a solid is small) and the
+Hessian's rows are added into one MPI AIJ matrix (PETSc sends the rows another rank owns), its
+pattern fixed at the start: every entry the stiffness of all points, the error energy and the mass
+can have. Held DOFs are rows and columns of the identity, as a shell's.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from petsc4py import PETSc
+
+from bhem_hpc.solids.model import SolidModel
+from bhem_hpc.solver.contributions import Contribution, ContributionState
+from bhem_hpc.solver.petsc import PetscOwner
+from bhem_hpc.solver.problem import add_diagonal_regularization, stored_entries
+from bhem_hpc.solver.report import SolveReport
+
+
+class SolidProblem(PetscOwner):
+    """Residual, Jacobian, held rows and potential of a :class:`SolidModel`.
+
+    Args:
+        model: the solid.
+        report: where assembly times are added up.
+        kinds: the Hessian kinds the solve names (a stacked problem's shells' kinds; ``"exact"``
+            assembles the exact Hessian, every other kind the projected one).
+
+    Raises:
+        ValueError: energy contributions on a solid alone (contact with solids is not built).
+    """
+
+    matrix_format = "aij"
+    prolongation = None
+
+    def __init__(self, model: SolidModel, report: SolveReport, kinds: Sequence[str] = ("projected", "exact"),
+                 contributions: Sequence[Contribution] = ()):  # fmt: skip
+        if contributions:
+            raise ValueError(f"{model.name}: energy contributions on a solid (contact) are not supported")
+        self.model, self.report, self.comm = model, report, model.comm
+        self._kinds = tuple(kinds)
+        self.hessian = self._kinds[0]
+        self._closed = False
+        self.contributions: list[Contribution] = []
+        local, size = model.closed_dofs
+        start = 3 * model.owned[0]
+        self._rows = slice(start, start + local)
+        pattern = model.hessian_pattern()[self._rows]
+        pattern.sort_indices()
+        self.jacobian = PETSc.Mat().createAIJ(((local, size), (local, size)), bsize=3, comm=self.comm,
+                                              csr=(pattern.indptr.astype(PETSc.IntType),
+                                                   pattern.indices.astype(PETSc.IntType)))  # fmt: skip
+        self.jacobian.assemble()
+        self.jacobian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        self.jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self.bc_local = model.constrained_local.astype(np.int64)
+        self.bc_rows = model.constrained_rows.astype(PETSc.IntType)
+        self.bc_values = model.constrained_initial.copy()
+        self.regularization = 0.0
+        self.on_pattern_growth: Callable[[], None] | None = None
+
+    def hessian_kinds(self) -> tuple[str, ...]:
+        return self._kinds
+
+    # -- state ----------------------------------------------------------------------------------
+    def update_state(self, x: PETSc.Vec) -> None:
+        """Collective: every rank's owned DOFs of ``x`` into the whole position on every rank."""
+        self.model.position[:] = np.concatenate(self.comm.allgather(x.array_r))
+
+    def state_to_vector(self, x: PETSc.Vec) -> None:
+        x.array[:] = self.model.position[self._rows]
+
+    def contribution_state(self) -> ContributionState:
+        return ContributionState(self.model.open_positions, float(self.model.load_factor.value), self.point_positions)
+
+    def point_positions(self, bases) -> np.ndarray:
+        return np.zeros((len(bases), 3))
+
+    def set_point_targets(self, t: float, ramp: bool = False) -> None:
+        """A solid holds control points as DOFs: no point constraint to move."""
+
+    @property
+    def alm_multipliers(self) -> np.ndarray:
+        return np.zeros((0, 3))
+
+    def update_multipliers(self) -> bool:
+        return True
+
+    # -- assembly -------------------------------------------------------------------------------
+    def _summed(self, local: np.ndarray) -> np.ndarray:
+        """Collective: the sum over ranks of a whole gradient ``(3 n_q,)``."""
+        return self.comm.allreduce(local)
+
+    def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec,
+                          extra_gradient: Callable[[np.ndarray], None] | None = None) -> None:  # fmt: skip
+        """``f`` = the gradient of the incremental potential on the owned rows, held rows replaced by
+        ``x - x_bc``; ``extra_gradient(gradient)`` adds to this rank's ``(n_q, 3)`` first."""
+        t0 = time.perf_counter()
+        local = sum(self.model.local_gradients().values())
+        local = np.array(local, dtype=float)
+        if extra_gradient is not None:
+            extra_gradient(local.reshape(-1, 3))
+        values = f.array
+        values[:] = self._summed(local)[self._rows]
+        if len(self.bc_local):
+            values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
+        self.report.assemble_residual_s += time.perf_counter() - t0
+
+    def assemble_jacobian(self, jac: PETSc.Mat) -> None:
+        """This rank's share of the Hessian added into ``jac`` (rows of any rank), held rows and
+        columns the identity, then ``J + r |diag J|``."""
+        t0 = time.perf_counter()
+        hessian = self.model.local_hessian(self.hessian)
+        hessian.sort_indices()
+        jac.zeroEntries()
+        every_row = np.arange(hessian.shape[0], dtype=PETSc.IntType)
+        jac.setValuesIJV(hessian.indptr.astype(PETSc.IntType), hessian.indices.astype(PETSc.IntType), hessian.data,
+                         addv=PETSc.InsertMode.ADD, rowmap=every_row)  # fmt: skip
+        jac.assemble()
+        jac.zeroRowsColumns(self.bc_rows, diag=1.0)
+        add_diagonal_regularization(jac, self.regularization)
+        self.report.assemble_jacobian_s += time.perf_counter() - t0
+
+    def potential_energy(self) -> float:
+        """Collective: the incremental potential at the current position."""
+        return float(self.comm.allreduce(sum(self.model.local_terms().values())))
+
+    def term_residual_norms(self) -> dict[str, float]:
+        """Collective: the 2-norm of each term's gradient on the free DOFs."""
+        return {name: self.open_gradient_norm(lambda local, g=gradient: local.__iadd__(g))
+                for name, gradient in self.model.local_gradients().items()}  # fmt: skip
+
+    def open_gradient_norm(self, fill: Callable[[np.ndarray], None]) -> float:
+        """Collective: the 2-norm on the free DOFs of the gradient ``fill(local)`` adds into zeros
+        ``(3 n_q,)`` on each rank (summed over ranks)."""
+        local = np.zeros_like(self.model.position)
+        fill(local)
+        total = self._summed(local)
+        total[self.model.constrained] = 0.0
+        return float(np.linalg.norm(total))
+
+    has_step_bounds = False
+
+    def max_step(self, direction: PETSc.Vec) -> float:
+        return 1.0
+
+    def max_open_step(self, direction: np.ndarray) -> float:
+        return 1.0
+
+    def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
+        """Collective: a direction on the owned DOFs as every control point's ``(n_q, 3)``."""
+        return np.concatenate(self.comm.allgather(direction.array_r)).reshape(-1, 3)
+
+    def matrix_nonzeros(self) -> int:
+        return stored_entries(self.jacobian)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.jacobian.destroy()

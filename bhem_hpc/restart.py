@@ -60,6 +60,10 @@ def _physics_tables(raw: dict) -> dict:
 
 
 def _grid_identity(scene: Scene) -> str:
+    """A shell's parameter grid; a solid's model: its parts' control points, weights and knots."""
+    if not isinstance(scene, Scene):
+        arrays = [a for p in scene.parts for a in (p.control, p.weights, p.u.knots, p.v.knots)]
+        return hashlib.sha256(b"".join(np.ascontiguousarray(a, dtype=float).tobytes() for a in arrays)).hexdigest()
     grid = scene.surface.grid
     return repr((grid.n1, grid.n2, grid.xi1_range, grid.xi2_range, grid.periodic1, grid.periodic2))
 

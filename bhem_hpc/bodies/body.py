@@ -35,6 +35,16 @@ class Body(Protocol):
     name: str
     index: int
 
+    @property
+    def kind(self) -> str:
+        """What the body is (a shell's discretization, ``"solid"``), for the run's summary."""
+        ...
+
+    @property
+    def dofs(self) -> int:
+        """Its DOFs in all."""
+        ...
+
     def dof_range(self, layout: StackedLayout) -> slice:
         """This rank's owned DOFs of the body within this rank's part of the stacked vector."""
         ...
@@ -73,6 +83,16 @@ class ShellBody:
         self.index = index
         self.scene = scene
         self.model = model
+
+    @property
+    def kind(self) -> str:
+        """The body's discretization (``hermite``, ``bspline2``, ``bspline3``)."""
+        return self.scene.surface.discretization
+
+    @property
+    def dofs(self) -> int:
+        """Its closed DOFs in all."""
+        return self.model.closed_dofs[1]
 
     def dof_range(self, layout: StackedLayout) -> slice:
         return layout.local_slice(self.index)

@@ -19,8 +19,9 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from bhem_hpc.bodies.body import ShellBody
+from bhem_hpc.bodies.body import Body, ShellBody
 from bhem_hpc.bodies.layout import body_array_name
+from bhem_hpc.bodies.solid import SolidBody, build_solid_model
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import render_surface_png, write_checkpoint
@@ -49,9 +50,11 @@ from bhem_hpc.run import (
     steps_to_run,
 )
 from bhem_hpc.scene.bodies import BodiesScene
+from bhem_hpc.scene.solids import SolidScene
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper
+from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper, body_state
 from bhem_hpc.solver.petsc import library_versions
+from bhem_hpc.solver.state import StackedState
 
 
 class BodiesOutput:
@@ -63,7 +66,7 @@ class BodiesOutput:
             the checkpoint are kept), or None for a fresh ``out``.
     """
 
-    def __init__(self, out: Path, bodies: list[ShellBody], continued: RestartPoint | None = None):
+    def __init__(self, out: Path, bodies: list[Body], continued: RestartPoint | None = None):
         self.out = out
         self.names = [body.name for body in bodies]
         self.series = []
@@ -78,7 +81,7 @@ class BodiesOutput:
             for body in bodies
         ]  # fmt: skip
 
-    def write(self, time_value: float, surfaces: list[HermiteSurface]) -> None:
+    def write(self, time_value: float, surfaces: list) -> None:
         """A frame of every body at ``time_value``, and the collection listing every frame so far."""
         for series, surface in zip(self.series, surfaces, strict=True):
             series.write(time_value, surface)
@@ -107,8 +110,8 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     first = scene.first
     steps = steps_to_run(first, options, checkpoint)
     scene_text = options.scene.read_bytes()
-    bodies = [ShellBody(name, k, body, build_model(body, comm))
-              for k, (name, body) in enumerate(zip(scene.names, scene.bodies, strict=True))]  # fmt: skip
+    bodies = [_make_body(name, k, body, comm) for k, (name, body) in enumerate(zip(scene.names, scene.bodies,
+                                                                                  strict=True))]  # fmt: skip
     models = [body.model for body in bodies]
     solver = make_solver(models, first, options.scene)
     summary = RunSummary(
@@ -116,8 +119,8 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
         dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
         versions=library_versions(), static=False, linear_solver=solver.linear.as_dict(),
         factorization=first.factorization,
-        bodies=[{"name": body.name, "dofs": 3 * body.model.discretization.num_closed, "mass_kg": body.mass(),
-                 "discretization": body.scene.surface.discretization} for body in bodies],
+        bodies=[{"name": body.name, "dofs": body.dofs, "mass_kg": body.mass(), "discretization": body.kind}
+                for body in bodies],
         steps=previous_steps(options.out, checkpoint) if continuing else [],
     )  # fmt: skip
     output: BodiesOutput | None = None
@@ -147,6 +150,13 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     return summary.as_dict()
 
 
+def _make_body(name: str, index: int, scene, comm: MPI.Comm) -> Body:
+    """Collective: the body of a ``[[bodies]]`` table by its type (a solid's record or a shell's scene)."""
+    if isinstance(scene, SolidScene):
+        return SolidBody(name, index, scene, build_solid_model(scene, comm, name))
+    return ShellBody(name, index, scene, build_model(scene, comm))
+
+
 def _frame(output: BodiesOutput | None, models: list, stepper: TimeStepper, comm: MPI.Comm) -> list[HermiteSurface]:
     """Write every body's frame at the stepper's state (collective); returns the surfaces."""
     surfaces = [m.state_surface() for m in models]
@@ -162,7 +172,7 @@ def _probe_rows(output: BodiesOutput | None, probes: list, stepper: TimeStepper,
             on_rank0(comm, lambda k=k, row=row: output.probe_tables[k].add(row), "probes.csv")
 
 
-def bodies_contact(bodies: list[ShellBody], solver: ShellSolver):
+def bodies_contact(bodies: list[Body], solver: ShellSolver):
     """The :class:`~bhem_hpc.contact.response.ContactHandler` of every body whose effects list contact
     (their colliders, themselves and each other) in ``solver`` (made of the bodies' models), or None."""
     in_contact = [body.scene.contact is not None for body in bodies]
@@ -191,7 +201,8 @@ def _step(run: _BodiesRun, checkpoint: RestartPoint | None, continuing: bool, st
         summary.contact = {body.name: {"colliders": len(body.scene.contact.colliders), "sample_points": d.num_samples}
                            for body, d in zip(bodies, handler.detector.detectors, strict=True)
                            if d is not None}  # fmt: skip
-    stepper = TimeStepper(run.models, run.solver, _motions(run.scene), contact=handler)
+    state = StackedState([body_state(m) for m in run.models])  # body after body, even of one body
+    stepper = TimeStepper(run.models, run.solver, _motions(run.scene), contact=handler, state=state)
     try:
         if checkpoint is not None:
             _restore(run, stepper, checkpoint)
@@ -262,7 +273,7 @@ class _BodiesRun:
 
     options: RunOptions
     scene: BodiesScene
-    bodies: list[ShellBody]
+    bodies: list[Body]
     solver: ShellSolver
     summary: RunSummary
     output: BodiesOutput | None

@@ -1,37 +1,84 @@
-"""Ray-traced pictures of bicubic patches (paper §6.3): exact intersections, exact normals.
+"""Ray-traced pictures of bicubic patches (paper §6.3) and of NURBS parts: exact intersections,
+exact normals.
 
-Every pixel's ray is intersected with the surface's Bezier patches (:mod:`bhem_hpc.collision`),
-no tessellation; shading uses the patch normal at the hit. numpy + matplotlib only.
+Every pixel's ray is intersected with a shell's Bezier patches (:mod:`bhem_hpc.collision`) or a
+solid's rational Bezier patches (:func:`bhem_hpc.geometry.rational_bezier.first_hits`), no
+tessellation; the nearest hit of all bodies is shaded with its patch normal. numpy + matplotlib only.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol, Union
 
 import numpy as np
 
 from bhem_hpc.collision import PatchBVH, trace_rays
 from bhem_hpc.collision.bezier import evaluate_many
+from bhem_hpc.geometry import rational_bezier
+from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import HermiteSurface
 
 LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
 VIEW = np.array([1.0, -1.6, 1.1])
 
 
+class NurbsParts(Protocol):
+    """A body drawn by its NURBS parts (a solid's frame, :class:`~bhem_hpc.solids.model.SolidFrame`)."""
+
+    parts: list[NurbsSurface]
+
+
+#: A body of a picture: a shell's surface or a solid's parts.
+Drawable = Union[HermiteSurface, NurbsParts]  # noqa: UP007 (a runtime alias of a Protocol)
+
+
+def _corner_points(body: Drawable) -> np.ndarray:
+    """``(n, 3)`` points whose bounding box holds the body (nodes or control points)."""
+    if isinstance(body, HermiteSurface):
+        return body.nodal[..., 0, :].reshape(-1, 3)
+    return np.concatenate([part.control.reshape(-1, 3) for part in body.parts])
+
+
+def _trace(body: Drawable, eye: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each ray's distance to its first hit on the body ``(R,)`` (inf: none) and the unit normal there ``(R, 3)``."""
+    tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
+    if isinstance(body, HermiteSurface):
+        nets = body.bezier_nets()
+        hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
+        mask = hits.patch >= 0
+        hit_nets, u, v = nets[hits.patch[mask]], hits.u[mask], hits.v[mask]
+        tau[mask] = hits.tau[mask] * np.linalg.norm(directions[mask], axis=1)
+        normal[mask] = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
+    else:
+        unit = directions / np.linalg.norm(directions, axis=1)[:, None]
+        origins = np.broadcast_to(eye, directions.shape)
+        by_degree: dict[tuple[int, int], list[np.ndarray]] = {}
+        for part in body.parts:  # one search per degree: nets of one shape
+            by_degree.setdefault(part.degrees, []).append(part.bezier_patches.nets)
+        for nets in by_degree.values():
+            nets = np.concatenate(nets)
+            hits = rational_bezier.first_hits(nets, origins, unit, np.zeros(len(unit)), np.full(len(unit), np.inf))
+            nearer = (hits.patch >= 0) & (hits.tau < tau)
+            _, x_s, x_t = rational_bezier.evaluate(nets[hits.patch[nearer]], hits.s[nearer], hits.t[nearer])
+            tau[nearer], normal[nearer] = hits.tau[nearer], np.cross(x_s, x_t)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    return tau, normal
+
+
 #: Base colours of the bodies of a picture, in turn (one body: the first).
 BODY_COLOURS = np.array([[0.25, 0.45, 0.8], [0.85, 0.45, 0.2], [0.3, 0.65, 0.35], [0.7, 0.3, 0.6], [0.8, 0.7, 0.2]])
 
 
-def camera_rays(surface: HermiteSurface | Sequence[HermiteSurface], width: int, height: int,
-                fov_degrees: float = 35.0):  # fmt: skip
-    """Pinhole camera looking at the bounding box of the surface (or surfaces) from ``VIEW``.
+def camera_rays(surface: Drawable | Sequence[Drawable], width: int, height: int, fov_degrees: float = 35.0):
+    """Pinhole camera looking at the bounding box of the surface (or bodies) from ``VIEW``.
 
     Returns:
         ``(origin (3,), directions (height * width, 3))``, rows top to bottom.
     """
     surfaces = list(surface) if isinstance(surface, Sequence) else [surface]
-    points = np.concatenate([s.nodal[..., 0, :].reshape(-1, 3) for s in surfaces])
+    points = np.concatenate([_corner_points(s) for s in surfaces])
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
     radius = 0.5 * float(np.linalg.norm(points.max(axis=0) - points.min(axis=0))) or 1.0
     forward = -VIEW / np.linalg.norm(VIEW)
@@ -47,23 +94,23 @@ def camera_rays(surface: HermiteSurface | Sequence[HermiteSurface], width: int, 
     return eye, directions.reshape(-1, 3)
 
 
-def render(surface: HermiteSurface | Sequence[HermiteSurface], width: int = 160, height: int = 120
+def render(surface: Drawable | Sequence[Drawable], width: int = 160, height: int = 120
            ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Shaded image ``(height, width, 3)`` in [0, 1] and the coverage mask ``(height, width)`` of a
-    surface, or of several (bodies, each in its colour of :data:`BODY_COLOURS`)."""
+    surface, or of several bodies (shells' surfaces, solids' parts), each in its colour of
+    :data:`BODY_COLOURS`."""
     surfaces = list(surface) if isinstance(surface, Sequence) else [surface]
-    parts = [s.bezier_nets() for s in surfaces]
-    nets = np.concatenate(parts)
-    body = np.repeat(np.arange(len(parts)), [len(p) for p in parts])  # the body of each patch
     eye, directions = camera_rays(surfaces, width, height)
-    hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
-    mask = hits.patch >= 0
-    hit_nets, u, v = nets[hits.patch[mask]], hits.u[mask], hits.v[mask]
-    normal = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
-    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
-    diffuse = np.abs(normal @ LIGHT)[:, None]  # two-sided: shells have no inside
+    nearest, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
+    body = np.full(len(directions), -1)
+    for k, item in enumerate(surfaces):
+        tau, item_normal = _trace(item, eye, directions)
+        nearer = tau < nearest
+        nearest[nearer], normal[nearer], body[nearer] = tau[nearer], item_normal[nearer], k
+    mask = body >= 0
+    diffuse = np.abs(normal[mask] @ LIGHT)[:, None]  # two-sided: shells have no inside
     image = np.ones((len(directions), 3))
-    base = BODY_COLOURS[body[hits.patch[mask]] % len(BODY_COLOURS)]
+    base = BODY_COLOURS[body[mask] % len(BODY_COLOURS)]
     image[mask] = np.clip(base * (0.25 + 0.75 * diffuse) + 0.15 * diffuse**20, 0.0, 1.0)
     return image.reshape(height, width, 3), mask.reshape(height, width)
 

@@ -1,16 +1,21 @@
 """A solid's state as ParaView files (VTK XML, float64): its NURBS parts tessellated as one
-quadrilateral surface, and its quadrature points with their Cauchy stresses. Serial writers,
-numpy only; the arrays come from the solid (:class:`~bhem_hpc.solids.sem.ShapeMatchingSolid`)."""
+quadrilateral surface, and its quadrature points with their Cauchy stresses; as one state
+(:func:`write_solid_files`) or a time series (:class:`SolidTimeSeries`). Serial writers, numpy
+only; the arrays come from the solid (:class:`~bhem_hpc.solids.sem.ShapeMatchingSolid`)."""
 
 from __future__ import annotations
 
+import re
+import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
+from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.nurbs import NurbsSurface
-from bhem_hpc.io.vtu import VTK_VERTEX, write_vtu
+from bhem_hpc.io.vtu import VTK_VERTEX, write_pvd, write_vtu
 
 
 def tessellate_parts(parts: Sequence[NurbsSurface], samples: int = 9):
@@ -69,3 +74,65 @@ def write_solid_files(
         cell_type=VTK_VERTEX,
     )
     return boundary, cloud
+
+
+class SolidState(Protocol):
+    """What a frame of a solid holds (:class:`~bhem_hpc.solids.model.SolidFrame`)."""
+
+    parts: list[NurbsSurface]
+    positions: np.ndarray
+    stresses: np.ndarray
+    volumes: np.ndarray
+
+
+class SolidTimeSeries:
+    """A solid's frames that ParaView plays as an animation: ``<name>_frames/frame_<k>_boundary.vtu``
+    and ``frame_<k>_points.vtu`` (:func:`write_solid_files`), listed by ``<name>.pvd`` (the
+    boundaries) and ``<name>_points.pvd`` (the quadrature points), rewritten after every frame.
+
+    Args:
+        path: the series' name (its suffix is dropped: ``body/surface.xdmf`` writes ``body/surface.pvd``).
+        rest_parts: the parts at rest (displacements are from them).
+        samples: tessellation points per part side.
+        continue_at: continue the series there: its frames up to that time are kept, later ones
+            (written after the checkpoint being continued) removed.
+    """
+
+    def __init__(self, path: str | Path, rest_parts: Sequence[NurbsSurface], samples: int = 9,
+                 continue_at: float | None = None):  # fmt: skip
+        path = Path(path)
+        self.pvd_path = path.with_suffix(".pvd")
+        self.points_pvd_path = path.with_name(path.stem + "_points.pvd")
+        self.folder = path.with_name(path.stem + "_frames")
+        self.rest_parts, self.samples = list(rest_parts), samples
+        self.times: list[float] = []
+        if continue_at is not None:
+            self._continue(continue_at)
+        self.folder.mkdir(exist_ok=True)
+
+    def _continue(self, until: float) -> None:
+        if not self.pvd_path.is_file():
+            raise InputError(f"{self.pvd_path} does not exist: there is no series to continue")
+        listed = [float(d.get("timestep")) for d in ET.parse(self.pvd_path).getroot().iter("DataSet")]
+        tolerance = 1e-9 * max(abs(until), 1e-300)
+        self.times = [t for t in listed if t <= until + tolerance]
+        for stale in self.folder.glob("frame_*.vtu"):
+            index = re.match(r"frame_(\d+)_", stale.name)
+            if index is not None and int(index.group(1)) >= len(self.times):
+                stale.unlink()
+
+    def write(self, time: float, state: SolidState) -> None:
+        """Append a frame of ``state`` at ``time`` and list it."""
+        write_solid_files(self.folder, state.parts, self.rest_parts, state.positions, state.stresses, state.volumes,
+                          stem=f"frame_{len(self.times):06d}", samples=self.samples)  # fmt: skip
+        self.times.append(float(time))
+        write_pvd(self.pvd_path, self.frame_files())
+        points = [(t, file.replace("_boundary.vtu", "_points.vtu")) for t, file in self.frame_files()]
+        write_pvd(self.points_pvd_path, points)
+
+    def frame_files(self) -> list[tuple[float, str]]:
+        """``(time, boundary file relative to the series' folder)`` of every frame written."""
+        return [(t, f"{self.folder.name}/frame_{k:06d}_boundary.vtu") for k, t in enumerate(self.times)]
+
+    def close(self) -> None:
+        """Every frame is complete once written: nothing is held open."""

@@ -40,8 +40,9 @@ from bhem_hpc.scene.table import Registry, SceneError, Table
 BODY_TYPES = Registry("body type")
 #: The body type of a ``[[bodies]]`` table without a ``type`` key.
 DEFAULT_BODY_TYPE = "shell"
-#: The tables a body lists (a scene of one body's tables for its shell).
-BODY_KEYS = ("name", "type", "surface", "material", "effects", "constraints", "point_constraints", "probes", "initial")
+#: The tables a body lists (a scene of one body's tables for its shell; a solid's ``file`` and ``sem``).
+BODY_KEYS = ("name", "type", "surface", "material", "effects", "constraints", "point_constraints", "probes", "initial",
+             "file", "sem")  # fmt: skip
 #: The tables every body shares, at the top of the file.
 SHARED_KEYS = ("time", "solver", "output")
 #: The scene's colliders, at the top: every body with contact effects meets them.
@@ -118,6 +119,7 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
     names: list[str] = []
     bodies: list[Scene] = []
     tables_of = [Table(path, f"bodies[{k}]", item) for k, item in enumerate(items)]
+    kinds = [t.data.get("type", DEFAULT_BODY_TYPE) for t in tables_of]
     several_in_contact = sum(_in_contact(t) for t in tables_of) >= 2
     for k, (item, t) in enumerate(zip(items, tables_of, strict=True)):
         name = _body_name(t, names)
@@ -134,6 +136,10 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): key 'effects.contact.method' = 'ipc': a scene "
                              "of several bodies takes method = 'impulse'")  # fmt: skip
         names.append(name)
+    if "solid" in kinds and any(body.contact is not None for body in bodies):
+        k = next(k for k, body in enumerate(bodies) if body.contact is not None)
+        raise SceneError(f"{path}: body '{names[k]}' (bodies[{k}]): key 'effects.contact': contact in a scene with a "
+                         "solid is not built (solids meet nothing)")  # fmt: skip
     if colliders and all(body.contact is None for body in bodies):
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
     scene = BodiesScene(path, tuple(names), tuple(bodies), raw)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from dataclasses import astuple
 from pathlib import Path
 from typing import Any
 
@@ -18,16 +19,15 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
+from bhem_hpc.scene import solids as _solids  # noqa: F401  (registers the solid body type)
 from bhem_hpc.scene.bodies import BODY_TYPES, BodiesScene, parse_bodies
 from bhem_hpc.scene.colliders import parse_colliders
 from bhem_hpc.scene.constraints import parse_constraints, parse_point_constraints
 from bhem_hpc.scene.loads import LOADS, parse_loads
-from bhem_hpc.scene.petsc_options import option_problem
 from bhem_hpc.scene.records import Effects, Scene, SceneContact
+from bhem_hpc.scene.shared import parse_clock, parse_linear_strategy, parse_output, parse_petsc_options
 from bhem_hpc.scene.surfaces import parse_surface
 from bhem_hpc.scene.table import SceneError, Table, is_number
-from bhem_hpc.solver.linear import LINEAR_SOLVERS
-from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES
 
 # Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = ("gravity", "pressure", "damping", *LOADS.names, "contact", "self_collision", "friction")
@@ -36,24 +36,15 @@ EFFECTS = ("gravity", "pressure", "damping", *LOADS.names, "contact", "self_coll
 CONTACT_EFFECTS = ("contact", "self_collision", "friction")
 
 
-#: Bounds checked before anything is allocated: time steps of one run, needles of one grid.
-MAX_STEPS = 10_000_000
 #: Longest probe name (it names columns of path.csv and probes.csv and the curves of path.png).
 MAX_NAME_LENGTH = 64
 
 
-MIN_DT, MAX_DT = 1e-12, 1e3  # s
 MIN_ACCELERATION, MAX_ACCELERATION = 1e-12, 1e6  # m/s^2: solver.acceleration_tolerance
 #: solver.acceleration_tolerance by default with contact by "ipc" [m/s^2] (0.1 % of g)
 IPC_ACCELERATION_TOLERANCE = 1e-2
 #: the most Newton iterations of an attempt with contact by "ipc" (solver.options.snes_max_it)
 IPC_NEWTON_ITERATIONS = 100
-
-
-def _whole_steps(duration: float, dt: float) -> bool:
-    """``duration`` is a whole number of steps ``dt`` (to 1e-6 of a step), at least one, bounded."""
-    steps = duration / dt
-    return bool(np.isfinite(steps)) and 1 <= round(steps) <= MAX_STEPS and abs(steps - round(steps)) <= 1e-6
 
 
 def _read_toml(path: Path) -> dict:
@@ -116,27 +107,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     surface = parse_surface(top.table("surface"), path)
     material = _material(top.table("material"))
     effects = _effects(top.table("effects", None), path, surface.grid)
-    time_table = top.table("time")
-    static = time_table.get("static", "a boolean", False)
-    if static:
-        load_steps = time_table.get("load_steps", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
-        dt, steps = 0.0, 0
-    else:
-        expected_dt = f"a number in [{MIN_DT:g}, {MAX_DT:g}] (time step [s])"
-        dt = time_table.get("dt", "a number", check=lambda v: MIN_DT <= v <= MAX_DT, expected=expected_dt)
-        has_steps, has_duration = "steps" in time_table.data, "duration" in time_table.data
-        if has_steps == has_duration:
-            raise SceneError(f"{path}: table 'time' needs exactly one of 'steps' and 'duration'")
-        if has_steps:
-            steps = time_table.get(
-                "steps", "an integer", check=lambda v: 1 <= v <= MAX_STEPS, expected=f"an integer in 1..{MAX_STEPS}"
-            )
-        else:
-            whole = f"a number > 0 [s], a whole number (1..{MAX_STEPS}) of time steps dt = {dt!r}"
-            duration = time_table.get("duration", "a number", check=lambda v: _whole_steps(v, dt), expected=whole)
-            steps = round(duration / dt)
-        load_steps = 1
-    time_table.done()
+    static, dt, steps, load_steps = astuple(parse_clock(top))
     solver = top.table("solver", None)
     # the Hessian Newton iterates with: exact for statics (its inertia tells stability), adaptive
     # for time steps (exact where it is positive definite, otherwise every Newton step goes downhill)
@@ -144,10 +115,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", None
     acceleration_tolerance = None
     if solver is not None:
-        linear = solver.get("linear", "a string", "auto", lambda v: v in LINEAR_SOLVERS,
-                            "'auto', 'direct' or 'iterative'")  # fmt: skip
-        factorization = solver.get("factorization", "a string", None, lambda v: v in FACTORIZATION_POLICIES,
-                                   "'reuse' or 'fresh'")  # fmt: skip
+        linear, factorization = parse_linear_strategy(solver)
         # the energy trust region minimizes a time step's incremental potential
         kinds = tuple(k for k in HESSIAN_KINDS if not (static and k == "trust_region"))
         hessian = solver.get("hessian", "a string", default_hessian, lambda v: v in kinds,
@@ -168,14 +136,9 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
             "absent: a static scene has no accelerations" if static
             else f"a number in [{MIN_ACCELERATION:g}, {MAX_ACCELERATION:g}] (m/s^2)",
         )  # fmt: skip
-        options = _petsc_options(solver)
+        options = parse_petsc_options(solver)
         solver.done()
-    output = top.table("output", None)
-    every, density = 1, 4
-    if output is not None:
-        every = output.get("every", "an integer", 1, lambda v: v >= 1, "an integer >= 1")
-        density = output.get("density", "an integer", 4, lambda v: 1 <= v <= 32, "an integer in 1..32")
-        output.done()
+    every, density = parse_output(top)
     constraints = parse_constraints(top, surface, path)
     points = parse_point_constraints(top, surface, path)
     contact = _contact(top, path, static, other_bodies_in_contact)
@@ -281,17 +244,6 @@ def _effects(t: Table | None, path: Path, grid: S.ParameterGrid) -> Effects:
     )
 
 
-def _petsc_options(t: Table) -> dict:
-    """``options``: PETSc options (without prefix) of the table's solver, their values checked."""
-    options = t.get("options", "a table", {})
-    for k, v in options.items():
-        if not isinstance(v, str | int | float | bool):
-            t.fail(f"options.{k}", "a string, number or boolean", v)
-        if (problem := option_problem(k, v)) is not None:
-            t.fail(f"options.{k}", problem, v)
-    return options
-
-
 def _probes(top: Table, surface) -> tuple[Probe, ...]:
     """``[[probes]]``: named material points ``at = [xi1, xi2]`` inside the parameter domain."""
     probes = []
@@ -321,7 +273,7 @@ def _path_plan(top: Table, static: bool, load_steps: int, probes: tuple[Probe, .
         return PathPlan("load", tuple(np.arange(1, load_steps + 1) / load_steps))
     method = t.get("method", "a string", check=lambda v: v in PATH_METHODS, expected=f"one of {PATH_METHODS}")
     max_cuts = t.get("max_cuts", "an integer", 8, lambda v: 0 <= v <= 50, "an integer in 0..50")
-    options = _petsc_options(t)
+    options = parse_petsc_options(t)
     try:
         if method == "load":
             plan = PathPlan("load", _levels(t, "levels", "target"), max_cuts=max_cuts, options=options)

@@ -17,7 +17,7 @@ with ``s`` the load factor and ``f`` the dead loads (gravity, forces on control 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +25,7 @@ import scipy.sparse
 from mpi4py import MPI
 
 from bhem_hpc.errors import UserError
+from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.solids.equilibrium import STATIC_SHIFT
 from bhem_hpc.solids.sem import ShapeMatchingSolid
 from bhem_hpc.solver.state import StateCorrection, StepStart
@@ -58,6 +59,22 @@ class FixedPoints:
     targets: np.ndarray | None = None
 
 
+@dataclass(frozen=True)
+class SolidFrame:
+    """A solid's state for output: its ``parts`` deformed, the quadrature points' ``positions (Q, 3)``,
+    Cauchy ``stresses (Q, 3, 3)`` [Pa] and reference ``volumes (Q,)`` [m^3]."""
+
+    parts: list[NurbsSurface]
+    positions: np.ndarray
+    stresses: np.ndarray
+    volumes: np.ndarray
+
+    @property
+    def nodal(self) -> np.ndarray:
+        """``(n_q, 3)`` the control points (what a checkpoint keeps of a shell's frame as its nodal data)."""
+        return np.concatenate([part.control.reshape(-1, 3) for part in self.parts])
+
+
 def block_range(count: int, rank: int, size: int) -> tuple[int, int]:
     """The contiguous range of ``count`` blocks rank ``rank`` of ``size`` owns (PETSc's split)."""
     base, extra = divmod(count, size)
@@ -74,6 +91,9 @@ class SolidModel:
         dynamics: implicit Euler settings, None for statics.
         gravity: ``(3,)`` [m/s^2].
         point_forces: ``(n_q, 3)`` forces on the control points [N], or None.
+        body_force: ``t -> (3,)`` a time-dependent force per unit mass [m/s^2] besides gravity
+            (a periodic wind), or None.
+        initial_velocity: ``(3,)`` every control point's velocity at the start [m/s].
         fixed: held control points.
         hessian: the Hessian kind of the solve (:data:`SOLID_HESSIANS`, or a shell's composed kind).
         initial: ``(n_q, 3)`` the control points at the start (None: the rest shape).
@@ -96,6 +116,8 @@ class SolidModel:
         fixed: Sequence[FixedPoints] = (),
         hessian: str = "projected",
         initial: np.ndarray | None = None,
+        body_force: Callable[[float], np.ndarray] | None = None,
+        initial_velocity: Sequence[float] | None = None,
     ):
         self.solid, self.comm, self.dynamics, self.hessian = solid, comm, dynamics, hessian
         self.name = solid.name
@@ -104,10 +126,10 @@ class SolidModel:
         self.share = solid.share(comm.rank, comm.size)
         self.load_factor = Parameter(1.0)
         self.time_step = Parameter(dynamics.time_step if dynamics is not None else 0.0)
-        forces = solid.gravity_force(np.asarray(gravity, dtype=float))
-        if point_forces is not None:
-            forces = forces + np.asarray(point_forces, dtype=float).reshape(-1)
-        self.dead_loads = forces
+        self.gravity = np.asarray(gravity, dtype=float)
+        self.body_force = body_force
+        self.point_forces = None if point_forces is None else np.asarray(point_forces, dtype=float).reshape(-1)
+        self.set_time(0.0)
         self.mass_matrix = solid.mass_matrix() if dynamics is not None else None
         # control-point motions no quadrature point sees have no stiffness: a diagonal shift keeps
         # Newton's steps finite along them (fixed at the rest state: the same on every rank)
@@ -116,6 +138,8 @@ class SolidModel:
         start = solid.reference.reshape(-1).copy() if initial is None else np.asarray(initial, float).reshape(-1)
         self.position = start.copy()
         self.velocity = np.zeros_like(start)
+        if initial_velocity is not None:
+            self.velocity[:] = np.tile(np.asarray(initial_velocity, dtype=float), len(start) // 3)
         self.previous = start.copy()
         self.predicted = start.copy()
         self.initial = start.copy()
@@ -148,6 +172,19 @@ class SolidModel:
                 values[np.ix_(points, components)] = targets[:, components]
         rows = np.flatnonzero(held.reshape(-1))
         return rows, values.reshape(-1)[rows]
+
+    def set_time(self, t: float) -> None:
+        """The dead loads at time ``t``: gravity, the body force and the point forces."""
+        acceleration = self.gravity if self.body_force is None else self.gravity + self.body_force(t)
+        forces = self.solid.gravity_force(acceleration)
+        self.dead_loads = forces if self.point_forces is None else forces + self.point_forces
+
+    def state_surface(self) -> SolidFrame:
+        """The current state for output (on every rank)."""
+        q = self.position.reshape(-1, 3)
+        solid = self.solid
+        return SolidFrame(solid.deformed_parts(q), solid.positions(q), solid.cauchy_stresses(q),
+                          solid.quadrature.weights)  # fmt: skip
 
     # -- what the driver asks of a body -------------------------------------------------------
     @property

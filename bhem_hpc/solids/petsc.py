@@ -85,7 +85,9 @@ class SolidProblem(PetscOwner):
         return np.zeros((len(bases), 3))
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:
-        """A solid holds control points as DOFs: no point constraint to move."""
+        """The time (or load factor) ``t`` of the next solve: the solid's time-dependent loads (its
+        held control points are DOFs: no point constraint to move)."""
+        self.model.set_time(t)
 
     @property
     def alm_multipliers(self) -> np.ndarray:
@@ -135,8 +137,11 @@ class SolidProblem(PetscOwner):
 
     def term_residual_norms(self) -> dict[str, float]:
         """Collective: the 2-norm of each term's gradient on the free DOFs."""
-        return {name: self.open_gradient_norm(lambda local, g=gradient: local.__iadd__(g))
-                for name, gradient in self.model.local_gradients().items()}  # fmt: skip
+        def adder(gradient: np.ndarray) -> Callable[[np.ndarray], None]:
+            return lambda local: np.add(local, gradient, out=local)
+
+        gradients = self.model.local_gradients()
+        return {name: self.open_gradient_norm(adder(gradient)) for name, gradient in gradients.items()}
 
     def open_gradient_norm(self, fill: Callable[[np.ndarray], None]) -> float:
         """Collective: the 2-norm on the free DOFs of the gradient ``fill(local)`` adds into zeros

@@ -80,6 +80,11 @@ class StepRecord:
         return self.regularized_retries + self.trust_region_solves + self.trust_region_failures + self.dt_halvings
 
 
+def body_state(model: ShellModel | SolidModel) -> ShellState | SolidState:
+    """The writer of a body's position and velocity: a shell's or a solid's."""
+    return SolidState(model) if isinstance(model, SolidModel) else ShellState(model)
+
+
 def _constraint_key(c: NodalConstraint) -> tuple:
     return tuple(c.nodes.ravel()) + c.kinds + c.components
 
@@ -132,7 +137,7 @@ class TimeStepper:
         self._clock = (self.time, self.step, self.dt)  # (time, step, dt) after the last advance
         self._origin = (self.time, self.step)  # where the clock was last set
         if self.state is None:  # the one writer of x, v and the step's previous state
-            states = [SolidState(m) if isinstance(m, SolidModel) else ShellState(m) for m in self.models]
+            states = [body_state(m) for m in self.models]
             self.state = states[0] if len(states) == 1 else StackedState(states)
         for motion in self.motions:
             _check_motion(self.models, motion)

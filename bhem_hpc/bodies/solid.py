@@ -1,0 +1,72 @@
+"""The solid body of a scene (``type = "solid"``): an SEM solid of a NURBS model as a
+:class:`~bhem_hpc.bodies.body.Body`, and its model built from its scene table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse
+from mpi4py import MPI
+
+from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.io.solid_output import SolidTimeSeries
+from bhem_hpc.scene.solids import SolidScene
+from bhem_hpc.scene.table import SceneError
+from bhem_hpc.solids.model import FixedPoints, SolidDynamics, SolidModel
+from bhem_hpc.solids.sem import ShapeMatchingSolid
+
+
+def build_solid_model(scene: SolidScene, comm: MPI.Comm, name: str = "solid") -> SolidModel:
+    """Collective: the solid's preprocessing (on every rank, its quadrature then split among them)
+    and its model with the scene's loads, held control points and initial velocity.
+
+    Raises:
+        SceneError: the model cannot be preprocessed (no inside found, a part too coarse for
+            shape matching, ...), naming the scene, the body's file and the cause.
+    """
+    try:
+        solid = ShapeMatchingSolid(list(scene.parts), scene.material, scene.options, name=f"{scene.file.name}")
+    except SurfaceError as exc:
+        raise SceneError(f"{scene.path}: body '{name}': key 'file' = {scene.file.name!r}: {exc}") from None
+    held = [FixedPoints(region.points(solid.reference), region.components) for region in scene.held]
+    wind = scene.wind.at if scene.wind is not None else None
+    return SolidModel(solid, comm, SolidDynamics(scene.dt), gravity=scene.gravity or (0.0, 0.0, 0.0), fixed=held,
+                      hessian=scene.hessian, body_force=wind, initial_velocity=scene.initial_velocity)  # fmt: skip
+
+
+class SolidBody:
+    """A solid of a scene as a :class:`~bhem_hpc.bodies.body.Body`: its flat entries are its control
+    points ``(n_q, 3)``, replicated on every rank.
+
+    Args:
+        name: the body's name; index: its place among the scene's bodies.
+        scene: its table; model: its :class:`SolidModel`.
+    """
+
+    kind = "solid"
+
+    def __init__(self, name: str, index: int, scene: SolidScene, model: SolidModel):
+        self.name, self.index, self.scene, self.model = name, index, scene, model
+
+    def dof_range(self, layout: StackedLayout) -> slice:
+        return layout.local_slice(self.index)
+
+    def mass(self) -> float:
+        return self.model.solid.mass
+
+    @property
+    def dofs(self) -> int:
+        return self.model.closed_dofs[1]
+
+    def entries(self, open_array: np.ndarray) -> np.ndarray:
+        return np.asarray(open_array, dtype=float).reshape(-1, 3)
+
+    def point_map(self, parameters: np.ndarray) -> scipy.sparse.csr_matrix:
+        raise SceneError(f"{self.scene.path}: body '{self.name}': a solid meets nothing (contact with solids is "
+                         "not built)")  # fmt: skip
+
+    def writer(self, path: Path, continue_at: float | None = None) -> SolidTimeSeries:
+        samples = 2 * self.scene.output_density + 1
+        return SolidTimeSeries(path, self.model.solid.parts, samples, continue_at)

@@ -224,8 +224,8 @@ def _run(args: argparse.Namespace, comm) -> None:
         output = f"{args.out}/surface.xdmf and surface.pvd (ParaView), last.png, summary.json, checkpoint.h5"
         if "bodies" in summary:
             folders = ", ".join(f"{body['name']}/" for body in summary["bodies"])
-            output = (f"{args.out}/bodies.pvd (ParaView: every body), {folders} (each body's surface.xdmf and "
-                      "surface.pvd), last.png, summary.json")  # fmt: skip
+            output = (f"{args.out}/bodies.pvd (ParaView: every body), {folders} (a shell's surface.xdmf and "
+                      "surface.pvd, a solid's surface.pvd and surface_points.pvd), last.png, summary.json")  # fmt: skip
         print(
             f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
             f"{comm.size} rank(s), {newton} Newton iterations, "

@@ -142,8 +142,8 @@ def _state_problem(arrays: dict, scene: Scene, key) -> str | None:
     position, velocity, nodal = (np.asarray(arrays[name]) for name in names)
     if position.shape != velocity.shape or position.ndim < 2 or position.shape[-1] != 3:
         return f"position and velocity DOFs have shapes {position.shape} and {velocity.shape}"
-    if nodal.shape != scene.surface.nodal.shape:
-        return f"its surface has shape {nodal.shape}, the scene's {scene.surface.nodal.shape}"
+    if nodal.shape != scene.nodal_shape:
+        return f"its surface has shape {nodal.shape}, the scene's {scene.nodal_shape}"
     if not all(a.dtype.kind == "f" and np.all(np.isfinite(a)) for a in (position, velocity, nodal)):
         return "it holds non-finite or non-numeric values"
     return None

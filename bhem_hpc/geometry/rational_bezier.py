@@ -326,7 +326,7 @@ def _sphere_candidates(points, origins, directions, tau_min, tau_max, tolerance)
     ``(K,)`` ray and patch indices, ray-major."""
     centres = points.mean(axis=1)
     radii = np.linalg.norm(points - centres[:, None], axis=2).max(axis=1) + tolerance
-    rays, patches = [], []
+    rays, patches = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]  # no ray: no pair
     step = max(1, SPHERE_CHUNK // max(len(points), 1))
     for first in range(0, len(origins), step):
         last = min(first + step, len(origins))

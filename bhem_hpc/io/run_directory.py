@@ -62,6 +62,9 @@ def run_series(out: Path) -> list[Path]:
     bodies = manifest_bodies(out) if not (out / "surface.h5").is_file() else []
     series = [out / body / "surface.h5" for body in bodies] or [out / "surface.h5"]
     for h5 in series:
+        if not h5.is_file() and h5.with_name("surface_points.pvd").is_file():
+            raise OutputDirectoryError(f"{h5.parent} holds a solid's frames (surface.pvd, VTU files for "
+                                       "ParaView): `bhem-hpc render` draws shells' series; last.png shows every body")
         if not h5.is_file():
             raise OutputDirectoryError(f"{h5} does not exist: {out} is not the output directory of `bhem-hpc run`")
     return series

@@ -104,3 +104,8 @@ class Scene:
     path_plan: PathPlan | None = None  # static scenes: how the equilibrium path is followed
     probes: tuple[Probe, ...] = ()
     initial_velocity: tuple[float, float, float] | None = None  # the shell's uniform velocity at t = 0 [m/s]
+
+    @property
+    def nodal_shape(self) -> tuple[int, ...]:
+        """The shape of the surface's nodal data (what a checkpoint keeps of a frame)."""
+        return self.surface.nodal.shape

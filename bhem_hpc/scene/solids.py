@@ -102,6 +102,11 @@ class SolidScene:
     path_plan: None = None
     constraints: tuple = ()
 
+    @property
+    def nodal_shape(self) -> tuple[int, ...]:
+        """``(control points, 3)``: what a checkpoint keeps of a frame."""
+        return sum(part.control[..., 0].size for part in self.parts), 3
+
 
 def _material(t: Table) -> SolidMaterial:
     values = {k: t.get(k, "a number") for k in ("density", "young", "poisson")}

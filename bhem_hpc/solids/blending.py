@@ -91,17 +91,21 @@ class RayDistances:
         return max(low, 1e-12 * self.reach)
 
 
-def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float) -> RayDistances:
+def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float,
+                  on_part: np.ndarray | None = None) -> RayDistances:  # fmt: skip
     """Primary and secondary distances of ``points (Q, 3)`` to ``parts``; secondary rays are cast
-    only where the primary distance is below ``reach`` and searched no farther than ``reach``."""
+    only where the primary distance is below ``reach`` and searched no farther than ``reach``.
+    ``on_part (Q,)``: the part each point lies on (boundary samples; -1: none), at distance 0 from it."""
     clock = time.perf_counter()
     count = len(points)
+    on_part = np.full(count, -1) if on_part is None else np.asarray(on_part)
     primary = np.empty((count, len(parts)))
     total = np.full((count, len(parts)), np.inf)
     same = np.zeros((count, len(parts)), dtype=bool)
     away = np.zeros((count, len(parts), 3))
     for i, part in enumerate(parts):
         _, nearest, distance = closest_points(part, points)
+        distance[on_part == i] = 0.0
         primary[:, i] = distance
         inside = distance > 0.0
         away[inside, i] = (points[inside] - nearest[inside]) / distance[inside, None]

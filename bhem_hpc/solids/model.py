@@ -235,11 +235,12 @@ class SolidModel:
             self.previous[:] = previous
 
     def gather_raw(self, array: np.ndarray) -> np.ndarray:
-        """An open array as raw DOFs (the whole array is on every rank)."""
-        return np.asarray(array, dtype=float).copy()
+        """An open array as raw DOFs ``(n_q, 3)`` (the whole array is on every rank)."""
+        return np.asarray(array, dtype=float).reshape(-1, 3).copy()
 
     def scatter_raw(self, raw: np.ndarray) -> np.ndarray:
-        return np.asarray(raw, dtype=float).copy()
+        """Raw DOFs ``(n_q, 3)`` as the open array ``(3 n_q,)``."""
+        return np.asarray(raw, dtype=float).reshape(-1).copy()
 
     # -- the incremental potential, this rank's part --------------------------------------------
     def _rank0(self) -> bool:
@@ -331,12 +332,14 @@ class SolidState:
             model.position[:] += correction.delta_position
 
     def set_raw(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
-        self.model.position[:] = position
+        """Set x (and v) from raw DOFs ``(n_q, 3)`` as checkpoints hold them."""
+        self.model.position[:] = self.model.scatter_raw(position)
         if velocity is not None:
-            self.model.velocity[:] = velocity
+            self.model.velocity[:] = self.model.scatter_raw(velocity)
 
     def raw_position(self) -> np.ndarray:
-        return self.model.position.copy()
+        """``(n_q, 3)`` the control points."""
+        return self.model.gather_raw(self.model.position)
 
     def raw_velocity(self) -> np.ndarray:
-        return self.model.velocity.copy()
+        return self.model.gather_raw(self.model.velocity)

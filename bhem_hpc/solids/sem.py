@@ -184,6 +184,18 @@ class ShapeMatchingSolid:
         alpha = 0.5 * diagonal if options.sparsity is None else distances.cutoff_for(options.sparsity, self.name)
         return distances.weights(alpha), self._gradients(distances, alpha), alpha
 
+    def _sample_blends(self, samples) -> list[scipy.sparse.csr_matrix]:
+        """The blending weights ``(samples, parts)`` at each part's boundary samples (cutoff alpha)."""
+        counts = [len(s.points) for s in samples]
+        if len(self.parts) == 1:
+            return [scipy.sparse.csr_matrix(np.ones((count, 1))) for count in counts]
+        points = np.concatenate([s.points for s in samples])
+        on_part = np.repeat(np.arange(len(samples)), counts)
+        reach = min(self.alpha, float(np.linalg.norm(np.subtract(*model_bounds(self.parts)))))
+        weights = ray_distances(self.parts, points, reach, on_part).weights(self.alpha)
+        starts = np.r_[0, np.cumsum(counts)]
+        return [weights[a:b] for a, b in zip(starts[:-1], starts[1:], strict=True)]
+
     def _gradients(self, distances: RayDistances, alpha: float) -> np.ndarray | None:
         return distances.weight_gradients(alpha) if self.options.weight_gradients else None
 
@@ -232,16 +244,14 @@ class ShapeMatchingSolid:
         position_map = phi @ projection  # (Q, n_q): x = position_map @ q
         self.position_map = position_map
         self.mass_scalar = (position_map.T @ scipy.sparse.diags(self._density * rule.weights) @ position_map).tocsr()
-        # error energy: boundary samples of each part under its own polynomial alone (Kronecker weights)
+        # error energy (eq. 16): each part's boundary samples under the blended map Gamma(X) q
+        # against the part itself, J(X) q; the blend ties every part to the volume's polynomials
         gamma = self.options.error_stiffness
         gamma = max(m.young for m in self.materials) if gamma is None else gamma
+        blends = self._sample_blends(samples)
         rows = []
-        for i, (s, part_basis) in enumerate(zip(samples, stacked_bases(samples), strict=True)):
-            own = scipy.sparse.csr_matrix(
-                (np.ones(len(s.points)), (np.arange(len(s.points)), np.full(len(s.points), i))),
-                shape=(len(s.points), len(self.parts)),
-            )
-            boundary_phi, _ = matching.kinematic_maps(s.points, own)
+        for s, part_basis, blend in zip(samples, stacked_bases(samples), blends, strict=True):
+            boundary_phi, _ = matching.kinematic_maps(s.points, blend)
             difference = boundary_phi @ projection - part_basis
             rows.append(difference.T @ scipy.sparse.diags(s.weights) @ difference)
         self.error_scalar = (gamma * sum(rows)).tocsr()

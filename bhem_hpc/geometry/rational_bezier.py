@@ -80,6 +80,18 @@ def subpatches(nets: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     return np.einsum("nai,nbj,nijc->nabc", along_s, along_t, nets)
 
 
+def _shared_subpatches(nets: np.ndarray, patch: np.ndarray, rect: np.ndarray) -> np.ndarray:
+    """:func:`subpatches` of ``nets[patch]`` on ``rect (K, 4)``, each distinct piece made once:
+    neighbouring rays (a camera's pixels) keep the same pieces."""
+    # at one level every piece is a square of one size: (patch, lower corner) in integers names it
+    cells = np.rint(rect[:, [0, 2]] / np.maximum(rect[:, 1] - rect[:, 0], 1e-300)[:, None]).astype(np.int64)
+    keys = (patch.astype(np.int64) * (1 << 20) + cells[:, 0]) * (1 << 20) + cells[:, 1]
+    keys, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    if len(keys) == len(patch):
+        return subpatches(nets[patch], rect)
+    return subpatches(nets[patch[first]], rect[first])[inverse.ravel()]
+
+
 @dataclass(frozen=True)
 class LineCrossings:
     """Crossings of lines with patches, ``(K,)`` arrays sorted by line, then position.
@@ -372,7 +384,7 @@ def first_hits(
     for level in range(MAX_LEVEL + 1):
         if not len(ray):
             break
-        piece = nets[patch] if level == 0 else subpatches(nets[patch], rect)  # level 0: the whole patches
+        piece = nets[patch] if level == 0 else _shared_subpatches(nets, patch, rect)  # level 0: the whole patches
         relative = (piece[..., :3] / piece[..., 3:]).reshape(len(ray), -1, 3) - origins[ray][:, None]
         across_1 = np.einsum("kpc,kc->kp", relative, first_axis[ray])
         across_2 = np.einsum("kpc,kc->kp", relative, second_axis[ray])

@@ -2,17 +2,20 @@
 
 castle.igs: a base block, a keep and four round towers at the base's corners, overlapping
 (16 parts, the castle of the SEM paper's Table 1 as bhem_hpc.studies.sem_models builds it).
+tyre.igs: a torus tread in 16 rational Bezier pieces on a hub of revolution reaching into it
+(17 parts, "tread 0".."tread 15" and "hub"; IGES keeps 8-character labels: "tread0", "hub").
 Run: .venv/bin/python jobs/make_models.py  (the generated files are committed).
 """
 
 from pathlib import Path
 
 from bhem_hpc.io.cad import write_parts
-from bhem_hpc.studies.sem_models import castle
+from bhem_hpc.studies.sem_models import castle, tyre
 
 MODELS = Path(__file__).resolve().parent / "models"
 
 if __name__ == "__main__":
     MODELS.mkdir(exist_ok=True)
-    write_parts(MODELS / "castle.igs", castle())
-    print(f"wrote {MODELS / 'castle.igs'}")
+    for name, parts in (("castle", castle()), ("tyre", tyre())):
+        write_parts(MODELS / f"{name}.igs", parts)
+        print(f"wrote {MODELS / name}.igs")

@@ -140,7 +140,7 @@ def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection
         (lambda s: s.replace("young = 5.0e6", 'young = "soft"'),
          r"body 'rubber' \(bodies\[1\]\): key 'material.young' must be a number, got 'soft'"),
         (lambda s: s.replace("[bodies.material]\nyoung = 5.0e6", "[bodies.materials]\nyoung = 5.0e6"),
-         r"key 'bodies\[1\].materials' must be absent"),
+         r"body 'rubber' \(bodies\[1\]\): missing key 'material'"),
         (lambda s: s.replace("young = 2.1e11\npoisson = 0.3\nthickness = 1e-3\ndensity = 7850.0\n", "")
          .replace("[bodies.material]\n[bodies.effects]", "[bodies.effects]"),
          r"body 'steel' \(bodies\[0\]\): missing key 'material'"),

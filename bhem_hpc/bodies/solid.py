@@ -27,7 +27,7 @@ def build_solid_model(scene: SolidScene, comm: MPI.Comm, name: str = "solid") ->
             shape matching, ...), naming the scene, the body's file and the cause.
     """
     try:
-        solid = ShapeMatchingSolid(list(scene.parts), scene.material, scene.options, name=f"{scene.file.name}")
+        solid = ShapeMatchingSolid(list(scene.parts), list(scene.materials), scene.options, name=f"{scene.file.name}")
     except SurfaceError as exc:
         raise SceneError(f"{scene.path}: body '{name}': key 'file' = {scene.file.name!r}: {exc}") from None
     held = [FixedPoints(region.points(solid.reference), region.components) for region in scene.held]

@@ -97,7 +97,7 @@ def _delimiters(global_text: str) -> tuple[str, str]:
 
 
 def _iges_entities(path: Path):
-    """``{directory sequence number: (type, transform pointer, status, parameters)}``."""
+    """``{directory sequence number: (type, transform pointer, status, parameters, entity label)}``."""
     sections = _iges_sections(path)
     parameter, record = _delimiters("".join(line[:72] for line in sections["G"]).strip())
     data = sections["P"]
@@ -107,12 +107,12 @@ def _iges_entities(path: Path):
         top, bottom = directory[first], directory[first + 1]
         try:
             kind, pointer, transform = int(top[0:8]), int(top[8:16]), int(top[48:56] or 0)
-            status, count = top[64:72].replace(" ", "0"), int(bottom[24:32])
+            status, count, label = top[64:72].replace(" ", "0"), int(bottom[24:32]), bottom[56:64].strip()
         except ValueError as error:
             raise SurfaceError(f"{path}: directory entry at D{first + 1} is malformed ({error})") from None
         text = "".join(line[:64] for line in data[pointer - 1 : pointer - 1 + count])
         text = text.split(record)[0]
-        entities[first + 1] = (kind, transform, status, [field for field in text.split(parameter)])
+        entities[first + 1] = (kind, transform, status, [field for field in text.split(parameter)], label)
     return entities
 
 
@@ -123,7 +123,7 @@ def _transform(entities, pointer: int, path: Path) -> tuple[np.ndarray, np.ndarr
     for _ in range(len(entities)):  # bounded: a chain visits each entity at most once
         if not pointer:
             break
-        kind, parent, _, fields = entities.get(pointer, (None, 0, "", []))
+        kind, parent, _, fields, _label = entities.get(pointer, (None, 0, "", [], ""))
         if kind != 124:
             raise SurfaceError(f"{path}: D{pointer} is not a transformation matrix (entity 124)")
         matrix = np.array([_iges_number(f) for f in fields[1:13]]).reshape(3, 4)
@@ -173,10 +173,12 @@ def _read_iges(path: Path) -> list[NurbsSurface]:
                 "surfaces: untrim or split the model in the modeller, or export its surfaces untrimmed"
             )
     parts = []
-    for pointer, (kind, transform, _status, fields) in entities.items():
+    for pointer, (kind, transform, _status, fields, label) in entities.items():
         if kind != 128:
             continue
         surface = _iges_surface(fields, f"surface D{pointer}", path)
+        if label:  # the part's entity label (8 characters at most), with its entry: unique
+            surface = surface.with_name(f"{label} (D{pointer})")
         rotation, translation = _transform(entities, transform, path)
         parts.append(surface.with_control(surface.control @ rotation.T + translation))
     return parts

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Protocol, Union
+from typing import Protocol, Union, runtime_checkable
 
 import numpy as np
 
@@ -24,27 +24,28 @@ LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
 VIEW = np.array([1.0, -1.6, 1.1])
 
 
+@runtime_checkable
 class NurbsParts(Protocol):
     """A body drawn by its NURBS parts (a solid's frame, :class:`~bhem_hpc.solids.model.SolidFrame`)."""
 
     parts: list[NurbsSurface]
 
 
-#: A body of a picture: a shell's surface or a solid's parts.
+#: A body of a picture: a shell's surface (Hermite or B-spline) or a solid's parts.
 Drawable = Union[HermiteSurface, NurbsParts]  # noqa: UP007 (a runtime alias of a Protocol)
 
 
 def _corner_points(body: Drawable) -> np.ndarray:
     """``(n, 3)`` points whose bounding box holds the body (nodes or control points)."""
-    if isinstance(body, HermiteSurface):
-        return body.nodal[..., 0, :].reshape(-1, 3)
-    return np.concatenate([part.control.reshape(-1, 3) for part in body.parts])
+    if isinstance(body, NurbsParts):
+        return np.concatenate([part.control.reshape(-1, 3) for part in body.parts])
+    return body.nodal[..., 0, :].reshape(-1, 3)
 
 
 def _trace(body: Drawable, eye: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each ray's distance to its first hit on the body ``(R,)`` (inf: none) and the unit normal there ``(R, 3)``."""
     tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
-    if isinstance(body, HermiteSurface):
+    if not isinstance(body, NurbsParts):  # a shell's surface (Hermite or B-spline): bicubic nets
         nets = body.bezier_nets()
         hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
         mask = hits.patch >= 0

@@ -30,14 +30,14 @@ from bhem_hpc.errors import UserError
 #: The files a run writes; a restart in place refuses to continue through a symbolic link among them.
 RUN_FILES = (
     "scene.toml", "surface.xdmf", "surface.h5", "surface.pvd", "surface_frames", "checkpoint.h5", "summary.json",
-    "last.png", "path.csv", "path.png", "probes.csv", "steps.jsonl", "bodies.pvd",
+    "last.png", "path.csv", "path.png", "probes.csv", "steps.jsonl", "bodies.pvd", "surface_points.pvd",
 )  # fmt: skip
 
 
 #: The manifest a run writes first: it marks the directory as a bhem-hpc run's output.
 MANIFEST = ".bhem-run"
-#: Files of the frames folder a run writes.
-FRAME_FILE = re.compile(r"frame_\d+\.vtu(\.tmp)?")
+#: Files of the frames folder a run writes (a solid's: its boundary and its quadrature points).
+FRAME_FILE = re.compile(r"frame_\d+(_boundary|_points)?\.vtu(\.tmp)?")
 #: A lock file younger than this whose content cannot be read yet is being written: held.
 LOCK_WRITE_SECONDS = 60.0
 

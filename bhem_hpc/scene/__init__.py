@@ -12,7 +12,12 @@ kinds in :data:`~.surfaces.SURFACES`, motion types in :data:`~.motions.MOTIONS`,
 access with errors that name the key.
 """
 
-from bhem_hpc.scene.loader import load_scene
+# isort: off
+from bhem_hpc.scene.loader import load_scene  # registers the shell body type, the default, first
+
+from bhem_hpc.scene import solids as _solids  # noqa: F401  (registers the solid body type)
+
+# isort: on
 from bhem_hpc.scene.records import Effects, Motion, Scene, SceneConstraint, SceneContact, ScenePoint
 from bhem_hpc.scene.table import SceneError
 

@@ -19,7 +19,6 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.hessian import HESSIAN_KINDS
 from bhem_hpc.model.material import BENDING_MODELS, MEMBRANE_MODELS, Material, MaterialError
 from bhem_hpc.model.path import PATH_METHODS, ArcLength, PathPlan, PathSettingError, Probe, check_levels
-from bhem_hpc.scene import solids as _solids  # noqa: F401  (registers the solid body type)
 from bhem_hpc.scene.bodies import BODY_TYPES, BodiesScene, parse_bodies
 from bhem_hpc.scene.colliders import parse_colliders
 from bhem_hpc.scene.constraints import parse_constraints, parse_point_constraints

@@ -6,6 +6,8 @@ stdlib; the CAD file is read here, so that a bad model is refused before anythin
     type = "solid"
     file = "castle.igs"         # IGES or Rhino .3dm, relative to the scene
     [bodies.material]           # density [kg/m^3], young [Pa], poisson, model ("neo-hookean", "stvk")
+                                # or, several materials: [[bodies.materials]] with parts = ["hub*", ...]
+                                # (part names, * and ? as in file names) and the same keys
     [bodies.sem]                # degree (1, 2), lines_per_side, quadrature_order, sparsity or alpha,
                                 # origins ("flow", "single"), error_stiffness [Pa]
     [bodies.effects]            # gravity = [gx, gy, gz] [m/s^2];
@@ -22,6 +24,7 @@ time-stepped; contact with solids is not built, so a solid's effects do not list
 
 from __future__ import annotations
 
+import fnmatch
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,7 +83,7 @@ class SolidScene:
     path: Path
     file: Path
     parts: tuple[NurbsSurface, ...]
-    material: SolidMaterial
+    materials: tuple[SolidMaterial, ...]  # one per part
     options: SolidOptions
     gravity: tuple[float, float, float] | None
     wind: Wind | None
@@ -108,7 +111,37 @@ class SolidScene:
         return sum(part.control[..., 0].size for part in self.parts), 3
 
 
-def _material(t: Table) -> SolidMaterial:
+def _materials(top: Table, parts: tuple[NurbsSurface, ...]) -> tuple[SolidMaterial, ...]:
+    """``material`` for every part, or ``[[materials]]`` each naming its ``parts`` (patterns)."""
+    if "materials" not in top.data:
+        return (_material(top.table("material")),) * len(parts)
+    if "material" in top.data:
+        raise SceneError(f"{top.path}: give one of 'material' and 'materials', not both")
+    items = top.get("materials", "a list", check=lambda v: len(v) >= 1 and all(isinstance(m, dict) for m in v),
+                    expected="a list of material tables ([[materials]]) with their parts")  # fmt: skip
+    names = [part.name for part in parts]
+    chosen: list[SolidMaterial | None] = [None] * len(parts)
+    for k, item in enumerate(items):
+        t = Table(top.path, f"materials[{k}]", item)
+        patterns = t.get("parts", "a list", check=lambda v: len(v) >= 1 and all(isinstance(p, str) for p in v),
+                         expected="a list of part names (* and ? match any characters)")  # fmt: skip
+        material = _material(t, skip=("parts",))
+        for pattern in patterns:
+            matched = [i for i, name in enumerate(names) if fnmatch.fnmatchcase(name, pattern)]
+            if not matched:
+                t.fail("parts", f"names of the model's parts ({', '.join(names)})", pattern)
+            for i in matched:
+                if chosen[i] is not None:
+                    t.fail("parts", f"parts no other material names (part {names[i]!r} has one)", pattern)
+                chosen[i] = material
+    missing = [name for name, material in zip(names, chosen, strict=True) if material is None]
+    if missing:
+        raise SceneError(f"{top.path}: key 'materials': parts without a material: {', '.join(missing)}")
+    return tuple(chosen)
+
+
+def _material(t: Table, skip: tuple[str, ...] = ()) -> SolidMaterial:
+    t.used.update(skip)
     values = {k: t.get(k, "a number") for k in ("density", "young", "poisson")}
     model = t.get("model", "a string", "neo-hookean", lambda v: v in MODELS, f"one of {sorted(MODELS)}")
     t.done()
@@ -220,7 +253,7 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
     clock = parse_clock(top)
     if clock.static:
         raise SceneError(f"{path}: key 'time.static': a solid is time-stepped (dt and steps)")
-    material = _material(top.table("material"))
+    materials = _materials(top, parts)
     options = _options(top.table("sem", None))
     gravity, wind = _effects(top.table("effects", None))
     held = _held(top, parts)
@@ -228,7 +261,7 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
     every, density = parse_output(top)
     initial_velocity = _initial_velocity(top)
     top.done()
-    return SolidScene(path=path, file=file, parts=parts, material=material, options=options, gravity=gravity,
+    return SolidScene(path=path, file=file, parts=parts, materials=materials, options=options, gravity=gravity,
                       wind=wind, held=held, dt=clock.dt, steps=clock.steps, hessian=hessian, linear=linear,
                       factorization=factorization or "reuse", petsc_options=dict(petsc_options), output_every=every,
                       output_density=density, initial_velocity=initial_velocity, raw=raw)  # fmt: skip

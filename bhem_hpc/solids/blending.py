@@ -91,6 +91,16 @@ class RayDistances:
         return max(low, 1e-12 * self.reach)
 
 
+def _patches_by_degree(parts: Sequence[NurbsSurface]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The parts' rational Bezier nets in one array per degree (one ray search each) with the part
+    of each patch: ``[(nets (P, p + 1, q + 1, 4), part (P,)), ...]``."""
+    by_degree: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
+    for k, part in enumerate(parts):
+        by_degree.setdefault(part.degrees, []).append((part.bezier_patches.nets, k))
+    return [(np.concatenate([nets for nets, _ in group]), np.concatenate([np.full(len(nets), k) for nets, k in group]))
+            for group in by_degree.values()]  # fmt: skip
+
+
 def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float,
                   on_part: np.ndarray | None = None) -> RayDistances:  # fmt: skip
     """Primary and secondary distances of ``points (Q, 3)`` to ``parts``; secondary rays are cast
@@ -99,6 +109,7 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
     clock = time.perf_counter()
     count = len(points)
     on_part = np.full(count, -1) if on_part is None else np.asarray(on_part)
+    groups = _patches_by_degree(parts)
     primary = np.empty((count, len(parts)))
     total = np.full((count, len(parts)), np.inf)
     same = np.zeros((count, len(parts)), dtype=bool)
@@ -113,11 +124,11 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
         direction = (points[cast] - nearest[cast]) / distance[cast, None]
         tau_min = distance[cast] * (1.0 + 1e-9)
         best, owner = np.full(len(cast), np.inf), np.full(len(cast), -1)
-        for k, other in enumerate(parts):
+        for nets, part_of_patch in groups:
             # searched no farther than the nearest hit so far
-            hits = first_hits(other.bezier_patches.nets, nearest[cast], direction, tau_min, np.minimum(best, reach))
+            hits = first_hits(nets, nearest[cast], direction, tau_min, np.minimum(best, reach))
             closer = hits.tau < best
-            best[closer], owner[closer] = hits.tau[closer], k
+            best[closer], owner[closer] = hits.tau[closer], part_of_patch[hits.patch[closer]]
         total[cast, i] = best
         same[cast, i] = owner == i
         same[distance == 0.0, i] = True

@@ -6,7 +6,8 @@ are interleaved (``3 * point + component``), the layout PETSc's block size 3 wan
 coefficients of the blended polynomial map are ``C = Pi q`` (:mod:`.shape_matching`); at the
 volume quadrature points ``F = sum_d G_d C`` is the deformation gradient and the elastic energy is
 ``sum_k v_k psi(F_k)``. The error energy ``gamma |Phi_b Pi q - J q|^2_S`` (§7.6) ties the boundary
-of the polynomial map to the parts; ``gamma`` defaults to Young's modulus, as the paper advises.
+of the polynomial map to the parts; ``gamma`` defaults to Young's modulus, as the paper advises
+(each part's own, in a solid of several materials).
 Every stage of the preprocessing is timed (:attr:`ShapeMatchingSolid.seconds`).
 """
 
@@ -57,7 +58,7 @@ class SolidOptions:
     deformation ``origins``: ``"flow"`` (the min-cost network flow of §6.2), ``"single"`` (one for
     all parts) or one origin index per part; ``weight_gradients``: keep the blending weights'
     gradients in ``F`` (eq. 15 whole; False: the paper's constant weights, under which parts may
-    turn against each other at no strain); ``error_stiffness`` gamma (None: Young's modulus)."""
+    turn against each other at no strain); ``error_stiffness`` gamma (None: each part's Young's modulus)."""
 
     degree: int = 2
     lines_per_side: int = 24
@@ -247,14 +248,14 @@ class ShapeMatchingSolid:
         # error energy (eq. 16): each part's boundary samples under the blended map Gamma(X) q
         # against the part itself, J(X) q; the blend ties every part to the volume's polynomials
         gamma = self.options.error_stiffness
-        gamma = max(m.young for m in self.materials) if gamma is None else gamma
+        gammas = [m.young if gamma is None else gamma for m in self.materials]
         blends = self._sample_blends(samples)
         rows = []
-        for s, part_basis, blend in zip(samples, stacked_bases(samples), blends, strict=True):
+        for s, part_basis, blend, part_gamma in zip(samples, stacked_bases(samples), blends, gammas, strict=True):
             boundary_phi, _ = matching.kinematic_maps(s.points, blend)
             difference = boundary_phi @ projection - part_basis
-            rows.append(difference.T @ scipy.sparse.diags(s.weights) @ difference)
-        self.error_scalar = (gamma * sum(rows)).tocsr()
+            rows.append(part_gamma * (difference.T @ scipy.sparse.diags(s.weights) @ difference))
+        self.error_scalar = sum(rows).tocsr()
         self._error = _interleave(self.error_scalar)
         self.whole = QuadratureShare(self, 0, len(rule.points))
 

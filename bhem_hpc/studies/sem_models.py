@@ -1,6 +1,7 @@
 """Solids built like the SEM paper's Table 1 models from NURBS parts that overlap as a modeller
 leaves them (numpy only): a rocket (a body of revolution and four fins through it), a mug (a cup
-of revolution and a torus handle through its wall) and a castle (blocks and round towers)."""
+of revolution and a torus handle through its wall), a castle (blocks and round towers) and the
+paper's tyre of two materials (a torus tread on a hub of revolution)."""
 
 from __future__ import annotations
 
@@ -55,3 +56,20 @@ def castle() -> list[nurbs.NurbsSurface]:
         for k, (x, y) in enumerate([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)])
     ]
     return base + keep + towers
+
+
+def _bezier_pieces(surface: nurbs.NurbsSurface, name: str) -> list[nurbs.NurbsSurface]:
+    """The rational Bezier patches of ``surface`` as parts of their own (one per knot-span pair)."""
+    (p, q), nets = surface.degrees, surface.bezier_patches.nets
+    knots_u, knots_v = np.r_[np.zeros(p + 1), np.ones(p + 1)], np.r_[np.zeros(q + 1), np.ones(q + 1)]
+    return [nurbs.NurbsSurface((p, q), knots_u, knots_v, net[..., :3] / net[..., 3:], net[..., 3], f"{name} {k}")
+            for k, net in enumerate(nets)]  # fmt: skip
+
+
+def tyre() -> list[nurbs.NurbsSurface]:
+    """A tyre lying in the x-y plane: a torus tread (major radius 0.3 m, minor 0.1 m) cut into its
+    16 rational Bezier patches, on a hub of revolution (radius 0.22 m, 0.12 m wide) that reaches
+    2 cm into it: 17 parts, ``tread 0`` to ``tread 15`` and ``hub``."""
+    tread = _bezier_pieces(nurbs.torus(0.3, 0.1), "tread")
+    hub = _solid_of_revolution([(0.0, -0.06), (0.22, -0.06), (0.22, 0.0), (0.22, 0.06), (0.0, 0.06)], "hub")
+    return [*tread, hub]

@@ -315,7 +315,11 @@ class SolidState:
         model.time_step.value = dt
         model.previous[:] = start.position
         model.predicted[:] = start.position + dt * start.velocity
-        model.position[:] = model.predicted
+        # the inertial prediction is the first guess where it inverts no quadrature point (an
+        # infinite energy would leave the energy line search nothing to compare); else x_n
+        admissible = np.isfinite(model.share.energy(model.predicted))
+        if model.comm.allreduce(admissible, op=MPI.LAND):
+            model.position[:] = model.predicted
         return start
 
     def roll_back(self, start: StepStart) -> None:

@@ -137,6 +137,7 @@ class SolidProblem(PetscOwner):
 
     def term_residual_norms(self) -> dict[str, float]:
         """Collective: the 2-norm of each term's gradient on the free DOFs."""
+
         def adder(gradient: np.ndarray) -> Callable[[np.ndarray], None]:
             return lambda local: np.add(local, gradient, out=local)
 

@@ -111,6 +111,11 @@ class QuadratureShare:
         return (solid._projection.T @ coefficients @ solid._projection).tocsr()
 
 
+#: Largest ``|F - I|`` at rest a solid is built with (the shape matching reproduces affine maps
+#: exactly; round-off leaves 1e-13).
+REST_TOLERANCE = 1e-8
+
+
 def _interleave(scalar: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
     """``scalar ⊗ I_3``: the operator on interleaved 3-vectors acting on each component alike."""
     return scipy.sparse.kron(scalar, scipy.sparse.identity(3), format="csr")
@@ -169,6 +174,27 @@ class ShapeMatchingSolid:
         clock = time.perf_counter()
         self._build_operators(samples)
         self.seconds["operators"] = time.perf_counter() - clock
+        self._check_rest_shape()
+
+    def _check_rest_shape(self) -> None:
+        """The rest shape must map to itself (``F = I`` at every quadrature point): where a part's
+        polynomial is fitted from too few samples its blend may not reproduce it.
+
+        Raises:
+            SurfaceError: naming the parts blended where it fails and what to raise.
+        """
+        deviation = np.abs(self.deformation_gradients(self.reference) - np.eye(3)).max(axis=(1, 2))
+        wrong = np.flatnonzero(deviation > REST_TOLERANCE)
+        if not len(wrong):
+            return
+        worst = wrong[np.argmax(deviation[wrong])]
+        blended = sorted({self.parts[i].name for i in self.blend[wrong].nonzero()[1]})
+        raise SurfaceError(
+            f"{self.name}: the rest shape is not reproduced at {len(wrong)} of {len(deviation)} quadrature points "
+            f"(|F - I| up to {deviation[worst]:.3g}, near {np.round(self.quadrature.points[worst], 4).tolist()}), "
+            f"where parts {', '.join(blended)} blend: the shape matching is not well posed there; raise "
+            f"lines_per_side ({self.options.lines_per_side}) or the blending cutoff (alpha {self.alpha:.3g})"
+        )
 
     def _blending_weights(self) -> tuple[scipy.sparse.csr_matrix, np.ndarray | None, float]:
         points, options = self.quadrature.points, self.options

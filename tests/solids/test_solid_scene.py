@@ -257,3 +257,22 @@ def test_bad_materials_are_refused_naming_the_parts(comm, shared_tmp_path, edit,
     path = _write(comm, shared_tmp_path / "tyre.toml", edit(TYRE.format(file=REPO / "jobs" / "models" / "tyre.igs")))
     with pytest.raises(SceneError, match=message):
         load_any_scene(path)
+
+
+def test_too_coarse_a_quadrature_for_the_shape_matching_is_refused_naming_the_parts(comm, shared_tmp_path):
+    """Two boxes of two materials overlapping by 1 cm, a 5 cm cutoff: with 10 ray-cast lines per side
+    the parts blended at the bar's centre do not map the rest shape to itself (|F - I| = 11.8 at 3
+    of 180 points); the run stops before its output, naming the parts; 24 lines pose it (F = I to 3e-14)."""
+    steel = [f.with_name(f"steel{k}") for k, f in enumerate(nurbs.box_faces([0, 0, 0], [0.21, 0.1, 0.1], degree=2))]
+    rubber = [f.with_name(f"rubber{k}") for k, f in enumerate(nurbs.box_faces([0.2, 0, 0], [0.4, 0.1, 0.1], degree=2))]
+    if comm.rank == 0:
+        write_parts(shared_tmp_path / "bar.igs", steel + rubber)
+    text = (TYRE.format(file="bar.igs").replace("lines_per_side = 8", "lines_per_side = 10")
+            .replace('"tread*"', '"rubber*"').replace('"hub*"', '"steel*"')
+            .replace("[[-0.05, -0.05, -0.1], [0.05, 0.05, 0.1]]", "[[-0.001, -1, -1], [0.001, 1, 1]]"))  # fmt: skip
+    path = _write(comm, shared_tmp_path / "bar.toml", text)
+    with pytest.raises(SceneError, match=r"body 'tyre': .*the rest shape is not reproduced at 3 of 180 quadrature "
+                                         r"points .*parts rubber3 \(D19\), rubber5 \(D23\), steel3 \(D7\), steel5 "
+                                         r"\(D11\) blend: .*raise lines_per_side \(10\)"):  # fmt: skip
+        run_scene(RunOptions(path, shared_tmp_path / "bar", progress=False), comm)
+    assert not (shared_tmp_path / "bar").exists()

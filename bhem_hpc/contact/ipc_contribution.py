@@ -1,5 +1,5 @@
 """Incremental potential contact inside the Newton solve: ipc-toolkit's barrier between a shell's
-collision mesh and static obstacles as an energy contribution with a line-search step bound
+(or a solid's) collision mesh and static obstacles as an energy contribution with a line-search step bound
 (:class:`~bhem_hpc.solver.contributions.StepBounded`); numpy, SciPy and ipctk only.
 
 The collision mesh's vertices are material points of the shell, each a fixed linear combination
@@ -236,10 +236,6 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
     the patches, so each lattice triangle lies in one cell), ``dhat`` by default 1e-3 of the rest
     mesh's bounding-box diagonal, and ``kappa`` by default the top of ipc-toolkit's adaptive range
     for that ``dhat`` and the mesh's mass per vertex."""
-    import ipctk
-
-    from bhem_hpc.collision.colliders import Plane, Sphere
-
     grid = model.rest_surface.grid
     per_side = (grid.n1 * cells_per_patch, grid.n2 * cells_per_patch)
     periodic = (grid.periodic1, grid.periodic2)
@@ -253,16 +249,64 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
         corners = rest[triangles]
         normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         area = 0.5 * np.linalg.norm(normals, axis=1).sum()
-        mass_per_vertex = density * thickness * area / len(rest)
-        zero = np.zeros(3)
-        # the top of IPC's adaptive range (its rule starts at the bottom, 1/100 of it, and doubles
-        # kappa while contacts close in): at the bottom, a rubber sheet landing on a floor (dhat
-        # 1e-3) sank to 5e-8 m of it and Newton stalled there; at the top it lands in 8 iterations
-        # and rests 1e-6 m above (measured)
-        stiffness = ipctk.initial_barrier_stiffness(diagonal, ipctk.ClampedLogBarrier(), dhat, mass_per_vertex,
-                                                    zero, zero)[1]  # fmt: skip
+        stiffness = _kappa(rest, dhat, density * thickness * area / len(rest))
+    meshes, planes = _obstacles(colliders, dhat)
+    return IpcBarrier(bases, model.global_open_blocks, triangles, meshes, planes, dhat, stiffness, model.comm,
+                      self_contact)
+
+
+def _obstacles(colliders: Sequence[Any], dhat: float) -> tuple[list, list]:
+    """Colliders as the barrier's static triangle meshes (spheres as icospheres within
+    :data:`SPHERE_SAGITTA` dhat) and planes ``(unit normal, point)``."""
+    from bhem_hpc.collision.colliders import Plane, Sphere
+
     planes = [(c.normal / np.linalg.norm(c.normal), c.point) for c in colliders if isinstance(c, Plane)]
     meshes = [c.triangles(SPHERE_SAGITTA * dhat) if isinstance(c, Sphere) else (c.vertices, c.triangles)
               for c in colliders if not isinstance(c, Plane)]  # fmt: skip
-    return IpcBarrier(bases, model.global_open_blocks, triangles, meshes, planes, dhat, stiffness, model.comm,
-                      self_contact)
+    return meshes, planes
+
+
+def _kappa(rest: np.ndarray, dhat: float, mass_per_vertex: float) -> float:
+    """The top of ipc-toolkit's adaptive barrier stiffness range for a mesh at ``rest (V, 3)`` with
+    ``mass_per_vertex`` [kg]. Its rule starts at the bottom, 1/100 of it, and doubles kappa while
+    contacts close in: at the bottom, a rubber sheet landing on a floor (dhat 1e-3) sank to 5e-8 m
+    of it and Newton stalled there; at the top it lands in 8 iterations and rests 1e-6 m above
+    (measured)."""
+    import ipctk
+
+    diagonal = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)))
+    zero = np.zeros(3)
+    return ipctk.initial_barrier_stiffness(diagonal, ipctk.ClampedLogBarrier(), dhat, mass_per_vertex, zero, zero)[1]
+
+
+def solid_barrier(
+    parts: Sequence[Any], comm: Communicator, colliders: Sequence[Any], mass: float, dhat: float | None = None,
+    stiffness: float | None = None, samples: int = 9,
+) -> IpcBarrier:  # fmt: skip
+    """The barrier between an SEM solid's boundary and static colliders: its NURBS ``parts`` (stacked
+    control points as the DOF blocks, every block on every rank) tessellated on ``samples x samples``
+    parameter grids, each vertex a fixed rational combination of its part's control points (given
+    on rank 0: each term once); ``dhat`` by default 1e-3 of the bounding-box diagonal, ``kappa`` the
+    top of IPC's adaptive range for the solid's ``mass`` [kg] per vertex. Parts meet only the
+    colliders (a modeller's parts overlap one another)."""
+
+    grid = np.linspace(0.0, 1.0, samples)
+    u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    cell = np.arange(samples - 1)
+    corner = (cell[:, None] * samples + cell[None, :]).ravel()
+    local_triangles = np.concatenate([np.stack([corner, corner + samples, corner + samples + 1], axis=1),
+                                      np.stack([corner, corner + samples + 1, corner + 1], axis=1)])  # fmt: skip
+    bases, triangles, rest, offset = [], [], [], 0
+    for k, part in enumerate(parts):
+        (u0, u1), (v0, v1) = part.u.domain, part.v.domain
+        index, values = part.basis_matrix(u0 + u * (u1 - u0), v0 + v * (v1 - v0))
+        bases += [(offset + i, w) if comm.rank == 0 else (np.zeros(0, np.int64), np.zeros(0))
+                  for i, w in zip(index, values, strict=True)]  # fmt: skip
+        triangles.append(local_triangles + k * len(u))
+        rest.append(np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index]))
+        offset += part.control[..., 0].size
+    rest = np.concatenate(rest)
+    dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
+    stiffness = _kappa(rest, dhat, mass / len(rest)) if stiffness is None else float(stiffness)
+    meshes, planes = _obstacles(colliders, dhat)
+    return IpcBarrier(bases, np.arange(offset), np.concatenate(triangles), meshes, planes, dhat, stiffness, comm)

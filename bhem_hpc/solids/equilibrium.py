@@ -19,7 +19,7 @@ from bhem_hpc.errors import UserError
 from bhem_hpc.solids.sem import ShapeMatchingSolid
 
 #: Newton iterations of a static solve.
-MAX_ITERATIONS = 50
+MAX_ITERATIONS = 100
 #: Step halvings of one line search.
 MAX_HALVINGS = 40
 #: Armijo's sufficient decrease.

@@ -259,14 +259,16 @@ class SolidModel:
         return terms
 
     def local_gradients(self) -> dict[str, np.ndarray]:
-        """This rank's part of each term's gradient ``(3 n_q,)``."""
+        """This rank's part of each term's gradient ``(3 n_q,)`` (the same terms on every rank)."""
         q = self.position
         gradients = {"elasticity": self.share.gradient(q)}
-        if self._rank0():
-            gradients["error"] = self.solid.error_matrix @ q
-            gradients["loads"] = -float(self.load_factor.value) * self.dead_loads
-            if self.dynamics is not None:
-                gradients["inertia"] = self.mass_matrix @ (q - self.predicted) / self.time_step.value**2
+        names = ("error", "loads", "inertia") if self.dynamics is not None else ("error", "loads")
+        if not self._rank0():  # the same terms on every rank: their norms are summed over the ranks
+            return gradients | {name: np.zeros_like(q) for name in names}
+        gradients["error"] = self.solid.error_matrix @ q
+        gradients["loads"] = -float(self.load_factor.value) * self.dead_loads
+        if self.dynamics is not None:
+            gradients["inertia"] = self.mass_matrix @ (q - self.predicted) / self.time_step.value**2
         return gradients
 
     def local_hessian(self, kind: str) -> scipy.sparse.csr_matrix:

@@ -16,12 +16,18 @@ import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import scipy.sparse
 from petsc4py import PETSc
 
 from bhem_hpc.solids.model import SolidModel
-from bhem_hpc.solver.contributions import Contribution, ContributionState
+from bhem_hpc.solver.contributions import Contribution, ContributionState, StepBounded
 from bhem_hpc.solver.petsc import PetscOwner
-from bhem_hpc.solver.problem import add_diagonal_regularization, stored_entries
+from bhem_hpc.solver.problem import (
+    add_contribution_hessians,
+    add_diagonal_regularization,
+    pattern_arrays,
+    stored_entries,
+)
 from bhem_hpc.solver.report import SolveReport
 
 
@@ -33,9 +39,10 @@ class SolidProblem(PetscOwner):
         report: where assembly times are added up.
         kinds: the Hessian kinds the solve names (a stacked problem's shells' kinds; ``"exact"``
             assembles the exact Hessian, every other kind the projected one).
-
-    Raises:
-        ValueError: energy contributions on a solid alone (contact with solids is not built).
+        contributions: energy contributions on the control points (rows of
+            ``ContributionState.positions``: every control point, on every rank; each term added on
+            one rank), e.g. IPC's barrier against colliders; their Hessian patterns (global blocks)
+            join the Jacobian's.
     """
 
     matrix_format = "aij"
@@ -43,17 +50,19 @@ class SolidProblem(PetscOwner):
 
     def __init__(self, model: SolidModel, report: SolveReport, kinds: Sequence[str] = ("projected", "exact"),
                  contributions: Sequence[Contribution] = ()):  # fmt: skip
-        if contributions:
-            raise ValueError(f"{model.name}: energy contributions on a solid (contact) are not supported")
         self.model, self.report, self.comm = model, report, model.comm
         self._kinds = tuple(kinds)
         self.hessian = self._kinds[0]
         self._closed = False
-        self.contributions: list[Contribution] = []
+        self.contributions: list[Contribution] = list(contributions)
+        for contribution in self.contributions:
+            if not isinstance(contribution, Contribution):
+                raise TypeError(f"{contribution!r} is not an energy contribution (bhem_hpc.solver.contributions)")
+        self._patterns = [pattern_arrays(*c.hessian_pattern()) for c in self.contributions]
         local, size = model.closed_dofs
         start = 3 * model.owned[0]
         self._rows = slice(start, start + local)
-        pattern = model.hessian_pattern()[self._rows]
+        pattern = (model.hessian_pattern() + self._contribution_pattern(size))[self._rows].tocsr()
         pattern.sort_indices()
         self.jacobian = PETSc.Mat().createAIJ(((local, size), (local, size)), bsize=3, comm=self.comm,
                                               csr=(pattern.indptr.astype(PETSc.IntType),
@@ -66,6 +75,17 @@ class SolidProblem(PetscOwner):
         self.bc_values = model.constrained_initial.copy()
         self.regularization = 0.0
         self.on_pattern_growth: Callable[[], None] | None = None
+
+    def _contribution_pattern(self, size: int) -> scipy.sparse.csr_matrix:
+        """The contributions' Hessian blocks as scalar entries, gathered on every rank (each rank's
+        Jacobian rows are preallocated from the whole pattern)."""
+        rows = np.concatenate([np.zeros(0, np.int64), *(r.ravel() for r, _ in self._patterns)])
+        cols = np.concatenate([np.zeros(0, np.int64), *(c.ravel() for _, c in self._patterns)])
+        rows, cols = (np.concatenate(parts) for parts in zip(*self.comm.allgather((rows, cols)), strict=True))
+        component, shape = np.arange(3), (len(rows), 3, 3)
+        scalar_rows = np.broadcast_to(3 * rows[:, None, None] + component[None, :, None], shape).ravel()
+        scalar_cols = np.broadcast_to(3 * cols[:, None, None] + component[None, None, :], shape).ravel()
+        return scipy.sparse.csr_matrix((np.ones(len(scalar_rows)), (scalar_rows, scalar_cols)), shape=(size, size))
 
     def hessian_kinds(self) -> tuple[str, ...]:
         return self._kinds
@@ -108,6 +128,9 @@ class SolidProblem(PetscOwner):
         t0 = time.perf_counter()
         local = sum(self.model.local_gradients().values())
         local = np.array(local, dtype=float)
+        state = self.contribution_state()
+        for contribution in self.contributions:  # collective: every rank asks each
+            contribution.add_gradient(state, local.reshape(-1, 3))
         if extra_gradient is not None:
             extra_gradient(local.reshape(-1, 3))
         values = f.array
@@ -126,14 +149,17 @@ class SolidProblem(PetscOwner):
         every_row = np.arange(hessian.shape[0], dtype=PETSc.IntType)
         jac.setValuesIJV(hessian.indptr.astype(PETSc.IntType), hessian.indices.astype(PETSc.IntType), hessian.data,
                          addv=PETSc.InsertMode.ADD, rowmap=every_row)  # fmt: skip
+        add_contribution_hessians(jac, self.contributions, self._patterns, self.contribution_state())
         jac.assemble()
         jac.zeroRowsColumns(self.bc_rows, diag=1.0)
         add_diagonal_regularization(jac, self.regularization)
         self.report.assemble_jacobian_s += time.perf_counter() - t0
 
     def potential_energy(self) -> float:
-        """Collective: the incremental potential at the current position."""
-        return float(self.comm.allreduce(sum(self.model.local_terms().values())))
+        """Collective: the incremental potential at the current position (with the contributions')."""
+        state = self.contribution_state()
+        local = sum(self.model.local_terms().values()) + sum(c.energy(state) for c in self.contributions)
+        return float(self.comm.allreduce(local))
 
     def term_residual_norms(self) -> dict[str, float]:
         """Collective: the 2-norm of each term's gradient on the free DOFs."""
@@ -142,7 +168,12 @@ class SolidProblem(PetscOwner):
             return lambda local: np.add(local, gradient, out=local)
 
         gradients = self.model.local_gradients()
-        return {name: self.open_gradient_norm(adder(gradient)) for name, gradient in gradients.items()}
+        norms = {name: self.open_gradient_norm(adder(gradient)) for name, gradient in gradients.items()}
+        state = self.contribution_state()
+        for contribution in self.contributions:
+            norms[contribution.name] = self.open_gradient_norm(
+                lambda local, c=contribution: c.add_gradient(state, local.reshape(-1, 3)))  # fmt: skip
+        return norms
 
     def open_gradient_norm(self, fill: Callable[[np.ndarray], None]) -> float:
         """Collective: the 2-norm on the free DOFs of the gradient ``fill(local)`` adds into zeros
@@ -153,13 +184,20 @@ class SolidProblem(PetscOwner):
         total[self.model.constrained] = 0.0
         return float(np.linalg.norm(total))
 
-    has_step_bounds = False
+    @property
+    def has_step_bounds(self) -> bool:
+        """Whether a contribution bounds the line search (a barrier's collision-free step)."""
+        return any(isinstance(c, StepBounded) for c in self.contributions)
 
     def max_step(self, direction: PETSc.Vec) -> float:
-        return 1.0
+        """Collective: the largest fraction of the step every step-bounded contribution admits."""
+        return self.max_open_step(self.open_direction_blocks(direction)) if self.has_step_bounds else 1.0
 
     def max_open_step(self, direction: np.ndarray) -> float:
-        return 1.0
+        """Collective: :meth:`max_step` of a direction on every control point ``(n_q, 3)``."""
+        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
+        state = self.contribution_state()
+        return min(1.0, *(float(c.max_step(state, np.asarray(direction).reshape(-1, 3))) for c in bounded))
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a direction on the owned DOFs as every control point's ``(n_q, 3)``."""

@@ -33,7 +33,7 @@ from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.report import SolveReport
 
 
-def _pattern_arrays(rows: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def pattern_arrays(rows: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A contribution's Hessian pattern as PETSc's block row and column index arrays ``(k, 1)``."""
     rows, columns = np.asarray(rows).reshape(-1), np.asarray(columns).reshape(-1)
     if rows.shape != columns.shape:
@@ -151,7 +151,7 @@ class ShellProblem(PetscOwner):
         for contribution in self.contributions:
             if not isinstance(contribution, Contribution):
                 raise TypeError(f"{contribution!r} is not an energy contribution (bhem_hpc.solver.contributions)")
-        self._patterns = [_pattern_arrays(*c.hessian_pattern()) for c in self.contributions]
+        self._patterns = [pattern_arrays(*c.hessian_pattern()) for c in self.contributions]
         # Element matrices go into 3x3-block storage (insertion ~5x cheaper than AIJ). MUMPS' LDL^T
         # takes symmetric-block SBAIJ directly, but MPISBAIJ cannot zero constrained rows and
         # columns and PtAP needs AIJ: there the blocked matrix is converted to AIJ (output reused).

@@ -16,6 +16,7 @@ closest-point queries of :mod:`.rational_bezier` work on those patches.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -235,6 +236,16 @@ class NurbsSurface:
                 nets.append(np.einsum("ia,jb,ijc->abc", self.u.extraction[a], self.v.extraction[b], local))
                 boxes.append((self.u.knots[ku], self.u.knots[ku + 1], self.v.knots[kv], self.v.knots[kv + 1]))
         return RationalBezierPatches(np.array(nets), np.array(boxes, dtype=float))
+
+
+def bezier_nets_by_degree(parts: Sequence[NurbsSurface]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The parts' rational Bezier nets in one array per degree (one ray search each) with the part
+    of each patch: ``[(nets (P, p + 1, q + 1, 4), part (P,)), ...]``."""
+    by_degree: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
+    for k, part in enumerate(parts):
+        by_degree.setdefault(part.degrees, []).append((part.bezier_patches.nets, k))
+    return [(np.concatenate([nets for nets, _ in group]), np.concatenate([np.full(len(nets), k) for nets, k in group]))
+            for group in by_degree.values()]  # fmt: skip
 
 
 # ---- exact shapes ----------------------------------------------------------------------------

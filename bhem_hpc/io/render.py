@@ -17,7 +17,7 @@ import numpy as np
 from bhem_hpc.collision import PatchBVH, trace_rays
 from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.geometry import rational_bezier
-from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
 from bhem_hpc.geometry.surface import HermiteSurface
 
 LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
@@ -55,11 +55,7 @@ def _trace(body: Drawable, eye: np.ndarray, directions: np.ndarray) -> tuple[np.
     else:
         unit = directions / np.linalg.norm(directions, axis=1)[:, None]
         origins = np.broadcast_to(eye, directions.shape)
-        by_degree: dict[tuple[int, int], list[np.ndarray]] = {}
-        for part in body.parts:  # one search per degree: nets of one shape
-            by_degree.setdefault(part.degrees, []).append(part.bezier_patches.nets)
-        for nets in by_degree.values():
-            nets = np.concatenate(nets)
+        for nets, _ in bezier_nets_by_degree(body.parts):  # one search per degree: nets of one shape
             hits = rational_bezier.first_hits(nets, origins, unit, np.zeros(len(unit)), np.full(len(unit), np.inf))
             nearer = (hits.patch >= 0) & (hits.tau < tau)
             _, x_s, x_t = rational_bezier.evaluate(nets[hits.patch[nearer]], hits.s[nearer], hits.t[nearer])

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from bhem_hpc.geometry.nurbs import NurbsSurface, closest_points
+from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree, closest_points
 from bhem_hpc.geometry.rational_bezier import first_hits
 from bhem_hpc.geometry.surface import SurfaceError
 
@@ -91,16 +91,6 @@ class RayDistances:
         return max(low, 1e-12 * self.reach)
 
 
-def _patches_by_degree(parts: Sequence[NurbsSurface]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The parts' rational Bezier nets in one array per degree (one ray search each) with the part
-    of each patch: ``[(nets (P, p + 1, q + 1, 4), part (P,)), ...]``."""
-    by_degree: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
-    for k, part in enumerate(parts):
-        by_degree.setdefault(part.degrees, []).append((part.bezier_patches.nets, k))
-    return [(np.concatenate([nets for nets, _ in group]), np.concatenate([np.full(len(nets), k) for nets, k in group]))
-            for group in by_degree.values()]  # fmt: skip
-
-
 def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float,
                   on_part: np.ndarray | None = None) -> RayDistances:  # fmt: skip
     """Primary and secondary distances of ``points (Q, 3)`` to ``parts``; secondary rays are cast
@@ -109,7 +99,7 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
     clock = time.perf_counter()
     count = len(points)
     on_part = np.full(count, -1) if on_part is None else np.asarray(on_part)
-    groups = _patches_by_degree(parts)
+    groups = bezier_nets_by_degree(parts)
     primary = np.empty((count, len(parts)))
     total = np.full((count, len(parts)), np.inf)
     same = np.zeros((count, len(parts)), dtype=bool)

@@ -133,8 +133,8 @@ class SolidModel:
         self.mass_matrix = solid.mass_matrix() if dynamics is not None else None
         # control-point motions no quadrature point sees have no stiffness: a diagonal shift keeps
         # Newton's steps finite along them (fixed at the rest state: the same on every rank)
-        rest_hessian = solid.hessian(solid.reference)
-        self.diagonal_shift = STATIC_SHIFT * float(rest_hessian.diagonal().max())
+        self._rest_stiffness = solid.hessian(solid.reference, projected=False)  # F = I: PSD as it is
+        self.diagonal_shift = STATIC_SHIFT * float(self._rest_stiffness.diagonal().max())
         start = solid.reference.reshape(-1).copy() if initial is None else np.asarray(initial, float).reshape(-1)
         self.position = start.copy()
         self.velocity = np.zeros_like(start)
@@ -285,8 +285,7 @@ class SolidModel:
     def hessian_pattern(self) -> scipy.sparse.csr_matrix:
         """Every entry any rank's Hessian may have (on every rank): the stiffness of all points,
         the error energy, the mass and the diagonal."""
-        pattern = abs(self.solid.hessian(self.solid.reference, projected=False))
-        pattern = pattern + scipy.sparse.identity(pattern.shape[0])
+        pattern = abs(self._rest_stiffness) + scipy.sparse.identity(self._rest_stiffness.shape[0])
         if self.mass_matrix is not None:
             pattern = pattern + abs(self.mass_matrix)
         return pattern.tocsr()

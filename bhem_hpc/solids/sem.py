@@ -287,6 +287,8 @@ class ShapeMatchingSolid:
 
     def share(self, part: int, parts: int) -> QuadratureShare:
         """The ``part``-th of ``parts`` contiguous shares of the quadrature points (a rank's)."""
+        if parts == 1:
+            return self.whole  # its point groups are made already
         count = len(self.quadrature.points)
         return QuadratureShare(self, count * part // parts, count * (part + 1) // parts)
 

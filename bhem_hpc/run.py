@@ -278,11 +278,14 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
     return summary.as_dict()
 
 
-def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: Path) -> ShellSolver:
+def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: Path,
+                contributions: list | None = None) -> ShellSolver:  # fmt: skip
     """The run's solver of ``model`` (or several bodies' models) with the scene's ``[solver]``
-    settings (a scene of several bodies: any body's, they share them), and the barrier of contact
-    by ``ipc`` as an energy contribution."""
-    contributions = [ipc_barrier(scene, model, scene_file)] if scene.contact and scene.contact.method == "ipc" else []
+    settings (a scene of several bodies: any body's, they share them), and the energy
+    ``contributions`` (by default, of one shell, the barrier of its contact by ``ipc``)."""
+    if contributions is None:
+        ipc = scene.contact is not None and scene.contact.method == "ipc"
+        contributions = [ipc_barrier(scene, model, scene_file)] if ipc else []
     try:
         return ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
                            factorization=scene.factorization, linear=scene.linear, contributions=contributions,

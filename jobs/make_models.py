@@ -4,11 +4,14 @@ castle.igs: a base block, a keep and four round towers at the base's corners, ov
 (16 parts, the castle of the SEM paper's Table 1 as bhem_hpc.studies.sem_models builds it).
 tyre.igs: a torus tread in 16 rational Bezier pieces on a hub of revolution reaching into it
 (17 parts, "tread 0".."tread 15" and "hub"; IGES keeps 8-character labels: "tread0", "hub").
+toy.igs: the castle scaled to a 0.2 m toy 2 cm above the x-y plane (jobs/toy-on-cloth.toml, jobs/cloth-over-castle.toml).
+block.igs: a 0.2 m cube of six biquadratic faces (jobs/two-solids.toml).
 Run: .venv/bin/python jobs/make_models.py  (the generated files are committed).
 """
 
 from pathlib import Path
 
+from bhem_hpc.geometry import nurbs
 from bhem_hpc.io.cad import write_parts
 from bhem_hpc.studies.sem_models import castle, tyre
 
@@ -16,6 +19,10 @@ MODELS = Path(__file__).resolve().parent / "models"
 
 if __name__ == "__main__":
     MODELS.mkdir(exist_ok=True)
-    for name, parts in (("castle", castle()), ("tyre", tyre())):
+    # the castle scaled from 1.24 m to 0.2 m, centred above the origin, its base 2 cm up
+    scale = 0.2 / 1.24
+    toy = [part.with_control(part.control * scale + [-0.5 * scale, -0.5 * scale, 0.02]) for part in castle()]
+    block = nurbs.box_faces([-0.1, -0.1, -0.1], [0.1, 0.1, 0.1], degree=2)
+    for name, parts in (("castle", castle()), ("tyre", tyre()), ("toy", toy), ("block", block)):
         write_parts(MODELS / f"{name}.igs", parts)
         print(f"wrote {MODELS / name}.igs")

@@ -11,7 +11,7 @@ vertices): ``points = point_map(parameters) @ entries``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import scipy.sparse
@@ -22,6 +22,9 @@ from bhem_hpc.bodies.layout import StackedLayout
 from bhem_hpc.io import SurfaceTimeSeries
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene.records import Scene
+
+if TYPE_CHECKING:
+    from bhem_hpc.contact.ipc_contribution import BodyMesh
 
 
 class Body(Protocol):
@@ -59,6 +62,10 @@ class Body(Protocol):
 
     def point_map(self, parameters: np.ndarray) -> scipy.sparse.csr_matrix:
         """The sparse map ``(P, N)`` from the flat entries to the points at ``parameters (P, 2)``."""
+        ...
+
+    def collision_mesh(self) -> BodyMesh:
+        """Collective: the body's collision mesh for contact by ``"ipc"`` (its scene's settings)."""
         ...
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
@@ -116,6 +123,13 @@ class ShellBody:
                                          shape=(len(parameters), layout.num_entries))  # fmt: skip
         matrix.sum_duplicates()
         return matrix
+
+    def collision_mesh(self) -> BodyMesh:
+        from bhem_hpc.contact.ipc_contribution import shell_mesh  # loaded with IPC contact only
+
+        contact, material = self.scene.contact, self.scene.material
+        return shell_mesh(self.model, contact.collision_cells, material.density, material.thickness,
+                          contact.self_collision)  # fmt: skip
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
         scene = self.scene

@@ -398,11 +398,20 @@ class StackedProblem(PetscOwner):
 
     def max_step(self, direction: PETSc.Vec) -> float:
         """Collective: the largest fraction of the stacked step every bounded contribution admits."""
+        if not self.has_step_bounds:
+            return 1.0
         self._split(direction)
-        fraction = min(1.0, *(p.max_step(v) for p, v in zip(self.problems, self._x, strict=True)))
+        blocks = [p.open_direction_blocks(v) for p, v in zip(self.problems, self._x, strict=True)]
+        return self.max_open_step(np.concatenate([np.asarray(b).reshape(-1, 3) for b in blocks]))
+
+    def max_open_step(self, direction: np.ndarray) -> float:
+        """Collective: :meth:`max_step` of a direction on every body's open blocks side by side (the
+        rows of :meth:`contribution_state`), ``(blocks, 3)`` or flat."""
+        blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
+        offsets = self.open_offsets
+        fraction = min(1.0, *(p.max_open_step(blocks[offsets[b]:offsets[b + 1]]) for b, p in enumerate(self.problems)))
         bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
         if bounded:
-            blocks = np.concatenate([p.open_direction_blocks(v) for p, v in zip(self.problems, self._x, strict=True)])
             state = self.contribution_state()
             fraction = min(fraction, *(float(c.max_step(state, blocks)) for c in bounded))
         return fraction

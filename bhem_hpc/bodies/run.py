@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from mpi4py import MPI
 
 from bhem_hpc.bodies.body import Body, ShellBody
@@ -110,10 +111,11 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     first = scene.first
     steps = steps_to_run(first, options, checkpoint)
     scene_text = options.scene.read_bytes()
-    bodies = [_make_body(name, k, body, comm) for k, (name, body) in enumerate(zip(scene.names, scene.bodies,
+    bodies = [make_body(name, k, body, comm) for k, (name, body) in enumerate(zip(scene.names, scene.bodies,
                                                                                   strict=True))]  # fmt: skip
     models = [body.model for body in bodies]
-    solver = make_solver(models, first, options.scene)
+    barrier = bodies_barrier(bodies, options.scene)
+    solver = make_solver(models, first, options.scene, [barrier] if barrier is not None else [])
     summary = RunSummary(
         scene=str(options.scene), physics_hash=physics_hash(scene), solution_method=solution_method(first),
         dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
@@ -133,6 +135,10 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
             summary.write(options.out)
             return BodiesOutput(options.out, bodies, checkpoint if continuing else None)
 
+        if barrier is not None:
+            summary.contact = {"method": "ipc", "dhat_m": barrier.dhat, "barrier_stiffness": barrier.stiffness,
+                               "collision_vertices": barrier.num_points,
+                               "bodies": [b.name for b in bodies if b.scene.contact is not None]}  # fmt: skip
         output = on_rank0(comm, start, f"the output directory {options.out}")
         run = _BodiesRun(options, scene, bodies, solver, summary, output, comm)
         surfaces = _step(run, checkpoint, continuing, steps)
@@ -150,7 +156,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     return summary.as_dict()
 
 
-def _make_body(name: str, index: int, scene, comm: MPI.Comm) -> Body:
+def make_body(name: str, index: int, scene, comm: MPI.Comm) -> Body:
     """Collective: the body of a ``[[bodies]]`` table by its type (a solid's record or a shell's scene)."""
     if isinstance(scene, SolidScene):
         return SolidBody(name, index, scene, build_solid_model(scene, comm, name))
@@ -172,10 +178,36 @@ def _probe_rows(output: BodiesOutput | None, probes: list, stepper: TimeStepper,
             on_rank0(comm, lambda k=k, row=row: output.probe_tables[k].add(row), "probes.csv")
 
 
+def bodies_barrier(bodies: list[Body], scene_file: Path):
+    """Collective: IPC's barrier between the collision meshes of every body whose contact method is
+    ``"ipc"`` (each other, themselves where a shell's self-collision says so, the scene's colliders),
+    checked to start apart; or None."""
+    in_contact = [body for body in bodies if body.scene.contact is not None and body.scene.contact.method == "ipc"]
+    if not in_contact:
+        return None
+    from bhem_hpc.bodies.petsc import StackedBlocks
+    from bhem_hpc.contact.ipc_contribution import bodies_barrier as make_barrier
+
+    blocks = StackedBlocks([body.model for body in bodies])
+    contact = in_contact[0].scene.contact
+    barrier = make_barrier([body.collision_mesh() for body in in_contact],
+                           [blocks.open_offsets[body.index] for body in in_contact], blocks.global_open_blocks,
+                           blocks.comm, [entry.collider for entry in contact.colliders], contact.dhat,
+                           contact.barrier_stiffness)  # fmt: skip
+    positions = np.concatenate([body.model.open_positions for body in bodies])
+    problem = barrier.starting_problem(positions)
+    if problem is not None:
+        names = ", ".join(body.name for body in in_contact)
+        raise RunError(f"{scene_file}: the bodies in contact ({names}) start in contact with each other, their "
+                       f"colliders or themselves ('ipc' needs them apart): {problem}")  # fmt: skip
+    return barrier
+
+
 def bodies_contact(bodies: list[Body], solver: ShellSolver):
     """The :class:`~bhem_hpc.contact.response.ContactHandler` of every body whose effects list contact
-    (their colliders, themselves and each other) in ``solver`` (made of the bodies' models), or None."""
-    in_contact = [body.scene.contact is not None for body in bodies]
+    by impulses (their colliders, themselves and each other) in ``solver`` (made of the bodies'
+    models), or None."""
+    in_contact = [body.scene.contact is not None and body.scene.contact.method == "impulse" for body in bodies]
     if not any(in_contact):
         return None
     from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse
@@ -16,6 +17,9 @@ from bhem_hpc.scene.solids import SolidScene
 from bhem_hpc.scene.table import SceneError
 from bhem_hpc.solids.model import FixedPoints, SolidDynamics, SolidModel
 from bhem_hpc.solids.sem import ShapeMatchingSolid
+
+if TYPE_CHECKING:
+    from bhem_hpc.contact.ipc_contribution import BodyMesh
 
 
 def build_solid_model(scene: SolidScene, comm: MPI.Comm, name: str = "solid") -> SolidModel:
@@ -64,8 +68,14 @@ class SolidBody:
         return np.asarray(open_array, dtype=float).reshape(-1, 3)
 
     def point_map(self, parameters: np.ndarray) -> scipy.sparse.csr_matrix:
-        raise SceneError(f"{self.scene.path}: body '{self.name}': a solid meets nothing (contact with solids is "
-                         "not built)")  # fmt: skip
+        raise SceneError(f"{self.scene.path}: body '{self.name}': a solid has no surface parameters "
+                         f"{np.shape(parameters)}: it meets other bodies by contact method 'ipc'")  # fmt: skip
+
+    def collision_mesh(self) -> BodyMesh:
+        from bhem_hpc.contact.ipc_contribution import solid_mesh  # loaded with IPC contact only
+
+        cells = self.scene.contact.collision_cells
+        return solid_mesh(self.model.solid.parts, self.model.comm.rank, self.mass(), cells + 1)
 
     def writer(self, path: Path, continue_at: float | None = None) -> SolidTimeSeries:
         samples = 2 * self.scene.output_density + 1

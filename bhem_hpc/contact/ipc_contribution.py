@@ -15,6 +15,7 @@ blocks lie within the block pairs of the mesh's triangles: the pattern is fixed 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -53,26 +54,36 @@ class IpcBarrier:
             ranks that do not own its cell).
         global_blocks: global open block index of each local block ``(blocks,)``.
         triangles: the mesh's triangles ``(T, 3)`` (vertex indices).
+        rest: the mesh's vertices at rest ``(points, 3)`` [m]: ipc-toolkit's edge-edge mollifier
+            is scaled by the rest edges' lengths (a mesh at rest in one point makes the barrier's
+            gradient disagree with its energy where edges cross).
         obstacles: static triangle meshes ``(vertices (V, 3), triangles (F, 3))``.
         planes: static planes ``(normal (3,), point (3,))`` (the barrier distance to the plane).
         dhat: the barrier's activation distance [m]; stiffness: ``kappa`` [N/m].
         comm: the shell's communicator (``rank``, ``allreduce``, ``allgather``: an mpi4py one).
-        self_contact: whether the mesh meets itself too (triangles, edges and vertices that share no
-            vertex), or only the obstacles.
+        groups: each mesh vertex's group ``(points,)``: elements whose vertices are all of one group
+            never meet (a body without self-contact is one group; a body with it gives every vertex
+            a group of its own); None: every vertex its own (the mesh meets itself). Obstacles form
+            one more group: they meet the mesh, never each other.
     """
 
     name = "ipc barrier"
 
-    def __init__(self, bases: Sequence[PointBasis], global_blocks: np.ndarray, triangles: np.ndarray,
+    def __init__(self, bases: Sequence[PointBasis], global_blocks: np.ndarray, triangles: np.ndarray, rest: np.ndarray,
                  obstacles: Sequence[tuple[np.ndarray, np.ndarray]], planes: Sequence[tuple[np.ndarray, np.ndarray]],
-                 dhat: float, stiffness: float, comm: Communicator, self_contact: bool = False):  # fmt: skip
+                 dhat: float, stiffness: float, comm: Communicator, groups: np.ndarray | None = None):  # fmt: skip
         import ipctk  # loaded with IPC contact only
 
         self._ipctk = ipctk
         self.rank, self._comm = comm.rank, comm
         self.num_points = len(bases)
         self.dhat, self.stiffness = float(dhat), float(stiffness)
-        self.self_contact = bool(self_contact)
+        groups = np.arange(self.num_points) if groups is None else np.asarray(groups, dtype=np.int64)
+        if groups.shape != (self.num_points,):
+            raise ValueError(f"{self.num_points} mesh vertices need as many groups, got shape {groups.shape}")
+        #: whether some elements of one body meet each other (not only other bodies and obstacles)
+        # a group of one vertex: a body that meets itself
+        self.self_contact = bool(len(groups) and np.any(np.bincount(groups - groups.min()) == 1))
         self._beyond = no_blocks()
         global_blocks = np.asarray(global_blocks, dtype=np.int64)
         rows, cols, weights = [], [], []
@@ -95,7 +106,8 @@ class IpcBarrier:
         self.global_map = scipy.sparse.csr_matrix((gathered[2], (gathered[0], column)),
                                                   shape=(self.num_points, len(self.blocks)))  # fmt: skip
         self._pattern = self._triangle_pattern(np.asarray(triangles, dtype=np.int64))
-        self.mesh = self._collision_mesh(np.asarray(triangles), obstacles, planes)
+        self.mesh = self._collision_mesh(np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), obstacles,
+                                         planes, groups)  # fmt: skip
         self.barrier = ipctk.BarrierPotential(self.dhat, self.stiffness)
         # additive CCD (Li et al. 2021, conservative): on a sheet lying 1e-6 m above a floor mesh,
         # Tight Inclusion took 0.4 s per bound on the near-parallel edge pairs and 76 Newton
@@ -114,9 +126,10 @@ class IpcBarrier:
         order = np.lexsort((pairs.col, pairs.row))
         return pairs.row[order].astype(np.int64), pairs.col[order].astype(np.int64)
 
-    def _collision_mesh(self, triangles: np.ndarray, obstacles, planes):
+    def _collision_mesh(self, triangles: np.ndarray, rest: np.ndarray, obstacles, planes, groups: np.ndarray):
         ipctk = self._ipctk
-        rest = np.zeros((self.num_points, 3))  # positions are set per evaluation; rest only orders the mesh
+        if rest.shape != (self.num_points, 3):
+            raise ValueError(f"{self.num_points} mesh vertices need as many rest positions, got shape {rest.shape}")
         faces, vertices, start = [triangles], [rest], self.num_points
         for points, obstacle_faces in obstacles:
             vertices.append(np.asarray(points, dtype=float).reshape(-1, 3))
@@ -125,13 +138,12 @@ class IpcBarrier:
         self._obstacle_vertices = np.concatenate(vertices[1:]) if obstacles else np.zeros((0, 3))
         faces = np.ascontiguousarray(np.concatenate(faces).astype(np.int32))
         mesh = ipctk.CollisionMesh(np.asfortranarray(np.concatenate(vertices)), ipctk.edges(faces), faces)
-        if self.self_contact:  # obstacles never meet each other
-            if obstacles:
-                mesh.can_collide = ipctk.make_static_obstacle_filter(self.num_points)
-        else:  # the shell's vertices one group, the obstacles' another: only pairs across them
-            groups = np.zeros(start, dtype=np.int32)
-            groups[self.num_points:] = 1
-            mesh.can_collide = ipctk.make_vertex_patches_filter(groups)
+        # only pairs across groups meet: a vertex group per body without self-contact, one per vertex
+        # of a body with it, one for all obstacles
+        every = np.empty(start, dtype=np.int32)
+        every[: self.num_points] = groups - groups.min() if len(groups) else groups
+        every[self.num_points:] = every[: self.num_points].max(initial=-1) + 1
+        mesh.can_collide = ipctk.make_vertex_patches_filter(every)
         mesh.planes = [ipctk.Hyperplane(np.asarray(n, dtype=float), np.asarray(p, dtype=float)) for n, p in planes]
         return mesh
 
@@ -227,15 +239,30 @@ class IpcBarrier:
         return None
 
 
-def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | None, stiffness: float | None,
-                  cells_per_patch: int, density: float, thickness: float, self_contact: bool = False,
-                  ) -> IpcBarrier:  # fmt: skip
-    """The barrier between ``model``'s shell and static colliders (planes, spheres as icospheres
-    within :data:`SPHERE_SAGITTA` dhat, triangle meshes), and within the shell with
-    ``self_contact``: a collision lattice of ``cells_per_patch`` cells per patch side (aligned with
-    the patches, so each lattice triangle lies in one cell), ``dhat`` by default 1e-3 of the rest
-    mesh's bounding-box diagonal, and ``kappa`` by default the top of ipc-toolkit's adaptive range
-    for that ``dhat`` and the mesh's mass per vertex."""
+@dataclass(frozen=True)
+class BodyMesh:
+    """A body's collision mesh, its vertices material points of the body.
+
+    Attributes:
+        bases: each vertex's :data:`~bhem_hpc.solver.contributions.PointBasis` in the body's open
+            blocks (empty on ranks that do not hold it: each vertex on one rank).
+        triangles: ``(T, 3)`` vertex indices.
+        rest: the vertices at rest ``(V, 3)`` [m] (on every rank).
+        vertex_mass: the body's mass per vertex [kg] (IPC's stiffness rule).
+        self_contact: whether the mesh meets itself (else only other bodies and obstacles).
+    """
+
+    bases: list[PointBasis]
+    triangles: np.ndarray
+    rest: np.ndarray
+    vertex_mass: float
+    self_contact: bool = False
+
+
+def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thickness: float,
+               self_contact: bool = False) -> BodyMesh:  # fmt: skip
+    """A shell's collision lattice of ``cells_per_patch`` cells per patch side (aligned with the
+    patches, so each lattice triangle lies in one cell)."""
     grid = model.rest_surface.grid
     per_side = (grid.n1 * cells_per_patch, grid.n2 * cells_per_patch)
     periodic = (grid.periodic1, grid.periodic2)
@@ -243,16 +270,69 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
     disc = model.discretization
     bases = [disc.point_basis(float(a), float(b)) for a, b in parameters]
     rest = model.rest_surface.evaluate(parameters[:, 0], parameters[:, 1]).x
-    diagonal = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0)))
-    dhat = 1e-3 * diagonal if dhat is None else float(dhat)
+    corners = rest[triangles]
+    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
+    return BodyMesh(bases, triangles, rest, density * thickness * area / len(rest), self_contact)
+
+
+def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9) -> BodyMesh:
+    """An SEM solid's boundary: its NURBS ``parts`` (stacked control points as the DOF blocks, every
+    block on every rank) tessellated on ``samples x samples`` parameter grids, each vertex a fixed
+    rational combination of its part's control points (given on rank 0: each term once); ``mass``
+    [kg] the solid's. Its parts never meet each other (a modeller's parts overlap)."""
+    grid = np.linspace(0.0, 1.0, samples)
+    u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
+    cell = np.arange(samples - 1)
+    corner = (cell[:, None] * samples + cell[None, :]).ravel()
+    local_triangles = np.concatenate([np.stack([corner, corner + samples, corner + samples + 1], axis=1),
+                                      np.stack([corner, corner + samples + 1, corner + 1], axis=1)])  # fmt: skip
+    bases, triangles, rest, offset = [], [], [], 0
+    for k, part in enumerate(parts):
+        (u0, u1), (v0, v1) = part.u.domain, part.v.domain
+        index, values = part.basis_matrix(u0 + u * (u1 - u0), v0 + v * (v1 - v0))
+        bases += [(offset + i, w) if rank == 0 else (np.zeros(0, np.int64), np.zeros(0))
+                  for i, w in zip(index, values, strict=True)]  # fmt: skip
+        triangles.append(local_triangles + k * len(u))
+        rest.append(np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index]))
+        offset += part.control[..., 0].size
+    rest = np.concatenate(rest)
+    return BodyMesh(bases, np.concatenate(triangles), rest, mass / len(rest))
+
+
+def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], global_open_blocks: np.ndarray,
+                   comm: Communicator, colliders: Sequence[Any] = (), dhat: float | None = None,
+                   stiffness: float | None = None) -> IpcBarrier:  # fmt: skip
+    """The barrier between bodies' collision ``meshes`` (each body's open blocks at rows
+    ``open_offsets[b]:`` of the contributions' state, their global blocks ``global_open_blocks``),
+    and between them and static colliders (planes, spheres as icospheres within
+    :data:`SPHERE_SAGITTA` dhat, triangle meshes); ``dhat`` by default 1e-3 of the bodies' rest
+    bounding-box diagonal, ``kappa`` by default the top of ipc-toolkit's adaptive range for that
+    ``dhat`` and the bodies' mean mass per vertex."""
+    rest = np.concatenate([mesh.rest for mesh in meshes])
+    dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
     if stiffness is None:
-        corners = rest[triangles]
-        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        area = 0.5 * np.linalg.norm(normals, axis=1).sum()
-        stiffness = _kappa(rest, dhat, density * thickness * area / len(rest))
-    meshes, planes = _obstacles(colliders, dhat)
-    return IpcBarrier(bases, model.global_open_blocks, triangles, meshes, planes, dhat, stiffness, model.comm,
-                      self_contact)
+        mass = sum(mesh.vertex_mass * len(mesh.rest) for mesh in meshes)
+        stiffness = _kappa(rest, dhat, mass / len(rest))
+    bases, triangles, groups, start = [], [], [], 0
+    for body, mesh in enumerate(meshes):
+        offset = int(open_offsets[body])
+        bases += [(np.asarray(rows, dtype=np.int64) + offset, values) for rows, values in mesh.bases]
+        triangles.append(np.asarray(mesh.triangles, dtype=np.int64) + start)
+        count = len(mesh.rest)
+        groups.append(start + np.arange(count) if mesh.self_contact else np.full(count, start))
+        start += count
+    meshes_, planes = _obstacles(colliders, dhat)
+    return IpcBarrier(bases, global_open_blocks, np.concatenate(triangles), rest, meshes_, planes, dhat, stiffness,
+                      comm, np.concatenate(groups))  # fmt: skip
+
+
+def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | None, stiffness: float | None,
+                  cells_per_patch: int, density: float, thickness: float, self_contact: bool = False,
+                  ) -> IpcBarrier:  # fmt: skip
+    """The barrier between ``model``'s shell and static colliders, and within the shell with
+    ``self_contact`` (:func:`shell_mesh`, :func:`bodies_barrier`)."""
+    mesh = shell_mesh(model, cells_per_patch, density, thickness, self_contact)
+    return bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, colliders, dhat, stiffness)
 
 
 def _obstacles(colliders: Sequence[Any], dhat: float) -> tuple[list, list]:
@@ -283,30 +363,7 @@ def solid_barrier(
     parts: Sequence[Any], comm: Communicator, colliders: Sequence[Any], mass: float, dhat: float | None = None,
     stiffness: float | None = None, samples: int = 9,
 ) -> IpcBarrier:  # fmt: skip
-    """The barrier between an SEM solid's boundary and static colliders: its NURBS ``parts`` (stacked
-    control points as the DOF blocks, every block on every rank) tessellated on ``samples x samples``
-    parameter grids, each vertex a fixed rational combination of its part's control points (given
-    on rank 0: each term once); ``dhat`` by default 1e-3 of the bounding-box diagonal, ``kappa`` the
-    top of IPC's adaptive range for the solid's ``mass`` [kg] per vertex. Parts meet only the
-    colliders (a modeller's parts overlap one another)."""
-
-    grid = np.linspace(0.0, 1.0, samples)
-    u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
-    cell = np.arange(samples - 1)
-    corner = (cell[:, None] * samples + cell[None, :]).ravel()
-    local_triangles = np.concatenate([np.stack([corner, corner + samples, corner + samples + 1], axis=1),
-                                      np.stack([corner, corner + samples + 1, corner + 1], axis=1)])  # fmt: skip
-    bases, triangles, rest, offset = [], [], [], 0
-    for k, part in enumerate(parts):
-        (u0, u1), (v0, v1) = part.u.domain, part.v.domain
-        index, values = part.basis_matrix(u0 + u * (u1 - u0), v0 + v * (v1 - v0))
-        bases += [(offset + i, w) if comm.rank == 0 else (np.zeros(0, np.int64), np.zeros(0))
-                  for i, w in zip(index, values, strict=True)]  # fmt: skip
-        triangles.append(local_triangles + k * len(u))
-        rest.append(np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index]))
-        offset += part.control[..., 0].size
-    rest = np.concatenate(rest)
-    dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
-    stiffness = _kappa(rest, dhat, mass / len(rest)) if stiffness is None else float(stiffness)
-    meshes, planes = _obstacles(colliders, dhat)
-    return IpcBarrier(bases, np.arange(offset), np.concatenate(triangles), meshes, planes, dhat, stiffness, comm)
+    """The barrier between an SEM solid's boundary (:func:`solid_mesh`) and static colliders."""
+    mesh = solid_mesh(parts, comm.rank, mass, samples)
+    blocks = np.arange(sum(part.control[..., 0].size for part in parts))
+    return bodies_barrier([mesh], [0], blocks, comm, colliders, dhat, stiffness)

@@ -17,8 +17,10 @@ tables), so every key means what it means there; an error names the body and the
 are the scene's colliders: a body whose ``effects`` list ``contact`` meets them (and itself, with
 ``self_collision``) as a scene of one body does, and meets every other body whose effects list
 contact (Coulomb coefficient between two bodies: the geometric mean of their ``effects.friction``).
-Bodies in contact share one push-out distance and impulse metric (``effects.contact.push_out`` and
-``metric``), and must be apart at the start.
+Bodies in contact meet by one ``effects.contact.method``: by ``"impulse"`` (shells) they share one
+push-out distance and impulse metric (``push_out`` and ``metric``); by ``"ipc"`` (any body: IPC's
+barrier on collision meshes embedded in them, in the Newton solve) one ``dhat`` and
+``barrier_stiffness``. They must be apart at the start.
 """
 
 from __future__ import annotations
@@ -119,7 +121,6 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
     names: list[str] = []
     bodies: list[Scene] = []
     tables_of = [Table(path, f"bodies[{k}]", item) for k, item in enumerate(items)]
-    kinds = [t.data.get("type", DEFAULT_BODY_TYPE) for t in tables_of]
     several_in_contact = sum(_in_contact(t) for t in tables_of) >= 2
     for k, (item, t) in enumerate(zip(items, tables_of, strict=True)):
         name = _body_name(t, names)
@@ -132,14 +133,7 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
         except SceneError as exc:
             where = str(exc).removeprefix(f"{path}: ")
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None
-        if bodies[-1].contact is not None and bodies[-1].contact.method == "ipc":
-            raise SceneError(f"{path}: body '{name}' (bodies[{k}]): key 'effects.contact.method' = 'ipc': a scene "
-                             "of several bodies takes method = 'impulse'")  # fmt: skip
         names.append(name)
-    if "solid" in kinds and any(body.contact is not None for body in bodies):
-        k = next(k for k, body in enumerate(bodies) if body.contact is not None)
-        raise SceneError(f"{path}: body '{names[k]}' (bodies[{k}]): key 'effects.contact': contact in a scene with a "
-                         "solid is not built (solids meet nothing)")  # fmt: skip
     if colliders and all(body.contact is None for body in bodies):
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
     scene = BodiesScene(path, tuple(names), tuple(bodies), raw)
@@ -153,8 +147,9 @@ def _in_contact(t: Table) -> bool:
 
 
 def _check_contact_between(scene: BodiesScene) -> None:
-    """Bodies in contact share the response's settings and start apart (a body crossing another
-    at the start would be pushed through it)."""
+    """Bodies in contact share one method and its settings, and start apart (by the impulse
+    response, a body crossing another at the start would be pushed through it; IPC's barrier
+    checks its collision meshes when it is made)."""
     path = scene.path
     contact = [k for k, body in enumerate(scene.bodies) if body.contact is not None]
     if len(contact) < 2:
@@ -164,12 +159,20 @@ def _check_contact_between(scene: BodiesScene) -> None:
     def where(k: int) -> str:
         return f"body '{scene.names[k]}' (bodies[{k}])"
 
+    method = scene.bodies[first].contact.method
+    shared = ("push_out", "metric") if method == "impulse" else ("dhat", "barrier_stiffness")
     for k in contact[1:]:
-        for key in ("push_out", "metric"):
+        if scene.bodies[k].contact.method != method:
+            raise SceneError(f"{path}: {where(k)}: key 'effects.contact.method' is "
+                             f"{scene.bodies[k].contact.method!r} but {where(first)} has {method!r}: bodies in "
+                             "contact meet by one method (a solid by 'ipc')")  # fmt: skip
+        for key in shared:
             mine, theirs = getattr(scene.bodies[k].contact, key), getattr(scene.bodies[first].contact, key)
             if mine != theirs:
                 raise SceneError(f"{path}: {where(k)}: key 'effects.contact.{key}' is {mine!r} but {where(first)} "
                                  f"has {theirs!r}: bodies in contact share one {key}")  # fmt: skip
+    if method == "ipc":
+        return
     from bhem_hpc.contact.bodies import lattice_crossing  # the collision code loads for contact scenes only
 
     for a in contact:

@@ -341,7 +341,7 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
     et = Table(path, "effects.contact", settings)
     method = et.get("method", "a string", "impulse", lambda v: v in CONTACT_METHODS, f"one of {CONTACT_METHODS}")
     if method == "ipc":
-        return _ipc_contact(et, effects, colliders_raw, path, other_bodies)
+        return parse_ipc_contact(et, effects, colliders_raw, path, other_bodies)
     push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
     samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
     metric = et.get("metric", "a string", "mass", lambda v: v in CONTACT_METRICS, f"one of {CONTACT_METRICS}")
@@ -358,15 +358,18 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
     return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric, friction)
 
 
-def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, other_bodies: bool) -> SceneContact:
-    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes, spheres and meshes."""
+def parse_ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, other_bodies: bool,
+                      cells: int = 4) -> SceneContact:  # fmt: skip
+    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes, spheres and meshes
+    and, with ``other_bodies``, the other bodies in contact (``cells``: collision cells per side by
+    default)."""
     from bhem_hpc.collision.colliders import Plane, Sphere, TriangleMesh
     from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE
 
     dhat = et.get("dhat", "a number", None, lambda v: 1e-9 <= v <= 1.0, "a length in [1e-9, 1] [m]")
     kappa = et.get("barrier_stiffness", "a number", None, lambda v: 0 < v <= 1e15, "a number in (0, 1e15] [N/m]")
     low, high = COLLISION_CELLS_RANGE
-    cells = et.get("collision_cells", "an integer", 4, lambda v: low <= v <= high, f"an integer in {low}..{high}")
+    cells = et.get("collision_cells", "an integer", cells, lambda v: low <= v <= high, f"an integer in {low}..{high}")
     et.done()
     self_collision = effects.get("self_collision", False)
     if not isinstance(self_collision, bool):
@@ -375,12 +378,9 @@ def _ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, othe
     if effects.get("friction", 0.0):
         raise SceneError(f"{path}: key 'effects.friction' = {effects['friction']!r}: contact by 'ipc' is "
                          "frictionless; friction takes method = 'impulse'")  # fmt: skip
-    if other_bodies:
-        raise SceneError(f"{path}: key 'effects.contact.method' = 'ipc': contact between bodies takes "
-                         "method = 'impulse'")  # fmt: skip
-    if not colliders_raw and not self_collision:
-        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes) "
-                         "or 'effects.self_collision' = true")  # fmt: skip
+    if not colliders_raw and not self_collision and not other_bodies:
+        raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes), "
+                         "'effects.self_collision' = true or another body in contact")  # fmt: skip
     colliders = parse_colliders(colliders_raw, 0.0, path)
     for i, entry in enumerate(colliders):
         collider = entry.collider

@@ -12,14 +12,18 @@ stdlib; the CAD file is read here, so that a bad model is refused before anythin
                                 # origins ("flow", "single"), error_stiffness [Pa]
     [bodies.effects]            # gravity = [gx, gy, gz] [m/s^2];
                                 # wind = { acceleration = [ax, ay, az], period = T }: a body force
-                                # a sin(2 pi t / T) per unit mass
+                                # a sin(2 pi t / T) per unit mass;
+                                # contact = { method = "ipc", dhat, barrier_stiffness, collision_cells }:
+                                # IPC's barrier on its boundary against the colliders and other bodies
     [[bodies.constraints]]      # type = "hold": the control points inside box = [[x0, y0, z0], [x1, y1, z1]]
                                 # (components = [0, 1, 2] by default) keep their place
     [bodies.initial]            # velocity = [vx, vy, vz] [m/s]
 
 It shares ``[time]``, ``[solver]`` (``hessian`` "projected", "exact" or "adaptive"; the linear
 strategy and PETSc options) and ``[output]`` with every body (:mod:`.shared`). A solid is
-time-stepped; contact with solids is not built, so a solid's effects do not list contact.
+time-stepped. It meets the scene's colliders and the other bodies in contact through IPC's barrier on
+its boundary (each part tessellated on ``collision_cells`` cells per side); its parts never meet
+each other (a modeller's parts overlap).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import numpy as np
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.scene.bodies import BODY_TYPES
+from bhem_hpc.scene.records import SceneContact
 from bhem_hpc.scene.shared import parse_clock, parse_linear_strategy, parse_output, parse_petsc_options
 from bhem_hpc.scene.table import SceneError, Table, regular_file, vector
 from bhem_hpc.solids.elasticity import MODELS
@@ -47,6 +52,8 @@ SOLID_HESSIAN_CHOICES = ("projected", "exact", "adaptive")
 SOLID_SOLVER_KEYS = ("hessian", "linear", "factorization", "options", "quadrature")
 #: The largest ray-cast lines per side (the quadrature's cost grows with its square).
 MAX_LINES_PER_SIDE = 256
+#: Collision-mesh cells per side of each part by default (contact by "ipc").
+SOLID_COLLISION_CELLS = 8
 
 
 @dataclass(frozen=True)
@@ -100,7 +107,7 @@ class SolidScene:
     raw: dict[str, Any] = field(default_factory=dict)
     static: bool = False
     acceleration_tolerance: float | None = None
-    contact: None = None
+    contact: SceneContact | None = None
     probes: tuple = ()
     path_plan: None = None
     constraints: tuple = ()
@@ -171,11 +178,31 @@ def _options(t: Table | None) -> SolidOptions:
                         origins=origins, error_stiffness=gamma)  # fmt: skip
 
 
+def _contact(t: Table, colliders_raw: list, other_bodies: bool) -> SceneContact | None:
+    """``effects.contact``: IPC's barrier (the one contact method of a solid)."""
+    from bhem_hpc.scene.loader import parse_ipc_contact
+
+    if "contact" not in t.data:
+        if colliders_raw:
+            raise SceneError(f"{t.path}: key 'colliders' is given but '{t.key('contact')}' is not listed")
+        return None
+    for key in ("self_collision", "friction"):
+        if key in t.data:
+            t.fail(key, "absent: a solid's parts never meet each other and contact by 'ipc' is frictionless",
+                   t.data[key])  # fmt: skip
+    settings = t.data["contact"] if t.data["contact"] is not True else {}
+    contact = Table(t.path, t.key("contact"), settings)
+    contact.get("method", "a string", "ipc", lambda v: v == "ipc", "'ipc' (a solid meets others by IPC's barrier)")
+    t.used.add("contact")
+    if not colliders_raw and not other_bodies:
+        raise SceneError(f"{t.path}: key '{t.key('contact')}': a solid's contact needs 'colliders' (planes, spheres, "
+                         "meshes) or another body in contact")  # fmt: skip
+    return parse_ipc_contact(contact, {}, colliders_raw, t.path, other_bodies, SOLID_COLLISION_CELLS)
+
+
 def _effects(t: Table | None) -> tuple[tuple[float, float, float] | None, Wind | None]:
     if t is None:
         return None, None
-    if "contact" in t.data:
-        raise SceneError(f"{t.path}: key '{t.key('contact')}': contact with solids is not built (solids meet nothing)")
     gravity = t.get("gravity", "3 numbers", None)
     wind = None
     wind_table = t.table("wind", None)
@@ -255,7 +282,11 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
         raise SceneError(f"{path}: key 'time.static': a solid is time-stepped (dt and steps)")
     materials = _materials(top, parts)
     options = _options(top.table("sem", None))
-    gravity, wind = _effects(top.table("effects", None))
+    effects = top.table("effects", None)
+    colliders_raw = top.get("colliders", "a list", [])
+    contact = _contact(effects if effects is not None else Table(path, "effects", {}), colliders_raw,
+                       other_bodies_in_contact)  # fmt: skip
+    gravity, wind = _effects(effects)
     held = _held(top, parts)
     hessian, linear, factorization, petsc_options = _solver(top)
     every, density = parse_output(top)
@@ -264,4 +295,5 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
     return SolidScene(path=path, file=file, parts=parts, materials=materials, options=options, gravity=gravity,
                       wind=wind, held=held, dt=clock.dt, steps=clock.steps, hessian=hessian, linear=linear,
                       factorization=factorization or "reuse", petsc_options=dict(petsc_options), output_every=every,
-                      output_density=density, initial_velocity=initial_velocity, raw=raw)  # fmt: skip
+                      output_density=density, initial_velocity=initial_velocity, raw=raw,
+                      contact=contact)  # fmt: skip

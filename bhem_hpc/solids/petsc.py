@@ -196,6 +196,8 @@ class SolidProblem(PetscOwner):
     def max_open_step(self, direction: np.ndarray) -> float:
         """Collective: :meth:`max_step` of a direction on every control point ``(n_q, 3)``."""
         bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
+        if not bounded:
+            return 1.0
         state = self.contribution_state()
         return min(1.0, *(float(c.max_step(state, np.asarray(direction).reshape(-1, 3))) for c in bounded))
 
@@ -205,6 +207,14 @@ class SolidProblem(PetscOwner):
 
     def matrix_nonzeros(self) -> int:
         return stored_entries(self.jacobian)
+
+    def acceleration_residual(self, prefix: str, direct: bool):
+        """The :class:`~bhem_hpc.solids.acceleration.SolidAccelerationResidual` of this solid's
+        residuals (its mass factored with SciPy on every rank: ``prefix`` and ``direct`` are a
+        shell's choices)."""
+        from bhem_hpc.solids.acceleration import SolidAccelerationResidual
+
+        return SolidAccelerationResidual(self.model)
 
     def close(self) -> None:
         if not self._closed:

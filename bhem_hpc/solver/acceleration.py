@@ -36,6 +36,7 @@ from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.petsc import KSP_REASONS, PetscOwner, SolverError, push_options
 
 if TYPE_CHECKING:
+    from bhem_hpc.solids.acceleration import SolidAccelerationResidual
     from bhem_hpc.solver.newton import ShellSolver
 
 #: The mass solve's defaults: a Cholesky factorization made once per run (MUMPS) for the direct
@@ -137,7 +138,7 @@ class BodiesAccelerationResidual(PetscOwner):
         slices: where each body's closed DOFs sit in this rank's part of the stacked residual.
     """
 
-    def __init__(self, residuals: list[AccelerationResidual], slices: list[slice]):
+    def __init__(self, residuals: list[AccelerationResidual | SolidAccelerationResidual], slices: list[slice]):
         self.residuals, self.slices = residuals, slices
         self.mass = sum(r.mass for r in residuals)
         self._closed = False
@@ -164,7 +165,7 @@ class BodiesAccelerationResidual(PetscOwner):
 class AccelerationTest:
     """A solver's acceleration stopping test: the residual's measure and its tolerance [m/s^2]."""
 
-    residual: AccelerationResidual | BodiesAccelerationResidual
+    residual: AccelerationResidual | BodiesAccelerationResidual | SolidAccelerationResidual
     tolerance: float
 
 
@@ -216,12 +217,10 @@ def attach_acceleration_test(solver: ShellSolver, tolerance: float) -> Accelerat
         raise ValueError(f"acceleration_tolerance must be a number > 0 [m/s^2], got {tolerance!r}")
     problem, direct = solver.problem, solver.linear.kind == "direct"
     if len(solver.bodies) == 1:
-        residual = AccelerationResidual(solver.model, problem.prolongation, problem.bc_rows, problem.bc_local,
-                                        solver.prefix + "mass_", direct=direct)  # fmt: skip
+        residual = problem.acceleration_residual(solver.prefix + "mass_", direct)
     else:  # each body's mass solve under its own prefix
         residual = BodiesAccelerationResidual(
-            [AccelerationResidual(body.model, body.prolongation, body.bc_rows, body.bc_local,
-                                  f"{solver.prefix}mass_{k}_", direct=direct)
+            [body.acceleration_residual(f"{solver.prefix}mass_{k}_", direct)
              for k, body in enumerate(problem.problems)],
             [problem.closed.local_slice(k) for k in range(len(problem.problems))],
         )  # fmt: skip

@@ -167,7 +167,7 @@ class TimeStepper:
         with ``a`` :data:`FIRST_GUESS_FRACTION` of the bound (the start is admissible, and so is
         every Newton iterate after it)."""
         problem = self.solver.problem
-        if len(self.models) != 1 or not problem.has_step_bounds:
+        if not problem.has_step_bounds:
             return
         predicted = np.array(self.state.position)
         self.state.roll_back(start)

@@ -422,6 +422,13 @@ class ShellProblem(PetscOwner):
         self.report.multiplier_updates += 1
         return False
 
+    def acceleration_residual(self, prefix: str, direct: bool):
+        """The :class:`~bhem_hpc.solver.acceleration.AccelerationResidual` of this shell's residuals
+        (its mass solve under ``prefix``; ``direct``: factored)."""
+        from bhem_hpc.solver.acceleration import AccelerationResidual
+
+        return AccelerationResidual(self.model, self.prolongation, self.bc_rows, self.bc_local, prefix, direct)
+
     def close(self) -> None:
         """Destroy the PETSc objects this problem owns (idempotent)."""
         if self._closed:

@@ -21,6 +21,7 @@ from bhem_hpc.io.run_directory import OutputDirectoryError, run_series
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.scene import SceneError
 from bhem_hpc.scene.loader import load_any_scene
+from bhem_hpc.solids.sem import ShapeMatchingSolid
 
 SOLID = """
 [time]
@@ -176,7 +177,12 @@ def test_a_scene_with_a_solid_on_two_ranks_gives_the_serial_numbers(comm, shared
         (lambda s, f: s.replace("alpha = 0.4", "sparsity = 1.5"), r"key 'sem.sparsity' must be a number in \(0, 1\]"),
         (lambda s, f: s.replace("poisson = 0.45", "poisson = 0.5"), r"key 'material': poisson must lie in"),
         (lambda s, f: s.replace("period = 0.08", "period = 0.0"), r"key 'effects.wind.period' must be a number > 0"),
-        (lambda s, f: s.replace("effects = {", "effects = { contact = true, "), r"contact with solids is not built"),
+        (lambda s, f: s.replace("effects = {", "effects = { contact = true, "),
+         r"key 'effects.contact': a solid's contact needs 'colliders'"),
+        (lambda s, f: s.replace("effects = {", "effects = { contact = { method = 'impulse' }, "),
+         r"key 'effects.contact.method' must be 'ipc' \(a solid meets others by IPC's barrier\)"),
+        (lambda s, f: s.replace("effects = {", "effects = { contact = true, friction = 0.3, "),
+         r"key 'effects.friction' must be absent"),
         (lambda s, f: s.replace('[solver]\n', '[solver]\nhessian = "pseudo"\n'),
          r"key 'solver.hessian' must be 'projected' or 'exact' or 'adaptive'"),
         (lambda s, f: s + "[bodies.surface]\nkind = 'rectangle'\n", r"unknown key 'surface'"),
@@ -259,10 +265,24 @@ def test_bad_materials_are_refused_naming_the_parts(comm, shared_tmp_path, edit,
         load_any_scene(path)
 
 
-def test_too_coarse_a_quadrature_for_the_shape_matching_is_refused_naming_the_parts(comm, shared_tmp_path):
-    """Two boxes of two materials overlapping by 1 cm, a 5 cm cutoff: with 10 ray-cast lines per side
-    the parts blended at the bar's centre do not map the rest shape to itself (|F - I| = 11.8 at 3
-    of 180 points); the run stops before its output, naming the parts; 24 lines pose it (F = I to 3e-14)."""
+def test_a_shape_matching_that_does_not_pose_the_rest_shape_is_refused_naming_the_parts(
+    comm, shared_tmp_path, monkeypatch
+):
+    """Two boxes of two materials overlapping by 1 cm, a 5 cm cutoff, 10 ray-cast lines per side.
+    Where parts blended at a point are fitted from too few samples, F at rest may differ from I: on
+    AVX-512 BLAS kernels this bar gives |F - I| = 11.8 at 3 of its 180 points, on AVX2 ones 4e-14
+    everywhere (a near-singular fit: round-off decides). The deformation gradients at rest are
+    offset at 3 points here, so that the refusal is tested on every CPU: the run stops before its
+    output, naming the parts blended there and what to raise."""
+    original = ShapeMatchingSolid.deformation_gradients
+
+    def off_at_three(solid, positions):
+        gradients = original(solid, positions)
+        if positions is solid.reference:
+            gradients[:3] += 0.5
+        return gradients
+
+    monkeypatch.setattr(ShapeMatchingSolid, "deformation_gradients", off_at_three)
     steel = [f.with_name(f"steel{k}") for k, f in enumerate(nurbs.box_faces([0, 0, 0], [0.21, 0.1, 0.1], degree=2))]
     rubber = [f.with_name(f"rubber{k}") for k, f in enumerate(nurbs.box_faces([0.2, 0, 0], [0.4, 0.1, 0.1], degree=2))]
     if comm.rank == 0:
@@ -272,7 +292,7 @@ def test_too_coarse_a_quadrature_for_the_shape_matching_is_refused_naming_the_pa
             .replace("[[-0.05, -0.05, -0.1], [0.05, 0.05, 0.1]]", "[[-0.001, -1, -1], [0.001, 1, 1]]"))  # fmt: skip
     path = _write(comm, shared_tmp_path / "bar.toml", text)
     with pytest.raises(SceneError, match=r"body 'tyre': .*the rest shape is not reproduced at 3 of 180 quadrature "
-                                         r"points .*parts rubber3 \(D19\), rubber5 \(D23\), steel3 \(D7\), steel5 "
-                                         r"\(D11\) blend: .*raise lines_per_side \(10\)"):  # fmt: skip
+                                         r"points \(\|F - I\| up to 0.5.*parts .*(steel|rubber)\d+ \(D\d+\).* blend: "
+                                         r".*raise lines_per_side \(10\)"):  # fmt: skip
         run_scene(RunOptions(path, shared_tmp_path / "bar", progress=False), comm)
     assert not (shared_tmp_path / "bar").exists()

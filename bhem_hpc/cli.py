@@ -103,7 +103,8 @@ def _parser() -> argparse.ArgumentParser:
     _add_states(sub)
     _add_intersections(sub)
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
-    render.add_argument("directory", type=Path, help="output directory of `bhem-hpc run` (reads surface.h5)")
+    render.add_argument("directory", type=Path,
+                        help="output directory of `bhem-hpc run` (a shell's surface.h5, a solid's IGES frames)")
     render.add_argument("--frame", type=int, default=-1, help="frame index (default: the last)")
     render.add_argument("--size", default="320x240", help="WIDTHxHEIGHT in pixels")
     render.add_argument("--out", type=Path, default=None, help="PNG path (default: DIR/frame_K.png)")
@@ -162,6 +163,7 @@ def _render(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.io import read_frame
     from bhem_hpc.io.render import render, write_png
     from bhem_hpc.io.run_directory import run_series
+    from bhem_hpc.io.solid_output import read_solid_frame
 
     if comm.rank != 0:  # serial: one rank renders
         return
@@ -176,6 +178,10 @@ def _render(args: argparse.Namespace, comm) -> None:
         raise InputError(f"--out {args.out}: the folder {args.out.parent} does not exist")
     surfaces = []
     for h5 in series:
+        if h5.suffix == ".pvd":  # a solid's frames: its deformed model as IGES
+            surface, time = read_solid_frame(h5, args.frame)
+            surfaces.append(surface)
+            continue
         try:
             surface, time = read_frame(h5, args.frame)
         except (OSError, KeyError, TypeError) as exc:

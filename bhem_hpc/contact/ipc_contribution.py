@@ -235,7 +235,8 @@ class IpcBarrier:
             if len(behind):
                 return f"plane {k} has {len(behind)} collision vertices on or behind it, e.g. {shell[behind[0]]}"
         if self._ipctk.has_intersections(self.mesh, vertices):
-            return "its collision mesh intersects a collider mesh" + (" or itself" if self.self_contact else "")
+            within = ", or within a body that meets itself" if self.self_contact else ""
+            return f"the collision mesh intersects (between bodies, or with a collider mesh{within})"
         return None
 
 

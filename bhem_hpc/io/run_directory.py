@@ -37,7 +37,7 @@ RUN_FILES = (
 #: The manifest a run writes first: it marks the directory as a bhem-hpc run's output.
 MANIFEST = ".bhem-run"
 #: Files of the frames folder a run writes (a solid's: its boundary and its quadrature points).
-FRAME_FILE = re.compile(r"frame_\d+(_boundary|_points)?\.vtu(\.tmp)?")
+FRAME_FILE = re.compile(r"frame_\d+((_boundary|_points)?\.vtu|\.igs)(\.tmp)?")
 #: A lock file younger than this whose content cannot be read yet is being written: held.
 LOCK_WRITE_SECONDS = 60.0
 
@@ -53,19 +53,18 @@ def foreign_entries(out: Path, most: int = 5) -> list[str]:
 
 
 def run_series(out: Path) -> list[Path]:
-    """The surface series (``surface.h5``) of the run in ``out``: its own, or each body's of a run of
-    several bodies (in the scene's order).
+    """The series of the run in ``out``: its own (``surface.h5``), or each body's of a run of several
+    bodies (in the scene's order): a shell's ``surface.h5``, a solid's ``surface.pvd``.
 
     Raises:
         OutputDirectoryError: ``out`` holds no run's series.
     """
     bodies = manifest_bodies(out) if not (out / "surface.h5").is_file() else []
     series = [out / body / "surface.h5" for body in bodies] or [out / "surface.h5"]
-    for h5 in series:
+    for k, h5 in enumerate(series):
         if not h5.is_file() and h5.with_name("surface_points.pvd").is_file():
-            raise OutputDirectoryError(f"{h5.parent} holds a solid's frames (surface.pvd, VTU files for "
-                                       "ParaView): `bhem-hpc render` draws shells' series; last.png shows every body")
-        if not h5.is_file():
+            series[k] = h5.with_suffix(".pvd")  # a solid's
+        elif not h5.is_file():
             raise OutputDirectoryError(f"{h5} does not exist: {out} is not the output directory of `bhem-hpc run`")
     return series
 

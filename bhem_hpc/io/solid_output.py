@@ -1,6 +1,7 @@
 """A solid's state as ParaView files (VTK XML, float64): its NURBS parts tessellated as one
 quadrilateral surface, and its quadrature points with their Cauchy stresses; as one state
-(:func:`write_solid_files`) or a time series (:class:`SolidTimeSeries`). Serial writers, numpy
+(:func:`write_solid_files`) or a time series (:class:`SolidTimeSeries`, which also writes each
+frame's deformed model as IGES, read back by :func:`read_solid_frame`). Serial writers, numpy
 only; the arrays come from the solid (:class:`~bhem_hpc.solids.sem.ShapeMatchingSolid`)."""
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -15,6 +17,8 @@ import numpy as np
 
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.io.cad import read_parts, write_parts
 from bhem_hpc.io.vtu import VTK_VERTEX, write_pvd, write_vtu
 
 
@@ -116,8 +120,8 @@ class SolidTimeSeries:
         listed = [float(d.get("timestep")) for d in ET.parse(self.pvd_path).getroot().iter("DataSet")]
         tolerance = 1e-9 * max(abs(until), 1e-300)
         self.times = [t for t in listed if t <= until + tolerance]
-        for stale in self.folder.glob("frame_*.vtu"):
-            index = re.match(r"frame_(\d+)_", stale.name)
+        for stale in [*self.folder.glob("frame_*.vtu"), *self.folder.glob("frame_*.igs")]:
+            index = re.match(r"frame_(\d+)[_.]", stale.name)
             if index is not None and int(index.group(1)) >= len(self.times):
                 stale.unlink()
 
@@ -125,10 +129,16 @@ class SolidTimeSeries:
         """Append a frame of ``state`` at ``time`` and list it."""
         write_solid_files(self.folder, state.parts, self.rest_parts, state.positions, state.stresses, state.volumes,
                           stem=f"frame_{len(self.times):06d}", samples=self.samples)  # fmt: skip
+        write_parts(self.model_file(len(self.times)), state.parts)
         self.times.append(float(time))
         write_pvd(self.pvd_path, self.frame_files())
         points = [(t, file.replace("_boundary.vtu", "_points.vtu")) for t, file in self.frame_files()]
         write_pvd(self.points_pvd_path, points)
+
+    def model_file(self, frame: int) -> Path:
+        """The deformed model of frame ``frame`` as IGES (its parts, exact: it opens in a modeller and
+        ``bhem-hpc render`` draws it)."""
+        return self.folder / f"frame_{frame:06d}.igs"
 
     def frame_files(self) -> list[tuple[float, str]]:
         """``(time, boundary file relative to the series' folder)`` of every frame written."""
@@ -136,3 +146,32 @@ class SolidTimeSeries:
 
     def close(self) -> None:
         """Every frame is complete once written: nothing is held open."""
+
+
+@dataclass(frozen=True)
+class SolidParts:
+    """A solid's frame as its NURBS parts (what the ray tracer draws of a solid)."""
+
+    parts: list[NurbsSurface]
+
+
+def read_solid_frame(pvd: str | Path, frame: int = -1) -> tuple[SolidParts, float]:
+    """The parts and time of frame ``frame`` (negative: from the end) of the solid series listed by
+    ``pvd`` (``<body>/surface.pvd``), from its IGES file.
+
+    Raises:
+        InputError: no such series or frame, or an unreadable model file.
+    """
+    pvd = Path(pvd)
+    try:
+        times = [float(d.get("timestep")) for d in ET.parse(pvd).getroot().iter("DataSet")]
+    except (OSError, ET.ParseError, TypeError, ValueError) as exc:
+        raise InputError(f"{pvd}: not a readable series of a solid ({exc})") from None
+    if not -len(times) <= frame < len(times):
+        raise InputError(f"{pvd}: frame {frame} does not exist (the series has {len(times)} frames)")
+    index = frame % len(times)
+    path = pvd.with_name(pvd.stem + "_frames") / f"frame_{index:06d}.igs"
+    try:
+        return SolidParts(read_parts(path)), times[index]
+    except (OSError, SurfaceError) as exc:
+        raise InputError(f"{path}: the model of frame {index} cannot be read ({exc})") from None

@@ -5,6 +5,7 @@ stdlib; the CAD file is read here, so that a bad model is refused before anythin
     name = "castle"
     type = "solid"
     file = "castle.igs"         # IGES or Rhino .3dm, relative to the scene
+    offset = [0.0, 0.0, 0.1]    # the model moved by this vector [m] (default: where the file has it)
     [bodies.material]           # density [kg/m^3], young [Pa], poisson, model ("neo-hookean", "stvk")
                                 # or, several materials: [[bodies.materials]] with parts = ["hub*", ...]
                                 # (part names, * and ? as in file names) and the same keys
@@ -267,9 +268,13 @@ def _read_model(top: Table) -> tuple[Path, tuple[NurbsSurface, ...]]:
     name = top.get("file", "a string", expected="a NURBS model file (IGES or .3dm), relative to the scene")
     file = regular_file(top, "file", name, top.path)
     try:
-        return file, tuple(read_parts(file))
+        parts = tuple(read_parts(file))
     except SurfaceError as exc:
         raise SceneError(f"{top.path}: key 'file' = {name!r}: {exc}") from None
+    offset = top.get("offset", "3 numbers", None, expected="3 finite numbers [m] (the model moved by them)")
+    if offset is not None:
+        parts = tuple(part.with_control(part.control + np.asarray(offset, dtype=float)) for part in parts)
+    return file, parts
 
 
 @BODY_TYPES.register("solid")

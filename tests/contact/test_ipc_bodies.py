@@ -192,3 +192,25 @@ def test_two_ranks_drop_the_toy_as_one_does(comm, shared_tmp_path):
     moved = abs(serial_heights[-1] - 0.005)
     assert moved > 0.01
     np.testing.assert_allclose(parallel, serial, atol=1e-5 * moved)
+
+
+def test_bodies_in_contact_by_two_methods_or_overlapping_are_refused(comm, shared_tmp_path):
+    """A shell in contact by impulses beside a solid (which meets others by IPC only) is refused
+    naming both bodies and the key; two solids that overlap at the start are refused before the
+    run's output, naming both."""
+    from bhem_hpc.errors import RunError
+    from bhem_hpc.run import RunOptions, run_scene
+    from bhem_hpc.scene import SceneError
+
+    toy = nurbs.box_faces([-0.05, -0.05, 0.005], [0.05, 0.05, 0.1], degree=2)
+    impulse = TOY.replace('contact = { method = "ipc", collision_cells = 3 }', "contact = true")
+    path = _scene(comm, shared_tmp_path, impulse, {"toy.igs": toy})
+    with pytest.raises(SceneError, match=r"body 'toy' \(bodies\[1\]\): key 'effects.contact.method' is 'ipc' but "
+                                         r"body 'cloth' \(bodies\[0\]\) has 'impulse'"):  # fmt: skip
+        load_any_scene(path)
+    overlapping = {"left.igs": nurbs.box_faces([-0.1, -0.05, -0.05], [0.01, 0.05, 0.05], degree=2),
+                   "right.igs": nurbs.box_faces([0.0, -0.05, -0.05], [0.1, 0.05, 0.05], degree=2)}  # fmt: skip
+    path = _scene(comm, shared_tmp_path, BLOCKS.format(right_speed=0.0), overlapping)
+    with pytest.raises(RunError, match=r"the bodies in contact \(left, right\) start in contact .*intersects"):
+        run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
+    assert not (shared_tmp_path / "out").exists()

@@ -14,10 +14,12 @@ import pytest
 from helpers import REPO, paraview_read
 from mpi4py import MPI
 
+from bhem_hpc.cli import main
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.io import read_checkpoint, read_frame
 from bhem_hpc.io.cad import write_parts
-from bhem_hpc.io.run_directory import OutputDirectoryError, run_series
+from bhem_hpc.io.run_directory import run_series
+from bhem_hpc.io.solid_output import read_solid_frame
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.scene import SceneError
 from bhem_hpc.scene.loader import load_any_scene
@@ -107,8 +109,13 @@ def test_a_solid_and_a_shell_run_as_the_library_steps_them(comm, shared_tmp_path
         collection = read[str(out / "bodies.pvd")][".pvd"]
         assert all(frame["leaves"] == 2 for frame in collection["frames"].values())
         assert (out / "last.png").stat().st_size > 1000
-        with pytest.raises(OutputDirectoryError, match="holds a solid's frames"):
-            run_series(out)
+        # each frame's deformed model as IGES (exact: repr of the control points), drawn by `render`
+        parts, time = read_solid_frame(out / "jelly" / "surface.pvd")
+        assert time == pytest.approx(0.04)
+        np.testing.assert_array_equal(np.concatenate([p.control.reshape(-1) for p in parts.parts]), solid)
+        assert run_series(out) == [out / "jelly" / "surface.pvd", out / "sheet" / "surface.h5"]
+        assert main(["render", str(out), "--size", "64x48", "--frame", "1"]) == 0
+        assert (out / "frame_1.png").stat().st_size > 500
 
 
 def test_a_periodic_wind_moves_a_free_solid_as_implicit_euler_says(comm, shared_tmp_path, block_file):

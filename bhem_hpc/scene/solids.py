@@ -50,7 +50,7 @@ from bhem_hpc.solids.sem import SolidMaterial, SolidOptions
 #: negative pivots).
 SOLID_HESSIAN_CHOICES = ("projected", "exact", "adaptive")
 #: The solver keys a solid reads (``quadrature`` belongs to the shells of the scene).
-SOLID_SOLVER_KEYS = ("hessian", "linear", "factorization", "options", "quadrature")
+SOLID_SOLVER_KEYS = ("hessian", "linear", "factorization", "options", "quadrature", "acceleration_tolerance")
 #: The largest ray-cast lines per side (the quadrature's cost grows with its square).
 MAX_LINES_PER_SIDE = 256
 #: Collision-mesh cells per side of each part by default (contact by "ipc").
@@ -239,10 +239,12 @@ def _held(top: Table, parts: tuple[NurbsSurface, ...]) -> tuple[HeldRegion, ...]
     return tuple(regions)
 
 
-def _solver(top: Table) -> tuple[str, str, str | None, dict]:
+def _solver(top: Table) -> tuple[str, str, str | None, dict, float | None]:
+    from bhem_hpc.scene.loader import MAX_ACCELERATION, MIN_ACCELERATION
+
     solver = top.table("solver", None)
     if solver is None:
-        return "projected", "auto", None, {}
+        return "projected", "auto", None, {}, None
     for key in solver.data:
         if key not in SOLID_SOLVER_KEYS:
             raise SceneError(f"{top.path}: key 'solver.{key}': a scene with a solid reads solver keys "
@@ -250,7 +252,10 @@ def _solver(top: Table) -> tuple[str, str, str | None, dict]:
     hessian = solver.get("hessian", "a string", "projected", lambda v: v in SOLID_HESSIAN_CHOICES,
                          " or ".join(map(repr, SOLID_HESSIAN_CHOICES)) + " (a scene with a solid)")  # fmt: skip
     linear, factorization = parse_linear_strategy(solver)
-    return hessian, linear, factorization, parse_petsc_options(solver)
+    tolerance = solver.get("acceleration_tolerance", "a number", None,
+                           lambda v: MIN_ACCELERATION <= v <= MAX_ACCELERATION,
+                           f"a number in [{MIN_ACCELERATION:g}, {MAX_ACCELERATION:g}] (m/s^2)")  # fmt: skip
+    return hessian, linear, factorization, parse_petsc_options(solver), tolerance
 
 
 def _initial_velocity(top: Table) -> tuple[float, float, float] | None:
@@ -293,12 +298,19 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
                        other_bodies_in_contact)  # fmt: skip
     gravity, wind = _effects(effects)
     held = _held(top, parts)
-    hessian, linear, factorization, petsc_options = _solver(top)
+    hessian, linear, factorization, petsc_options, tolerance = _solver(top)
     every, density = parse_output(top)
     initial_velocity = _initial_velocity(top)
     top.done()
+    if contact is not None:  # a barrier's Newton, as a shell's in contact by "ipc" (scene.loader)
+        from bhem_hpc.scene.loader import IPC_ACCELERATION_TOLERANCE, IPC_NEWTON_ITERATIONS
+
+        # chord steps on a kept factorization converged linearly (factor 0.66 per iteration) where a
+        # block hit the jelly castle: 100 iterations, then regularized retries (measured)
+        factorization, tolerance = factorization or "fresh", tolerance or IPC_ACCELERATION_TOLERANCE
+        petsc_options = {"snes_max_it": IPC_NEWTON_ITERATIONS, **petsc_options}
     return SolidScene(path=path, file=file, parts=parts, materials=materials, options=options, gravity=gravity,
                       wind=wind, held=held, dt=clock.dt, steps=clock.steps, hessian=hessian, linear=linear,
                       factorization=factorization or "reuse", petsc_options=dict(petsc_options), output_every=every,
-                      output_density=density, initial_velocity=initial_velocity, raw=raw,
-                      contact=contact)  # fmt: skip
+                      output_density=density, initial_velocity=initial_velocity, raw=raw, contact=contact,
+                      acceleration_tolerance=tolerance)  # fmt: skip

@@ -210,8 +210,8 @@ class SolidProblem(PetscOwner):
 
     def acceleration_residual(self, prefix: str, direct: bool):
         """The :class:`~bhem_hpc.solids.acceleration.SolidAccelerationResidual` of this solid's
-        residuals (its mass factored with SciPy on every rank: ``prefix`` and ``direct`` are a
-        shell's choices)."""
+        residuals (its lumped mass, on every rank: ``prefix`` and ``direct`` are a shell's
+        choices)."""
         from bhem_hpc.solids.acceleration import SolidAccelerationResidual
 
         return SolidAccelerationResidual(self.model)

@@ -82,6 +82,9 @@ def default_direct_options(model: BodyModel) -> dict[str, str]:
         "pc_factor_mat_solver_type": "mumps",
         # Debian's MUMPS has no METIS: AMF (2) was the fastest of the built-in orderings here.
         "mat_mumps_icntl_7": "2",
+        # workspace 100 % above the analysis' estimate (MUMPS' default: 20 %): delayed pivots of an
+        # indefinite LDL^T on 2 ranks overran it (INFOG(1) = -9: a hairpin's arms meeting by IPC)
+        "mat_mumps_icntl_14": "100",
     }
 
 

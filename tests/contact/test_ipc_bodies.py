@@ -26,6 +26,7 @@ BLOCKS = """
 dt = 0.005
 steps = 1
 [solver]
+acceleration_tolerance = 1e-7
 options = {{ snes_atol = 1e-10 }}
 [[bodies]]
 name = "left"

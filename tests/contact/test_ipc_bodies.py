@@ -215,3 +215,17 @@ def test_bodies_in_contact_by_two_methods_or_overlapping_are_refused(comm, share
     with pytest.raises(RunError, match=r"the bodies in contact \(left, right\) start in contact .*intersects"):
         run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
     assert not (shared_tmp_path / "out").exists()
+
+
+def test_bhem_hpc_run_meets_the_bodies_by_ipc(comm, shared_tmp_path):
+    """The scene run as `bhem-hpc run` runs it: the summary names the barrier (its dhat, 1e-3 of the
+    bodies' bounding box, and every body in contact) and every step converges without recovery."""
+    from bhem_hpc.run import RunOptions, run_scene
+
+    toy = nurbs.box_faces([-0.05, -0.05, 0.005], [0.05, 0.05, 0.1], degree=2)
+    path = _scene(comm, shared_tmp_path, TOY.replace("steps = 1", "steps = 6"), {"toy.igs": toy})
+    summary = run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
+    contact = summary["contact"]
+    assert contact["method"] == "ipc" and contact["bodies"] == ["cloth", "toy"]
+    assert contact["dhat_m"] == pytest.approx(1e-3 * np.linalg.norm([0.4, 0.4, 0.1]), rel=1e-2)
+    assert summary["status"] == "completed" and sum(s["recoveries"] for s in summary["steps"]) == 0

@@ -117,7 +117,7 @@ class SolidTimeSeries:
     def _continue(self, until: float) -> None:
         if not self.pvd_path.is_file():
             raise InputError(f"{self.pvd_path} does not exist: there is no series to continue")
-        listed = [float(d.get("timestep")) for d in ET.parse(self.pvd_path).getroot().iter("DataSet")]
+        listed = pvd_times(self.pvd_path)
         tolerance = 1e-9 * max(abs(until), 1e-300)
         self.times = [t for t in listed if t <= until + tolerance]
         for stale in [*self.folder.glob("frame_*.vtu"), *self.folder.glob("frame_*.igs")]:
@@ -148,6 +148,11 @@ class SolidTimeSeries:
         """Every frame is complete once written: nothing is held open."""
 
 
+def pvd_times(pvd: Path) -> list[float]:
+    """The times of the frames a ParaView collection lists, in its order."""
+    return [float(d.get("timestep")) for d in ET.parse(pvd).getroot().iter("DataSet")]
+
+
 @dataclass(frozen=True)
 class SolidParts:
     """A solid's frame as its NURBS parts (what the ray tracer draws of a solid)."""
@@ -164,7 +169,7 @@ def read_solid_frame(pvd: str | Path, frame: int = -1) -> tuple[SolidParts, floa
     """
     pvd = Path(pvd)
     try:
-        times = [float(d.get("timestep")) for d in ET.parse(pvd).getroot().iter("DataSet")]
+        times = pvd_times(pvd)
     except (OSError, ET.ParseError, TypeError, ValueError) as exc:
         raise InputError(f"{pvd}: not a readable series of a solid ({exc})") from None
     if not -len(times) <= frame < len(times):

@@ -46,6 +46,17 @@ IPC_ACCELERATION_TOLERANCE = 1e-2
 IPC_NEWTON_ITERATIONS = 100
 
 
+def ipc_newton_settings(factorization: str | None, tolerance: float | None,
+                        options: dict) -> tuple[str, float, dict]:  # fmt: skip
+    """The Newton of a body in contact by "ipc" where the scene leaves it open: fresh factorizations,
+    the acceleration test and :data:`IPC_NEWTON_ITERATIONS`. Kept factorizations' chord steps stall
+    in contact (a block hitting the jelly castle: 0.66 per iteration for 100 iterations), a relative
+    residual of 1e-9 lies below the barrier's round-off (the hairpin's arms meeting: dt halvings
+    either way), and collision-bounded steps need more iterations where contacts close (33 there)."""
+    return (factorization or "fresh", tolerance or IPC_ACCELERATION_TOLERANCE,
+            {"snes_max_it": IPC_NEWTON_ITERATIONS, **options})  # fmt: skip
+
+
 def _read_toml(path: Path) -> dict:
     """The TOML document of a scene file (a regular UTF-8 text file)."""
     if path.exists() and not path.is_file():
@@ -145,12 +156,8 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
         raise SceneError(f"{path}: key 'solver.hessian' = 'trust_region' does not bound its steps by the "
                          "barrier's collision-free step; contact by 'ipc' takes the line-search Hessians")  # fmt: skip
     if contact is not None and contact.method == "ipc":
-        # a barrier's Newton: kept factorizations' chord steps stall in contact, a relative residual of
-        # 1e-9 lies below the barrier's round-off (the hairpin's arms meeting: dt halvings either way),
-        # and its collision-bounded steps need more iterations where contacts close (33 there)
-        factorization, acceleration_tolerance, options = (
-            factorization or "fresh", acceleration_tolerance or IPC_ACCELERATION_TOLERANCE,
-            {"snes_max_it": IPC_NEWTON_ITERATIONS, **options})  # fmt: skip
+        factorization, acceleration_tolerance, options = ipc_newton_settings(factorization, acceleration_tolerance,
+                                                                             options)  # fmt: skip
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip

@@ -302,13 +302,10 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
     every, density = parse_output(top)
     initial_velocity = _initial_velocity(top)
     top.done()
-    if contact is not None:  # a barrier's Newton, as a shell's in contact by "ipc" (scene.loader)
-        from bhem_hpc.scene.loader import IPC_ACCELERATION_TOLERANCE, IPC_NEWTON_ITERATIONS
+    if contact is not None:  # a barrier's Newton, as a shell's in contact by "ipc"
+        from bhem_hpc.scene.loader import ipc_newton_settings
 
-        # chord steps on a kept factorization converged linearly (factor 0.66 per iteration) where a
-        # block hit the jelly castle: 100 iterations, then regularized retries (measured)
-        factorization, tolerance = factorization or "fresh", tolerance or IPC_ACCELERATION_TOLERANCE
-        petsc_options = {"snes_max_it": IPC_NEWTON_ITERATIONS, **petsc_options}
+        factorization, tolerance, petsc_options = ipc_newton_settings(factorization, tolerance, petsc_options)
     return SolidScene(path=path, file=file, parts=parts, materials=materials, options=options, gravity=gravity,
                       wind=wind, held=held, dt=clock.dt, steps=clock.steps, hessian=hessian, linear=linear,
                       factorization=factorization or "reuse", petsc_options=dict(petsc_options), output_every=every,

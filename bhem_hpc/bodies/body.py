@@ -126,10 +126,11 @@ class ShellBody:
 
     def collision_mesh(self) -> BodyMesh:
         from bhem_hpc.contact.ipc_contribution import shell_mesh  # loaded with IPC contact only
+        from bhem_hpc.contact.ipc_friction import surface_friction
 
         contact, material = self.scene.contact, self.scene.material
         return shell_mesh(self.model, contact.collision_cells, material.density, material.thickness,
-                          contact.self_collision)  # fmt: skip
+                          contact.self_collision, surface_friction(contact))  # fmt: skip
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
         scene = self.scene

@@ -32,7 +32,13 @@ from bhem_hpc.model.hessian import COMPOSED_HESSIANS
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solids.model import SolidModel
 from bhem_hpc.solids.petsc import SolidProblem
-from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis, StepBounded
+from bhem_hpc.solver.contributions import (
+    Contribution,
+    ContributionState,
+    PointBasis,
+    StepBounded,
+    begin_lagged_step,
+)
 from bhem_hpc.solver.model_group import BodyModel
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import (
@@ -255,6 +261,13 @@ class StackedProblem(PetscOwner):
         """After a converged solve: whether every body's held points are within tolerance (each body
         updates its multipliers where not; collective)."""
         return all([p.update_multipliers() for p in self.problems])  # a list: every body updates
+
+    def begin_step(self, time: float, dt: float) -> None:
+        """Collective, before a time step from ``time`` of ``dt`` [s]: every body's lagged
+        contributions and the coupling ones take the step's start state."""
+        for problem in self.problems:
+            problem.begin_step(time, dt)
+        begin_lagged_step(self.contributions, self.contribution_state(), time, dt)
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:
         """Every body's point-constraint targets at time (or load factor) ``t``."""

@@ -73,9 +73,11 @@ class SolidBody:
 
     def collision_mesh(self) -> BodyMesh:
         from bhem_hpc.contact.ipc_contribution import solid_mesh  # loaded with IPC contact only
+        from bhem_hpc.contact.ipc_friction import surface_friction
 
-        cells = self.scene.contact.collision_cells
-        return solid_mesh(self.model.solid.parts, self.model.comm.rank, self.mass(), cells + 1)
+        contact = self.scene.contact
+        return solid_mesh(self.model.solid.parts, self.model.comm.rank, self.mass(), contact.collision_cells + 1,
+                          surface_friction(contact))  # fmt: skip
 
     def writer(self, path: Path, continue_at: float | None = None) -> SolidTimeSeries:
         samples = 2 * self.scene.output_density + 1

@@ -143,11 +143,15 @@ class Plane:
 
 @dataclass(frozen=True)
 class Sphere:
-    """Ball of ``radius`` about ``center``, moving at ``velocity``."""
+    """Ball of ``radius`` about ``center``, moving at ``velocity`` and, after time ``spin_from``
+    [s], spinning about its centre at angular velocity ``spin`` [rad/s] (which leaves its shape
+    where it is and moves its surface: friction by IPC drags what touches it, :meth:`surface_velocity`)."""
 
     center: np.ndarray
     radius: float
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    spin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    spin_from: float = 0.0
     analytic: ClassVar[bool] = True
 
     def translated(self, shift: np.ndarray) -> Sphere:
@@ -162,12 +166,22 @@ class Sphere:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _vector("sphere center", self.center))
         object.__setattr__(self, "velocity", _vector("sphere velocity", self.velocity))
+        object.__setattr__(self, "spin", _vector("sphere spin", self.spin))
+        if not (isinstance(self.spin_from, int | float) and math.isfinite(self.spin_from)):
+            raise ColliderError(f"sphere spin_from must be a finite time [s], got {self.spin_from!r}")
         if not (isinstance(self.radius, int | float) and math.isfinite(self.radius) and self.radius > 0):
             raise ColliderError(f"sphere radius must be a finite number > 0, got {self.radius!r}")
 
     def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         return _round_distance(points - self.center - t * self.velocity, self.radius)
+
+    def surface_velocity(self, points: np.ndarray, time: float = math.inf) -> np.ndarray:
+        """The velocity ``(n, 3)`` [m/s] of the sphere's material at ``points`` ``(n, 3)`` at ``time``
+        [s] (spinning after ``spin_from``)."""
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        spin = self.spin if time > self.spin_from else np.zeros(3)
+        return self.velocity + np.cross(spin, points - self.center)
 
     def time_of_impact(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float = 0.0) -> np.ndarray:
         start = np.asarray(start, dtype=float).reshape(-1, 3)

@@ -33,14 +33,17 @@ from bhem_hpc.geometry.surface import PatchLayout
 
 @dataclass(frozen=True)
 class ColliderEntry:
-    """A collider with the friction coefficient of its contact with the shell."""
+    """A collider with the friction coefficient of its contact with the shell (``friction``: the
+    kinetic one; ``static_friction``: the static one of contact by IPC, None: the kinetic one)."""
 
     collider: Collider
     friction: float = 0.0
+    static_friction: float | None = None
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.friction) and self.friction >= 0):
-            raise InputError(f"friction coefficient must be a finite number >= 0, got {self.friction!r}")
+        for value in (self.friction, self.static_friction):
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise InputError(f"friction coefficient must be a finite number >= 0, got {value!r}")
 
 
 class ContactDetector:

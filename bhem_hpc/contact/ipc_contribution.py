@@ -1,6 +1,8 @@
-"""Incremental potential contact inside the Newton solve: ipc-toolkit's barrier between a shell's
-(or a solid's) collision mesh and static obstacles as an energy contribution with a line-search step bound
-(:class:`~bhem_hpc.solver.contributions.StepBounded`); numpy, SciPy and ipctk only.
+"""Incremental potential contact inside the Newton solve: ipc-toolkit's barrier between bodies'
+collision meshes and static obstacles as an energy contribution with a line-search step bound
+(:class:`~bhem_hpc.solver.contributions.StepBounded`), with lagged friction
+(:mod:`~bhem_hpc.contact.ipc_friction`) where the surfaces have friction coefficients; numpy, SciPy
+and ipctk only.
 
 The collision mesh's vertices are material points of the shell, each a fixed linear combination
 of the open DOF blocks of the cell that holds it (``discretization.point_basis``, on the rank that
@@ -14,7 +16,7 @@ blocks lie within the block pairs of the mesh's triangles: the pattern is fixed 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -22,6 +24,7 @@ import numpy as np
 import scipy.sparse
 
 from bhem_hpc.contact.ipc import collision_lattice, minimum_distance
+from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, FRICTIONLESS, Friction, LaggedFriction, pair_table
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
 if TYPE_CHECKING:
@@ -46,6 +49,21 @@ SPHERE_SAGITTA = 0.25
 WEIGHT_CUTOFF = 1e-12
 
 
+@dataclass(frozen=True)
+class Obstacles:
+    """Colliders as the barrier sees them.
+
+    Attributes:
+        meshes: ``(vertices (V, 3), triangles (F, 3), surface velocity, collider index)``, the
+            surface velocity a function of time [s] giving the vertices' ``(V, 3)`` [m/s].
+        planes: ``(unit normal, point)``; plane_colliders: each plane's collider index.
+    """
+
+    meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]
+    planes: list[tuple[np.ndarray, np.ndarray]]
+    plane_colliders: list[int]
+
+
 class IpcBarrier:
     """ipc-toolkit's barrier between a shell's collision mesh and static obstacles.
 
@@ -57,21 +75,22 @@ class IpcBarrier:
         rest: the mesh's vertices at rest ``(points, 3)`` [m]: ipc-toolkit's edge-edge mollifier
             is scaled by the rest edges' lengths (a mesh at rest in one point makes the barrier's
             gradient disagree with its energy where edges cross).
-        obstacles: static triangle meshes ``(vertices (V, 3), triangles (F, 3))``.
-        planes: static planes ``(normal (3,), point (3,))`` (the barrier distance to the plane).
+        obstacles: the static colliders' triangle meshes and planes (the barrier distance to the plane).
         dhat: the barrier's activation distance [m]; stiffness: ``kappa`` [N/m].
         comm: the shell's communicator (``rank``, ``allreduce``, ``allgather``: an mpi4py one).
         groups: each mesh vertex's group ``(points,)``: elements whose vertices are all of one group
             never meet (a body without self-contact is one group; a body with it gives every vertex
             a group of its own); None: every vertex its own (the mesh meets itself). Obstacles form
             one more group: they meet the mesh, never each other.
+        friction: the lagged friction on the mesh (vertices of the mesh, then of the obstacles), or
+            None: frictionless.
     """
 
     name = "ipc barrier"
 
     def __init__(self, bases: Sequence[PointBasis], global_blocks: np.ndarray, triangles: np.ndarray, rest: np.ndarray,
-                 obstacles: Sequence[tuple[np.ndarray, np.ndarray]], planes: Sequence[tuple[np.ndarray, np.ndarray]],
-                 dhat: float, stiffness: float, comm: Communicator, groups: np.ndarray | None = None):  # fmt: skip
+                 obstacles: Obstacles, dhat: float, stiffness: float, comm: Communicator,
+                 groups: np.ndarray | None = None, friction: LaggedFriction | None = None):  # fmt: skip
         import ipctk  # loaded with IPC contact only
 
         self._ipctk = ipctk
@@ -107,12 +126,13 @@ class IpcBarrier:
                                                   shape=(self.num_points, len(self.blocks)))  # fmt: skip
         self._pattern = self._triangle_pattern(np.asarray(triangles, dtype=np.int64))
         self.mesh = self._collision_mesh(np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), obstacles,
-                                         planes, groups)  # fmt: skip
+                                         groups)  # fmt: skip
         self.barrier = ipctk.BarrierPotential(self.dhat, self.stiffness)
         # additive CCD (Li et al. 2021, conservative): on a sheet lying 1e-6 m above a floor mesh,
         # Tight Inclusion took 0.4 s per bound on the near-parallel edge pairs and 76 Newton
         # iterations in the landing step, additive CCD 0.02 s and 27 (measured)
         self._ccd = ipctk.AdditiveCCD()
+        self.friction = friction
 
     def _triangle_pattern(self, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs ``(i, j)`` of mesh blocks (columns of the global map) that share a triangle."""
@@ -126,16 +146,16 @@ class IpcBarrier:
         order = np.lexsort((pairs.col, pairs.row))
         return pairs.row[order].astype(np.int64), pairs.col[order].astype(np.int64)
 
-    def _collision_mesh(self, triangles: np.ndarray, rest: np.ndarray, obstacles, planes, groups: np.ndarray):
+    def _collision_mesh(self, triangles: np.ndarray, rest: np.ndarray, obstacles: Obstacles, groups: np.ndarray):
         ipctk = self._ipctk
         if rest.shape != (self.num_points, 3):
             raise ValueError(f"{self.num_points} mesh vertices need as many rest positions, got shape {rest.shape}")
         faces, vertices, start = [triangles], [rest], self.num_points
-        for points, obstacle_faces in obstacles:
+        for points, obstacle_faces, _, _ in obstacles.meshes:
             vertices.append(np.asarray(points, dtype=float).reshape(-1, 3))
             faces.append(np.asarray(obstacle_faces) + start)
             start += len(vertices[-1])
-        self._obstacle_vertices = np.concatenate(vertices[1:]) if obstacles else np.zeros((0, 3))
+        self._obstacle_vertices = np.concatenate(vertices[1:]) if obstacles.meshes else np.zeros((0, 3))
         faces = np.ascontiguousarray(np.concatenate(faces).astype(np.int32))
         mesh = ipctk.CollisionMesh(np.asfortranarray(np.concatenate(vertices)), ipctk.edges(faces), faces)
         # only pairs across groups meet: a vertex group per body without self-contact, one per vertex
@@ -144,7 +164,8 @@ class IpcBarrier:
         every[: self.num_points] = groups - groups.min() if len(groups) else groups
         every[self.num_points:] = every[: self.num_points].max(initial=-1) + 1
         mesh.can_collide = ipctk.make_vertex_patches_filter(every)
-        mesh.planes = [ipctk.Hyperplane(np.asarray(n, dtype=float), np.asarray(p, dtype=float)) for n, p in planes]
+        mesh.planes = [ipctk.Hyperplane(np.asarray(n, dtype=float), np.asarray(p, dtype=float))
+                       for n, p in obstacles.planes]  # fmt: skip
         return mesh
 
     def _vertices(self, positions: np.ndarray) -> np.ndarray:
@@ -163,14 +184,25 @@ class IpcBarrier:
         rows, cols = self._pattern
         return self.blocks[rows], self.blocks[cols]
 
+    def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
+        """Collective: with friction, lag the contacts at the step's start (their normal forces and
+        tangent bases) for a step from ``time`` of ``dt`` [s]."""
+        if self.friction is not None:
+            vertices = self._vertices(state.positions)
+            self.friction.lag(self.mesh, vertices, self._collisions(vertices), self.barrier, time, dt)
+
     def energy(self, state: ContributionState) -> float:
         vertices = self._vertices(state.positions)
         energy = float(self.barrier(self._collisions(vertices), self.mesh, vertices))
+        if self.friction is not None:
+            energy += self.friction.energy(self.mesh, vertices)
         return energy if self.rank == 0 else 0.0
 
     def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
         vertices = self._vertices(state.positions)
         full = np.asarray(self.barrier.gradient(self._collisions(vertices), self.mesh, vertices)).reshape(-1, 3)
+        if self.friction is not None:
+            full = full + self.friction.gradient(self.mesh, vertices)
         gradient += self.local_map.T @ full[: self.num_points]
 
     def hessian(self, state: ContributionState) -> np.ndarray:
@@ -182,9 +214,11 @@ class IpcBarrier:
         # negative eigenvalues clamped to zero: with their absolute values instead, the hairpin's
         # arms meeting halved dt and failed where clamping converges without recovery (measured)
         method = self._ipctk.PSDProjectionMethod.CLAMP
-        hessian = self.barrier.hessian(self._collisions(vertices), self.mesh, vertices, method)
+        hessian = scipy.sparse.csr_matrix(self.barrier.hessian(self._collisions(vertices), self.mesh, vertices, method))
+        if self.friction is not None:
+            hessian = hessian + self.friction.hessian(self.mesh, vertices)
         size = 3 * self.num_points
-        shell = scipy.sparse.csr_matrix(hessian)[:size, :size]
+        shell = hessian[:size, :size]
         mapped = scipy.sparse.kron(self.global_map, scipy.sparse.identity(3), format="csr")
         blocks = (mapped.T @ shell @ mapped).tobsr(blocksize=(3, 3))
         return self._split(blocks)
@@ -251,6 +285,7 @@ class BodyMesh:
         rest: the vertices at rest ``(V, 3)`` [m] (on every rank).
         vertex_mass: the body's mass per vertex [kg] (IPC's stiffness rule).
         self_contact: whether the mesh meets itself (else only other bodies and obstacles).
+        friction: the body's friction coefficients.
     """
 
     bases: list[PointBasis]
@@ -258,10 +293,11 @@ class BodyMesh:
     rest: np.ndarray
     vertex_mass: float
     self_contact: bool = False
+    friction: Friction = FRICTIONLESS
 
 
 def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thickness: float,
-               self_contact: bool = False) -> BodyMesh:  # fmt: skip
+               self_contact: bool = False, friction: Friction = FRICTIONLESS) -> BodyMesh:  # fmt: skip
     """A shell's collision lattice of ``cells_per_patch`` cells per patch side (aligned with the
     patches, so each lattice triangle lies in one cell)."""
     grid = model.rest_surface.grid
@@ -273,10 +309,11 @@ def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thicknes
     rest = model.rest_surface.evaluate(parameters[:, 0], parameters[:, 1]).x
     corners = rest[triangles]
     area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
-    return BodyMesh(bases, triangles, rest, density * thickness * area / len(rest), self_contact)
+    return BodyMesh(bases, triangles, rest, density * thickness * area / len(rest), self_contact, friction)
 
 
-def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9) -> BodyMesh:
+def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9,
+               friction: Friction = FRICTIONLESS) -> BodyMesh:  # fmt: skip
     """An SEM solid's boundary: its NURBS ``parts`` (stacked control points as the DOF blocks, every
     block on every rank) tessellated on ``samples x samples`` parameter grids, each vertex a fixed
     rational combination of its part's control points (given on rank 0: each term once); ``mass``
@@ -297,18 +334,22 @@ def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9) -
         rest.append(np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index]))
         offset += part.control[..., 0].size
     rest = np.concatenate(rest)
-    return BodyMesh(bases, np.concatenate(triangles), rest, mass / len(rest))
+    return BodyMesh(bases, np.concatenate(triangles), rest, mass / len(rest), friction=friction)
 
 
 def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], global_open_blocks: np.ndarray,
                    comm: Communicator, colliders: Sequence[Any] = (), dhat: float | None = None,
-                   stiffness: float | None = None) -> IpcBarrier:  # fmt: skip
+                   stiffness: float | None = None, collider_friction: Sequence[Friction] | None = None,
+                   eps_v: float = DEFAULT_EPS_V) -> IpcBarrier:  # fmt: skip
     """The barrier between bodies' collision ``meshes`` (each body's open blocks at rows
     ``open_offsets[b]:`` of the contributions' state, their global blocks ``global_open_blocks``),
     and between them and static colliders (planes, spheres as icospheres within
     :data:`SPHERE_SAGITTA` dhat, triangle meshes); ``dhat`` by default 1e-3 of the bodies' rest
     bounding-box diagonal, ``kappa`` by default the top of ipc-toolkit's adaptive range for that
-    ``dhat`` and the bodies' mean mass per vertex."""
+    ``dhat`` and the bodies' mean mass per vertex. Where a body (``mesh.friction``) or a collider
+    (``collider_friction``, one per collider; None: frictionless colliders) has friction, lagged
+    friction with sticking speed ``eps_v`` [m/s] acts at the contacts
+    (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`)."""
     rest = np.concatenate([mesh.rest for mesh in meshes])
     dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
     if stiffness is None:
@@ -322,9 +363,33 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
         count = len(mesh.rest)
         groups.append(start + np.arange(count) if mesh.self_contact else np.full(count, start))
         start += count
-    meshes_, planes = _obstacles(colliders, dhat)
-    return IpcBarrier(bases, global_open_blocks, np.concatenate(triangles), rest, meshes_, planes, dhat, stiffness,
-                      comm, np.concatenate(groups))  # fmt: skip
+    obstacles = _obstacles(colliders, dhat)
+    frictions = [FRICTIONLESS] * len(colliders) if collider_friction is None else list(collider_friction)
+    if len(frictions) != len(colliders):
+        raise ValueError(f"{len(colliders)} colliders need as many friction coefficients, got {len(frictions)}")
+    friction = None
+    if any(f.any for f in [mesh.friction for mesh in meshes] + frictions):
+        friction = _lagged_friction(meshes, obstacles, frictions, eps_v)
+    return IpcBarrier(bases, global_open_blocks, np.concatenate(triangles), rest, obstacles, dhat, stiffness, comm,
+                      np.concatenate(groups), friction)  # fmt: skip
+
+
+def _lagged_friction(meshes: Sequence[BodyMesh], obstacles: Obstacles, colliders: Sequence[Friction],
+                     eps_v: float) -> LaggedFriction:  # fmt: skip
+    """The friction of bodies' ``meshes`` and the ``obstacles`` made of colliders with coefficients
+    ``colliders``: the vertices' surfaces (bodies, then colliders) and the colliders' surface velocities."""
+    bodies = len(meshes)
+    owners = [np.full(len(mesh.rest), body) for body, mesh in enumerate(meshes)]
+    owners += [np.full(len(points), bodies + collider) for points, _, _, collider in obstacles.meshes]
+    body_vertices = sum(len(mesh.rest) for mesh in meshes)
+    resting = np.zeros((body_vertices, 3))
+
+    def velocity(time: float) -> np.ndarray:
+        return np.concatenate([resting] + [at(time) for _, _, at, _ in obstacles.meshes])
+
+    table = pair_table([mesh.friction for mesh in meshes], colliders)
+    return LaggedFriction(np.concatenate(owners), bodies + np.asarray(obstacles.plane_colliders, dtype=np.int64),
+                          table, velocity, body_vertices, eps_v)  # fmt: skip
 
 
 def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | None, stiffness: float | None,
@@ -336,15 +401,32 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
     return bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, colliders, dhat, stiffness)
 
 
-def _obstacles(colliders: Sequence[Any], dhat: float) -> tuple[list, list]:
+def _obstacles(colliders: Sequence[Any], dhat: float) -> Obstacles:
     """Colliders as the barrier's static triangle meshes (spheres as icospheres within
-    :data:`SPHERE_SAGITTA` dhat) and planes ``(unit normal, point)``."""
+    :data:`SPHERE_SAGITTA` dhat, their vertices moving at the sphere's surface velocity) and planes."""
     from bhem_hpc.collision.colliders import Plane, Sphere
 
-    planes = [(c.normal / np.linalg.norm(c.normal), c.point) for c in colliders if isinstance(c, Plane)]
-    meshes = [c.triangles(SPHERE_SAGITTA * dhat) if isinstance(c, Sphere) else (c.vertices, c.triangles)
-              for c in colliders if not isinstance(c, Plane)]  # fmt: skip
-    return meshes, planes
+    meshes, planes, plane_colliders = [], [], []
+    for index, c in enumerate(colliders):
+        if isinstance(c, Plane):
+            planes.append((c.normal / np.linalg.norm(c.normal), c.point))
+            plane_colliders.append(index)
+            continue
+        points, faces = c.triangles(SPHERE_SAGITTA * dhat) if isinstance(c, Sphere) else (c.vertices, c.triangles)
+        points = np.asarray(points, dtype=float).reshape(-1, 3)
+        meshes.append((points, faces, _surface_velocity(c, points), index))
+    return Obstacles(meshes, planes, plane_colliders)
+
+
+def _surface_velocity(collider: Any, points: np.ndarray) -> Callable[[float], np.ndarray]:
+    """The velocity of a static collider's surface at its mesh's ``points`` ``(V, 3)`` as a function
+    of time (a spinning sphere's turns; other colliders' are at rest)."""
+    from bhem_hpc.collision.colliders import Sphere
+
+    if isinstance(collider, Sphere):
+        return lambda time: collider.surface_velocity(points, time)
+    resting = np.zeros_like(points)
+    return lambda time: resting
 
 
 def _kappa(rest: np.ndarray, dhat: float, mass_per_vertex: float) -> float:

@@ -16,20 +16,30 @@ COLLIDERS = Registry("collider type")
 MAX_NEEDLES = 100_000
 
 
-def parse_colliders(items: list, friction: float, path: Path) -> tuple:
-    """The ``[[colliders]]`` list as collider entries (each with its friction coefficient)."""
+def parse_colliders(items: list, friction: float, path: Path, static_friction: float | None = None,
+                    method: str = "impulse") -> tuple:  # fmt: skip
+    """The ``[[colliders]]`` list as collider entries, each with its friction coefficient (by default
+    the body's ``friction``) and, for contact by ``"ipc"``, its static one (by default the body's
+    ``static_friction``, else its own kinetic one) and a sphere's ``spin``."""
     from bhem_hpc.collision.colliders import ColliderError
     from bhem_hpc.contact.detection import ColliderEntry
 
     types = COLLIDERS.names
     entries = []
+    coefficient = "a number >= 0 (Coulomb coefficient)"
     for i, item in enumerate(items):
         t = Table(path, f"colliders[{i}]", item)
         kind = t.get("type", "a string", check=lambda v: v in types, expected=f"one of {types}")
-        mu = t.get("friction", "a number", friction, lambda v: v >= 0, "a number >= 0 (Coulomb coefficient)")
+        mu = t.get("friction", "a number", friction, lambda v: v >= 0, coefficient)
+        for key, what in (("static_friction", "static friction coefficients"), ("spin", "spinning colliders"),
+                          ("spin_from", "spinning colliders")):  # fmt: skip
+            if method != "ipc" and key in t.data:
+                raise SceneError(f"{path}: key '{t.key(key)}' = {t.data[key]!r}: {what} are for contact method "
+                                 "'ipc' only")  # fmt: skip
+        mu_s = t.get("static_friction", "a number", static_friction, lambda v: v >= 0, coefficient)
         try:
             velocity = t.get("velocity", "3 numbers", [0.0, 0.0, 0.0])
-            entries += [ColliderEntry(collider, mu) for collider in COLLIDERS[kind](t, path, velocity)]
+            entries += [ColliderEntry(collider, mu, mu_s) for collider in COLLIDERS[kind](t, path, velocity)]
         except ColliderError as exc:
             raise SceneError(f"{path}: key '{t.name}': {exc}") from exc
         t.done()
@@ -52,7 +62,9 @@ def _sphere(t: Table, path: Path, velocity: list[float]) -> list[Any]:
     from bhem_hpc.collision import colliders as C
 
     radius = _radius(t)
-    return [C.Sphere(t.get("center", "3 numbers"), radius, velocity)]
+    spin = t.get("spin", "3 numbers", [0.0, 0.0, 0.0])  # angular velocity [rad/s] about the centre
+    spin_from = t.get("spin_from", "a number", 0.0, lambda v: v >= 0, "a time >= 0 [s] (when the spin starts)")
+    return [C.Sphere(t.get("center", "3 numbers"), radius, velocity, spin, spin_from)]
 
 
 @COLLIDERS.register("cylinder")

@@ -29,10 +29,10 @@ from bhem_hpc.scene.surfaces import parse_surface
 from bhem_hpc.scene.table import SceneError, Table, is_number
 
 # Effects a scene may list; contact effects import the collision code only when listed.
-EFFECTS = ("gravity", "pressure", "damping", *LOADS.names, "contact", "self_collision", "friction")
+EFFECTS = ("gravity", "pressure", "damping", *LOADS.names, "contact", "self_collision", "friction", "static_friction")
 
 
-CONTACT_EFFECTS = ("contact", "self_collision", "friction")
+CONTACT_EFFECTS = ("contact", "self_collision", "friction", "static_friction")
 
 
 #: Longest probe name (it names columns of path.csv and probes.csv and the curves of path.png).
@@ -348,7 +348,7 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
     et = Table(path, "effects.contact", settings)
     method = et.get("method", "a string", "impulse", lambda v: v in CONTACT_METHODS, f"one of {CONTACT_METHODS}")
     if method == "ipc":
-        return parse_ipc_contact(et, effects, colliders_raw, path, other_bodies)
+        return parse_ipc_contact(et, Table(path, "effects", effects), colliders_raw, path, other_bodies)
     push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
     samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
     metric = et.get("metric", "a string", "mass", lambda v: v in CONTACT_METRICS, f"one of {CONTACT_METRICS}")
@@ -358,6 +358,10 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
         raise SceneError(
             f"{path}: key 'effects.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
         )
+    if "static_friction" in effects:
+        raise SceneError(f"{path}: key 'effects.static_friction' = {effects['static_friction']!r}: impulses "
+                         "have one Coulomb coefficient ('effects.friction'); static and kinetic ones take "
+                         "method = 'ipc'")  # fmt: skip
     self_collision, self_friction = _self_collision(effects.get("self_collision", False), friction, path)
     if not colliders_raw and not self_collision and not other_bodies:
         raise SceneError(f"{path}: 'effects.contact' is listed but there are no 'colliders' and no self-collision")
@@ -365,38 +369,44 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
     return SceneContact(colliders, push_out, samples, self_collision, self_friction, metric, friction)
 
 
-def parse_ipc_contact(et: Table, effects: dict, colliders_raw: list, path: Path, other_bodies: bool,
+def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path, other_bodies: bool,
                       cells: int = 4) -> SceneContact:  # fmt: skip
-    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes, spheres and meshes
-    and, with ``other_bodies``, the other bodies in contact (``cells``: collision cells per side by
-    default)."""
+    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes, spheres (spinning
+    or not) and meshes and, with ``other_bodies``, the other bodies in contact (``cells``: collision
+    cells per side by default); lagged friction by ``effects.friction`` / ``static_friction`` and the
+    colliders' ``friction`` / ``static_friction``."""
     from bhem_hpc.collision.colliders import Plane, Sphere, TriangleMesh
+    from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, EPS_V_RANGE
     from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE
 
     dhat = et.get("dhat", "a number", None, lambda v: 1e-9 <= v <= 1.0, "a length in [1e-9, 1] [m]")
     kappa = et.get("barrier_stiffness", "a number", None, lambda v: 0 < v <= 1e15, "a number in (0, 1e15] [N/m]")
     low, high = COLLISION_CELLS_RANGE
     cells = et.get("collision_cells", "an integer", cells, lambda v: low <= v <= high, f"an integer in {low}..{high}")
+    low, high = EPS_V_RANGE
+    eps_v = et.get("eps_v", "a number", DEFAULT_EPS_V, lambda v: low <= v <= high,
+                   f"a sticking speed in [{low:g}, {high:g}] [m/s]")  # fmt: skip
     et.done()
-    self_collision = effects.get("self_collision", False)
+    self_collision = effects.data.get("self_collision", False)
     if not isinstance(self_collision, bool):
-        raise SceneError(f"{path}: key 'effects.self_collision' = {self_collision!r}: contact by 'ipc' takes a "
-                         "boolean (friction within the shell takes method = 'impulse')")  # fmt: skip
-    if effects.get("friction", 0.0):
-        raise SceneError(f"{path}: key 'effects.friction' = {effects['friction']!r}: contact by 'ipc' is "
-                         "frictionless; friction takes method = 'impulse'")  # fmt: skip
+        raise SceneError(f"{path}: key '{effects.key('self_collision')}' = {self_collision!r}: contact by 'ipc' takes "
+                         "a boolean (within the shell, its 'friction' acts)")  # fmt: skip
+    coefficient = "a number >= 0 (Coulomb coefficient)"
+    friction = effects.get("friction", "a number", 0.0, lambda v: v >= 0, coefficient)
+    static_friction = effects.get("static_friction", "a number", None, lambda v: v >= 0, coefficient)
     if not colliders_raw and not self_collision and not other_bodies:
         raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes), "
                          "'effects.self_collision' = true or another body in contact")  # fmt: skip
-    colliders = parse_colliders(colliders_raw, 0.0, path)
+    colliders = parse_colliders(colliders_raw, friction, path, static_friction, method="ipc")
     for i, entry in enumerate(colliders):
         collider = entry.collider
         if not isinstance(collider, Plane | Sphere | TriangleMesh) or np.any(collider.velocity != 0):
             kind, moving = type(collider).__name__.lower(), list(collider.velocity)
-            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes, spheres and meshes, "
-                             f"got a {kind} moving at {moving}")  # fmt: skip
-    return SceneContact(colliders, 0.0, 1, self_collision, 0.0, method="ipc", dhat=dhat, barrier_stiffness=kappa,
-                        collision_cells=cells)  # fmt: skip
+            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes, spheres (spinning "
+                             f"or not) and meshes, got a {kind} moving at {moving}")  # fmt: skip
+    return SceneContact(colliders, 0.0, 1, self_collision, friction, method="ipc", dhat=dhat, barrier_stiffness=kappa,
+                        collision_cells=cells, friction=friction, static_friction=static_friction,
+                        eps_v=eps_v)  # fmt: skip
 
 
 def _self_collision(value: Any, friction: float, path: Path) -> tuple[bool, float]:

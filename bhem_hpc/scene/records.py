@@ -77,6 +77,8 @@ class SceneContact:
     dhat: float | None = None  # ipc: the barrier's activation distance [m] (None: 1e-3 of the bounding box)
     barrier_stiffness: float | None = None  # ipc: kappa [N/m] (None: ipc-toolkit's rule)
     collision_cells: int = 4  # ipc: collision-lattice cells per patch side
+    static_friction: float | None = None  # ipc: the body's static Coulomb coefficient (None: ``friction``)
+    eps_v: float = 1e-3  # ipc: the sticking speed of lagged friction [m/s]
 
 
 @dataclass(frozen=True)

@@ -187,10 +187,8 @@ def _contact(t: Table, colliders_raw: list, other_bodies: bool) -> SceneContact 
         if colliders_raw:
             raise SceneError(f"{t.path}: key 'colliders' is given but '{t.key('contact')}' is not listed")
         return None
-    for key in ("self_collision", "friction"):
-        if key in t.data:
-            t.fail(key, "absent: a solid's parts never meet each other and contact by 'ipc' is frictionless",
-                   t.data[key])  # fmt: skip
+    if "self_collision" in t.data:
+        t.fail("self_collision", "absent: a solid's parts never meet each other", t.data["self_collision"])
     settings = t.data["contact"] if t.data["contact"] is not True else {}
     contact = Table(t.path, t.key("contact"), settings)
     contact.get("method", "a string", "ipc", lambda v: v == "ipc", "'ipc' (a solid meets others by IPC's barrier)")
@@ -198,7 +196,7 @@ def _contact(t: Table, colliders_raw: list, other_bodies: bool) -> SceneContact 
     if not colliders_raw and not other_bodies:
         raise SceneError(f"{t.path}: key '{t.key('contact')}': a solid's contact needs 'colliders' (planes, spheres, "
                          "meshes) or another body in contact")  # fmt: skip
-    return parse_ipc_contact(contact, {}, colliders_raw, t.path, other_bodies, SOLID_COLLISION_CELLS)
+    return parse_ipc_contact(contact, t, colliders_raw, t.path, other_bodies, SOLID_COLLISION_CELLS)
 
 
 def _effects(t: Table | None) -> tuple[tuple[float, float, float] | None, Wind | None]:

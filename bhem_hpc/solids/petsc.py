@@ -20,7 +20,7 @@ import scipy.sparse
 from petsc4py import PETSc
 
 from bhem_hpc.solids.model import SolidModel
-from bhem_hpc.solver.contributions import Contribution, ContributionState, StepBounded
+from bhem_hpc.solver.contributions import Contribution, ContributionState, StepBounded, begin_lagged_step
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import (
     add_contribution_hessians,
@@ -103,6 +103,11 @@ class SolidProblem(PetscOwner):
 
     def point_positions(self, bases) -> np.ndarray:
         return np.zeros((len(bases), 3))
+
+    def begin_step(self, time: float, dt: float) -> None:
+        """Collective, before a time step from ``time`` of ``dt`` [s]: lagged contributions take the
+        start state."""
+        begin_lagged_step(self.contributions, self.contribution_state(), time, dt)
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:
         """The time (or load factor) ``t`` of the next solve: the solid's time-dependent loads (its

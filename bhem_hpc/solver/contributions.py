@@ -93,6 +93,25 @@ class GrowingPattern(Contribution, Protocol):
         ...
 
 
+@runtime_checkable
+class StepLagged(Contribution, Protocol):
+    """A contribution that takes quantities from the state at the start of each time step (lagged
+    friction: the contacts, their normal forces and tangent bases of the step's start)."""
+
+    def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
+        """Collective: the state at the start ``time`` [s] of a time step of ``dt`` [s] (before the
+        first guess)."""
+        ...
+
+
+def begin_lagged_step(contributions: Sequence[Contribution], state: ContributionState, time: float,
+                      dt: float) -> None:  # fmt: skip
+    """Collective: hand the step's start ``state`` and ``time`` to every :class:`StepLagged` contribution."""
+    for contribution in contributions:
+        if isinstance(contribution, StepLagged):
+            contribution.begin_step(state, time, dt)
+
+
 def diagonal_compensation(rows: np.ndarray, columns: np.ndarray,
                           values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Where a matrix's pattern cannot take blocks ``(rows, columns, values (k, 3, 3))`` of a

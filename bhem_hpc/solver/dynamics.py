@@ -198,6 +198,7 @@ class TimeStepper:
         return report
 
     def _advance(self, t_start: float, dt: float, depth: int, report: StepRecord) -> None:
+        self.solver.problem.begin_step(t_start, dt)  # at the accepted state x_n, before the first guess
         start = self.state.begin_step(dt)
         self._bound_first_guess(start)
         try:

@@ -26,6 +26,7 @@ from bhem_hpc.solver.contributions import (
     PointConstraints,
     PointLoads,
     StepBounded,
+    begin_lagged_step,
     diagonal_compensation,
 )
 from bhem_hpc.solver.form_terms import ShellFormTerms
@@ -389,6 +390,11 @@ class ShellProblem(PetscOwner):
         jac.zeroRowsColumns(self.bc_rows, diag=1.0)
         add_diagonal_regularization(jac, self.regularization)
         self.report.assemble_jacobian_s += time.perf_counter() - t0
+
+    def begin_step(self, time: float, dt: float) -> None:
+        """Collective, before a time step from ``time`` [s] of ``dt`` [s] at the model's current
+        position: the contributions that lag quantities from the step's start take them."""
+        begin_lagged_step(self.contributions, self.contribution_state(), time, dt)
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:
         """Targets of the point constraints at time (or load factor) ``t``.

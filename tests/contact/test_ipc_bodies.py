@@ -125,18 +125,23 @@ def test_two_solids_meet_without_crossing_and_keep_their_momentum(comm, shared_t
     assert _momentum(run.models[0])[0] < 0.0  # the left block bounced back
 
 
-def test_the_barriers_gradient_is_the_slope_of_the_stacked_potential(comm, shared_tmp_path, rng):
+@pytest.mark.parametrize("friction", [0.0, 0.4])
+def test_the_barriers_gradient_is_the_slope_of_the_stacked_potential(comm, shared_tmp_path, rng, friction):
     """A shell and a solid within dhat of each other: the stacked residual is the central
     difference of the stacked incremental potential along a random direction (1e-5), on every rank
-    count (the barrier's vertices gathered from the rank that holds each)."""
+    count (the barrier's vertices gathered from the rank that holds each); with friction 0.4 on
+    both, lagged at this state for a step of 10 ms, as well."""
     toy = nurbs.box_faces([-0.04, -0.04, 3e-4], [0.04, 0.04, 0.08], degree=2)
-    run = _Run(_scene(comm, shared_tmp_path, TOY, {"toy.igs": toy}), comm)
+    text = TOY.replace("contact = { method", f"friction = {friction}, contact = {{ method")
+    run = _Run(_scene(comm, shared_tmp_path, text, {"toy.igs": toy}), comm)
     with run.solver:
         problem = run.solver.problem
         x, f = problem.jacobian.createVecs()
         problem.state_to_vector(x)
         problem.bc_values = x.array_r[problem.bc_local].copy()
         problem.update_state(x)
+        problem.begin_step(0.0, 0.01)
+        assert (run.barrier.friction is not None and run.barrier.friction.active) == (friction > 0)
         assert problem.comm.allreduce(run.barrier.energy(problem.contribution_state())) > 0.0
         problem.assemble_residual(x, f)
         direction = x.duplicate()

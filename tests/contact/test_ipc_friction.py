@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from helpers import RUBBER
 
+from bhem_hpc.contact.ipc_friction import Friction, pair_table
 from bhem_hpc.io import read_checkpoint
 from bhem_hpc.run import RunOptions, build_model, ipc_barrier, run_scene
 from bhem_hpc.scene import load_scene
@@ -55,6 +56,19 @@ normal = [0.0, 0.0, 1.0]
 #: weight: placed there, its normal forces sum to 0.880 N against a weight of 0.863 N (measured; at
 #: 1.4e-6 m, where the sheet's lowest point rests, they sum to three times the weight).
 RESTING = 4e-6
+
+
+def test_each_pair_of_surfaces_has_its_coefficients():
+    """Two bodies meet at the geometric mean of their coefficients, a body itself at its own, a
+    body and a collider at the collider's; colliders never meet each other."""
+    cloth, toy = Friction(0.4), Friction(0.1, 0.9)
+    table = pair_table([cloth, toy], [Friction(0.2)])
+    assert table[0, 0].tolist() == [0.4, 0.4] and table[1, 1].tolist() == [0.1, 0.9]
+    assert table[0, 1] == pytest.approx([0.2, 0.6]) and table[1, 0] == pytest.approx([0.2, 0.6])
+    assert table[0, 2].tolist() == table[1, 2].tolist() == table[2, 1].tolist() == [0.2, 0.2]
+    assert table[2, 2].tolist() == [0.0, 0.0]
+    with pytest.raises(ValueError, match="static friction coefficient must be a finite number >= 0, got -1"):
+        Friction(0.3, -1)
 
 
 def _scene(comm, directory, name: str, steps: int = 20, height: float = RESTING, velocity=(0.0, 0.0, 0.0),

@@ -14,8 +14,9 @@ stdlib; the CAD file is read here, so that a bad model is refused before anythin
     [bodies.effects]            # gravity = [gx, gy, gz] [m/s^2];
                                 # wind = { acceleration = [ax, ay, az], period = T }: a body force
                                 # a sin(2 pi t / T) per unit mass;
-                                # contact = { method = "ipc", dhat, barrier_stiffness, collision_cells }:
-                                # IPC's barrier on its boundary against the colliders and other bodies
+                                # contact = { method = "ipc", dhat, barrier_stiffness, collision_cells,
+                                # eps_v }: IPC's barrier on its boundary against the colliders and
+                                # other bodies; friction, static_friction: its Coulomb coefficients
     [[bodies.constraints]]      # type = "hold": the control points inside box = [[x0, y0, z0], [x1, y1, z1]]
                                 # (components = [0, 1, 2] by default) keep their place
     [bodies.initial]            # velocity = [vx, vy, vz] [m/s]

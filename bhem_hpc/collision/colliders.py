@@ -205,6 +205,41 @@ class Sphere:
 
 #: Subdivisions of the icosahedron a sphere's triangles may take (20 * 4^7 = 327680 triangles).
 MAX_SPHERE_SUBDIVISIONS = 7
+#: Vertices around a capsule's rings its triangles may take.
+MAX_CAPSULE_AROUND = 512
+
+
+def capsule_mesh(a: np.ndarray, b: np.ndarray, radius: float, around: int,
+                 rings: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Vertices on the capsule of ``radius`` about segment ``a``-``b``: ``around`` per ring,
+    ``rings`` rings per round end from its equator towards its pole, and the two poles. Returns
+    ``(vertices (V, 3), triangles (T, 3), on_caps (T,) bool)``: the band between the equators, then
+    quads and fans on the ends; outward (counter-clockwise seen from outside)."""
+    axis = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
+    w = axis / np.linalg.norm(axis)
+    u = np.cross(w, [1.0, 0.0, 0.0] if abs(w[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(w, u)
+    theta = 2.0 * np.pi * np.arange(around) / around
+    radial = np.cos(theta)[:, None] * u + np.sin(theta)[:, None] * v  # (around, 3)
+    latitudes = 0.5 * np.pi * np.arange(rings) / rings  # the equator first
+    # rings from the pole at a (latitude -> -pi/2) up to the pole at b
+    levels = [(a, -phi) for phi in latitudes[::-1]] + [(b, phi) for phi in latitudes]
+    ring_points = [end + radius * (np.cos(phi) * radial + np.sin(phi) * w) for end, phi in levels]
+    vertices = np.concatenate([*ring_points, [np.asarray(a) - radius * w, np.asarray(b) + radius * w]])
+    nxt = (np.arange(around) + 1) % around
+    faces, on_caps = [], []
+    for k in range(len(levels) - 1):
+        low, high = k * around + np.arange(around), (k + 1) * around + np.arange(around)
+        high_next, low_next = (k + 1) * around + nxt, k * around + nxt
+        faces += [np.stack([low, low_next, high_next], axis=1), np.stack([low, high_next, high], axis=1)]
+        on_caps += [np.full(2 * around, k != rings - 1)]  # the band joins the two equators
+    south, north = len(vertices) - 2, len(vertices) - 1
+    last = (len(levels) - 1) * around
+    faces += [np.stack([np.full(around, south), nxt, np.arange(around)], axis=1),
+              np.stack([last + np.arange(around), last + nxt, np.full(around, north)], axis=1)]  # fmt: skip
+    on_caps += [np.ones(2 * around, dtype=bool)]
+    return vertices, np.concatenate(faces).astype(np.int64), np.concatenate(on_caps)
 
 
 def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
@@ -309,6 +344,29 @@ class Capsule:
         offset = points - (a + s[:, None] * axis)
         length = np.linalg.norm(offset, axis=1)
         return length - self.radius, offset / np.maximum(length, 1e-300)[:, None]
+
+    def triangles(self, max_sagitta: float) -> tuple[np.ndarray, np.ndarray]:
+        """A triangle mesh on the capsule ``(vertices (V, 3), triangles (T, 3))`` whose flat faces lie
+        at most ``max_sagitta`` inside it: ``around`` vertices per ring, a band of two rings along
+        the straight part, ``around / 4`` rings per round end (at most :data:`MAX_CAPSULE_AROUND`
+        around, else :class:`ColliderError`)."""
+        # the fewest vertices around whose chords keep the band within the sagitta, then more
+        # (a tenth at a time) until the ends' faces are within it too
+        around = max(6, math.ceil(math.pi / math.acos(1.0 - min(max_sagitta / self.radius, 1.0))))
+        while around <= MAX_CAPSULE_AROUND:
+            vertices, faces, on_caps = capsule_mesh(self.a, self.b, self.radius, around, max(1, around // 4))
+            # the band's faces lie within the ring's chords; a cap face within its circumcircle's cap
+            corners = vertices[faces[on_caps]]
+            sides = [np.linalg.norm(corners[:, i] - corners[:, (i + 1) % 3], axis=1) for i in range(3)]
+            area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+            circumradius = sides[0] * sides[1] * sides[2] / (4.0 * np.maximum(area, 1e-300))
+            cap = self.radius - np.sqrt(np.maximum(self.radius**2 - circumradius**2, 0.0))
+            band = self.radius * (1.0 - math.cos(math.pi / around))
+            if max(band, cap.max(initial=0.0)) <= max_sagitta:
+                return vertices, faces
+            around = math.ceil(1.1 * around)
+        raise ColliderError(f"a capsule of radius {self.radius:g} needs more than {MAX_CAPSULE_AROUND} vertices "
+                            f"around to lie within {max_sagitta:g} of its triangles")  # fmt: skip
 
     def _distance(self, points: np.ndarray, shift: np.ndarray) -> np.ndarray:
         """Distances of ``points (N, 3)`` to the capsule translated by ``shift (N, 3)``."""

@@ -41,8 +41,8 @@ class Communicator(Protocol):
     def allgather(self, value: Any) -> list: ...
 
 
-#: A sphere meets the barrier as an icosphere whose faces lie at most this fraction of dhat inside
-#: it (a shell resting on it may sink that far into the exact sphere).
+#: A sphere (a capsule) meets the barrier as an icosphere (a mesh of rings) whose faces lie at most
+#: this fraction of dhat inside it (a shell resting on it may sink that far into the exact shape).
 SPHERE_SAGITTA = 0.25
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.
@@ -402,9 +402,9 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
 
 
 def _obstacles(colliders: Sequence[Any], dhat: float) -> Obstacles:
-    """Colliders as the barrier's static triangle meshes (spheres as icospheres within
-    :data:`SPHERE_SAGITTA` dhat, their vertices moving at the sphere's surface velocity) and planes."""
-    from bhem_hpc.collision.colliders import Plane, Sphere
+    """Colliders as the barrier's static triangle meshes (spheres as icospheres and capsules as rings
+    within :data:`SPHERE_SAGITTA` dhat, a sphere's vertices moving at its surface velocity) and planes."""
+    from bhem_hpc.collision.colliders import Capsule, Plane, Sphere
 
     meshes, planes, plane_colliders = [], [], []
     for index, c in enumerate(colliders):
@@ -412,7 +412,8 @@ def _obstacles(colliders: Sequence[Any], dhat: float) -> Obstacles:
             planes.append((c.normal / np.linalg.norm(c.normal), c.point))
             plane_colliders.append(index)
             continue
-        points, faces = c.triangles(SPHERE_SAGITTA * dhat) if isinstance(c, Sphere) else (c.vertices, c.triangles)
+        rounded = isinstance(c, Sphere | Capsule)
+        points, faces = c.triangles(SPHERE_SAGITTA * dhat) if rounded else (c.vertices, c.triangles)
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
     return Obstacles(meshes, planes, plane_colliders)

@@ -375,7 +375,7 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
     or not) and meshes and, with ``other_bodies``, the other bodies in contact (``cells``: collision
     cells per side by default); lagged friction by ``effects.friction`` / ``static_friction`` and the
     colliders' ``friction`` / ``static_friction``."""
-    from bhem_hpc.collision.colliders import Plane, Sphere, TriangleMesh
+    from bhem_hpc.collision.colliders import Capsule, Plane, Sphere, TriangleMesh
     from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, EPS_V_RANGE
     from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE
 
@@ -400,10 +400,10 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
     colliders = parse_colliders(colliders_raw, friction, path, static_friction, method="ipc")
     for i, entry in enumerate(colliders):
         collider = entry.collider
-        if not isinstance(collider, Plane | Sphere | TriangleMesh) or np.any(collider.velocity != 0):
+        if not isinstance(collider, Plane | Sphere | Capsule | TriangleMesh) or np.any(collider.velocity != 0):
             kind, moving = type(collider).__name__.lower(), list(collider.velocity)
             raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes, spheres (spinning "
-                             f"or not) and meshes, got a {kind} moving at {moving}")  # fmt: skip
+                             f"or not), capsules, needles and meshes, got a {kind} moving at {moving}")  # fmt: skip
     return SceneContact(colliders, 0.0, 1, self_collision, friction, method="ipc", dhat=dhat, barrier_stiffness=kappa,
                         collision_cells=cells, friction=friction, static_friction=static_friction,
                         eps_v=eps_v)  # fmt: skip

@@ -126,3 +126,26 @@ def test_a_spheres_triangles_lie_within_the_sagitta_inside_it(sagitta):
     assert depth.max() <= sagitta and depth.max() >= sagitta / 16  # no finer than one more subdivision needs
     with pytest.raises(ColliderError, match="needs more than 7 subdivisions"):
         sphere.triangles(1e-9)
+
+
+@pytest.mark.parametrize("sagitta", [1e-3, 1e-4, 2.5e-5])
+def test_a_capsules_triangles_close_it_outward_within_the_sagitta(rng, sagitta):
+    """A tilted capsule's mesh: closed and of genus 0, every face outward, every vertex on the
+    capsule, and points sampled on the faces at most ``sagitta`` inside it (and deeper than a
+    sixteenth of it: not finer than needed)."""
+    capsule = Capsule([0.1, -0.2, 0.3], [0.3, 0.1, 0.2], 0.01)
+    vertices, triangles = capsule.triangles(sagitta)
+    edges = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    assert np.all(counts == 2) and len(vertices) - len(unique) + len(triangles) == 2
+    assert np.abs(capsule.signed_distance(vertices)[0]).max() < 1e-15
+    corners = vertices[triangles]
+    centroids = corners.mean(axis=1)
+    _, outward = capsule.signed_distance(centroids)
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    assert np.all(np.einsum("ij,ij->i", normals, outward) > 0)
+    weights = rng.dirichlet([1.0, 1.0, 1.0], size=(len(triangles), 16))
+    depth = -capsule.signed_distance(np.einsum("fsk,fkc->fsc", weights, corners).reshape(-1, 3))[0]
+    assert sagitta / 16 <= depth.max() <= sagitta
+    with pytest.raises(ColliderError, match="needs more than 512 vertices around"):
+        capsule.triangles(1e-12)

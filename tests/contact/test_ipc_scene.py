@@ -125,6 +125,24 @@ def test_a_sheet_dropped_on_a_sphere_stays_outside_it(comm, shared_tmp_path):
         assert min(gaps) >= -0.25e-3 and min(gaps[8:]) <= 1e-3  # within dhat of it once landed
 
 
+def test_a_sheet_dropped_across_a_capsule_stays_outside_it(comm, shared_tmp_path):
+    """A capsule (a needle lying along y under the sheet's middle) meets the barrier as rings of
+    triangles within dhat / 4 inside it: the sheet folding over it stays outside the exact capsule
+    but for that, and rests on it within dhat."""
+    from bhem_hpc.collision.colliders import Capsule
+
+    colliders = '[[colliders]]\ntype = "capsule"\na = [0.1, -0.05, -0.01]\nb = [0.1, 0.25, -0.01]\nradius = 0.01\n'
+    out = shared_tmp_path / "on-capsule"
+    summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "capsule", colliders=colliders), out, steps=12,
+                                   progress=False), comm)  # fmt: skip
+    assert summary["status"] == "completed" and sum(s["recoveries"] for s in summary["steps"]) == 0
+    if comm.rank == 0:
+        capsule = Capsule(np.array([0.1, -0.05, -0.01]), np.array([0.1, 0.25, -0.01]), 0.01)
+        with h5py.File(out / "surface.h5", "r") as f:
+            gaps = [capsule.signed_distance(f[f"frames/{k}/geometry"][...])[0].min() for k in range(len(f["frames"]))]
+        assert min(gaps) >= -0.25e-3 and min(gaps[8:]) <= 1e-3
+
+
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
@@ -148,8 +166,8 @@ def test_a_sheet_dropped_on_a_sphere_stays_outside_it(comm, shared_tmp_path):
             'type = "sphere"\ncenter = [0.1, 0.1, -1.0]\nradius = 0.5\nspin = [0.0, 0.0, 1.0]'),
          r"key 'colliders\[0\].spin' = \[0.0, 0.0, 1.0\]: spinning colliders are for contact method 'ipc' only"),
         (lambda s: s.replace('normal = [0.0, 0.0, 1.0]', 'normal = [0.0, 0.0, 1.0]\nvelocity = [0.0, 0.0, 0.1]'),
-         r"key 'colliders\[0\]': contact by 'ipc' meets static planes, spheres \(spinning or not\) and meshes, got a "
-         r"plane moving"),
+         r"key 'colliders\[0\]': contact by 'ipc' meets static planes, spheres \(spinning or not\), capsules, "
+         r"needles and meshes, got a plane moving"),
         (lambda s: s.replace('type = "plane"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]',
                              'type = "cylinder"\npoint = [0.1, 0.1, -1.0]\naxis = [1.0, 0.0, 0.0]\nradius = 0.5'),
          r"got a cylinder moving at \[0.0, 0.0, 0.0\]"),

@@ -143,7 +143,7 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
 def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
     """The :class:`~bhem_hpc.contact.ipc_contribution.IpcBarrier` of a scene with contact by ``ipc``,
     checked to start apart from its colliders (collective)."""
-    from bhem_hpc.contact.ipc_contribution import bodies_barrier, shell_mesh
+    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, bodies_barrier, check_chord_gaps, shell_mesh
     from bhem_hpc.contact.ipc_friction import surface_friction
 
     c, material = scene.contact, scene.material
@@ -152,6 +152,10 @@ def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
     barrier = bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, [e.collider for e in c.colliders],
                              c.dhat, c.barrier_stiffness, [surface_friction(e) for e in c.colliders],
                              c.eps_v)  # fmt: skip
+    try:
+        check_chord_gaps([mesh], barrier.dhat)
+    except CoarseCollisionMesh as exc:
+        raise RunError(f"{scene_file}: key 'effects.contact.collision_cells' = {c.collision_cells}: {exc}") from exc
     problem = barrier.starting_problem(model.x.x.array)
     if problem is not None:
         raise RunError(f"{scene_file}: the shell starts in contact with its colliders or itself ('ipc' needs it "

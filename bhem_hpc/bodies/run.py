@@ -186,16 +186,23 @@ def bodies_barrier(bodies: list[Body], scene_file: Path):
     if not in_contact:
         return None
     from bhem_hpc.bodies.petsc import StackedBlocks
+    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps
     from bhem_hpc.contact.ipc_contribution import bodies_barrier as make_barrier
     from bhem_hpc.contact.ipc_friction import surface_friction
 
     blocks = StackedBlocks([body.model for body in bodies])
     contact = in_contact[0].scene.contact
-    barrier = make_barrier([body.collision_mesh() for body in in_contact],
-                           [blocks.open_offsets[body.index] for body in in_contact], blocks.global_open_blocks,
+    meshes = [body.collision_mesh() for body in in_contact]
+    barrier = make_barrier(meshes, [blocks.open_offsets[body.index] for body in in_contact], blocks.global_open_blocks,
                            blocks.comm, [entry.collider for entry in contact.colliders], contact.dhat,
                            contact.barrier_stiffness, [surface_friction(e) for e in contact.colliders],
                            contact.eps_v)  # fmt: skip
+    try:
+        check_chord_gaps(meshes, barrier.dhat)
+    except CoarseCollisionMesh as exc:
+        body = in_contact[exc.body]
+        raise RunError(f"{scene_file}: body '{body.name}' (bodies[{body.index}]): key "
+                       f"'effects.contact.collision_cells' = {body.scene.contact.collision_cells}: {exc}") from exc
     positions = np.concatenate([body.model.open_positions for body in bodies])
     problem = barrier.starting_problem(positions)
     if problem is not None:

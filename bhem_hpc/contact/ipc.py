@@ -97,6 +97,36 @@ def collision_lattice(
     return parameters, triangles.astype(np.int32)
 
 
+def chord_gap(evaluate, parameters: np.ndarray, triangles: np.ndarray,
+              periods: tuple[float | None, float | None] = (None, None)) -> float:  # fmt: skip
+    """The largest distance [m] between a mesh's flat triangles and the exact surface they sample,
+    measured at the triangles' centroids: the distance of ``S(centroid of the parameters)`` from the
+    triangle's plane (not from the vertices' centroid: a parametrization that runs faster on one side
+    of a knot moves that point along the surface, not away from the triangle). Triangles of no area
+    (at a collapsed edge) are skipped. ``evaluate(xi1 (n,), xi2 (n,))`` gives surface points ``(n, 3)``; ``parameters``
+    ``(P, 2)``, ``triangles`` ``(T, 3)``; ``periods``: each periodic direction's period (a
+    triangle across the seam is unwrapped)."""
+    corners = np.asarray(parameters, dtype=float)[np.asarray(triangles)]  # (T, 3, 2)
+    for k, period in enumerate(periods):
+        if period:
+            high = corners[:, :, k].max(axis=1, keepdims=True)
+            corners[:, :, k] += period * (high - corners[:, :, k] > 0.5 * period)
+    centroid = corners.mean(axis=1)
+    for k, period in enumerate(periods):
+        if period:  # back into the parameter range
+            start = float(np.min(parameters[:, k]))
+            centroid[:, k] = start + np.mod(centroid[:, k] - start, period)
+    points = np.asarray(evaluate(centroid[:, 0], centroid[:, 1]), dtype=float).reshape(-1, 3)
+    vertices = np.asarray(evaluate(*np.asarray(parameters, dtype=float).T), dtype=float).reshape(-1, 3)
+    flat = vertices[np.asarray(triangles)]
+    normals = np.cross(flat[:, 1] - flat[:, 0], flat[:, 2] - flat[:, 0])
+    lengths = np.linalg.norm(normals, axis=1)
+    scale = np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)) if len(vertices) else 0.0
+    keep = lengths > 1e-12 * scale**2
+    heights = np.einsum("ij,ij->i", points[keep] - flat[keep, 0], normals[keep]) / lengths[keep]
+    return float(np.abs(heights).max(initial=0.0))
+
+
 class IpcContact:
     """The barrier potential between the collision meshes of several bodies and static obstacles.
 

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 import scipy.sparse
 
-from bhem_hpc.contact.ipc import collision_lattice, minimum_distance
+from bhem_hpc.contact.ipc import IpcError, chord_gap, collision_lattice, minimum_distance
 from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, FRICTIONLESS, Friction, LaggedFriction, pair_table
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
@@ -62,6 +62,18 @@ class Obstacles:
     meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]
     planes: list[tuple[np.ndarray, np.ndarray]]
     plane_colliders: list[int]
+
+
+class CoarseCollisionMesh(IpcError):
+    """A body's collision mesh lies farther from its exact surface than ``dhat``: the surface could
+    pass through a collider or another body between the mesh's vertices, unseen by the barrier
+    (scenes refuse it, :func:`check_chord_gaps`; the Python API leaves the choice to its caller)."""
+
+    def __init__(self, body: int, gap: float, dhat: float):
+        self.body, self.gap, self.dhat = body, gap, dhat
+        super().__init__(f"the collision mesh lies up to {gap:.3g} m from the exact surface at rest (measured at its "
+                         f"triangles' centroids), more than dhat = {dhat:.3g} m: more collision_cells, or a larger "
+                         "dhat, bring it within")  # fmt: skip
 
 
 class IpcBarrier:
@@ -286,6 +298,9 @@ class BodyMesh:
         vertex_mass: the body's mass per vertex [kg] (IPC's stiffness rule).
         self_contact: whether the mesh meets itself (else only other bodies and obstacles).
         friction: the body's friction coefficients.
+        chord_gap: the largest distance [m] between the mesh's triangles and the body's exact surface
+            at rest (:func:`~bhem_hpc.contact.ipc.chord_gap`): how far the surface may bow through
+            the mesh.
     """
 
     bases: list[PointBasis]
@@ -294,6 +309,15 @@ class BodyMesh:
     vertex_mass: float
     self_contact: bool = False
     friction: Friction = FRICTIONLESS
+    chord_gap: float = 0.0
+
+
+def check_chord_gaps(meshes: Sequence[BodyMesh], dhat: float) -> None:
+    """Raise :class:`CoarseCollisionMesh` for the first of the bodies' ``meshes`` whose
+    :attr:`BodyMesh.chord_gap` exceeds ``dhat``."""
+    for body, mesh in enumerate(meshes):
+        if mesh.chord_gap > dhat:
+            raise CoarseCollisionMesh(body, mesh.chord_gap, dhat)
 
 
 def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thickness: float,
@@ -309,32 +333,58 @@ def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thicknes
     rest = model.rest_surface.evaluate(parameters[:, 0], parameters[:, 1]).x
     corners = rest[triangles]
     area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
-    return BodyMesh(bases, triangles, rest, density * thickness * area / len(rest), self_contact, friction)
+    periods = tuple(high - low if wraps else None
+                    for (low, high), wraps in zip((grid.xi1_range, grid.xi2_range), periodic, strict=True))  # fmt: skip
+    gap = chord_gap(lambda a, b: model.rest_surface.evaluate(a, b).x, parameters, triangles, periods)
+    return BodyMesh(bases, triangles, rest, density * thickness * area / len(rest), self_contact, friction, gap)
 
 
 def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9,
                friction: Friction = FRICTIONLESS) -> BodyMesh:  # fmt: skip
     """An SEM solid's boundary: its NURBS ``parts`` (stacked control points as the DOF blocks, every
-    block on every rank) tessellated on ``samples x samples`` parameter grids, each vertex a fixed
-    rational combination of its part's control points (given on rank 0: each term once); ``mass``
-    [kg] the solid's. Its parts never meet each other (a modeller's parts overlap)."""
-    grid = np.linspace(0.0, 1.0, samples)
-    u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
-    cell = np.arange(samples - 1)
-    corner = (cell[:, None] * samples + cell[None, :]).ravel()
-    local_triangles = np.concatenate([np.stack([corner, corner + samples, corner + samples + 1], axis=1),
-                                      np.stack([corner, corner + samples + 1, corner + 1], axis=1)])  # fmt: skip
-    bases, triangles, rest, offset = [], [], [], 0
-    for k, part in enumerate(parts):
+    block on every rank) tessellated on parameter grids of at least ``samples - 1`` cells per side
+    that hold every knot (:func:`knot_aligned_grid`: a part's kinks and seams are mesh lines), each
+    vertex a fixed rational combination of its part's control points (given on rank 0: each term
+    once); ``mass`` [kg] the solid's. Its parts never meet each other (a modeller's parts overlap)."""
+    bases, triangles, rest, offset, count, gap = [], [], [], 0, 0, 0.0
+    for part in parts:
         (u0, u1), (v0, v1) = part.u.domain, part.v.domain
+        grid_u, grid_v = knot_aligned_grid(part.u, samples - 1), knot_aligned_grid(part.v, samples - 1)
+        u, v = (a.ravel() for a in np.meshgrid(grid_u, grid_v, indexing="ij"))
+        local_triangles = _grid_triangles(len(grid_u), len(grid_v))
+
+        def evaluate(a: np.ndarray, b: np.ndarray, part=part, u0=u0, u1=u1, v0=v0, v1=v1) -> np.ndarray:
+            index, values = part.basis_matrix(u0 + a * (u1 - u0), v0 + b * (v1 - v0))
+            return np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index])
+
+        gap = max(gap, chord_gap(evaluate, np.stack([u, v], axis=1), local_triangles))
         index, values = part.basis_matrix(u0 + u * (u1 - u0), v0 + v * (v1 - v0))
         bases += [(offset + i, w) if rank == 0 else (np.zeros(0, np.int64), np.zeros(0))
                   for i, w in zip(index, values, strict=True)]  # fmt: skip
-        triangles.append(local_triangles + k * len(u))
+        triangles.append(local_triangles + count)
         rest.append(np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index]))
         offset += part.control[..., 0].size
+        count += len(u)
     rest = np.concatenate(rest)
-    return BodyMesh(bases, np.concatenate(triangles), rest, mass / len(rest), friction=friction)
+    return BodyMesh(bases, np.concatenate(triangles), rest, mass / len(rest), friction=friction, chord_gap=gap)
+
+
+def knot_aligned_grid(axis: Any, cells: int) -> np.ndarray:
+    """Parameters in [0, 1] (of ``axis.domain``) for at least ``cells`` cells: every distinct knot
+    inside the domain, each knot span cut into ``ceil(cells / spans)`` equal cells."""
+    low, high = axis.domain
+    knots = np.unique(np.clip(np.asarray(axis.knots, dtype=float), low, high))
+    breaks = (knots - low) / (high - low)
+    per_span = max(1, -(-int(cells) // (len(breaks) - 1)))
+    inner = [np.linspace(a, b, per_span + 1)[:-1] for a, b in zip(breaks[:-1], breaks[1:], strict=True)]
+    return np.concatenate([*inner, [1.0]])
+
+
+def _grid_triangles(count_u: int, count_v: int) -> np.ndarray:
+    """Two triangles per cell of a ``count_u x count_v`` grid of points numbered ``i * count_v + j``."""
+    corner = (np.arange(count_u - 1)[:, None] * count_v + np.arange(count_v - 1)[None, :]).ravel()
+    return np.concatenate([np.stack([corner, corner + count_v, corner + count_v + 1], axis=1),
+                           np.stack([corner, corner + count_v + 1, corner + 1], axis=1)])  # fmt: skip
 
 
 def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], global_open_blocks: np.ndarray,

@@ -129,3 +129,34 @@ def test_bad_barrier_settings_are_refused(comm, shared_tmp_path):
         _contact(body, dhat=-1e-3)
     with pytest.raises(IpcError, match=r"the barrier stiffness must be positive, got 0.0"):
         _contact(body, stiffness=0.0)
+
+
+def test_the_chord_gap_of_a_cylinders_lattice_is_its_sagitta_and_falls_with_the_square_of_the_cells():
+    """A cylinder of radius 0.1 (closed in its periodic direction) on n cells around: the surface
+    bows at most R (1 - cos(pi / n)) from the lattice's flat triangles, and the gap measured at
+    their centroids falls by four when n doubles (a parabola's chord height)."""
+    from bhem_hpc.contact.ipc import chord_gap
+
+    radius = 0.1
+
+    def cylinder(theta: np.ndarray, z: np.ndarray) -> np.ndarray:
+        return np.stack([radius * np.cos(theta), radius * np.sin(theta), z], axis=-1)
+
+    gaps = []
+    for around in (12, 24):
+        parameters, triangles = collision_lattice((0.0, 2 * np.pi), (0.0, 0.3), (around, 3), periodic=(True, False))
+        gaps.append(chord_gap(cylinder, parameters, triangles, (2 * np.pi, None)))
+        assert 0.5 * radius * (1 - np.cos(np.pi / around)) < gaps[-1] <= radius * (1 - np.cos(np.pi / around))
+    assert gaps[1] / gaps[0] == pytest.approx(0.25, rel=0.05)
+
+
+def test_a_solids_collision_grid_holds_every_knot():
+    """Quadratic rational arcs meeting at double knots (a circle's quarter arcs): 6 cells over 4
+    spans become 2 per span, the knots among the grid lines."""
+    from types import SimpleNamespace
+
+    from bhem_hpc.contact.ipc_contribution import knot_aligned_grid
+
+    axis = SimpleNamespace(domain=(0.0, 2.0), knots=[0, 0, 0, 0.5, 0.5, 1, 1, 1.5, 1.5, 2, 2, 2])
+    np.testing.assert_allclose(knot_aligned_grid(axis, 6), np.arange(9) / 8)
+    np.testing.assert_allclose(knot_aligned_grid(axis, 2), [0.0, 0.25, 0.5, 0.75, 1.0])

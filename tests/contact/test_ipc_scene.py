@@ -210,3 +210,24 @@ def test_self_contact_by_ipc_needs_no_collider_and_sets_the_barriers_solve(comm,
     scene = load_scene(own)
     assert (scene.factorization, scene.acceleration_tolerance, scene.petsc_options) == ("reuse", 0.5,
                                                                                      {"snes_max_it": 40})
+
+
+def test_a_collision_mesh_farther_from_the_surface_than_dhat_is_refused_with_its_gap(comm, shared_tmp_path):
+    """The waved sheet (curvature up to 0.8 /m) on 2 collision cells per patch (25 mm cells) lies
+    about kappa L^2 / 9 = 5.6e-5 m from its flat triangles at their centroids (a parabola against
+    the plane through three of its points): with dhat = 1e-5 m the run is refused before its first
+    step, naming the key and the measured gap (5.42e-5), and leaves no output; 8 cells per patch (a
+    sixteenth of the gap) are accepted."""
+    import re
+
+    coarse = _scene(comm, shared_tmp_path, "coarse", contact='{ method = "ipc", dhat = 1e-5, collision_cells = 2 }')
+    refusal = (r"key 'effects.contact.collision_cells' = 2: the collision mesh lies up to \S+ m from the exact "
+               r"surface at rest .* more than dhat = 1e-05 m")
+    with pytest.raises(RunError, match=refusal) as caught:
+        run_scene(RunOptions(coarse, shared_tmp_path / "coarse", progress=False), comm)
+    gap = float(re.search(r"lies up to (\S+) m", str(caught.value)).group(1))
+    assert 4e-5 < gap < 7e-5
+    assert not (shared_tmp_path / "coarse" / "surface.h5").exists()
+    fine = _scene(comm, shared_tmp_path, "fine", contact='{ method = "ipc", dhat = 1e-5, collision_cells = 8 }')
+    summary = run_scene(RunOptions(fine, shared_tmp_path / "fine", steps=1, progress=False), comm)
+    assert summary["status"] == "completed"

@@ -11,7 +11,7 @@ import math
 import h5py
 import numpy as np
 import pytest
-from helpers import RUBBER
+from helpers import RUBBER, SHEET
 
 from bhem_hpc.contact.ipc_friction import Friction, pair_table
 from bhem_hpc.io import read_checkpoint
@@ -21,20 +21,9 @@ from bhem_hpc.solver.contributions import ContributionState
 
 G = 9.81
 DT = 0.005
-#: A flat rubber sheet 0.2 m square lying on the floor z = 0 ({height} above it), {velocity},
-#: {gravity}, with {friction}.
-SHEET = """
-[surface]
-kind = "rectangle"
-size = [0.2, 0.2]
-patches = [4, 4]
-discretization = "bspline2"
-origin = [0.0, 0.0, {height}]
-[material]
-young = {young}
-poisson = {poisson}
-thickness = {thickness}
-density = {density}
+#: What follows the rubber sheet of :data:`helpers.SHEET` (0.2 m square, B-spline patches):
+#: {velocity}, {gravity}, {friction} and the {colliders}.
+CONTACT = """
 [initial]
 velocity = {velocity}
 [effects]
@@ -42,9 +31,6 @@ gravity = {gravity}
 {friction}
 contact = {{ method = "ipc", dhat = 1e-3 }}
 {colliders}
-[time]
-dt = 0.005
-steps = {steps}
 """
 FLOOR = """
 [[colliders]]
@@ -78,8 +64,9 @@ def _scene(comm, directory, name: str, steps: int = 20, height: float = RESTING,
     gravity = [G * math.sin(angle), 0.0, -G * math.cos(angle)]
     path = directory / f"{name}.toml"
     if comm.rank == 0:
-        path.write_text(SHEET.format(height=height, velocity=list(velocity), gravity=gravity, friction=friction,
-                                     colliders=colliders, steps=steps, **RUBBER))  # fmt: skip
+        rest = CONTACT.format(velocity=list(velocity), gravity=gravity, friction=friction, colliders=colliders)
+        path.write_text(SHEET.format(size=0.2, discretization="bspline2", origin=[0.0, 0.0, height],
+                                     time=f"dt = {DT}\nsteps = {steps}", rest=rest, **RUBBER))  # fmt: skip
     comm.Barrier()
     return path
 

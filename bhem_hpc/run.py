@@ -249,7 +249,8 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
                 f"{checkpoint.path}: its DOFs have shape {checkpoint.arrays['position_dofs'].shape}, "
                 f"this run's {expected}"
             )
-    solver = make_solver(model, scene, options.scene)
+    barrier = ipc_barrier(scene, model, options.scene) if scene.contact and scene.contact.method == "ipc" else None
+    solver = make_solver(model, scene, options.scene, [barrier] if barrier is not None else [])
     summary = RunSummary(
         scene=str(options.scene),
         physics_hash=physics_hash(scene),
@@ -260,6 +261,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         versions=library_versions(),
         static=scene.static,
         linear_solver=solver.linear.as_dict(),
+        contact=barrier.summary() if barrier is not None else None,
         factorization=scene.factorization,
         steps=previous_steps(options.out, checkpoint) if continuing else [],
     )

@@ -136,9 +136,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
             return BodiesOutput(options.out, bodies, checkpoint if continuing else None)
 
         if barrier is not None:
-            summary.contact = {"method": "ipc", "dhat_m": barrier.dhat, "barrier_stiffness": barrier.stiffness,
-                               "collision_vertices": barrier.num_points,
-                               "bodies": [b.name for b in bodies if b.scene.contact is not None]}  # fmt: skip
+            summary.contact = {**barrier.summary(), "bodies": [b.name for b in bodies if b.scene.contact is not None]}
         output = on_rank0(comm, start, f"the output directory {options.out}")
         run = _BodiesRun(options, scene, bodies, solver, summary, output, comm)
         surfaces = _step(run, checkpoint, continuing, steps)

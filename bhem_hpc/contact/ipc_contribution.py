@@ -196,6 +196,13 @@ class IpcBarrier:
         rows, cols = self._pattern
         return self.blocks[rows], self.blocks[cols]
 
+    def summary(self) -> dict:
+        """The barrier's settings as a run's summary records them."""
+        friction = self.friction
+        return {"method": "ipc", "dhat_m": self.dhat, "barrier_stiffness": self.stiffness,
+                "collision_vertices": self.num_points, "friction": friction is not None,
+                "eps_v_m_s": friction.eps_v if friction is not None else None}  # fmt: skip
+
     def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
         """Collective: with friction, lag the contacts at the step's start (their normal forces and
         tangent bases) for a step from ``time`` of ``dt`` [s]."""

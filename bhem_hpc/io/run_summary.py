@@ -33,7 +33,7 @@ class RunSummary:
         linear_solver: the linear solver chosen, and why.
         factorization: the factorization policy.
         steps: one record per time step or path point (the step's row of ``steps.jsonl``).
-        contact: colliders and contact samples (dynamic scenes with contact).
+        contact: colliders and contact samples (contact by impulses), or the barrier's settings (by IPC).
         time: the simulated time (dynamic), or the last frame's time value (static).
         load_factor, path_method: where a path ended and how it was followed (static).
         error: why the run failed or stopped.

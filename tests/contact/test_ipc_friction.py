@@ -90,6 +90,10 @@ def test_a_sheet_sliding_on_a_floor_decelerates_at_mu_g(comm, shared_tmp_path):
     iterations a step)."""
     path = _scene(comm, shared_tmp_path, "slide", velocity=(0.5, 0.0, 0.0))
     summary = _run(comm, path, shared_tmp_path / "slide")
+    contact = summary["contact"]
+    assert (contact["method"], contact["dhat_m"], contact["friction"]) == ("ipc", 1e-3, True)
+    assert contact["eps_v_m_s"] == 1e-3
+    assert contact["collision_vertices"] == 17 * 17  # 4 patches of 4 cells per side
     if comm.rank == 0:
         velocity = _mean_velocities(shared_tmp_path / "slide")[:, 0]
         deceleration = -np.diff(velocity[5:]) / DT

@@ -142,7 +142,9 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
 
 def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
     """The :class:`~bhem_hpc.contact.ipc_contribution.IpcBarrier` of a scene with contact by ``ipc``,
-    checked to start apart from its colliders (collective)."""
+    checked to start apart from its colliders (collective); None for a scene without it."""
+    if scene.contact is None or scene.contact.method != "ipc":
+        return None
     from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, bodies_barrier, check_chord_gaps, shell_mesh
     from bhem_hpc.contact.ipc_friction import surface_friction
 
@@ -249,7 +251,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
                 f"{checkpoint.path}: its DOFs have shape {checkpoint.arrays['position_dofs'].shape}, "
                 f"this run's {expected}"
             )
-    barrier = ipc_barrier(scene, model, options.scene) if scene.contact and scene.contact.method == "ipc" else None
+    barrier = ipc_barrier(scene, model, options.scene)
     solver = make_solver(model, scene, options.scene, [barrier] if barrier is not None else [])
     summary = RunSummary(
         scene=str(options.scene),
@@ -294,8 +296,8 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
     settings (a scene of several bodies: any body's, they share them), and the energy
     ``contributions`` (by default, of one shell, the barrier of its contact by ``ipc``)."""
     if contributions is None:
-        ipc = scene.contact is not None and scene.contact.method == "ipc"
-        contributions = [ipc_barrier(scene, model, scene_file)] if ipc else []
+        barrier = ipc_barrier(scene, model, scene_file)
+        contributions = [barrier] if barrier is not None else []
     try:
         return ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
                            factorization=scene.factorization, linear=scene.linear, contributions=contributions,

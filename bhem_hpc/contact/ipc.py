@@ -97,15 +97,16 @@ def collision_lattice(
     return parameters, triangles.astype(np.int32)
 
 
-def chord_gap(evaluate, parameters: np.ndarray, triangles: np.ndarray,
+def chord_gap(evaluate, parameters: np.ndarray, vertices: np.ndarray, triangles: np.ndarray,
               periods: tuple[float | None, float | None] = (None, None)) -> float:  # fmt: skip
     """The largest distance [m] between a mesh's flat triangles and the exact surface they sample,
     measured at the triangles' centroids: the distance of ``S(centroid of the parameters)`` from the
     triangle's plane (not from the vertices' centroid: a parametrization that runs faster on one side
     of a knot moves that point along the surface, not away from the triangle). Triangles of no area
-    (at a collapsed edge) are skipped. ``evaluate(xi1 (n,), xi2 (n,))`` gives surface points ``(n, 3)``; ``parameters``
-    ``(P, 2)``, ``triangles`` ``(T, 3)``; ``periods``: each periodic direction's period (a
-    triangle across the seam is unwrapped)."""
+    (at a collapsed edge) are skipped. ``evaluate(xi1 (n,), xi2 (n,))`` gives surface points
+    ``(n, 3)``; ``parameters`` ``(P, 2)`` and the mesh's ``vertices`` ``(P, 3)`` (the surface there),
+    ``triangles`` ``(T, 3)``; ``periods``: each periodic direction's period (a triangle across the
+    seam is unwrapped)."""
     corners = np.asarray(parameters, dtype=float)[np.asarray(triangles)]  # (T, 3, 2)
     for k, period in enumerate(periods):
         if period:
@@ -117,7 +118,7 @@ def chord_gap(evaluate, parameters: np.ndarray, triangles: np.ndarray,
             start = float(np.min(parameters[:, k]))
             centroid[:, k] = start + np.mod(centroid[:, k] - start, period)
     points = np.asarray(evaluate(centroid[:, 0], centroid[:, 1]), dtype=float).reshape(-1, 3)
-    vertices = np.asarray(evaluate(*np.asarray(parameters, dtype=float).T), dtype=float).reshape(-1, 3)
+    vertices = np.asarray(vertices, dtype=float).reshape(-1, 3)
     flat = vertices[np.asarray(triangles)]
     normals = np.cross(flat[:, 1] - flat[:, 0], flat[:, 2] - flat[:, 0])
     lengths = np.linalg.norm(normals, axis=1)

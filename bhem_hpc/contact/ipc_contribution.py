@@ -59,7 +59,7 @@ class Obstacles:
         planes: ``(unit normal, point)``; plane_colliders: each plane's collider index.
     """
 
-    meshes: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]
+    meshes: list[tuple[np.ndarray, np.ndarray, Callable[[float], np.ndarray], int]]
     planes: list[tuple[np.ndarray, np.ndarray]]
     plane_colliders: list[int]
 
@@ -342,7 +342,7 @@ def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thicknes
     area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()
     periods = tuple(high - low if wraps else None
                     for (low, high), wraps in zip((grid.xi1_range, grid.xi2_range), periodic, strict=True))  # fmt: skip
-    gap = chord_gap(lambda a, b: model.rest_surface.evaluate(a, b).x, parameters, triangles, periods)
+    gap = chord_gap(lambda a, b: model.rest_surface.evaluate(a, b).x, parameters, rest, triangles, periods)
     return BodyMesh(bases, triangles, rest, density * thickness * area / len(rest), self_contact, friction, gap)
 
 
@@ -364,12 +364,12 @@ def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9,
             index, values = part.basis_matrix(u0 + a * (u1 - u0), v0 + b * (v1 - v0))
             return np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index])
 
-        gap = max(gap, chord_gap(evaluate, np.stack([u, v], axis=1), local_triangles))
         index, values = part.basis_matrix(u0 + u * (u1 - u0), v0 + v * (v1 - v0))
         bases += [(offset + i, w) if rank == 0 else (np.zeros(0, np.int64), np.zeros(0))
                   for i, w in zip(index, values, strict=True)]  # fmt: skip
         triangles.append(local_triangles + count)
         rest.append(np.einsum("pk,pkc->pc", values, part.control.reshape(-1, 3)[index]))
+        gap = max(gap, chord_gap(evaluate, np.stack([u, v], axis=1), rest[-1], local_triangles))
         offset += part.control[..., 0].size
         count += len(u)
     rest = np.concatenate(rest)

@@ -145,7 +145,8 @@ def test_the_chord_gap_of_a_cylinders_lattice_is_its_sagitta_and_falls_with_the_
     gaps = []
     for around in (12, 24):
         parameters, triangles = collision_lattice((0.0, 2 * np.pi), (0.0, 0.3), (around, 3), periodic=(True, False))
-        gaps.append(chord_gap(cylinder, parameters, triangles, (2 * np.pi, None)))
+        vertices = cylinder(parameters[:, 0], parameters[:, 1])
+        gaps.append(chord_gap(cylinder, parameters, vertices, triangles, (2 * np.pi, None)))
         assert 0.5 * radius * (1 - np.cos(np.pi / around)) < gaps[-1] <= radius * (1 - np.cos(np.pi / around))
     assert gaps[1] / gaps[0] == pytest.approx(0.25, rel=0.05)
 

@@ -87,6 +87,15 @@ class StackedBlocks:
         blocks, values = self.models[body].point_basis(xi1, xi2)
         return np.asarray(blocks, dtype=np.int64) + self.open_offsets[body], values
 
+    def point_frame_basis(self, body: int, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """A material point of shell ``body`` with its tangents: ``(rows, values (3, n))`` on the rank
+        that owns its patch (empty elsewhere)."""
+        model = self.models[body]
+        if not isinstance(model, ShellModel):
+            raise TypeError(f"body {body} is not a shell: it has no tangents to couple along an interface")
+        blocks, values = model.point_frame_basis(xi1, xi2)
+        return np.asarray(blocks, dtype=np.int64) + self.open_offsets[body], values
+
 
 class StackedProblem(PetscOwner):
     """One problem of several bodies' :class:`ShellProblem` s and the contributions that couple them.
@@ -236,6 +245,10 @@ class StackedProblem(PetscOwner):
     def point_basis(self, body: int, xi1: float, xi2: float) -> PointBasis:
         """A material point of ``body`` in the contributions' rows (:meth:`StackedBlocks.point_basis`)."""
         return self.blocks.point_basis(body, xi1, xi2)
+
+    def point_frame_basis(self, body: int, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """A material point of shell ``body`` with its tangents (:meth:`StackedBlocks.point_frame_basis`)."""
+        return self.blocks.point_frame_basis(body, xi1, xi2)
 
     # -- state ----------------------------------------------------------------------------------
     @property

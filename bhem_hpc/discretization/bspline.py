@@ -289,10 +289,12 @@ class BSplineDiscretization:
 
     def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
         """The Lagrange basis values at a parameter point in its cell, on the rank owning it."""
-        cell, reference = self.grid_mesh.reference_point(xi1, xi2)
-        if cell is None:
-            return np.zeros(0, dtype=np.int64), np.zeros(0)
-        return self._cell_dofs[cell], self.element.tabulate(0, reference.reshape(1, 2))[0, 0, :, 0]
+        return self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2)
+
+    def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(open blocks (n,), values (3, n))``: the basis and its derivatives along xi1 and xi2 at a
+        parameter point (position and tangents), on the rank owning its cell (empty elsewhere)."""
+        return self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2, derivatives=True)
 
     def _lattice_index(self) -> np.ndarray:
         """Each local block's place ``k1 * (n2 p + 1) + k2`` on the lattice of its DOF point: an

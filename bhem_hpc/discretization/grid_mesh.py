@@ -105,3 +105,24 @@ class GridMesh:
             finite = np.isfinite(period)
             xi[finite] = origin[finite] + np.mod(xi[finite] - origin[finite], period[finite])
         return cell, np.clip(np.linalg.solve(self.jacobian, xi - origin), 0.0, 1.0)
+
+    def tabulate_point(self, element, cell_dofs: np.ndarray, xi1: float, xi2: float,
+                       derivatives: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """The basis of ``element`` at a parameter point in the owned cell holding it.
+
+        Args:
+            element: the basix element of every cell; cell_dofs: ``(cells, n)`` each cell's open blocks.
+            derivatives: with the first parametric derivatives.
+
+        Returns:
+            ``(blocks (n,), values)``: values ``(n,)``, or with ``derivatives`` ``(3, n)`` (value,
+            d/dxi1, d/dxi2); empty arrays on ranks that do not own the cell.
+        """
+        cell, reference = self.reference_point(xi1, xi2)
+        if cell is None:
+            return np.zeros(0, dtype=np.int64), np.zeros((3, 0) if derivatives else 0)
+        table = element.tabulate(1 if derivatives else 0, reference.reshape(1, 2))[:, 0, :, 0]
+        if not derivatives:
+            return cell_dofs[cell], table[0]
+        # d/dX_a = sum_b d/dxi_b J[b, a]: the parametric gradient is J^-T times the reference one
+        return cell_dofs[cell], np.concatenate([table[:1], np.linalg.solve(self.jacobian.T, table[1:])])

@@ -315,7 +315,9 @@ class HermiteDiscretization:
             ``(blocks, values)`` of shape ``(16,)`` each (local open blocks); empty arrays on
             ranks that do not own the containing cell.
         """
-        cell, reference = self.grid_mesh.reference_point(xi1, xi2)
-        if cell is None:
-            return np.zeros(0, dtype=np.int64), np.zeros(0)
-        return self._cell_dofs[cell], self.element.tabulate(0, reference.reshape(1, 2))[0, 0, :, 0]
+        return self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2)
+
+    def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(open blocks (n,), values (3, n))``: the basis and its derivatives along xi1 and xi2 at a
+        parameter point (position and tangents), on the rank owning its cell (empty elsewhere)."""
+        return self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2, derivatives=True)

@@ -155,6 +155,10 @@ class Discretization(Protocol):
         """``(open blocks, basis values)`` of the cell holding a parameter point, on its owning rank."""
         ...
 
+    def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(open blocks (n,), values (3, n))``: the basis and its xi1 and xi2 derivatives there."""
+        ...
+
     def gather_raw_dofs(self, open_array: np.ndarray) -> np.ndarray:
         """Collective: the DOF values themselves, without conversion (bit-exact checkpoints)."""
         ...

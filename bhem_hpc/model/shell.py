@@ -529,6 +529,11 @@ class ShellModel:
         its patch; empty elsewhere)."""
         return self.discretization.point_basis(xi1, xi2)
 
+    def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """The open blocks and basis values ``(3, n)`` of the position and the two tangents of the
+        material point ``(xi1, xi2)`` (on the rank owning its patch; empty elsewhere)."""
+        return self.discretization.point_frame_basis(xi1, xi2)
+
     def open_state(self) -> tuple[np.ndarray, np.ndarray | None]:
         """Copies of the position and, in dynamics, the previous position (open layout)."""
         return self.x.x.array.copy(), self.x_previous.x.array.copy() if self.dynamics is not None else None

@@ -1,0 +1,156 @@
+"""Interfaces between patches (numpy only): the quadrature along an edge of one surface that meets
+an edge of another, with each quadrature point's parameters on both sides.
+
+A multi-patch shell is joined where two patches' edges meet (:func:`pair_edges`): the quadrature
+runs along the first side's edge, over the knot spans of both sides (the second side's span ends
+found on the first edge), Gauss-Legendre points in each piece; each point finds its partner on the
+second edge by the closest point at rest (a bounded Newton iteration on the edge's parameter). The
+two edges must be the same curve at rest: every point's partner within ``tolerance``, and each
+edge's ends on the other edge.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from bhem_hpc.geometry.grid import ParameterGrid, SurfaceError
+from bhem_hpc.geometry.surface import SurfacePoint
+
+#: The edges of a patch's parameter rectangle, by name.
+EDGES = ("xi1_min", "xi1_max", "xi2_min", "xi2_max")
+#: Newton iterations for a point's partner on the other edge (each halves the error at worst).
+MAX_PARTNER_ITERATIONS = 40
+#: Samples per knot span of the other edge that start each partner's Newton iteration.
+PARTNER_SAMPLES = 16
+
+
+class InterfaceError(SurfaceError):
+    """Two edges that do not meet as an interface says (the message names the edges and the gap)."""
+
+
+class Patch(Protocol):
+    """A surface as an interface sees it: its parameter grid and its evaluation."""
+
+    grid: ParameterGrid
+
+    def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint: ...
+
+
+@dataclass(frozen=True)
+class EdgeQuadrature:
+    """Quadrature points along an interface, shape ``(k, ...)`` in the order along the first edge.
+
+    Attributes:
+        first, second: each point's parameters ``(k, 2)`` on the first and the second surface.
+        weights: rest arc length ``(k,)`` [m] each point stands for (their sum: the edge's length).
+        along: which parameter runs along the first edge (0: xi1, 1: xi2).
+        gap: the largest rest distance [m] between a point and its partner.
+    """
+
+    first: np.ndarray
+    second: np.ndarray
+    weights: np.ndarray
+    along: int
+    gap: float
+
+
+def edge_line(grid: ParameterGrid, edge: str) -> tuple[int, float, tuple[float, float], np.ndarray]:
+    """``(along, fixed value, range, knots)`` of an edge: which parameter runs along it, the other
+    parameter's value on it, the range of the one along it and its knots (span ends).
+
+    Raises:
+        InterfaceError: an unknown edge name, or an edge across a periodic direction (it has no edge).
+    """
+    if edge not in EDGES:
+        raise InterfaceError(f"edge {edge!r} does not exist; expected one of {EDGES}")
+    fixed_axis = 0 if edge.startswith("xi1") else 1
+    along = 1 - fixed_axis
+    ranges = (grid.xi1_range, grid.xi2_range)
+    if (grid.periodic1, grid.periodic2)[fixed_axis]:
+        raise InterfaceError(f"edge {edge!r} does not exist: the surface is closed in xi{fixed_axis + 1}")
+    value = ranges[fixed_axis][0] if edge.endswith("min") else ranges[fixed_axis][1]
+    lo, hi = ranges[along]
+    spans = (grid.n1, grid.n2)[along]
+    return along, float(value), (float(lo), float(hi)), np.linspace(lo, hi, spans + 1)
+
+
+def _on_edge(along: int, value: float, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The parameters ``(xi1, xi2)`` of the points at ``s`` along an edge."""
+    fixed = np.full_like(s, value)
+    return (fixed, s) if along == 1 else (s, fixed)
+
+
+def closest_on_edge(surface: Patch, edge: str, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points of ``edge`` of ``surface`` closest to ``targets`` ``(k, 3)``: their parameters along
+    the edge ``(k,)`` and distances ``(k,)``. Starts at the nearest of :data:`PARTNER_SAMPLES` samples per
+    span, then Newton on ``|x(s) - target|^2`` clipped to the edge's range, at most
+    :data:`MAX_PARTNER_ITERATIONS` iterations (stops when a step is below 1e-14 of the range)."""
+    along, value, (lo, hi), knots = edge_line(surface.grid, edge)
+    targets = np.asarray(targets, dtype=float).reshape(-1, 3)
+    samples = np.linspace(lo, hi, PARTNER_SAMPLES * (len(knots) - 1) + 1)
+    sampled = surface.evaluate(*_on_edge(along, value, samples)).x
+    distance = np.linalg.norm(sampled[None, :, :] - targets[:, None, :], axis=-1)
+    s = samples[np.argmin(distance, axis=1)]
+    for _ in range(MAX_PARTNER_ITERATIONS):
+        point = surface.evaluate(*_on_edge(along, value, s))
+        tangent = point.a2 if along == 1 else point.a1
+        second = point.a22 if along == 1 else point.a11
+        d = point.x - targets
+        slope = np.einsum("kc,kc->k", d, tangent)
+        curvature = np.einsum("kc,kc->k", tangent, tangent) + np.einsum("kc,kc->k", d, second)
+        step = -slope / np.where(curvature > 0, curvature, np.einsum("kc,kc->k", tangent, tangent))
+        s_new = np.clip(s + step, lo, hi)
+        moved = np.abs(s_new - s).max(initial=0.0)
+        s = s_new
+        if moved <= 1e-14 * (hi - lo):
+            break
+    x = surface.evaluate(*_on_edge(along, value, s)).x
+    return s, np.linalg.norm(x - targets, axis=-1)
+
+
+def pair_edges(first: Patch, first_edge: str, second: Patch, second_edge: str, tolerance: float,
+               points_per_span: int = 4) -> EdgeQuadrature:  # fmt: skip
+    """The quadrature of the interface where ``first_edge`` of ``first`` meets ``second_edge`` of
+    ``second`` (whole edges, either orientation).
+
+    Args:
+        tolerance: the largest rest distance [m] between the two edges.
+        points_per_span: Gauss-Legendre points in each piece between consecutive span ends.
+
+    Raises:
+        InterfaceError: an edge that does not exist, or edges farther apart than ``tolerance``
+            (naming the edges, the gap and where).
+    """
+    along, value, (lo, hi), knots = edge_line(first.grid, first_edge)
+    other_along, other_value, _, other_knots = edge_line(second.grid, second_edge)
+    # the second edge's span ends, found on the first edge: breaks of the quadrature
+    other_ends = second.evaluate(*_on_edge(other_along, other_value, other_knots)).x
+    found, gaps = closest_on_edge(first, first_edge, other_ends)
+    ends = first.evaluate(*_on_edge(along, value, knots[[0, -1]])).x
+    _, end_gaps = closest_on_edge(second, second_edge, ends)
+    worst = max(float(gaps.max()), float(end_gaps.max()))
+    if worst > tolerance:
+        raise InterfaceError(f"edge {first_edge} of the first patch and edge {second_edge} of the second do not "
+                             f"meet: their ends lie {worst:.3g} m from the other edge "
+                             f"(tolerance {tolerance:.3g} m)")  # fmt: skip
+    breaks = np.unique(np.concatenate([knots, found]))
+    breaks = breaks[np.concatenate([[True], np.diff(breaks) > 1e-9 * (hi - lo)])]
+    nodes, gauss_weights = np.polynomial.legendre.leggauss(points_per_span)
+    left, width = breaks[:-1, None], np.diff(breaks)[:, None]
+    s = (left + 0.5 * width * (nodes + 1)).ravel()
+    ds = (0.5 * width * gauss_weights).ravel()
+    point = first.evaluate(*_on_edge(along, value, s))
+    speed = np.linalg.norm(point.a2 if along == 1 else point.a1, axis=-1)
+    partner, distance = closest_on_edge(second, second_edge, point.x)
+    gap = float(distance.max())
+    if gap > tolerance:
+        where = point.x[int(np.argmax(distance))]
+        raise InterfaceError(f"edge {first_edge} of the first patch and edge {second_edge} of the second do not meet: "
+                             f"{gap:.3g} m apart near {np.array2string(where, precision=4)} "
+                             f"(tolerance {tolerance:.3g} m)")  # fmt: skip
+    first_parameters = np.stack(_on_edge(along, value, s), axis=1)
+    second_parameters = np.stack(_on_edge(other_along, other_value, partner), axis=1)
+    return EdgeQuadrature(first_parameters, second_parameters, speed * ds, along, gap)

@@ -1,0 +1,258 @@
+"""Shells of several patches joined along interfaces by the penalty coupling: its derivatives are
+the slopes of its energy, rigid motions and constant strain cost nothing, and joined patches give
+what one patch gives (a cantilever cut in two, the Scordelis-Lo roof in two halves) or, at a kink,
+what beam theory gives for a folded plate, keeping the fold's angle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bhem_hpc.bodies.coupling import (
+    DEFAULT_PENALTY,
+    InterfaceCoupling,
+    angle_residual,
+    penalty_stiffness,
+    rest_angles,
+    rest_frames,
+)
+from bhem_hpc.bodies.petsc import StackedBlocks
+from bhem_hpc.geometry import bspline as B
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.geometry.grid import ParameterGrid
+from bhem_hpc.geometry.interfaces import InterfaceError, pair_edges
+from bhem_hpc.model import bcs
+from bhem_hpc.model.loads import AreaLoad, LineLoad, Loads
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver import ShellSolver
+
+DEG = np.pi / 180
+
+
+def _frames(rng: np.random.Generator, k: int = 4) -> np.ndarray:
+    return rng.normal(size=(k, 6, 3))
+
+
+def _coupling_energy(frames, along, rest, offset, weights, stiffness) -> float:
+    d = frames[:, 0] - frames[:, 3] - offset
+    r, _ = angle_residual(frames, along, rest)
+    return float(0.5 * np.sum(weights * (stiffness[0] * np.sum(d * d, 1) + stiffness[1] * np.sum(r * r, 1))))
+
+
+class _Slots:
+    """The coupling's slot-level energy, gradient and Hessian for frames given directly."""
+
+    def __init__(self, rest_frames_: np.ndarray, along: int, stiffness=(3.0, 2.0)):
+        self.along, self.stiffness = along, stiffness
+        self.rest = rest_angles(rest_frames_, along)
+        self.offset = rest_frames_[:, 0] - rest_frames_[:, 3]
+        self.weights = np.linspace(0.5, 1.5, len(rest_frames_))
+        coupling = object.__new__(InterfaceCoupling)  # its slot methods need these attributes only
+        coupling.along, coupling.rest, coupling.rest_offset, coupling.weights = (
+            along,
+            self.rest,
+            self.offset,
+            self.weights,
+        )
+        coupling.displacement_stiffness, coupling.rotation_stiffness = stiffness
+        self.coupling = coupling
+
+    def energy(self, frames):
+        return _coupling_energy(frames, self.along, self.rest, self.offset, self.weights, self.stiffness)
+
+
+@pytest.mark.parametrize(("seed", "along"), [(0, 0), (1, 1), (2, 0)])
+def test_the_couplings_gradient_and_angle_jacobian_are_the_slopes_of_its_energy_and_residual(seed, along):
+    rng = np.random.default_rng(seed)
+    rest = _frames(rng)
+    slots = _Slots(rest, along)
+    frames = rest + 0.2 * rng.normal(size=rest.shape)
+    r, jacobian = angle_residual(frames, along, slots.rest)
+    gradient = slots.coupling.slot_gradients(frames)
+    eps = 1e-6
+    for slot in range(6):
+        for c in range(3):
+            step = np.zeros_like(frames)
+            step[:, slot, c] = eps
+            slope = (slots.energy(frames + step) - slots.energy(frames - step)) / (2 * eps)
+            assert abs(slope - gradient[:, slot, c].sum()) <= 1e-6 * max(1.0, abs(slope))
+            if slot in (1, 2, 4, 5):
+                residual_slope = (angle_residual(frames + step, along, slots.rest)[0]
+                                  - angle_residual(frames - step, along, slots.rest)[0]) / (2 * eps)  # fmt: skip
+                np.testing.assert_allclose(jacobian[:, (1, 2, 4, 5).index(slot), :, c], residual_slope, atol=1e-7)
+    assert np.abs(angle_residual(rest, along, slots.rest)[0]).max() < 1e-14
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.linalg.det(q)  # a proper rotation: det +1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_rigid_motions_and_constant_strain_cost_nothing_and_the_hessian_is_exact_there(seed):
+    """A fold of angle f0 along x between two flat strips: rotating and moving it rigidly, or
+    stretching both sides alike in the plane of one of them, leaves energy and gradient zero; there
+    the Gauss-Newton Hessian is the gradient's slope, and it is positive semi-definite anywhere."""
+    rng = np.random.default_rng(seed)
+    fold = rng.uniform(20, 160) * DEG
+    k = 3
+    x = np.stack([rng.uniform(0, 1, k), np.zeros(k), np.zeros(k)], axis=1)
+    a_along, a_across = np.array([1.0, 0, 0]), np.array([0, 1.0, 0])
+    b_across = np.array([0.0, np.cos(fold), np.sin(fold)])
+    rest = np.stack([x, np.tile(a_along, (k, 1)), np.tile(a_across, (k, 1)), x, np.tile(a_along, (k, 1)),
+                     np.tile(-b_across, (k, 1))], axis=1)  # fmt: skip
+    slots = _Slots(rest, along=0)
+    rotation, shift = _rotation(rng), rng.normal(size=3)
+    moved = rest @ rotation.T
+    moved[:, (0, 3)] += shift
+    stretch = np.diag([1.2, 1.0, 1.0])  # along the fold: both sides alike
+    strained = rest @ stretch.T
+    for frames in (moved, strained):
+        assert slots.energy(frames) < 1e-24
+        assert np.abs(slots.coupling.slot_gradients(frames)).max() < 1e-12
+        hessian = slots.coupling.slot_hessians(frames)
+        eps = 1e-6
+        for slot in range(6):
+            for c in range(3):
+                step = np.zeros_like(frames)
+                step[:, slot, c] = eps
+                slope = (slots.coupling.slot_gradients(frames + step)
+                         - slots.coupling.slot_gradients(frames - step)) / (2 * eps)  # fmt: skip
+                np.testing.assert_allclose(hessian[:, :, slot, :, c], slope, atol=1e-6)
+    anywhere = rest + 0.3 * rng.normal(size=rest.shape)
+    matrices = slots.coupling.slot_hessians(anywhere).transpose(0, 1, 3, 2, 4).reshape(k, 18, 18)
+    assert np.linalg.eigvalsh(matrices).min() > -1e-10 * np.abs(matrices).max()
+
+
+def _strip(discretization: str, position, grid: ParameterGrid):
+    if discretization == "hermite":
+        return S.from_callable(position, grid)
+    return B.from_callable(position, grid, degree=int(discretization[-1]))
+
+
+def _flat(discretization: str, x0: float, x1: float, spans: int, width: float):
+    return _strip(discretization, lambda u, v: np.stack([u, v, 0 * u], -1),
+                  ParameterGrid(spans, 2, (x0, x1), (0.0, width), False, False))  # fmt: skip
+
+
+def _joined(comm, models, rests, edges, element: float, material: Material, factor: float = DEFAULT_PENALTY):
+    """Solve the statics of two patches joined along ``edges``."""
+    quadrature = pair_edges(rests[0], edges[0], rests[1], edges[1], 1e-8)
+    stiffness = penalty_stiffness(material.young, material.poisson, material.thickness, element, factor)
+    coupling = InterfaceCoupling(StackedBlocks(models), (0, 1), quadrature, rest_frames(*rests, quadrature), stiffness)
+    with ShellSolver(models, contributions=[coupling]) as solver:
+        solver.solve()
+    return coupling
+
+
+@pytest.mark.parametrize("discretization", ["hermite", "bspline3"])
+def test_a_cantilever_cut_in_two_patches_bends_as_one_patch_and_the_penalty_does_not_lock(comm, discretization):
+    """A steel strip clamped at one end under an end load, as one patch and as two joined halves:
+    the tip deflections differ by the penalty's compliance, which falls as 1/alpha towards the one
+    patch's (no locking at large alpha)."""
+    length, width, spans = 1.0, 0.2, 4
+    material = Material(2.0e11, 0.3, 0.01, 7800.0)
+    load = Loads(line_loads=(LineLoad("xi1_max", (0.0, 0.0, -5.0)),))
+    at = (np.array(length), np.array(width / 2))
+    whole = _flat(discretization, 0.0, length, 2 * spans, width)
+    one = ShellModel(whole, material, load, [bcs.clamp_edge(whole, "xi1_min")], comm=comm)
+    with ShellSolver(one) as solver:
+        solver.solve()
+    expected = one.state_surface().evaluate(*at).x[2]
+    errors = []
+    for factor in (1e2, 1e3, 1e4):
+        rests = [_flat(discretization, 0.0, length / 2, spans, width), _flat(discretization, length / 2, length, spans,
+                                                                             width)]  # fmt: skip
+        models = [ShellModel(rests[0], material, Loads(), [bcs.clamp_edge(rests[0], "xi1_min")], comm=comm),
+                  ShellModel(rests[1], material, load, [], comm=comm)]  # fmt: skip
+        _joined(comm, models, rests, ("xi1_max", "xi1_min"), length / (2 * spans), material, factor)
+        errors.append(abs(models[1].state_surface().evaluate(*at).x[2] / expected - 1))
+    assert errors[1] < 2e-4, errors  # the default alpha: well inside the discretization error
+    if discretization == "hermite":  # joined C1 halves span the one patch's C1 space: the gap is the penalty's
+        assert 8 < errors[0] / errors[1] < 12 and 8 < errors[1] / errors[2] < 12, errors
+    else:  # C1 halves span more than the one C2 patch: the gap falls to that difference, not below
+        assert errors[0] > errors[1] > errors[2], errors
+
+
+def _folded_plate(comm, discretization: str, load: float, load_steps: int = 1):
+    """A steel plate clamped at x = 0, flat to x = a, folded up at right angles there to height b,
+    loaded along its free edge by ``load`` [N] along +x: tip displacement, the angle between the
+    normals across the fold and the fold's rotation [rad]."""
+    a, b, width, spans = 0.5, 0.3, 0.1, 4
+    material = Material(2.0e11, 0.0, 0.005, 7800.0)
+    rests = [_strip(discretization, lambda u, v: np.stack([u, v, 0 * u], -1),
+                    ParameterGrid(spans, 2, (0, a), (0, width), False, False)),
+             _strip(discretization, lambda u, v: np.stack([a + 0 * u, v, u], -1),
+                    ParameterGrid(spans, 2, (0, b), (0, width), False, False))]  # fmt: skip
+    models = [ShellModel(rests[0], material, Loads(), [bcs.clamp_edge(rests[0], "xi1_min")], comm=comm),
+              ShellModel(rests[1], material, Loads(line_loads=(LineLoad("xi1_max", (load / width, 0.0, 0.0)),)), [],
+                         comm=comm)]  # fmt: skip
+    quadrature = pair_edges(rests[0], "xi1_max", rests[1], "xi1_min", 1e-8)
+    stiffness = penalty_stiffness(material.young, 0.0, material.thickness, min(a, b) / spans)
+    coupling = InterfaceCoupling(StackedBlocks(models), (0, 1), quadrature, rest_frames(*rests, quadrature), stiffness)
+    with ShellSolver(models, contributions=[coupling]) as solver:
+        solver.solve(load_steps=load_steps)
+    middle = np.array(width / 2)
+    tip = models[1].state_surface().evaluate(np.array(b), middle).x - rests[1].evaluate(np.array(b), middle).x
+    flat_side = models[0].state_surface().evaluate(np.array(a), middle).normal
+    folded_side = models[1].state_surface().evaluate(np.array(0.0), middle).normal
+    angle = np.arccos(np.clip(np.dot(flat_side, folded_side), -1, 1))
+    return tip, angle, np.arccos(abs(flat_side[2])), (a, b, material.young * width * material.thickness**3 / 12)
+
+
+@pytest.mark.parametrize(("discretization", "tolerance"), [("hermite", 3e-4), ("bspline3", 3e-4), ("bspline2", 5e-3)])
+def test_a_folded_plate_bends_as_a_rigid_jointed_frame_and_keeps_its_fold_angle(comm, discretization, tolerance):
+    """Small load: the L-frame of beam theory with a rigid joint (nu = 0, so the plate is a beam):
+    tip sway ``P b^3 / 3EI + P a b^2 / EI``, drop ``P b a^2 / 2EI``. Large load (the fold turns by
+    about 40 degrees): the angle between the sides stays 90 degrees within 0.02 degrees."""
+    load = 0.01
+    tip, angle, _, (a, b, bending) = _folded_plate(comm, discretization, load)
+    sway, drop = load * b**3 / (3 * bending) + load * a * b**2 / bending, load * b * a**2 / (2 * bending)
+    assert abs(tip[0] / sway - 1) < tolerance, (tip, sway)
+    assert abs(-tip[2] / drop - 1) < tolerance, (tip, drop)
+    assert abs(angle - np.pi / 2) < 1e-6
+    if discretization == "hermite":
+        tip, angle, turn, _ = _folded_plate(comm, discretization, 5000.0, load_steps=5)
+        assert turn > 35 * DEG and abs(angle - np.pi / 2) < 0.02 * DEG, (turn, angle)
+
+
+#: Scordelis-Lo roof, Kirchhoff-Love theory: midside deflection of the free edge (Kiendl et al. 2009).
+ROOF_DEFLECTION = 0.3006
+
+
+def test_the_scordelis_lo_roof_in_two_halves_gives_the_one_patch_value(comm):
+    """The roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per area) as two
+    Hermite patches of 16 x 8 joined along the ridge: the free edge's midside deflection is the
+    reference within 5e-3, as one patch of 16 x 16 gives it."""
+    radius, length, load = 25.0, 50.0, 0.09
+    material = Material(4.32e8, 0.0, 0.25, 1.0)
+
+    def roof(start: float, end: float) -> S.HermiteSurface:
+        grid = ParameterGrid(16, 8, (0.0, length), (start, end), False, False)
+        return S.from_callable(lambda z, p: np.stack([radius * np.cos(p), radius * np.sin(p), z], -1), grid)
+
+    rests = [roof(50 * DEG, 90 * DEG), roof(90 * DEG, 130 * DEG)]
+    loads = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
+    supports = [[bcs.diaphragm_edge(r, edge, "z") for edge in ("xi1_min", "xi1_max")] for r in rests]
+    models = [ShellModel(r, material, loads, edges, comm=comm) for r, edges in zip(rests, supports, strict=True)]
+    _joined(comm, models, rests, ("xi2_max", "xi2_min"), radius * 5 * DEG, material)
+    at = (np.array(length / 2), np.array(50 * DEG))
+    deflection = (models[0].state_surface().evaluate(*at).x[1] - rests[0].evaluate(*at).x[1]) * 90.0 / load
+    assert abs(-deflection / ROOF_DEFLECTION - 1) < 5e-3, deflection
+
+
+def test_edges_that_do_not_meet_are_refused_naming_the_edges_and_the_gap():
+    left, right = _flat("hermite", 0.0, 0.5, 2, 0.2), _flat("hermite", 0.5, 1.0, 2, 0.2)
+    apart = _flat("hermite", 0.51, 1.0, 2, 0.2)
+    assert pair_edges(left, "xi1_max", right, "xi1_min", 1e-9).gap < 1e-12
+    assert pair_edges(left, "xi1_max", right, "xi1_min", 1e-9).weights.sum() == pytest.approx(0.2, rel=1e-12)
+    with pytest.raises(InterfaceError, match=r"edge xi1_max of the first patch and edge xi1_min .* 0\.01 m"):
+        pair_edges(left, "xi1_max", apart, "xi1_min", 1e-3)
+    with pytest.raises(InterfaceError, match=r"edge xi2_min of the first patch and edge xi1_min"):
+        pair_edges(left, "xi2_min", right, "xi1_min", 1e-3)
+    with pytest.raises(InterfaceError, match="edge 'xi3_max' does not exist"):
+        pair_edges(left, "xi3_max", right, "xi1_min", 1e-3)
+    tube = S.cylinder(1.0, 1.0, 2, 8)
+    with pytest.raises(InterfaceError, match="closed in xi2"):
+        pair_edges(tube, "xi2_min", right, "xi1_min", 1e-3)

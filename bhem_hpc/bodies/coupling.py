@@ -18,6 +18,10 @@ of Herrema et al. 2019, "Penalty coupling of non-matching isogeometric Kirchhoff
 patches", written as one vector). Both terms vanish for rigid motions and for any deformation
 that moves both sides alike, so a constant strain across the interface costs nothing.
 
+A seam (``sewing_time``) is the same energy between panels apart at rest whose target offset
+``X_A - X_B`` shrinks to zero over the sewing time: each pair of partners is pulled together along
+the line between their rest positions (a quadratic, convex pull; once sewn, the seam is a joint).
+
 The gradient is exact; the Hessian is exact for ``d`` and Gauss-Newton (``J^T J``) for ``r``:
 positive semi-definite, as every contribution's Hessian is, and exact at the rest angle.
 
@@ -169,8 +173,13 @@ class InterfaceCoupling:
     """
 
     def __init__(self, blocks: FrameBlocks, bodies: tuple[int, int], quadrature: EdgeQuadrature,
-                 frames: np.ndarray, stiffness: tuple[float, float], name: str = "interface"):  # fmt: skip
+                 frames: np.ndarray, stiffness: tuple[float, float], name: str = "interface",
+                 sewing_time: float | None = None):  # fmt: skip
         self.name = name
+        self.sewing_time = sewing_time
+        #: the partners' target offset as a fraction of their rest offset (a seam: 1 when sewing
+        #: starts, 0 once sewn; a joint: 1)
+        self.stitch_scale = 1.0
         self.comm = blocks.comm
         self.along = quadrature.along
         self.weights = np.asarray(quadrature.weights, dtype=float)
@@ -214,25 +223,33 @@ class InterfaceCoupling:
         """Collective: every point's position and tangents on both patches, ``(k, 6, 3)``."""
         return state.point_positions(self._bases).reshape(-1, SLOTS, 3)
 
-    def _terms(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``d (k, 3)``, ``r (k, 3)`` and ``J (k, 4, 3, 3)`` at ``frames``."""
-        d = frames[:, 0] - frames[:, 3] - self.rest_offset
-        r, jacobian = angle_residual(frames, self.along, self.rest)
-        return d, r, jacobian
+    def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
+        """A seam's stitches shorten linearly over its sewing time: their length at the step's end."""
+        if self.sewing_time is not None:
+            self.stitch_scale = max(0.0, 1.0 - (time + dt) / self.sewing_time)
+
+    def _stitches(self, frames: np.ndarray) -> np.ndarray:
+        """``d (k, 3)``: how far each pair of partners is from its target offset, :attr:`stitch_scale`
+        times the rest offset (a joint's stays 1: its rest offset, about zero; a seam's goes to 0,
+        pulling each pair together along the line between their rest positions)."""
+        return frames[:, 0] - frames[:, 3] - self.stitch_scale * self.rest_offset
 
     def energy(self, state: ContributionState) -> float:
         if not len(self.weights):
             return 0.0
-        d, r, _ = self._terms(self.frames(state))
+        frames = self.frames(state)
+        d = self._stitches(frames)
+        r, _ = angle_residual(frames, self.along, self.rest)
         energy = 0.5 * np.sum(self.weights * (self.displacement_stiffness * np.sum(d * d, axis=1)
                                               + self.rotation_stiffness * np.sum(r * r, axis=1)))  # fmt: skip
         return float(energy) if self.comm.rank == 0 else 0.0
 
     def slot_gradients(self, frames: np.ndarray) -> np.ndarray:
         """dE/d of each point's slots, ``(k, 6, 3)``."""
-        d, r, jacobian = self._terms(frames)
-        out = np.zeros((len(d), SLOTS, 3))
-        out[:, 0] = self.displacement_stiffness * self.weights[:, None] * d
+        pull = self._stitches(frames)
+        r, jacobian = angle_residual(frames, self.along, self.rest)
+        out = np.zeros((len(frames), SLOTS, 3))
+        out[:, 0] = self.displacement_stiffness * self.weights[:, None] * pull
         out[:, 3] = -out[:, 0]
         out[:, list(TANGENT_SLOTS)] = self.rotation_stiffness * self.weights[:, None, None] * np.einsum(
             "ksij,ki->ksj", jacobian, r)  # fmt: skip
@@ -250,7 +267,7 @@ class InterfaceCoupling:
 
     def slot_hessians(self, frames: np.ndarray) -> np.ndarray:
         """The Hessian on each point's slots, ``(k, 6, 6, 3, 3)`` (Gauss-Newton for the angle)."""
-        _, _, jacobian = self._terms(frames)
+        _, jacobian = angle_residual(frames, self.along, self.rest)
         out = np.zeros((len(frames), SLOTS, SLOTS, 3, 3))
         block = self.displacement_stiffness * self.weights[:, None, None] * np.eye(3)
         out[:, 0, 0], out[:, 3, 3], out[:, 0, 3], out[:, 3, 0] = block, block, -block, -block
@@ -269,6 +286,7 @@ class InterfaceCoupling:
         for point, slot, coefficients in zip(self.points, slots, self._coefficients, strict=True):
             mine = self._row_range(point)
             if len(mine):
-                blocks = np.einsum("is,jt,stab->ijab", coefficients[mine], coefficients, slot, optimize=True)
-                parts.append(blocks.reshape(-1, 3, 3))
+                rows = np.tensordot(coefficients[mine], slot, axes=(1, 0))  # (rows, t, 3, 3)
+                blocks = np.tensordot(rows, coefficients, axes=(1, 1))  # (rows, 3, 3, columns)
+                parts.append(blocks.transpose(0, 3, 1, 2).reshape(-1, 3, 3))
         return np.concatenate(parts)

@@ -115,7 +115,8 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
                                                                                   strict=True))]  # fmt: skip
     models = [body.model for body in bodies]
     barrier = bodies_barrier(bodies, options.scene)
-    solver = make_solver(models, first, options.scene, [barrier] if barrier is not None else [])
+    couplings = interface_couplings(scene, bodies)
+    solver = make_solver(models, first, options.scene, ([barrier] if barrier is not None else []) + couplings)
     summary = RunSummary(
         scene=str(options.scene), physics_hash=physics_hash(scene), solution_method=solution_method(first),
         dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
@@ -124,6 +125,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
         bodies=[{"name": body.name, "dofs": body.dofs, "mass_kg": body.mass(), "discretization": body.kind}
                 for body in bodies],
         steps=previous_steps(options.out, checkpoint) if continuing else [],
+        interfaces=[record.summary() for record in scene.interfaces] or None,
     )  # fmt: skip
     output: BodiesOutput | None = None
     try:
@@ -174,6 +176,32 @@ def _probe_rows(output: BodiesOutput | None, probes: list, stepper: TimeStepper,
         if probe_set is not None:
             row = {"step": stepper.step, "time": stepper.time} | probe_columns(probe_set.record())
             on_rank0(comm, lambda k=k, row=row: output.probe_tables[k].add(row), "probes.csv")
+
+
+def interface_couplings(scene: BodiesScene, bodies: list[Body]) -> list:
+    """Collective: the penalty couplings of the scene's interfaces (joints and seams between its
+    shell bodies; :mod:`bhem_hpc.bodies.coupling`): the stiffer side's stiffness over the narrower
+    side's element, the angle term for joints and for seams that keep their angle."""
+    if not scene.interfaces:
+        return []
+    from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames
+    from bhem_hpc.bodies.petsc import StackedBlocks
+    from bhem_hpc.geometry.interfaces import element_across
+
+    blocks = StackedBlocks([body.model for body in bodies])
+    couplings = []
+    for record in scene.interfaces:
+        sides = [scene.bodies[k] for k in record.bodies]
+        element = min(element_across(side.surface, edge) for side, edge in zip(sides, record.edges, strict=True))
+        stiffness = np.max([penalty_stiffness(side.material.young, side.material.poisson, side.material.thickness,
+                                              element, record.penalty) for side in sides], axis=0)  # fmt: skip
+        if not record.keep_angle:
+            stiffness[1] = 0.0
+        frames = rest_frames(sides[0].surface, sides[1].surface, record.quadrature)
+        name = f"{record.where} ({record.kind} of {record.names[0]} and {record.names[1]})"
+        couplings.append(InterfaceCoupling(blocks, record.bodies, record.quadrature, frames, tuple(stiffness), name,
+                                           record.sewing_time))  # fmt: skip
+    return couplings
 
 
 def bodies_barrier(bodies: list[Body], scene_file: Path):

@@ -154,3 +154,63 @@ def pair_edges(first: Patch, first_edge: str, second: Patch, second_edge: str, t
     first_parameters = np.stack(_on_edge(along, value, s), axis=1)
     second_parameters = np.stack(_on_edge(other_along, other_value, partner), axis=1)
     return EdgeQuadrature(first_parameters, second_parameters, speed * ds, along, gap)
+
+
+#: The most two sides of a seam may differ in rest length (the longer over the shorter).
+MAX_SEAM_LENGTH_RATIO = 1.1
+
+
+def edge_length(surface: Patch, edge: str, points_per_span: int = 4) -> float:
+    """The rest length [m] of an edge (Gauss-Legendre in each span)."""
+    along, value, _, knots = edge_line(surface.grid, edge)
+    nodes, weights = np.polynomial.legendre.leggauss(points_per_span)
+    width = np.diff(knots)[:, None]
+    s = (knots[:-1, None] + 0.5 * width * (nodes + 1)).ravel()
+    point = surface.evaluate(*_on_edge(along, value, s))
+    speed = np.linalg.norm(point.a2 if along == 1 else point.a1, axis=-1)
+    return float(np.sum(speed * (0.5 * width * weights).ravel()))
+
+
+def pair_seam(first: Patch, first_edge: str, second: Patch, second_edge: str, reverse: bool = False,
+              points_per_span: int = 4) -> EdgeQuadrature:  # fmt: skip
+    """The quadrature of a seam that sews ``first_edge`` of ``first`` to ``second_edge`` of ``second``
+    (apart at rest): the point at a fraction of the first edge's parameter range meets the point at
+    the same fraction of the second's (from its other end with ``reverse``). ``gap``: the largest
+    rest distance between partners.
+
+    Raises:
+        InterfaceError: an edge that does not exist, or sides whose rest lengths differ by more
+            than :data:`MAX_SEAM_LENGTH_RATIO` (naming both lengths).
+    """
+    along, value, (lo, hi), knots = edge_line(first.grid, first_edge)
+    other_along, other_value, (other_lo, other_hi), other_knots = edge_line(second.grid, second_edge)
+    lengths = edge_length(first, first_edge), edge_length(second, second_edge)
+    if max(lengths) > MAX_SEAM_LENGTH_RATIO * min(lengths):
+        raise InterfaceError(f"the seam's sides differ in length: edge {first_edge} of the first panel is "
+                             f"{lengths[0]:.4g} m, edge {second_edge} of the second {lengths[1]:.4g} m (at most "
+                             f"{MAX_SEAM_LENGTH_RATIO:g} times the shorter)")  # fmt: skip
+    fractions = np.unique(np.concatenate([(knots - lo) / (hi - lo), (other_knots - other_lo) / (other_hi - other_lo)]))
+    fractions = fractions[np.concatenate([[True], np.diff(fractions) > 1e-9])]
+    nodes, gauss_weights = np.polynomial.legendre.leggauss(points_per_span)
+    width = np.diff(fractions)[:, None]
+    f = (fractions[:-1, None] + 0.5 * width * (nodes + 1)).ravel()
+    s = lo + f * (hi - lo)
+    point = first.evaluate(*_on_edge(along, value, s))
+    speed = np.linalg.norm(point.a2 if along == 1 else point.a1, axis=-1)
+    partner = other_lo + (1.0 - f if reverse else f) * (other_hi - other_lo)
+    partner_point = second.evaluate(*_on_edge(other_along, other_value, partner))
+    return EdgeQuadrature(np.stack(_on_edge(along, value, s), axis=1),
+                          np.stack(_on_edge(other_along, other_value, partner), axis=1),
+                          speed * (0.5 * width * gauss_weights).ravel() * (hi - lo), along,
+                          float(np.linalg.norm(point.x - partner_point.x, axis=-1).max()))  # fmt: skip
+
+
+def element_across(surface: Patch, edge: str) -> float:
+    """The rest width [m] of the patches along ``edge``, across it (the penalty rule's element size):
+    the cross parameter's span width times the mean rest speed of that parameter on the edge."""
+    along, value, _, knots = edge_line(surface.grid, edge)
+    middle = 0.5 * (knots[:-1] + knots[1:])
+    point = surface.evaluate(*_on_edge(along, value, middle))
+    across = point.a1 if along == 1 else point.a2
+    width = surface.grid.h1 if along == 1 else surface.grid.h2
+    return float(width * np.linalg.norm(across, axis=-1).mean())

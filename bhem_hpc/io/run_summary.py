@@ -41,6 +41,8 @@ class RunSummary:
         linear_solver_fallbacks: fallbacks of the linear solver during the run.
         solver_totals: the solver's counters over the run.
         bodies: a scene of several bodies: each body's name, DoFs and discretization.
+        interfaces: where its shell bodies are joined or sewn (each interface's type, bodies,
+            edges, penalty, quadrature points and the rest gap between its edges).
     """
 
     scene: str
@@ -64,6 +66,7 @@ class RunSummary:
     linear_solver_fallbacks: list | None = None
     solver_totals: dict | None = None
     bodies: list[dict] | None = None
+    interfaces: list[dict] | None = None
 
     #: The JSON object's first keys (the run's identity), then the others in field order.
     LEADING = ("scene", "status")

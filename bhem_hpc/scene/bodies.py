@@ -20,7 +20,8 @@ contact (Coulomb coefficient between two bodies: the geometric mean of their ``e
 Bodies in contact meet by one ``effects.contact.method``: by ``"impulse"`` (shells) they share one
 push-out distance and impulse metric (``push_out`` and ``metric``); by ``"ipc"`` (any body: IPC's
 barrier on collision meshes embedded in them, in the Newton solve) one ``dhat`` and
-``barrier_stiffness``. They must be apart at the start.
+``barrier_stiffness``. They must be apart at the start. ``[[interfaces]]`` at the top join shell
+bodies into one shell along their edges, or sew panels together (:mod:`bhem_hpc.scene.interfaces`).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from bhem_hpc.scene.interfaces import InterfaceRecord, parse_interfaces
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.table import Registry, SceneError, Table
 
@@ -49,6 +51,8 @@ BODY_KEYS = ("name", "type", "surface", "material", "effects", "constraints", "p
 SHARED_KEYS = ("time", "solver", "output")
 #: The scene's colliders, at the top: every body with contact effects meets them.
 COLLIDERS = "colliders"
+#: Where shell bodies are joined or sewn into one shell, at the top.
+INTERFACES = "interfaces"
 #: Longest body name (it names an output folder).
 MAX_BODY_NAME = 64
 
@@ -62,12 +66,15 @@ class BodiesScene:
         names: the bodies' names, in the file's order (the stacked order).
         bodies: each body's scene of one body (the shared tables in each).
         raw: the file's tables.
+        interfaces: where shell bodies are joined or sewn into one shell
+            (:mod:`~bhem_hpc.scene.interfaces`).
     """
 
     path: Path
     names: tuple[str, ...]
     bodies: tuple[Scene, ...]
     raw: dict[str, Any]
+    interfaces: tuple[InterfaceRecord, ...] = ()
 
     @property
     def first(self) -> Scene:
@@ -85,7 +92,7 @@ def _check_body(t: Table) -> bool:
     """What a body's table may not hold (shared tables, unknown keys); returns whether its effects
     list contact."""
     for key in t.data:
-        if key in (*SHARED_KEYS, COLLIDERS):
+        if key in (*SHARED_KEYS, COLLIDERS, INTERFACES):
             raise SceneError(f"{t.path}: key '{t.key(key)}': [{key}] is shared by all bodies; give it once, at the top")
         if key not in BODY_KEYS:
             t.fail(key, f"absent (a body lists {', '.join(BODY_KEYS)})", t.data[key])
@@ -109,10 +116,11 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
     items = top.get("bodies", "a list", check=lambda v: len(v) >= 1 and all(isinstance(b, dict) for b in v),
                     expected="a list of at least one body table ([[bodies]])")  # fmt: skip
     for key in raw:
-        if key not in ("bodies", COLLIDERS, *SHARED_KEYS):
+        if key not in ("bodies", COLLIDERS, INTERFACES, *SHARED_KEYS):
             hint = "a body's own table (in each [[bodies]])" if key in BODY_KEYS else "unknown"
             raise SceneError(f"{path}: key '{key}' at the top of a scene of several bodies: {hint}; the top holds "
-                             f"[[bodies]] and the shared {', '.join(SHARED_KEYS)}")  # fmt: skip
+                             f"[[bodies]], [[{COLLIDERS}]], [[{INTERFACES}]] and the shared "
+                             f"{', '.join(SHARED_KEYS)}")  # fmt: skip
     shared = {key: raw[key] for key in SHARED_KEYS if key in raw}
     time = shared.get("time", {})
     if isinstance(time, dict) and time.get("static", False) is True:
@@ -136,7 +144,8 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
         names.append(name)
     if colliders and all(body.contact is None for body in bodies):
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
-    scene = BodiesScene(path, tuple(names), tuple(bodies), raw)
+    interfaces = parse_interfaces(path, raw[INTERFACES], names, bodies) if INTERFACES in raw else ()
+    scene = BodiesScene(path, tuple(names), tuple(bodies), raw, interfaces)
     _check_contact_between(scene)
     return scene
 

@@ -34,17 +34,19 @@ def _frames(rng: np.random.Generator, k: int = 4) -> np.ndarray:
     return rng.normal(size=(k, 6, 3))
 
 
-def _coupling_energy(frames, along, rest, offset, weights, stiffness) -> float:
-    d = frames[:, 0] - frames[:, 3] - offset
+def _coupling_energy(frames, along, rest, offset, weights, stiffness, stitch_scale=None) -> float:
+    """The module's energy written out: a joint's (``stitch_scale`` None) or a seam's."""
+    scale = 1.0 if stitch_scale is None else stitch_scale
+    stretch = np.sum((frames[:, 0] - frames[:, 3] - scale * offset) ** 2, 1)
     r, _ = angle_residual(frames, along, rest)
-    return float(0.5 * np.sum(weights * (stiffness[0] * np.sum(d * d, 1) + stiffness[1] * np.sum(r * r, 1))))
+    return float(0.5 * np.sum(weights * (stiffness[0] * stretch + stiffness[1] * np.sum(r * r, 1))))
 
 
 class _Slots:
     """The coupling's slot-level energy, gradient and Hessian for frames given directly."""
 
-    def __init__(self, rest_frames_: np.ndarray, along: int, stiffness=(3.0, 2.0)):
-        self.along, self.stiffness = along, stiffness
+    def __init__(self, rest_frames_: np.ndarray, along: int, stiffness=(3.0, 2.0), stitch_scale=None):
+        self.along, self.stiffness, self.stitch_scale = along, stiffness, stitch_scale
         self.rest = rest_angles(rest_frames_, along)
         self.offset = rest_frames_[:, 0] - rest_frames_[:, 3]
         self.weights = np.linspace(0.5, 1.5, len(rest_frames_))
@@ -56,17 +58,22 @@ class _Slots:
             self.weights,
         )
         coupling.displacement_stiffness, coupling.rotation_stiffness = stiffness
+        coupling.sewing_time = None if stitch_scale is None else 1.0
+        coupling.stitch_scale = 1.0 if stitch_scale is None else stitch_scale
         self.coupling = coupling
 
     def energy(self, frames):
-        return _coupling_energy(frames, self.along, self.rest, self.offset, self.weights, self.stiffness)
+        return _coupling_energy(frames, self.along, self.rest, self.offset, self.weights, self.stiffness,
+                                self.stitch_scale)  # fmt: skip
 
 
-@pytest.mark.parametrize(("seed", "along"), [(0, 0), (1, 1), (2, 0)])
-def test_the_couplings_gradient_and_angle_jacobian_are_the_slopes_of_its_energy_and_residual(seed, along):
+@pytest.mark.parametrize(("seed", "along", "stitch_scale"), [(0, 0, None), (1, 1, None), (2, 0, 0.5), (3, 1, 0.0)])
+def test_the_couplings_gradient_and_angle_jacobian_are_the_slopes_of_its_energy_and_residual(seed, along,
+                                                                                            stitch_scale):  # fmt: skip
+    """A joint and a seam (stitches at half their rest length, and sewn)."""
     rng = np.random.default_rng(seed)
     rest = _frames(rng)
-    slots = _Slots(rest, along)
+    slots = _Slots(rest, along, stitch_scale=stitch_scale)
     frames = rest + 0.2 * rng.normal(size=rest.shape)
     r, jacobian = angle_residual(frames, along, slots.rest)
     gradient = slots.coupling.slot_gradients(frames)

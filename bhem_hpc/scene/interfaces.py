@@ -1,0 +1,147 @@
+"""The ``[[interfaces]]`` of a scene of several bodies (numpy + stdlib only): shell bodies (patches,
+panels) joined into one shell along their edges. Each interface type parses its own table and
+registers itself in :data:`INTERFACE_TYPES`::
+
+    [[interfaces]]
+    type = "joint"                  # the default: edges that meet at rest stay together, and the
+    bodies = ["roof", "wall"]       # angle between the patches across them stays what it is at
+    edges = ["xi1_max", "xi1_min"]  # rest (smooth, or a fold)
+    penalty = 1e3                   # alpha of the penalty rule (bhem_hpc.bodies.coupling)
+    tolerance = 1e-6                # [m] how far apart the edges may be at rest
+
+    [[interfaces]]
+    type = "seam"                   # edges apart at rest, sewn together: the stitches shorten
+    bodies = ["front", "back"]      # from their rest length to zero over sewing_time
+    edges = ["xi1_max", "xi1_min"]
+    sewing_time = 0.3               # [s]
+    reverse = false                 # the edges run in opposite directions
+    keep_angle = false              # also keep the panels' rest angle across the seam
+
+The edges are checked against the bodies' rest surfaces here, before anything is built: a joint's
+edges must meet within ``tolerance``, a seam's sides must have about one length.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from bhem_hpc.geometry.interfaces import EDGES, EdgeQuadrature, InterfaceError, pair_edges, pair_seam
+from bhem_hpc.scene.records import Scene
+from bhem_hpc.scene.table import Registry, SceneError, Table
+
+#: The parsers of interface types: ``parser(table, names, bodies) -> InterfaceRecord``.
+INTERFACE_TYPES = Registry("interface type")
+#: The interface type of a table without ``type``.
+DEFAULT_INTERFACE_TYPE = "joint"
+#: The penalty factors a scene may give (below, the coupling is soft; above, the Newton systems
+#: lose their digits to it: a folded steel plate failed to converge at 1e7).
+PENALTY_RANGE = (1.0, 1.0e6)
+#: The default largest rest distance between a joint's edges [m].
+DEFAULT_TOLERANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class InterfaceRecord:
+    """An interface of a scene, checked against the rest surfaces.
+
+    Attributes:
+        kind: its type (``"joint"``, ``"seam"``); where: ``interfaces[k]``, for messages.
+        bodies: the two bodies' places; names: their names; edges: their edges.
+        penalty: the penalty factor alpha.
+        quadrature: the interface's points on both sides.
+        sewing_time: a seam's [s] (None: a joint).
+        keep_angle: whether the angle across it is kept (always for a joint).
+    """
+
+    kind: str
+    where: str
+    bodies: tuple[int, int]
+    names: tuple[str, str]
+    edges: tuple[str, str]
+    penalty: float
+    quadrature: EdgeQuadrature
+    sewing_time: float | None
+    keep_angle: bool
+
+    def summary(self) -> dict:
+        """What a run's summary.json says of it."""
+        return {"type": self.kind, "bodies": list(self.names), "edges": list(self.edges), "penalty": self.penalty,
+                "points": len(self.quadrature.weights), "rest_gap_m": self.quadrature.gap,
+                "sewing_time_s": self.sewing_time, "keeps_angle": self.keep_angle}  # fmt: skip
+
+
+def _pair(t: Table, names: Sequence[str], bodies: Sequence) -> tuple[tuple[int, int], tuple[str, str]]:
+    """The two shell bodies an interface names and their edges."""
+    pair = t.get("bodies", "a list", check=lambda v: len(v) == 2 and all(n in names for n in v),
+                 expected=f"the names of two bodies of the scene ({', '.join(names)})")  # fmt: skip
+    for name in pair:
+        if not isinstance(bodies[names.index(name)], Scene):
+            t.fail("bodies", "two shell bodies (a solid has no edges to join)", pair)
+    edges = t.get("edges", "a list", check=lambda v: len(v) == 2 and all(e in EDGES for e in v),
+                  expected=f"two edges, one of each body, each one of {', '.join(EDGES)}")  # fmt: skip
+    return (names.index(pair[0]), names.index(pair[1])), (edges[0], edges[1])
+
+
+def _penalty(t: Table) -> float:
+    low, high = PENALTY_RANGE
+    return float(t.get("penalty", "a number", 1.0e3, lambda v: low <= v <= high, f"a number in [{low:g}, {high:g}]"))
+
+
+def _refused(t: Table, names: tuple[str, str], exc: InterfaceError) -> SceneError:
+    where = str(exc).replace("the first patch", f"body '{names[0]}'").replace("the second", f"body '{names[1]}'")
+    where = where.replace("the first panel", f"body '{names[0]}'")
+    return SceneError(f"{t.path}: key '{t.key('edges')}': {where}")
+
+
+@INTERFACE_TYPES.register("joint")
+def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
+    places, edges = _pair(t, names, bodies)
+    penalty = _penalty(t)
+    tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
+                      "a length > 0 [m]")  # fmt: skip
+    t.done()
+    pair = (names[places[0]], names[places[1]])
+    try:
+        quadrature = pair_edges(bodies[places[0]].surface, edges[0], bodies[places[1]].surface, edges[1], tolerance)
+    except InterfaceError as exc:
+        raise _refused(t, pair, exc) from None
+    return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True)
+
+
+@INTERFACE_TYPES.register("seam")
+def _seam(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
+    places, edges = _pair(t, names, bodies)
+    penalty = _penalty(t)
+    sewing_time = t.get("sewing_time", "a number", check=lambda v: v > 0, expected="a time > 0 [s]")
+    reverse = t.get("reverse", "a boolean", False)
+    keep_angle = t.get("keep_angle", "a boolean", False)
+    t.done()
+    pair = (names[places[0]], names[places[1]])
+    try:
+        quadrature = pair_seam(bodies[places[0]].surface, edges[0], bodies[places[1]].surface, edges[1], reverse)
+    except InterfaceError as exc:
+        raise _refused(t, pair, exc) from None
+    return InterfaceRecord("seam", t.name, places, pair, edges, penalty, quadrature, float(sewing_time), keep_angle)
+
+
+def parse_interfaces(path: Path, items: object, names: Sequence[str], bodies: Sequence) -> tuple[InterfaceRecord, ...]:
+    """The ``[[interfaces]]`` list of a scene of several bodies (``names``, ``bodies``: the parsed
+    bodies in order), each parsed by its type.
+
+    Raises:
+        SceneError: naming the file, the interface, the key and, for edges that do not fit, the
+            bodies, their edges and the gap or lengths.
+    """
+    if not isinstance(items, list) or not all(isinstance(item, dict) for item in items):
+        raise SceneError(f"{path}: key 'interfaces' must be a list of interface tables ([[interfaces]]), got "
+                         f"{items!r}")  # fmt: skip
+    records = []
+    types = INTERFACE_TYPES.names
+    for k, item in enumerate(items):
+        t = Table(path, f"interfaces[{k}]", item)
+        kind = t.get("type", "a string", DEFAULT_INTERFACE_TYPE, lambda v: v in types, f"one of {', '.join(types)}")
+        records.append(INTERFACE_TYPES[kind](t, names, bodies))
+    return tuple(records)

@@ -1,0 +1,134 @@
+"""Scenes whose shell bodies are joined (``[[interfaces]]``): the shipped folded bracket keeps its
+fold, two panels sewn along a seam hang as the one sheet they make, and interfaces that do not fit
+their bodies are refused naming the file, the interface, the bodies and the edges."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from helpers import REPO
+
+from bhem_hpc.io import read_frame
+from bhem_hpc.run import RunOptions, run_scene
+from bhem_hpc.scene import SceneError
+from bhem_hpc.scene.loader import load_any_scene
+
+DEG = np.pi / 180
+
+
+def _write(comm, path: Path, text: str) -> Path:
+    if comm.rank == 0:
+        path.write_text(text)
+    comm.Barrier()
+    return path
+
+
+def test_the_folded_bracket_keeps_its_fold_while_its_wall_is_pushed_over(comm, shared_tmp_path):
+    """jobs/folded-plate.toml for 30 steps: the wall's top moves by centimetres, the two patches stay
+    together along the fold and at right angles to each other there."""
+    summary = run_scene(RunOptions(REPO / "jobs" / "folded-plate.toml", shared_tmp_path / "fold", steps=30,
+                                   progress=False), comm)  # fmt: skip
+    assert summary["status"] == "completed"
+    assert summary["interfaces"] == [{"type": "joint", "bodies": ["plate", "wall"], "edges": ["xi1_max", "xi1_min"],
+                                      "penalty": 1000.0, "points": 8, "rest_gap_m": 0.0, "sewing_time_s": None,
+                                      "keeps_angle": True}]  # fmt: skip
+    plate, _ = read_frame(shared_tmp_path / "fold" / "plate" / "surface.h5")
+    wall, time = read_frame(shared_tmp_path / "fold" / "wall" / "surface.h5")
+    rest, _ = read_frame(shared_tmp_path / "fold" / "wall" / "surface.h5", 0)
+    assert time == pytest.approx(0.03)
+    top = (np.array(0.3), np.array(0.05))
+    assert np.linalg.norm(wall.evaluate(*top).x - rest.evaluate(*top).x) > 0.05
+    for y in (0.0, 0.05, 0.1):
+        flat_side = plate.evaluate(np.array(0.5), np.array(y))
+        upright_side = wall.evaluate(np.array(0.0), np.array(y))
+        assert np.linalg.norm(flat_side.x - upright_side.x) < 1e-6
+        assert abs(np.arccos(np.dot(flat_side.normal, upright_side.normal)) - 90 * DEG) < 0.05 * DEG
+
+
+RUBBER = "material = { young = 5.0e6, poisson = 0.49, thickness = 2.0e-3, density = 1100.0 }"
+EFFECTS = "effects = { gravity = [0.0, 0.0, -9.81], damping = { mass = 10.0 } }"
+CLOCK = "[time]\ndt = 0.01\nduration = 0.6\n[output]\nevery = 30\n"
+SEWN = f"""{CLOCK}
+[[bodies]]
+name = "near"
+surface = {{ kind = "rectangle", size = [0.1, 0.1], patches = [4, 4] }}
+{RUBBER}
+{EFFECTS}
+constraints = [{{ type = "clamp", edge = "xi1_min" }}]
+
+[[bodies]]
+name = "far"
+surface = {{ kind = "rectangle", size = [0.1, 0.1], patches = [4, 4], origin = [0.12, 0.0, 0.0] }}
+{RUBBER}
+{EFFECTS}
+
+[[interfaces]]
+type = "seam"
+bodies = ["near", "far"]
+edges = ["xi1_max", "xi1_min"]
+sewing_time = 0.1
+keep_angle = true
+"""
+ONE_SHEET = f"""surface = {{ kind = "rectangle", size = [0.2, 0.1], patches = [8, 4] }}
+{RUBBER}
+{EFFECTS}
+constraints = [{{ type = "clamp", edge = "xi1_min" }}]
+{CLOCK}"""
+
+
+def test_two_panels_sewn_along_a_seam_hang_as_the_one_sheet_they_make(comm, shared_tmp_path):
+    """A rubber panel clamped along one edge and a free one 2 cm beyond it, sewn in 0.1 s while
+    they fall: after 0.6 s (damped) the far panel's free edge is where the one sheet of both
+    panels has its free edge, within 0.5 % of its drop (measured 0.2 %)."""
+    sewn = run_scene(RunOptions(_write(comm, shared_tmp_path / "sewn.toml", SEWN), shared_tmp_path / "sewn",
+                                progress=False), comm)  # fmt: skip
+    assert sewn["status"] == "completed" and sewn["interfaces"][0]["rest_gap_m"] == pytest.approx(0.02)
+    assert max(step["newton_iterations"] for step in sewn["steps"]) <= 15
+    run_scene(RunOptions(_write(comm, shared_tmp_path / "one.toml", ONE_SHEET), shared_tmp_path / "one",
+                         progress=False), comm)  # fmt: skip
+    far, _ = read_frame(shared_tmp_path / "sewn" / "far" / "surface.h5")
+    near, _ = read_frame(shared_tmp_path / "sewn" / "near" / "surface.h5")
+    one, _ = read_frame(shared_tmp_path / "one" / "surface.h5")
+    edge = np.linspace(0.0, 0.1, 5)
+    free = far.evaluate(np.full(5, 0.1), edge).x
+    expected = one.evaluate(np.full(5, 0.2), edge).x
+    drop = -expected[:, 2].min()
+    assert drop > 0.1 and np.abs(free - expected).max() < 5e-3 * drop
+    seam = np.abs(near.evaluate(np.full(5, 0.1), edge).x - far.evaluate(np.zeros(5), edge).x).max()
+    assert seam < 1e-5
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda s: s.replace('bodies = ["near", "far"]', 'bodies = ["near", "back"]'),
+         r"key 'interfaces\[0\].bodies' must be the names of two bodies of the scene \(near, far\)"),
+        (lambda s: s.replace('edges = ["xi1_max", "xi1_min"]', 'edges = ["xi1_max", "xi3_min"]'),
+         r"key 'interfaces\[0\].edges' must be two edges, one of each body"),
+        (lambda s: s.replace('type = "seam"', 'type = "joint"').replace("sewing_time = 0.1\nkeep_angle = true\n", ""),
+         r"key 'interfaces\[0\].edges': edge xi1_max of body 'near' and edge xi1_min of body 'far' do not meet: "
+         r"their ends lie 0.02 m from the other edge"),
+        (lambda s: s.replace("[0.1, 0.1], patches = [4, 4], origin", "[0.1, 0.15], patches = [4, 4], origin"),
+         r"key 'interfaces\[0\].edges': the seam's sides differ in length: edge xi1_max of body 'near' is 0.1 m, "
+         r"edge xi1_min of body 'far' 0.15 m"),
+        (lambda s: s.replace("keep_angle = true", "keep_angle = true\npenalty = 1e9"),
+         r"key 'interfaces\[0\].penalty' must be a number in \[1, 1e\+06\], got 1000000000.0"),
+        (lambda s: s.replace("keep_angle = true", "keep_angle = true\nstrength = 2"),
+         r"unknown key 'interfaces\[0\].strength'"),
+        (lambda s: s.replace("sewing_time = 0.1", "sewing_time = -1.0"),
+         r"key 'interfaces\[0\].sewing_time' must be a time > 0 \[s\], got -1.0"),
+        (lambda s: s.replace('type = "seam"', 'type = "weld"'),
+         r"key 'interfaces\[0\].type' must be one of joint, seam, got 'weld'"),
+        (lambda s: "interfaces = 3\n" + s[:s.index("[[interfaces]]")],
+         r"key 'interfaces' must be a list of interface tables"),
+    ],
+)  # fmt: skip
+def test_interfaces_that_do_not_fit_their_bodies_are_refused_naming_them(comm, shared_tmp_path, edit, message):
+    path = _write(comm, shared_tmp_path / "bad.toml", edit(SEWN))
+    with pytest.raises(SceneError, match=message):
+        load_any_scene(path)
+    with pytest.raises(SceneError, match=message):
+        run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
+    assert not (shared_tmp_path / "out").exists()

@@ -114,7 +114,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     bodies = [make_body(name, k, body, comm) for k, (name, body) in enumerate(zip(scene.names, scene.bodies,
                                                                                   strict=True))]  # fmt: skip
     models = [body.model for body in bodies]
-    barrier = bodies_barrier(bodies, options.scene)
+    barrier = bodies_barrier(bodies, scene, options.scene)
     couplings = interface_couplings(scene, bodies)
     solver = make_solver(models, first, options.scene, ([barrier] if barrier is not None else []) + couplings)
     summary = RunSummary(
@@ -204,7 +204,13 @@ def interface_couplings(scene: BodiesScene, bodies: list[Body]) -> list:
     return couplings
 
 
-def bodies_barrier(bodies: list[Body], scene_file: Path):
+def _joined_meshes(scene: BodiesScene, in_contact: list[Body]) -> list[tuple[int, int]]:
+    """The interfaces between bodies in contact, as pairs of their places among ``in_contact``."""
+    place = {body.index: k for k, body in enumerate(in_contact)}
+    return [(place[a], place[b]) for a, b in (r.bodies for r in scene.interfaces) if a in place and b in place]
+
+
+def bodies_barrier(bodies: list[Body], scene: BodiesScene, scene_file: Path):
     """Collective: IPC's barrier between the collision meshes of every body whose contact method is
     ``"ipc"`` (each other, themselves where a shell's self-collision says so, the scene's colliders),
     checked to start apart; or None."""
@@ -222,7 +228,7 @@ def bodies_barrier(bodies: list[Body], scene_file: Path):
     barrier = make_barrier(meshes, [blocks.open_offsets[body.index] for body in in_contact], blocks.global_open_blocks,
                            blocks.comm, [entry.collider for entry in contact.colliders], contact.dhat,
                            contact.barrier_stiffness, [surface_friction(e) for e in contact.colliders],
-                           contact.eps_v)  # fmt: skip
+                           contact.eps_v, _joined_meshes(scene, in_contact))  # fmt: skip
     try:
         check_chord_gaps(meshes, barrier.dhat)
     except CoarseCollisionMesh as exc:
@@ -238,7 +244,7 @@ def bodies_barrier(bodies: list[Body], scene_file: Path):
     return barrier
 
 
-def bodies_contact(bodies: list[Body], solver: ShellSolver):
+def bodies_contact(bodies: list[Body], solver: ShellSolver, scene: BodiesScene):
     """The :class:`~bhem_hpc.contact.response.ContactHandler` of every body whose effects list contact
     by impulses (their colliders, themselves and each other) in ``solver`` (made of the bodies'
     models), or None."""
@@ -253,7 +259,7 @@ def bodies_contact(bodies: list[Body], solver: ShellSolver):
     detectors = [contact_detector(body.scene, body.model) if body.scene.contact is not None else None
                  for body in bodies]  # fmt: skip
     frictions = [body.scene.contact.friction if body.scene.contact is not None else 0.0 for body in bodies]
-    detector = BodiesDetector(entries, detectors, frictions)
+    detector = BodiesDetector(entries, detectors, frictions, [record.bodies for record in scene.interfaces])
     settings = contact_settings(bodies[in_contact.index(True)].scene)
     prefixes = [f"{SOLVER_PREFIX}contact_{body.name}_" for body in bodies]
     return ContactHandler.between_bodies(models, solver.problem.problems, detector, settings, prefixes)
@@ -263,7 +269,7 @@ def _step(run: _BodiesRun, checkpoint: RestartPoint | None, continuing: bool, st
     """Advance every body ``steps`` time steps with the bodies' contact handler (closed at the end),
     from the start or from ``checkpoint``; returns the bodies' final surfaces."""
     bodies, summary = run.bodies, run.summary
-    handler = bodies_contact(bodies, run.solver)
+    handler = bodies_contact(bodies, run.solver, run.scene)
     if handler is not None:
         summary.contact = {body.name: {"colliders": len(body.scene.contact.colliders), "sample_points": d.num_samples}
                            for body, d in zip(bodies, handler.detector.detectors, strict=True)

@@ -103,11 +103,14 @@ class BodiesDetector:
         entries: the bodies' stacked entries.
         detectors: each body's detector (None: a body without contact effects).
         frictions: each body's Coulomb coefficient (a pair's is :func:`pair_friction`).
+        joined: pairs of bodies joined into one shell (patches of a joint or a seam): they do not
+            meet each other.
     """
 
     def __init__(
-        self, entries: StackedEntries, detectors: Sequence[ContactDetector | None], frictions: Sequence[float]
-    ):
+        self, entries: StackedEntries, detectors: Sequence[ContactDetector | None], frictions: Sequence[float],
+        joined: Sequence[tuple[int, int]] = (),
+    ):  # fmt: skip
         if len(detectors) != len(entries.discretizations) or len(frictions) != len(detectors):
             raise ValueError(f"one detector and one friction coefficient per body: {len(entries.discretizations)} "
                              f"bodies, {len(detectors)} detectors, {len(frictions)} coefficients")  # fmt: skip
@@ -116,6 +119,7 @@ class BodiesDetector:
         self.entries = entries
         self.detectors = tuple(detectors)
         self.frictions = tuple(float(f) for f in frictions)
+        self.joined = {frozenset(pair) for pair in joined}
         self.width = max(16, *(d.samples.index.shape[1] for d in self.detectors if d is not None))
 
     @property
@@ -151,7 +155,7 @@ class BodiesDetector:
             samples = self.detectors[a].samples
             rows = np.arange(rank, len(samples.patch), size)
             for b in bodies:
-                if b == a:
+                if b == a or frozenset((a, b)) in self.joined:
                     continue
                 mask = None if patches is None else np.concatenate([patches[p[a] : p[a + 1]], patches[p[b] : p[b + 1]]])
                 friction = pair_friction(self.frictions[a], self.frictions[b])

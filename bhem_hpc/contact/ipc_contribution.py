@@ -397,7 +397,8 @@ def _grid_triangles(count_u: int, count_v: int) -> np.ndarray:
 def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], global_open_blocks: np.ndarray,
                    comm: Communicator, colliders: Sequence[Any] = (), dhat: float | None = None,
                    stiffness: float | None = None, collider_friction: Sequence[Friction] | None = None,
-                   eps_v: float = DEFAULT_EPS_V) -> IpcBarrier:  # fmt: skip
+                   eps_v: float = DEFAULT_EPS_V,
+                   joined: Sequence[tuple[int, int]] = ()) -> IpcBarrier:  # fmt: skip
     """The barrier between bodies' collision ``meshes`` (each body's open blocks at rows
     ``open_offsets[b]:`` of the contributions' state, their global blocks ``global_open_blocks``),
     and between them and static colliders (planes, spheres as icospheres within
@@ -406,7 +407,8 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     ``dhat`` and the bodies' mean mass per vertex. Where a body (``mesh.friction``) or a collider
     (``collider_friction``, one per collider; None: frictionless colliders) has friction, lagged
     friction with sticking speed ``eps_v`` [m/s] acts at the contacts
-    (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`)."""
+    (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`). Meshes ``joined`` (pairs of indices:
+    patches of one shell) share a vertex group: they do not meet each other."""
     rest = np.concatenate([mesh.rest for mesh in meshes])
     dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
     if stiffness is None:
@@ -420,6 +422,12 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
         count = len(mesh.rest)
         groups.append(start + np.arange(count) if mesh.self_contact else np.full(count, start))
         start += count
+    for pair in joined:
+        if any(meshes[k].self_contact for k in pair):
+            raise ValueError(f"meshes {pair} are joined and one has self-contact: joined meshes share one group")
+    for _ in joined:  # each pass joins one more link of a chain of joined meshes
+        for first, second in joined:
+            groups[first][:] = groups[second][:] = min(groups[first][0], groups[second][0])
     obstacles = _obstacles(colliders, dhat)
     frictions = [FRICTIONLESS] * len(colliders) if collider_friction is None else list(collider_friction)
     if len(frictions) != len(colliders):

@@ -146,6 +146,7 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
     interfaces = parse_interfaces(path, raw[INTERFACES], names, bodies) if INTERFACES in raw else ()
     scene = BodiesScene(path, tuple(names), tuple(bodies), raw, interfaces)
+    _check_joined_contact(scene)
     _check_contact_between(scene)
     return scene
 
@@ -153,6 +154,19 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
 def _in_contact(t: Table) -> bool:
     effects = t.data.get("effects", {})
     return isinstance(effects, dict) and "contact" in effects
+
+
+def _check_joined_contact(scene: BodiesScene) -> None:
+    """Patches joined into one shell meet colliders and other bodies but not each other, nor
+    themselves: self-collision of a joined body is refused."""
+    for record in scene.interfaces:
+        for k in record.bodies:
+            contact = scene.bodies[k].contact
+            if contact is not None and contact.self_collision:
+                raise SceneError(f"{scene.path}: body '{scene.names[k]}' (bodies[{k}]): key "
+                                 f"'effects.self_collision': a body joined to another by {record.where} does "
+                                 "not collide with itself (its patches are one shell; self-contact of a shell of "
+                                 "several patches is not offered)")  # fmt: skip
 
 
 def _check_contact_between(scene: BodiesScene) -> None:
@@ -180,13 +194,14 @@ def _check_contact_between(scene: BodiesScene) -> None:
             if mine != theirs:
                 raise SceneError(f"{path}: {where(k)}: key 'effects.contact.{key}' is {mine!r} but {where(first)} "
                                  f"has {theirs!r}: bodies in contact share one {key}")  # fmt: skip
+    joined = {frozenset(record.bodies) for record in scene.interfaces}
     if method == "ipc":
         return
     from bhem_hpc.contact.bodies import lattice_crossing  # the collision code loads for contact scenes only
 
     for a in contact:
         for b in contact:
-            if a == b:
+            if a == b or frozenset((a, b)) in joined:
                 continue
             per_side = scene.bodies[a].contact.samples_per_side
             point = lattice_crossing(scene.bodies[a].surface, scene.bodies[b].surface, per_side)

@@ -132,3 +132,23 @@ def test_interfaces_that_do_not_fit_their_bodies_are_refused_naming_them(comm, s
     with pytest.raises(SceneError, match=message):
         run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
     assert not (shared_tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("method", ["impulse", "ipc"])
+def test_joined_patches_in_contact_meet_colliders_but_not_each_other(comm, shared_tmp_path, method):
+    """The folded bracket with contact effects on both patches and a floor below: its joined
+    patches touch along the fold from the start, yet the run starts (no overlap or intersection
+    refused), finds no contact between them, and self-collision of a joined patch is refused."""
+    contact = ('{ method = "ipc", collision_cells = 4 }' if method == "ipc" else "{ push_out = 1.0e-4 }")
+    text = (REPO / "jobs" / "folded-plate.toml").read_text()
+    text = text.replace("effects = { damping", f"effects = {{ contact = {contact}, damping")
+    text += '\n[[colliders]]\ntype = "plane"\npoint = [0.0, 0.0, -0.2]\nnormal = [0.0, 0.0, 1.0]\n'
+    path = _write(comm, shared_tmp_path / "bracket.toml", text)
+    summary = run_scene(RunOptions(path, shared_tmp_path / method, steps=3, progress=False), comm)
+    assert summary["status"] == "completed"
+    assert all(step["contacts"] == 0 for step in summary["steps"])
+    selfish = _write(comm, shared_tmp_path / "selfish.toml", text.replace(
+        "effects = { contact", "effects = { self_collision = true, contact", 1))  # fmt: skip
+    with pytest.raises(SceneError, match=r"body 'plate' \(bodies\[0\]\): key 'effects.self_collision': a "
+                                         r"body joined to another by interfaces\[0\] does not collide with itself"):
+        load_any_scene(selfish)

@@ -47,7 +47,7 @@ def _step_bodies(scene, comm, steps: int):
     bodies = _bodies(scene, comm)
     models = [body.model for body in bodies]
     with make_solver(models, scene.first, scene.path) as solver:
-        handler = bodies_contact(bodies, solver)
+        handler = bodies_contact(bodies, solver, scene)
         try:
             stepper = TimeStepper(models, solver, contact=handler)
             for _ in range(steps):

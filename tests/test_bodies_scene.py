@@ -156,7 +156,7 @@ def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection
          r"key 'bodies\[1\].colliders': \[colliders\] is shared by all bodies"),
         (lambda s: s.replace("steps = 4", "steps = 4\nstatic = true"), r"key 'time.static': a scene of several"),
         (lambda s: s.replace('name = "rubber"', 'name = "rubber"\ntype = "membrane"'),
-         r"key 'bodies\[1\].type' must be one of shell, solid, got 'membrane'"),
+         r"key 'bodies\[1\].type' must be one of shell, solid, cad_shell, got 'membrane'"),
         (lambda s: s.replace("at = [0.2, 0.1]", "at = [2.0, 0.5]"),
          r"body 'steel' \(bodies\[0\]\): key 'probes\[0\].at'"),
     ],

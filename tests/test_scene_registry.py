@@ -5,8 +5,10 @@ from __future__ import annotations
 import pytest
 
 from bhem_hpc.scene import SceneError, load_scene
+from bhem_hpc.scene.bodies import BODY_TYPES
 from bhem_hpc.scene.colliders import COLLIDERS
 from bhem_hpc.scene.constraints import CONSTRAINTS
+from bhem_hpc.scene.interfaces import INTERFACE_TYPES
 from bhem_hpc.scene.loads import LOADS
 from bhem_hpc.scene.motions import MOTIONS
 from bhem_hpc.scene.surfaces import SURFACES
@@ -14,7 +16,9 @@ from bhem_hpc.scene.table import Registry
 
 
 def test_every_kind_is_registered_in_the_order_users_read():
-    assert SURFACES.names == ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file")
+    assert SURFACES.names == ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file", "cad_part")
+    assert BODY_TYPES.names == ("shell", "solid", "cad_shell")
+    assert INTERFACE_TYPES.names == ("joint", "seam")
     assert MOTIONS.names == ("linear", "rotation", "keyframes")
     assert COLLIDERS.names == ("plane", "sphere", "cylinder", "capsule", "needles", "mesh", "patches")
     assert CONSTRAINTS.names == ("clamp", "pin", "simply_supported", "hinged", "symmetry", "diaphragm", "fix")

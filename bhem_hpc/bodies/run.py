@@ -13,6 +13,7 @@ writes files.
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,6 +57,8 @@ from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, TimeStepper, body_state
 from bhem_hpc.solver.petsc import library_versions
 from bhem_hpc.solver.state import StackedState
+
+log = logging.getLogger(__name__)
 
 
 class BodiesOutput:
@@ -114,6 +117,11 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     bodies = [make_body(name, k, body, comm) for k, (name, body) in enumerate(zip(scene.names, scene.bodies,
                                                                                   strict=True))]  # fmt: skip
     models = [body.model for body in bodies]
+    for model in scene.cad_models:
+        if comm.rank == 0:
+            log.info("%s: %d parts, %d joints, free edges: %s; patches within %.3g m of their parts", model["body"],
+                     model["parts"], len(model["joints"]), ", ".join(model["free_edges"]) or "none",
+                     model["fit_error_m"])  # fmt: skip
     barrier = bodies_barrier(bodies, scene, options.scene)
     couplings = interface_couplings(scene, bodies)
     solver = make_solver(models, first, options.scene, ([barrier] if barrier is not None else []) + couplings)
@@ -126,6 +134,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
                 for body in bodies],
         steps=previous_steps(options.out, checkpoint) if continuing else [],
         interfaces=[record.summary() for record in scene.interfaces] or None,
+        cad_models=list(scene.cad_models) or None,
     )  # fmt: skip
     output: BodiesOutput | None = None
     try:

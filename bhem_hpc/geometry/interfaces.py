@@ -11,6 +11,7 @@ edge's ends on the other edge.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -214,3 +215,51 @@ def element_across(surface: Patch, edge: str) -> float:
     across = point.a1 if along == 1 else point.a2
     width = surface.grid.h1 if along == 1 else surface.grid.h2
     return float(width * np.linalg.norm(across, axis=-1).mean())
+
+
+@dataclass(frozen=True)
+class FoundJoint:
+    """Two patches' edges that meet along their whole length (:func:`find_joints`)."""
+
+    first: int
+    second: int
+    first_edge: str
+    second_edge: str
+    quadrature: EdgeQuadrature
+
+
+def _open_edges(surface: Patch) -> list[str]:
+    grid = surface.grid
+    return [e for e in EDGES if not (grid.periodic1 if e.startswith("xi1") else grid.periodic2)]
+
+
+def _edge_ends(surface: Patch, edge: str) -> np.ndarray:
+    along, value, (lo, hi), _ = edge_line(surface.grid, edge)
+    return surface.evaluate(*_on_edge(along, value, np.array([lo, hi]))).x
+
+
+def find_joints(surfaces: Sequence[Patch], tolerance: float) -> tuple[list[FoundJoint], list[tuple[int, str]]]:
+    """Where patches of a model meet: every pair of whole edges, of two patches, whose ends meet
+    within ``tolerance`` [m] (either orientation) and that :func:`pair_edges` finds within it all
+    along; and the edges that meet none (free edges, or edges that meet another only in part).
+
+    Returns:
+        ``(joints, free)``: the joints in patch order, and ``(patch, edge)`` of every edge in none.
+    """
+    edges = [[(e, _edge_ends(s, e)) for e in _open_edges(s)] for s in surfaces]
+    joints, joined = [], set()
+    for a in range(len(surfaces)):
+        for b in range(a + 1, len(surfaces)):
+            for edge_a, ends_a in edges[a]:
+                for edge_b, ends_b in edges[b]:
+                    apart = min(np.abs(ends_a - ends_b).max(), np.abs(ends_a - ends_b[::-1]).max())
+                    if apart > tolerance or (a, edge_a) in joined or (b, edge_b) in joined:
+                        continue
+                    try:
+                        quadrature = pair_edges(surfaces[a], edge_a, surfaces[b], edge_b, tolerance)
+                    except InterfaceError:
+                        continue
+                    joints.append(FoundJoint(a, b, edge_a, edge_b, quadrature))
+                    joined |= {(a, edge_a), (b, edge_b)}
+    free = [(k, edge) for k, s in enumerate(surfaces) for edge in _open_edges(s) if (k, edge) not in joined]
+    return joints, free

@@ -23,7 +23,10 @@ from functools import cached_property
 import numpy as np
 
 from bhem_hpc.geometry.bspline import basis_functions, bernstein
+from bhem_hpc.geometry.bspline import from_callable as bspline_from_callable
+from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.geometry.surface import from_callable as hermite_from_callable
 
 #: Highest degree accepted: the Bernstein evaluation is exact far beyond, but modellers stop at 11.
 MAX_DEGREE = 11
@@ -406,3 +409,53 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         active = active[moved > 1e-14]
     x = surface.evaluate(u, v)[0]
     return np.stack([u, v], axis=1), x, np.linalg.norm(x - points, axis=1)
+
+
+def shell_surface(part: NurbsSurface, patches: tuple[int, int], discretization: str):
+    """A shell discretization's surface of a NURBS part over its parameter domain, ``patches`` knot
+    spans of one width each (uniform, as the shells' discretizations are): Hermite nodal data from
+    the part's exact derivatives at the grid's nodes, or a B-spline of degree 2 or 3 interpolating
+    it at the Greville points. Exact where the part lies in the chosen space (a B-spline part of
+    that degree on those uniform knots); otherwise an approximation (:func:`shell_fit_error`)."""
+    grid = ParameterGrid(int(patches[0]), int(patches[1]), part.u.domain, part.v.domain, False, False)
+
+    def derivative(order: int):
+        def evaluate(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+            values = part.second_derivatives(np.ravel(u), np.ravel(v))[order]
+            return values.reshape(*np.shape(u), 3)
+
+        return evaluate
+
+    if discretization == "hermite":
+        return hermite_from_callable(derivative(0), grid, (derivative(1), derivative(2), derivative(4)))
+    return bspline_from_callable(derivative(0), grid, degree=int(discretization[-1]))
+
+
+def shell_fit_error(part: NurbsSurface, shell, samples: int = 4) -> float:
+    """The largest distance [m] between a part and its shell surface (:func:`shell_surface`) at
+    ``samples`` points per span side of the shell's grid."""
+    grid = shell.grid
+    u = np.linspace(*grid.xi1_range, grid.n1 * samples + 1)
+    v = np.linspace(*grid.xi2_range, grid.n2 * samples + 1)
+    uu, vv = (a.ravel() for a in np.meshgrid(u, v, indexing="ij"))
+    return float(np.linalg.norm(shell.evaluate(uu, vv).x - part.evaluate(uu, vv)[0], axis=1).max())
+
+
+def graph_parts(height, x_range: tuple[float, float], y_range: tuple[float, float], splits: tuple[int, int],
+                spans: tuple[int, int] = (2, 2), degree: int = 3) -> list[NurbsSurface]:  # fmt: skip
+    """The surface ``z = height(x, y)`` over a rectangle as ``splits[0] x splits[1]`` B-spline parts
+    (part ``i * splits[1] + j`` the ``i``-th along x and ``j``-th along y), each of ``degree`` with
+    ``spans`` uniform knot spans on [0, 1] and its control points on the graph above the Greville
+    abscissae: neighbours share their edge curves exactly (their boundary control points are the
+    same), their slopes across an edge nearly (as parts modelled separately meet)."""
+    (knots_u, greville_u), (knots_v, greville_v) = (_flat_knots(degree, n) for n in spans)
+    xs, ys = (np.linspace(*r, n + 1) for r, n in ((x_range, splits[0]), (y_range, splits[1])))
+    parts = []
+    for i in range(splits[0]):
+        for j in range(splits[1]):
+            x = xs[i] + greville_u * (xs[i + 1] - xs[i])
+            y = ys[j] + greville_v * (ys[j + 1] - ys[j])
+            gx, gy = np.meshgrid(x, y, indexing="ij")
+            control = np.stack([gx, gy, height(gx, gy)], axis=-1)
+            parts.append(NurbsSurface((degree, degree), knots_u, knots_v, control, name=f"part {i} {j}"))
+    return parts

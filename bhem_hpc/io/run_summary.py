@@ -43,6 +43,8 @@ class RunSummary:
         bodies: a scene of several bodies: each body's name, DoFs and discretization.
         interfaces: where its shell bodies are joined or sewn (each interface's type, bodies,
             edges, penalty, quadrature points and the rest gap between its edges).
+        cad_models: each shell read from a CAD model: its parts, the joints found, its free edges
+            and how far its patches are from its parts.
     """
 
     scene: str
@@ -67,6 +69,7 @@ class RunSummary:
     solver_totals: dict | None = None
     bodies: list[dict] | None = None
     interfaces: list[dict] | None = None
+    cad_models: list[dict] | None = None
 
     #: The JSON object's first keys (the run's identity), then the others in field order.
     LEADING = ("scene", "status")

@@ -16,6 +16,7 @@ access with errors that name the key.
 from bhem_hpc.scene.loader import load_scene  # registers the shell body type, the default, first
 
 from bhem_hpc.scene import solids as _solids  # noqa: F401  (registers the solid body type)
+from bhem_hpc.scene import cad_shell as _cad_shell  # noqa: F401  (registers the cad_shell body type)
 
 # isort: on
 from bhem_hpc.scene.records import Effects, Motion, Scene, SceneConstraint, SceneContact, ScenePoint

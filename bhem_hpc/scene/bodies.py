@@ -29,7 +29,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -46,7 +46,7 @@ BODY_TYPES = Registry("body type")
 DEFAULT_BODY_TYPE = "shell"
 #: The tables a body lists (a scene of one body's tables for its shell; a solid's ``file`` and ``sem``).
 BODY_KEYS = ("name", "type", "surface", "material", "effects", "constraints", "point_constraints", "probes", "initial",
-             "file", "sem", "materials", "offset")  # fmt: skip
+             "file", "sem", "materials", "offset", "patches", "discretization", "tolerance", "penalty")  # fmt: skip
 #: The tables every body shares, at the top of the file.
 SHARED_KEYS = ("time", "solver", "output")
 #: The scene's colliders, at the top: every body with contact effects meets them.
@@ -55,6 +55,22 @@ COLLIDERS = "colliders"
 INTERFACES = "interfaces"
 #: Longest body name (it names an output folder).
 MAX_BODY_NAME = 64
+
+
+@runtime_checkable
+class SeveralPatches(Protocol):
+    """What a body type's parser returns for a body of several patches (a CAD model's parts,
+    :mod:`~bhem_hpc.scene.cad_shell`): each patch a shell body, and the joints between them."""
+
+    bodies: tuple[Scene, ...]
+
+    def interfaces(self, name: str, first: int) -> tuple[InterfaceRecord, ...]:
+        """The joints, the patches being bodies ``first``, ``first + 1``, ... named ``<name>_<part>``."""
+        ...
+
+    def report(self, name: str) -> dict:
+        """What a run's summary says of it."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -67,7 +83,10 @@ class BodiesScene:
         bodies: each body's scene of one body (the shared tables in each).
         raw: the file's tables.
         interfaces: where shell bodies are joined or sewn into one shell
-            (:mod:`~bhem_hpc.scene.interfaces`).
+            (:mod:`~bhem_hpc.scene.interfaces`), and the joints found in CAD models.
+        cad_models: each ``cad_shell`` body's report: its parts (bodies ``<name>_<part>``), the
+            joints found, its free edges and how far its patches are from its parts
+            (:mod:`~bhem_hpc.scene.cad_shell`).
     """
 
     path: Path
@@ -75,6 +94,7 @@ class BodiesScene:
     bodies: tuple[Scene, ...]
     raw: dict[str, Any]
     interfaces: tuple[InterfaceRecord, ...] = ()
+    cad_models: tuple[dict, ...] = ()
 
     @property
     def first(self) -> Scene:
@@ -128,6 +148,7 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
     colliders = {COLLIDERS: raw[COLLIDERS]} if COLLIDERS in raw else {}
     names: list[str] = []
     bodies: list[Scene] = []
+    models: list[Any] = []  # the bodies that are several patches of a CAD model, with their names
     tables_of = [Table(path, f"bodies[{k}]", item) for k, item in enumerate(items)]
     several_in_contact = sum(_in_contact(t) for t in tables_of) >= 2
     for k, (item, t) in enumerate(zip(items, tables_of, strict=True)):
@@ -137,15 +158,27 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
         tables = {key: value for key, value in item.items() if key not in ("name", "type")} | shared
         tables |= colliders if in_contact else {}
         try:
-            bodies.append(parse_body(path, tables, in_contact and several_in_contact))
+            parsed = parse_body(path, tables, in_contact and several_in_contact)
         except SceneError as exc:
             where = str(exc).removeprefix(f"{path}: ")
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): {where}") from None
-        names.append(name)
+        if not isinstance(parsed, SeveralPatches):
+            bodies.append(parsed)
+            names.append(name)
+            continue
+        models.append((name, len(bodies), parsed))  # several patches: the parts of a model
+        parts = [f"{name}_{part}" for part in range(len(parsed.bodies))]
+        if set(parts) & set(names) or any(t.get("name") in parts for t in items[k + 1:]):
+            raise SceneError(f"{path}: body '{name}' (bodies[{k}]): its parts are bodies named {name}_0, ... and "
+                             "another body has one of these names")  # fmt: skip
+        names += parts
+        bodies += parsed.bodies
     if colliders and all(body.contact is None for body in bodies):
         raise SceneError(f"{path}: key '{COLLIDERS}' is given but no body lists 'effects.contact'")
     interfaces = parse_interfaces(path, raw[INTERFACES], names, bodies) if INTERFACES in raw else ()
-    scene = BodiesScene(path, tuple(names), tuple(bodies), raw, interfaces)
+    interfaces += tuple(record for name, first, model in models for record in model.interfaces(name, first))
+    reports = tuple(model.report(name) for name, _, model in models)
+    scene = BodiesScene(path, tuple(names), tuple(bodies), raw, interfaces, reports)
     _check_joined_contact(scene)
     _check_contact_between(scene)
     return scene

@@ -85,7 +85,8 @@ def _pair(t: Table, names: Sequence[str], bodies: Sequence) -> tuple[tuple[int, 
     return (names.index(pair[0]), names.index(pair[1])), (edges[0], edges[1])
 
 
-def _penalty(t: Table) -> float:
+def parse_penalty(t: Table) -> float:
+    """An interface's ``penalty`` factor (default 1e3), within :data:`PENALTY_RANGE`."""
     low, high = PENALTY_RANGE
     return float(t.get("penalty", "a number", 1.0e3, lambda v: low <= v <= high, f"a number in [{low:g}, {high:g}]"))
 
@@ -99,7 +100,7 @@ def _refused(t: Table, names: tuple[str, str], exc: InterfaceError) -> SceneErro
 @INTERFACE_TYPES.register("joint")
 def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     places, edges = _pair(t, names, bodies)
-    penalty = _penalty(t)
+    penalty = parse_penalty(t)
     tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
                       "a length > 0 [m]")  # fmt: skip
     t.done()
@@ -114,7 +115,7 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
 @INTERFACE_TYPES.register("seam")
 def _seam(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     places, edges = _pair(t, names, bodies)
-    penalty = _penalty(t)
+    penalty = parse_penalty(t)
     sewing_time = t.get("sewing_time", "a number", check=lambda v: v > 0, expected="a time > 0 [s]")
     reverse = t.get("reverse", "a boolean", False)
     keep_angle = t.get("keep_angle", "a boolean", False)

@@ -1,0 +1,128 @@
+"""A shell read from a CAD surface model (``type = "cad_shell"``; numpy + stdlib and the CAD
+readers): every NURBS part of the file becomes a patch of the shell, a body of its own named
+``<name>_<part>``, and patches whose whole edges meet within ``tolerance`` are joined
+(:mod:`bhem_hpc.scene.interfaces`'s joints, found instead of listed)::
+
+    [[bodies]]
+    name = "hood"
+    type = "cad_shell"
+    file = "models/hood.3dm"       # IGES (entity 128) or Rhino .3dm, relative to the scene
+    patches = [6, 6]               # uniform knot spans of every part's shell surface
+    discretization = "bspline3"    # hermite (default), bspline2, bspline3
+    tolerance = 1e-5               # [m]: edges that meet within this are joined (default 1e-6)
+    penalty = 1e3                  # the joints' penalty factor
+    material = { ... }             # and effects: as a shell body's, for every patch
+    [[bodies.constraints]]
+    part = 0                       # the part (its index in the file) the constraint holds
+    type = "clamp"
+    edge = "xi1_min"
+
+Each part is interpolated on the chosen discretization over its own parameter domain
+(:func:`~bhem_hpc.geometry.nurbs.shell_surface`): exact for B-spline parts of that degree on
+uniform knots, otherwise an approximation whose largest distance from the part the scene reports.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from bhem_hpc.geometry.interfaces import FoundJoint, find_joints
+from bhem_hpc.scene.bodies import BODY_TYPES, DEFAULT_BODY_TYPE
+from bhem_hpc.scene.interfaces import DEFAULT_TOLERANCE, InterfaceRecord, parse_penalty
+from bhem_hpc.scene.records import Scene
+from bhem_hpc.scene.table import SceneError, Table, regular_file
+
+#: The tables and keys of a ``cad_shell`` body.
+CAD_SHELL_KEYS = ("file", "patches", "discretization", "tolerance", "penalty", "material", "effects", "constraints")
+
+
+@dataclass(frozen=True)
+class CadShell:
+    """A CAD model's parts as patch bodies and the joints found between them.
+
+    Attributes:
+        bodies: each part's scene of one body (part order).
+        joints: the joints found (part indices); free_edges: ``(part, edge)`` joined to nothing.
+        penalty: the joints' penalty factor; fit_error: the largest distance [m] of a patch from its part.
+        file: the model file.
+    """
+
+    bodies: tuple[Scene, ...]
+    joints: tuple[FoundJoint, ...]
+    free_edges: tuple[tuple[int, str], ...]
+    penalty: float
+    fit_error: float
+    file: Path
+
+    def interfaces(self, name: str, first: int) -> tuple[InterfaceRecord, ...]:
+        """The joints as the scene's interfaces, the parts being bodies ``first``, ``first + 1``, ...
+        named ``<name>_<part>``."""
+        return tuple(InterfaceRecord("joint", f"{name} joint {k}", (first + j.first, first + j.second),
+                                     (f"{name}_{j.first}", f"{name}_{j.second}"), (j.first_edge, j.second_edge),
+                                     self.penalty, j.quadrature, None, True)
+                     for k, j in enumerate(self.joints))  # fmt: skip
+
+    def report(self, name: str) -> dict:
+        """What a run's summary says of the model: its parts, joints and free edges."""
+        return {"body": name, "file": str(self.file), "parts": len(self.bodies), "fit_error_m": self.fit_error,
+                "joints": [[f"{name}_{j.first}", j.first_edge, f"{name}_{j.second}", j.second_edge,
+                            j.quadrature.gap] for j in self.joints],
+                "free_edges": [f"{name}_{part} {edge}" for part, edge in self.free_edges]}  # fmt: skip
+
+
+def _part_constraints(t: Table, parts: int) -> list[list[dict]]:
+    """Each part's constraint tables (their ``part`` key taken out)."""
+    items = t.get("constraints", "a list", [], lambda v: all(isinstance(c, dict) for c in v), "a list of tables")
+    out: list[list[dict]] = [[] for _ in range(parts)]
+    for k, item in enumerate(items):
+        part = item.get("part")
+        if not isinstance(part, int) or isinstance(part, bool) or not 0 <= part < parts:
+            raise SceneError(f"{t.path}: key '{t.key(f'constraints[{k}].part')}' must be the part (0..{parts - 1}) "
+                             f"the constraint holds, got {part!r}")  # fmt: skip
+        out[part].append({key: value for key, value in item.items() if key != "part"})
+    return out
+
+
+@BODY_TYPES.register("cad_shell")
+def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = False) -> CadShell:
+    """The patches of a ``cad_shell`` body table (with the shared tables), each parsed by the
+    shell body's parser, and the joints between them.
+
+    Raises:
+        SceneError: naming the file, the key and, for a part, the part.
+    """
+    from bhem_hpc.geometry.nurbs import shell_fit_error  # the CAD code loads for CAD models only
+    from bhem_hpc.io.cad import read_parts
+
+    t = Table(path, "", {k: v for k, v in tables.items() if k in CAD_SHELL_KEYS})
+    for key in tables:
+        if key not in (*CAD_SHELL_KEYS, "time", "solver", "output", "colliders"):
+            t.fail(key, f"absent (a cad_shell body lists {', '.join(CAD_SHELL_KEYS)})", tables[key])
+    file = t.get("file", "a string")
+    target = regular_file(t, "file", file, path)
+    try:
+        parts = read_parts(target)
+    except ValueError as exc:
+        raise SceneError(f"{path}: key 'file': {exc}") from None
+    patches = t.get("patches", "2 integers", check=lambda v: min(v) >= 1, expected="2 integers >= 1 (per part)")
+    discretization = t.get("discretization", "a string", "hermite")
+    tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
+                      "a length > 0 [m]")  # fmt: skip
+    penalty = parse_penalty(t)
+    constraints = _part_constraints(t, len(parts))
+    parse_shell: Callable[..., Scene] = BODY_TYPES[DEFAULT_BODY_TYPE]
+    shared = {k: v for k, v in tables.items() if k in ("time", "solver", "output", "colliders", "material", "effects")}
+    bodies = []
+    for k in range(len(parts)):
+        surface = {"kind": "cad_part", "file": file, "part": k, "patches": patches, "discretization": discretization}
+        try:
+            bodies.append(parse_shell(path, shared | {"surface": surface, "constraints": constraints[k]},
+                                      other_bodies_in_contact))  # fmt: skip
+        except SceneError as exc:
+            raise SceneError(f"{path}: part {k} ({parts[k].name}): {str(exc).removeprefix(f'{path}: ')}") from None
+    joints, free = find_joints([body.surface for body in bodies], tolerance)
+    fit = max(shell_fit_error(part, body.surface) for part, body in zip(parts, bodies, strict=True))
+    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target)

@@ -1,0 +1,126 @@
+"""Shells read from CAD surface models (``type = "cad_shell"``): every NURBS part a patch, joined
+where whole edges meet (smooth seams and folds, either orientation), the joints and the free edges
+reported, the patches the parts themselves where the discretization holds them; bad models and
+tables refused naming the file, the body, the part and the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bhem_hpc.geometry import nurbs
+from bhem_hpc.geometry.interfaces import find_joints
+from bhem_hpc.io import read_frame
+from bhem_hpc.io.cad import write_parts
+from bhem_hpc.run import RunOptions, run_scene
+from bhem_hpc.scene import SceneError
+from bhem_hpc.scene.loader import load_any_scene
+
+HOOD_FREE_EDGES = ["hood_0 xi1_min", "hood_0 xi2_min", "hood_1 xi1_min", "hood_1 xi2_max", "hood_2 xi1_max",
+                   "hood_2 xi2_min", "hood_3 xi1_max", "hood_3 xi2_max"]  # fmt: skip
+
+
+def _hood_parts() -> list[nurbs.NurbsSurface]:
+    return nurbs.graph_parts(lambda x, y: 0.06 * (1 - (x / 0.6) ** 2) * (1 - (y / 0.5) ** 2), (-0.6, 0.6), (-0.5, 0.5),
+                             (2, 2))  # fmt: skip
+
+
+def _scene(comm, folder: Path, model: str, parts, body: str = "", discretization: str = "bspline3") -> Path:
+    if comm.rank == 0:
+        write_parts(folder / model, parts)
+        (folder / "scene.toml").write_text(f"""
+[time]
+dt = 0.002
+steps = 5
+[output]
+every = 5
+[[bodies]]
+name = "hood"
+type = "cad_shell"
+file = "{model}"
+patches = [4, 4]
+discretization = "{discretization}"
+material = {{ young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }}
+effects = {{ area_loads = [{{ force = [0.0, 0.0, -3.0e3] }}], damping = {{ mass = 50.0 }} }}
+{body}
+""")
+    comm.Barrier()
+    return folder / "scene.toml"
+
+
+CLAMPED = "".join(f'[[bodies.constraints]]\npart = {k}\ntype = "clamp"\nedge = "{edge}"\n'
+                  for k, edge in ((0, "xi1_min"), (1, "xi1_min"), (2, "xi1_max"), (3, "xi1_max")))  # fmt: skip
+
+
+@pytest.mark.parametrize("model", ["hood.3dm", "hood.igs"])
+def test_a_hood_of_four_parts_is_one_shell_joined_where_its_parts_meet(comm, shared_tmp_path, model):
+    """Four bicubic parts on uniform knots: the patches are the parts (to round-off); the four
+    seams are joined, the eight outer edges reported free; clamped front and back and pressed, the
+    hood stays joined along its seams (partners within 1e-5 of the sag)."""
+    path = _scene(comm, shared_tmp_path, model, _hood_parts(), CLAMPED)
+    scene = load_any_scene(path)
+    assert scene.names == ("hood_0", "hood_1", "hood_2", "hood_3")
+    report = scene.cad_models[0]
+    assert report["parts"] == 4 and report["fit_error_m"] < 1e-12 and report["free_edges"] == HOOD_FREE_EDGES
+    assert [joint[:4] for joint in report["joints"]] == [["hood_0", "xi2_max", "hood_1", "xi2_min"],
+                                                         ["hood_0", "xi1_max", "hood_2", "xi1_min"],
+                                                         ["hood_1", "xi1_max", "hood_3", "xi1_min"],
+                                                         ["hood_2", "xi2_max", "hood_3", "xi2_min"]]  # fmt: skip
+    summary = run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
+    assert summary["cad_models"] == [report] and len(summary["interfaces"]) == 4
+    frames = {name: read_frame(shared_tmp_path / "out" / name / "surface.h5")[0] for name in scene.names}
+    rest = read_frame(shared_tmp_path / "out" / "hood_0" / "surface.h5", 0)[0]
+    sag = np.abs(frames["hood_0"].nodal[..., 0, :] - rest.nodal[..., 0, :]).max()
+    assert sag > 1e-5
+    along = np.linspace(0.0, 1.0, 7)
+    for name_a, edge_a, name_b, _, _ in report["joints"]:
+        a, b = frames[name_a], frames[name_b]
+        on_a = (np.ones(7), along) if edge_a == "xi1_max" else (along, np.ones(7))
+        on_b = (np.zeros(7), along) if edge_a == "xi1_max" else (along, np.zeros(7))
+        assert np.abs(a.evaluate(*on_a).x - b.evaluate(*on_b).x).max() < 1e-5 * sag  # measured 3e-6: the penalty's
+
+
+def test_an_open_box_is_joined_along_its_folds_in_either_orientation(comm, shared_tmp_path):
+    """Five faces of a box (the lid left off): every fold between two faces is found, whichever way
+    their edges run, and the rim's four edges are free; Hermite patches fit the flat faces exactly."""
+    faces = nurbs.box_faces([0.0, 0.0, 0.0], [0.3, 0.2, 0.1], degree=2)[:5]
+    joints, free = find_joints([nurbs.shell_surface(face, (2, 2), "hermite") for face in faces], 1e-9)
+    assert len(joints) == 8 and len(free) == 4
+    assert {face for face, _ in free} == {0, 1, 2, 3}  # the side faces' top edges: the rim
+    path = _scene(comm, shared_tmp_path, "tray.igs", faces, discretization="hermite")
+    report = load_any_scene(path).cad_models[0]
+    assert len(report["joints"]) == 8 and len(report["free_edges"]) == 4 and report["fit_error_m"] < 1e-12
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ('[[bodies.constraints]]\ntype = "clamp"\nedge = "xi1_min"\n',
+         r"body 'hood' \(bodies\[0\]\): key 'constraints\[0\].part' must be the part \(0..3\) the constraint holds, "
+         r"got None"),
+        ('[[bodies.constraints]]\npart = 7\ntype = "clamp"\nedge = "xi1_min"\n',
+         r"constraints\[0\].part' must be the part"),
+        ('[[bodies.constraints]]\npart = 1\ntype = "clamp"\nedge = "xi5_min"\n',
+         r"body 'hood' \(bodies\[0\]\): part 1 \(.*\): key 'constraints\[0\].edge'"),
+        ("sem = {}\n", r"body 'hood' \(bodies\[0\]\): key 'sem' must be absent \(a cad_shell body lists file, patches"),
+        ("tolerance = -1.0\n", r"key 'tolerance' must be a length > 0 \[m\], got -1.0"),
+        ('[[bodies]]\nname = "hood_2"\nsurface = { kind = "rectangle", size = [0.1, 0.1], patches = [2, 2] }\n'
+         'material = { young = 1e6, poisson = 0.3, thickness = 1e-3, density = 100.0 }\n',
+         r"body 'hood' \(bodies\[0\]\): its parts are bodies named hood_0, ... and another body has one of these"),
+    ],
+)  # fmt: skip
+def test_bad_cad_shells_are_refused_naming_the_body_part_and_key(comm, shared_tmp_path, body, message):
+    path = _scene(comm, shared_tmp_path, "hood.3dm", _hood_parts(), body)
+    with pytest.raises(SceneError, match=message):
+        load_any_scene(path)
+
+
+def test_a_missing_model_file_is_refused_naming_the_key(comm, shared_tmp_path):
+    path = _scene(comm, shared_tmp_path, "hood.3dm", _hood_parts())
+    if comm.rank == 0:
+        path.write_text(path.read_text().replace('file = "hood.3dm"', 'file = "nothing.3dm"'))
+    comm.Barrier()
+    with pytest.raises(SceneError, match=r"body 'hood' \(bodies\[0\]\): key 'file' must be an existing regular file"):
+        load_any_scene(path)

@@ -189,3 +189,29 @@ def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
                   expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
     patches, _, _ = _patches(t, discretization)
     return shell_surface(parts[index], tuple(patches), discretization)
+
+
+@SURFACES.register("mapped")
+def _mapped(t: Table, path: Path, discretization: str) -> Shape:
+    """``kind = "mapped"``: a panel of any outline, the square of parameters ``[0, 1]^2`` mapped onto
+    its rest shape by expressions of ``xi1`` and ``xi2`` (the B-spline cloth paper's irregular
+    sheets): ``position = ["x", "y", "z"]``, e.g. a trapezoid
+    ``["(0.5 + 0.3 * xi2) * (xi1 - 0.5)", "0.6 * xi2", "0"]``."""
+    patches, spline, _ = _patches(t, discretization)
+    texts = t.get("position", "a list", check=lambda v: len(v) == 3 and all(isinstance(c, str) for c in v),
+                  expected="3 expressions of xi1 and xi2 (x, y, z) [m]")  # fmt: skip
+    try:
+        parts = [numpy_expression(text) for text in texts]
+    except ExpressionError as exc:
+        t.fail("position", f"3 expressions of xi1 and xi2 ({exc})", texts)
+    unit = ((0.0, 1.0), (0.0, 1.0))
+    if not all(finite_on_patches(text, unit, (patches[0], patches[1])) for text in texts):
+        t.fail("position", "3 expressions finite on the whole square [0, 1]^2", texts)
+    grid = S.ParameterGrid(patches[0], patches[1], (0.0, 1.0), (0.0, 1.0), False, False)
+
+    def shape(a, b):
+        return np.stack([np.broadcast_to(f(a, b), np.shape(a)) for f in parts], axis=-1)
+
+    surface = B.from_callable(shape, grid, **spline) if spline else S.from_callable(shape, grid)
+    S.check_regular(surface, name="the mapped panel")
+    return surface

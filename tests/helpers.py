@@ -25,6 +25,14 @@ REPO = Path(__file__).resolve().parents[1]
 JIT_LOG_LINE = re.compile(r"^\[rank \d+\] INFO bhem_hpc\.jit: ")
 
 
+def write_scene(comm, path: Path, text: str) -> Path:
+    """Collective: rank 0 writes ``text`` to ``path``; every rank returns ``path`` once it exists."""
+    if comm.rank == 0:
+        path.write_text(text)
+    comm.Barrier()
+    return path
+
+
 def message_lines(stderr: str) -> list[str]:
     """A command's standard error without blank lines and the form compiler's log line: what it says."""
     return [line for line in stderr.splitlines() if line.strip() and not JIT_LOG_LINE.match(line)]

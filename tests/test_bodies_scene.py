@@ -10,7 +10,7 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
-from helpers import REPO, frame_times, paraview_read
+from helpers import REPO, frame_times, paraview_read, write_scene
 
 from bhem_hpc import cli
 from bhem_hpc.io import read_checkpoint, read_frame
@@ -79,16 +79,9 @@ def _as_body(name: str, tables: str) -> str:
     return f'[[bodies]]\nname = "{name}"\n{text}'
 
 
-def _write(comm, path: Path, text: str) -> Path:
-    if comm.rank == 0:
-        path.write_text(text)
-    comm.Barrier()
-    return path
-
-
 def _pair(comm, directory: Path, edit=lambda s: s) -> Path:
     text = SHARED + "".join(_as_body(name, tables) for name, tables in BODIES.items())
-    return _write(comm, directory / "pair.toml", edit(text))
+    return write_scene(comm, directory / "pair.toml", edit(text))
 
 
 def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection(comm, shared_tmp_path):
@@ -97,7 +90,7 @@ def test_two_bodies_run_as_each_runs_alone_with_a_folder_each_and_one_collection
     assert summary["dofs"] == sum(b["dofs"] for b in summary["bodies"]) and len(summary["steps"]) == 4
     out = shared_tmp_path / "pair"
     for name, tables in BODIES.items():
-        alone = run_scene(RunOptions(_write(comm, shared_tmp_path / f"{name}.toml", SHARED + tables),
+        alone = run_scene(RunOptions(write_scene(comm, shared_tmp_path / f"{name}.toml", SHARED + tables),
                                      shared_tmp_path / name, progress=False), comm)  # fmt: skip
         assert alone["dofs"] == next(b["dofs"] for b in summary["bodies"] if b["name"] == name)
         together, t1 = read_frame(out / name / "surface.h5")
@@ -210,12 +203,12 @@ def test_bodies_meet_the_scene_colliders_each_as_alone(comm, shared_tmp_path):
     gives each body's run alone, both lying on the floor."""
     bodies = DROPPED
     shared = SHARED.replace("steps = 4", "steps = 8")
-    pair = _write(comm, shared_tmp_path / "dropped.toml",
+    pair = write_scene(comm, shared_tmp_path / "dropped.toml",
                   shared + FLOOR + "".join(_as_body(name, tables) for name, tables in bodies.items()))  # fmt: skip
     summary = run_scene(RunOptions(pair, shared_tmp_path / "pair", progress=False), comm)
     assert set(summary["contact"]) == {"steel", "rubber"} and max(s["contacts"] for s in summary["steps"]) > 0
     for name, tables in bodies.items():
-        run_scene(RunOptions(_write(comm, shared_tmp_path / f"{name}.toml", shared + tables + FLOOR),
+        run_scene(RunOptions(write_scene(comm, shared_tmp_path / f"{name}.toml", shared + tables + FLOOR),
                              shared_tmp_path / name, progress=False), comm)  # fmt: skip
         together, _ = read_frame(shared_tmp_path / "pair" / name / "surface.h5")
         single, _ = read_frame(shared_tmp_path / name / "surface.h5")
@@ -235,7 +228,7 @@ def test_a_run_of_several_bodies_restarts_as_the_uninterrupted_run(comm, shared_
     checkpoint is refused. Within round-off, not bit for bit: within one process a second run of a
     free sheet already differs from the first by about 1e-15 of its size (first runs in separate
     processes agree bit for bit; probably array alignment changing summation order)."""
-    pair = _write(comm, shared_tmp_path / "dropped.toml", SHARED.replace("steps = 4", "steps = 8") + FLOOR
+    pair = write_scene(comm, shared_tmp_path / "dropped.toml", SHARED.replace("steps = 4", "steps = 8") + FLOOR
                   + "".join(_as_body(name, tables) for name, tables in DROPPED.items()))  # fmt: skip
     whole, part, other = (shared_tmp_path / name for name in ("whole", "part", "other"))
     reference = run_scene(RunOptions(pair, whole, progress=False), comm)

@@ -3,10 +3,9 @@ shell of that outline (its area and mass), and maps that are not panels are refu
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers import write_scene
 
 from bhem_hpc.bodies.body import ShellBody
 from bhem_hpc.run import build_model
@@ -31,19 +30,12 @@ steps = 1
 TRAPEZOID = '["(0.6 - 0.3 * xi2) * (xi1 - 0.5)", "0.5 * xi2", "0"]'
 
 
-def _write(comm, path: Path, text: str) -> Path:
-    if comm.rank == 0:
-        path.write_text(text)
-    comm.Barrier()
-    return path
-
-
 @pytest.mark.parametrize("discretization", ["hermite", "bspline2", "bspline3"])
 def test_a_mapped_trapezoid_is_a_shell_of_its_outline(comm, shared_tmp_path, discretization):
     """The map is bilinear: every discretization holds it exactly, so the panel's mass is the
     trapezoid's area (0.225 m^2) times density and thickness to round-off, and its corners are the
     trapezoid's."""
-    scene = load_scene(_write(comm, shared_tmp_path / "panel.toml",
+    scene = load_scene(write_scene(comm, shared_tmp_path / "panel.toml",
                               PANEL.format(discretization=discretization, position=TRAPEZOID)))  # fmt: skip
     corners = scene.surface.evaluate(np.array([0.0, 1.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0, 1.0])).x
     np.testing.assert_allclose(corners, [[-0.3, 0, 0], [0.3, 0, 0], [-0.15, 0.5, 0], [0.15, 0.5, 0]], atol=1e-12)
@@ -61,6 +53,6 @@ def test_a_mapped_trapezoid_is_a_shell_of_its_outline(comm, shared_tmp_path, dis
     ],
 )
 def test_maps_that_are_not_panels_are_refused_naming_the_key(comm, shared_tmp_path, position, message):
-    path = _write(comm, shared_tmp_path / "bad.toml", PANEL.format(discretization="hermite", position=position))
+    path = write_scene(comm, shared_tmp_path / "bad.toml", PANEL.format(discretization="hermite", position=position))
     with pytest.raises(SceneError, match=message):
         load_scene(path)

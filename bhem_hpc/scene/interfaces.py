@@ -24,11 +24,11 @@ edges must meet within ``tolerance``, a seam's sides must have about one length.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from bhem_hpc.geometry.interfaces import EDGES, EdgeQuadrature, InterfaceError, pair_edges, pair_seam
+from bhem_hpc.geometry.interfaces import EDGES, EdgeQuadrature, InterfaceError, Patch, pair_edges, pair_seam
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.table import Registry, SceneError, Table
 
@@ -91,10 +91,17 @@ def parse_penalty(t: Table) -> float:
     return float(t.get("penalty", "a number", 1.0e3, lambda v: low <= v <= high, f"a number in [{low:g}, {high:g}]"))
 
 
-def _refused(t: Table, names: tuple[str, str], exc: InterfaceError) -> SceneError:
-    where = str(exc).replace("the first patch", f"body '{names[0]}'").replace("the second", f"body '{names[1]}'")
-    where = where.replace("the first panel", f"body '{names[0]}'")
-    return SceneError(f"{t.path}: key '{t.key('edges')}': {where}")
+def _paired(t: Table, names: Sequence[str], bodies: Sequence, places: tuple[int, int],
+            pair: Callable[[Patch, Patch], EdgeQuadrature]) -> tuple[tuple[str, str], EdgeQuadrature]:  # fmt: skip
+    """The two bodies' names and the quadrature ``pair`` finds between their rest surfaces; its
+    refusal as the scene's, naming the interface's key, the bodies and their edges."""
+    named = (names[places[0]], names[places[1]])
+    try:
+        return named, pair(bodies[places[0]].surface, bodies[places[1]].surface)
+    except InterfaceError as exc:
+        where = str(exc).replace("the first patch", f"body '{named[0]}'").replace("the second", f"body '{named[1]}'")
+        where = where.replace("the first panel", f"body '{named[0]}'")
+        raise SceneError(f"{t.path}: key '{t.key('edges')}': {where}") from None
 
 
 @INTERFACE_TYPES.register("joint")
@@ -104,11 +111,7 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
                       "a length > 0 [m]")  # fmt: skip
     t.done()
-    pair = (names[places[0]], names[places[1]])
-    try:
-        quadrature = pair_edges(bodies[places[0]].surface, edges[0], bodies[places[1]].surface, edges[1], tolerance)
-    except InterfaceError as exc:
-        raise _refused(t, pair, exc) from None
+    pair, quadrature = _paired(t, names, bodies, places, lambda a, b: pair_edges(a, edges[0], b, edges[1], tolerance))
     return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True)
 
 
@@ -120,11 +123,7 @@ def _seam(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     reverse = t.get("reverse", "a boolean", False)
     keep_angle = t.get("keep_angle", "a boolean", False)
     t.done()
-    pair = (names[places[0]], names[places[1]])
-    try:
-        quadrature = pair_seam(bodies[places[0]].surface, edges[0], bodies[places[1]].surface, edges[1], reverse)
-    except InterfaceError as exc:
-        raise _refused(t, pair, exc) from None
+    pair, quadrature = _paired(t, names, bodies, places, lambda a, b: pair_seam(a, edges[0], b, edges[1], reverse))
     return InterfaceRecord("seam", t.name, places, pair, edges, penalty, quadrature, float(sewing_time), keep_angle)
 
 

@@ -4,11 +4,9 @@ their bodies are refused naming the file, the interface, the bodies and the edge
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
-from helpers import REPO
+from helpers import REPO, write_scene
 
 from bhem_hpc.io import read_frame
 from bhem_hpc.run import RunOptions, run_scene
@@ -16,13 +14,6 @@ from bhem_hpc.scene import SceneError
 from bhem_hpc.scene.loader import load_any_scene
 
 DEG = np.pi / 180
-
-
-def _write(comm, path: Path, text: str) -> Path:
-    if comm.rank == 0:
-        path.write_text(text)
-    comm.Barrier()
-    return path
 
 
 def test_the_folded_bracket_keeps_its_fold_while_its_wall_is_pushed_over(comm, shared_tmp_path):
@@ -82,11 +73,11 @@ def test_two_panels_sewn_along_a_seam_hang_as_the_one_sheet_they_make(comm, shar
     """A rubber panel clamped along one edge and a free one 2 cm beyond it, sewn in 0.1 s while
     they fall: after 0.6 s (damped) the far panel's free edge is where the one sheet of both
     panels has its free edge, within 0.5 % of its drop (measured 0.2 %)."""
-    sewn = run_scene(RunOptions(_write(comm, shared_tmp_path / "sewn.toml", SEWN), shared_tmp_path / "sewn",
+    sewn = run_scene(RunOptions(write_scene(comm, shared_tmp_path / "sewn.toml", SEWN), shared_tmp_path / "sewn",
                                 progress=False), comm)  # fmt: skip
     assert sewn["status"] == "completed" and sewn["interfaces"][0]["rest_gap_m"] == pytest.approx(0.02)
     assert max(step["newton_iterations"] for step in sewn["steps"]) <= 15
-    run_scene(RunOptions(_write(comm, shared_tmp_path / "one.toml", ONE_SHEET), shared_tmp_path / "one",
+    run_scene(RunOptions(write_scene(comm, shared_tmp_path / "one.toml", ONE_SHEET), shared_tmp_path / "one",
                          progress=False), comm)  # fmt: skip
     far, _ = read_frame(shared_tmp_path / "sewn" / "far" / "surface.h5")
     near, _ = read_frame(shared_tmp_path / "sewn" / "near" / "surface.h5")
@@ -126,7 +117,7 @@ def test_two_panels_sewn_along_a_seam_hang_as_the_one_sheet_they_make(comm, shar
     ],
 )  # fmt: skip
 def test_interfaces_that_do_not_fit_their_bodies_are_refused_naming_them(comm, shared_tmp_path, edit, message):
-    path = _write(comm, shared_tmp_path / "bad.toml", edit(SEWN))
+    path = write_scene(comm, shared_tmp_path / "bad.toml", edit(SEWN))
     with pytest.raises(SceneError, match=message):
         load_any_scene(path)
     with pytest.raises(SceneError, match=message):
@@ -143,11 +134,11 @@ def test_joined_patches_in_contact_meet_colliders_but_not_each_other(comm, share
     text = (REPO / "jobs" / "folded-plate.toml").read_text()
     text = text.replace("effects = { damping", f"effects = {{ contact = {contact}, damping")
     text += '\n[[colliders]]\ntype = "plane"\npoint = [0.0, 0.0, -0.2]\nnormal = [0.0, 0.0, 1.0]\n'
-    path = _write(comm, shared_tmp_path / "bracket.toml", text)
+    path = write_scene(comm, shared_tmp_path / "bracket.toml", text)
     summary = run_scene(RunOptions(path, shared_tmp_path / method, steps=3, progress=False), comm)
     assert summary["status"] == "completed"
     assert all(step["contacts"] == 0 for step in summary["steps"])
-    selfish = _write(comm, shared_tmp_path / "selfish.toml", text.replace(
+    selfish = write_scene(comm, shared_tmp_path / "selfish.toml", text.replace(
         "effects = { contact", "effects = { self_collision = true, contact", 1))  # fmt: skip
     with pytest.raises(SceneError, match=r"body 'plate' \(bodies\[0\]\): key 'effects.self_collision': a "
                                          r"body joined to another by interfaces\[0\] does not collide with itself"):

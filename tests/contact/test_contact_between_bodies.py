@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import BASE, REPO, RUBBER, STEEL, momentum
+from helpers import BASE, REPO, RUBBER, STEEL, momentum, write_scene
 from mpi4py import MPI
 
 from bhem_hpc.bodies.body import ShellBody
@@ -57,13 +57,6 @@ def _step_bodies(scene, comm, steps: int):
             handler.close()
 
 
-def _write(comm, path, text):
-    if comm.rank == 0:
-        path.write_text(text)
-    comm.Barrier()
-    return path
-
-
 def _plates(comm, tmp_path, gap=0.003, push_out=1e-4, material=RUBBER):
     """A horizontal plate (Hermite) ``gap`` above the top edge of a standing one (quadratic
     B-splines), closing at 0.5 m/s each."""
@@ -72,7 +65,7 @@ def _plates(comm, tmp_path, gap=0.003, push_out=1e-4, material=RUBBER):
                          speed=-0.5, gravity="", **material)  # fmt: skip
     text += PLATE.format(name="vertical", origin="[-0.05, -0.1, 0.0]", disc="bspline2", turn=STANDING,
                          push_out=push_out, speed=0.5, gravity="", **material)  # fmt: skip
-    return _write(comm, tmp_path / "plates.toml", text)
+    return write_scene(comm, tmp_path / "plates.toml", text)
 
 
 def test_two_plates_colliding_conserve_their_total_momentum(comm, shared_tmp_path):
@@ -114,7 +107,7 @@ type = "plane"
 point = [0.0, 0.0, 0.0]
 normal = [0.0, 0.0, 1.0]
 """
-    return _write(comm, path, text)
+    return write_scene(comm, path, text)
 
 
 def _run_alone(scene, comm, between: bool) -> np.ndarray:
@@ -171,7 +164,7 @@ def test_a_cloth_falling_onto_a_held_cloth_stays_on_its_side(comm, shared_tmp_pa
     text = '[time]\ndt = 0.005\nsteps = 12\n[solver]\nhessian = "trust_region"\n'
     text += CLOTH.format(name="held", origin=[0.0, 0.0, 0.0], rest=HELD)
     text += CLOTH.format(name="falling", origin=[0.02, 0.03, 0.005], rest="")
-    scene = load_any_scene(_write(comm, shared_tmp_path / "cloths.toml", text))
+    scene = load_any_scene(write_scene(comm, shared_tmp_path / "cloths.toml", text))
     bodies, reports = _step_bodies(scene, comm, scene.first.steps)
     held, falling = (body.model.state_surface() for body in bodies)
     free_fall = 0.005 - 0.5 * 9.81 * (12 * 0.005) ** 2  # where the upper cloth would be without the lower
@@ -229,7 +222,7 @@ def test_initial_velocity_and_placement_keys(comm, shared_tmp_path):
 )
 def test_bad_initial_and_placement_keys_are_refused(comm, shared_tmp_path, table, message):
     text = BASE.replace("steps = 6", "steps = 1")
-    path = _write(comm, shared_tmp_path / "bad.toml", text + table + "\n")
+    path = write_scene(comm, shared_tmp_path / "bad.toml", text + table + "\n")
     with pytest.raises(SceneError, match=message):
         load_scene(path)
     if comm.rank == 0:

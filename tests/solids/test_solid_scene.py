@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import REPO, paraview_read
+from helpers import REPO, paraview_read, write_scene
 from mpi4py import MPI
 
 from bhem_hpc.cli import main
@@ -57,13 +57,6 @@ edge = "xi1_min"
 """
 
 
-def _write(comm, path: Path, text: str) -> Path:
-    if comm.rank == 0:
-        path.write_text(text)
-    comm.Barrier()
-    return path
-
-
 @pytest.fixture
 def block_file(comm, shared_tmp_path) -> Path:
     """A 0.3 x 0.2 x 0.25 m block of six biquadratic faces, as IGES."""
@@ -85,7 +78,7 @@ def test_a_solid_and_a_shell_run_as_the_library_steps_them(comm, shared_tmp_path
     from bhem_hpc.solver.dynamics import TimeStepper
     from bhem_hpc.solver.newton import ShellSolver
 
-    path = _write(comm, shared_tmp_path / "pair.toml", SOLID.format(file=block_file.name) + SHEET)
+    path = write_scene(comm, shared_tmp_path / "pair.toml", SOLID.format(file=block_file.name) + SHEET)
     out = shared_tmp_path / "pair"
     summary = run_scene(RunOptions(path, out, progress=False), comm)
     assert [(b["name"], b["discretization"]) for b in summary["bodies"]] == [("jelly", "solid"), ("sheet", "hermite")]
@@ -123,7 +116,7 @@ def test_a_periodic_wind_moves_a_free_solid_as_implicit_euler_says(comm, shared_
     text = SOLID.format(file=block_file.name).replace("gravity = [0.0, 0.0, -9.81], ", "")
     text = text[: text.index("[[bodies.constraints]]")] + "[bodies.initial]\nvelocity = [0.0, 0.5, 0.0]\n"
     out = shared_tmp_path / "wind"
-    run_scene(RunOptions(_write(comm, shared_tmp_path / "wind.toml", text), out, progress=False), comm)
+    run_scene(RunOptions(write_scene(comm, shared_tmp_path / "wind.toml", text), out, progress=False), comm)
     scene = load_any_scene(shared_tmp_path / "wind.toml").bodies[0]
     from bhem_hpc.solids.sem import ShapeMatchingSolid
 
@@ -138,7 +131,7 @@ def test_a_periodic_wind_moves_a_free_solid_as_implicit_euler_says(comm, shared_
 
 
 def test_a_run_with_a_solid_restarts_where_it_stopped(comm, shared_tmp_path, block_file):
-    path = _write(comm, shared_tmp_path / "alone.toml", SOLID.format(file=block_file.name))
+    path = write_scene(comm, shared_tmp_path / "alone.toml", SOLID.format(file=block_file.name))
     whole, split = shared_tmp_path / "whole", shared_tmp_path / "split"
     run_scene(RunOptions(path, whole, progress=False), comm)
     run_scene(RunOptions(path, split, steps=2, progress=False), comm)
@@ -154,7 +147,7 @@ def test_a_run_with_a_solid_restarts_where_it_stopped(comm, shared_tmp_path, blo
 
 @pytest.mark.parallel
 def test_a_scene_with_a_solid_on_two_ranks_gives_the_serial_numbers(comm, shared_tmp_path, block_file):
-    path = _write(comm, shared_tmp_path / "ranks.toml", SOLID.format(file=block_file.name) + SHEET)
+    path = write_scene(comm, shared_tmp_path / "ranks.toml", SOLID.format(file=block_file.name) + SHEET)
     out_parallel = shared_tmp_path / "parallel"
     run_scene(RunOptions(path, out_parallel, progress=False), comm)
     out_serial = shared_tmp_path / f"serial_{comm.rank}"
@@ -196,7 +189,7 @@ def test_a_scene_with_a_solid_on_two_ranks_gives_the_serial_numbers(comm, shared
     ],
 )  # fmt: skip
 def test_bad_solid_tables_are_refused_naming_the_body_and_key(comm, shared_tmp_path, block_file, edit, message):
-    path = _write(comm, shared_tmp_path / "pair.toml", edit(SOLID.format(file=block_file.name), block_file.name))
+    path = write_scene(comm, shared_tmp_path / "pair.toml", edit(SOLID.format(file=block_file.name), block_file.name))
     with pytest.raises(SceneError, match=message):
         run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
     assert not (shared_tmp_path / "out").exists()
@@ -241,7 +234,7 @@ def test_a_tyre_of_rubber_on_steel_deforms_in_its_rubber(comm, shared_tmp_path):
     axle; under gravity the tread moves, the hub (40 000 times stiffer) hardly (1.4e-4 m against
     2e-7 m measured after 8 steps of the job)."""
     model = REPO / "jobs" / "models" / "tyre.igs"
-    path = _write(comm, shared_tmp_path / "tyre.toml", TYRE.format(file=model))
+    path = write_scene(comm, shared_tmp_path / "tyre.toml", TYRE.format(file=model))
     scene = load_any_scene(path).bodies[0]
     assert [m.young for m in scene.materials] == [5.0e6] * 16 + [2.1e11]
     out = shared_tmp_path / "tyre"
@@ -267,7 +260,8 @@ def test_a_tyre_of_rubber_on_steel_deforms_in_its_rubber(comm, shared_tmp_path):
     ],
 )  # fmt: skip
 def test_bad_materials_are_refused_naming_the_parts(comm, shared_tmp_path, edit, message):
-    path = _write(comm, shared_tmp_path / "tyre.toml", edit(TYRE.format(file=REPO / "jobs" / "models" / "tyre.igs")))
+    text = edit(TYRE.format(file=REPO / "jobs" / "models" / "tyre.igs"))
+    path = write_scene(comm, shared_tmp_path / "tyre.toml", text)
     with pytest.raises(SceneError, match=message):
         load_any_scene(path)
 
@@ -297,7 +291,7 @@ def test_a_shape_matching_that_does_not_pose_the_rest_shape_is_refused_naming_th
     text = (TYRE.format(file="bar.igs").replace("lines_per_side = 8", "lines_per_side = 10")
             .replace('"tread*"', '"rubber*"').replace('"hub*"', '"steel*"')
             .replace("[[-0.05, -0.05, -0.1], [0.05, 0.05, 0.1]]", "[[-0.001, -1, -1], [0.001, 1, 1]]"))  # fmt: skip
-    path = _write(comm, shared_tmp_path / "bar.toml", text)
+    path = write_scene(comm, shared_tmp_path / "bar.toml", text)
     with pytest.raises(SceneError, match=r"body 'tyre': .*the rest shape is not reproduced at 3 of 180 quadrature "
                                          r"points \(\|F - I\| up to 0.5.*parts .*(steel|rubber)\d+ \(D\d+\).* blend: "
                                          r".*raise lines_per_side \(10\)"):  # fmt: skip

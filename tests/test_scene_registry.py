@@ -16,7 +16,8 @@ from bhem_hpc.scene.table import Registry
 
 
 def test_every_kind_is_registered_in_the_order_users_read():
-    assert SURFACES.names == ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file", "cad_part")
+    assert SURFACES.names == ("rectangle", "cylinder", "sphere_zone", "annulus_sector", "torus", "file", "mapped",
+                             "cad_part")
     assert BODY_TYPES.names == ("shell", "solid", "cad_shell")
     assert INTERFACE_TYPES.names == ("joint", "seam")
     assert MOTIONS.names == ("linear", "rotation", "keyframes")

@@ -174,23 +174,6 @@ def _surface_file(t: Table, path: Path, discretization: str) -> Shape:
     return surface
 
 
-@SURFACES.register("cad_part")
-def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
-    """``kind = "cad_part"``: part ``part`` (its index in the file) of a NURBS model (IGES or .3dm,
-    ``file`` relative to the scene) on ``patches`` uniform knot spans
-    (:func:`~bhem_hpc.geometry.nurbs.shell_surface`); a ``cad_shell`` body names every part of a
-    model so (:mod:`bhem_hpc.scene.cad_shell`)."""
-    from bhem_hpc.geometry.nurbs import shell_surface  # the CAD code loads for CAD models only
-    from bhem_hpc.io.cad import read_parts
-
-    target = regular_file(t, "file", t.get("file", "a string"), path)
-    parts = read_parts(target)
-    index = t.get("part", "an integer", check=lambda v: 0 <= v < len(parts),
-                  expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
-    patches, _, _ = _patches(t, discretization)
-    return shell_surface(parts[index], tuple(patches), discretization)
-
-
 @SURFACES.register("mapped")
 def _mapped(t: Table, path: Path, discretization: str) -> Shape:
     """``kind = "mapped"``: a panel of any outline, the square of parameters ``[0, 1]^2`` mapped onto
@@ -215,3 +198,20 @@ def _mapped(t: Table, path: Path, discretization: str) -> Shape:
     surface = B.from_callable(shape, grid, **spline) if spline else S.from_callable(shape, grid)
     S.check_regular(surface, name="the mapped panel")
     return surface
+
+
+@SURFACES.register("cad_part")
+def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
+    """``kind = "cad_part"``: part ``part`` (its index in the file) of a NURBS model (IGES or .3dm,
+    ``file`` relative to the scene) on ``patches`` uniform knot spans
+    (:func:`~bhem_hpc.geometry.nurbs.shell_surface`); a ``cad_shell`` body names every part of a
+    model so (:mod:`bhem_hpc.scene.cad_shell`)."""
+    from bhem_hpc.geometry.nurbs import shell_surface  # the CAD code loads for CAD models only
+    from bhem_hpc.io.cad import read_parts
+
+    target = regular_file(t, "file", t.get("file", "a string"), path)
+    parts = read_parts(target)
+    index = t.get("part", "an integer", check=lambda v: 0 <= v < len(parts),
+                  expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
+    patches, _, _ = _patches(t, discretization)
+    return shell_surface(parts[index], tuple(patches), discretization)

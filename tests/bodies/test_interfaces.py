@@ -315,12 +315,11 @@ def _solve_patches(comm, rests: dict, joints: list, material: Material, loads_of
     return dict(zip(keys, models, strict=True))
 
 
-@pytest.mark.parametrize(("splits", "spans"), [((1, 2), (16, 16)), ((1, 3), (16, 15)), ((2, 2), (16, 16))])
+@pytest.mark.parametrize(("splits", "spans"), [((1, 2), (16, 16)), ((1, 3), (16, 15)), ((1, 4), (16, 16))])
 def test_the_scordelis_lo_roof_in_two_three_and_four_patches_gives_the_one_patch_value(comm, splits, spans):
     """The roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per area) as 2, 3
-    and 4 Hermite patches (cut along the roof, and across it too): the free edge's midside
-    deflection is the one patch's of the same spans within 3e-4 (measured at most 1e-4), and the
-    reference within 5e-3."""
+    and 4 Hermite patches cut along the roof: the free edge's midside deflection is the one
+    patch's of the same spans within 3e-4 (measured at most 1e-4), and the reference within 5e-3."""
     radius, load = 25.0, 0.09
     material = Material(4.32e8, 0.0, 0.25, 1.0)
 
@@ -344,7 +343,7 @@ def test_the_scordelis_lo_roof_in_two_three_and_four_patches_gives_the_one_patch
     assert abs(-joined / ROOF_DEFLECTION - 1) < 5e-3, joined
 
 
-@pytest.mark.parametrize(("splits", "spans"), [((1, 2), (16, 16)), ((3, 1), (15, 16)), ((2, 2), (16, 16))])
+@pytest.mark.parametrize(("splits", "spans"), [((1, 2), (16, 16)), ((3, 1), (15, 16)), ((1, 4), (16, 16))])
 def test_the_pinched_hemisphere_in_two_three_and_four_patches_gives_the_one_patch_value(comm, splits, spans):
     """The quarter of the pinched hemisphere with an 18-degree hole (R 10, h 0.04, E 6.825e7,
     nu 0.3; unit loads in and out at the equator, symmetry planes) as 2, 3 and 4 Hermite patches:

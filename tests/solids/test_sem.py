@@ -11,7 +11,7 @@ import scipy.optimize
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.blending import ray_distances
-from bhem_hpc.solids.elasticity import Lame, neo_hookean, project_psd, st_venant_kirchhoff
+from bhem_hpc.solids.elasticity import Lame, inverse_3x3, neo_hookean, project_psd, st_venant_kirchhoff
 from bhem_hpc.solids.equilibrium import linearly_implicit_step, solve_static
 from bhem_hpc.solids.origins import assign_candidates, candidate_groups, deformation_origins
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
@@ -44,6 +44,17 @@ def test_stress_and_tangent_match_central_differences(energy, rng):
     assert np.linalg.eigvalsh(projected).min() > -1e-10
     spd = np.einsum("qab,qcb->qac", tangent, tangent)
     np.testing.assert_allclose(project_psd(spd), spd)
+
+
+def test_cofactor_inverse_is_numpys_inverse(rng):
+    """Seeded deformation gradients (stretched, sheared, near-singular): the cofactor inverse and
+    determinant agree with LAPACK's to 1e-12 relative to the inverse's size."""
+    f = np.eye(3) + rng.normal(scale=0.4, size=(500, 3, 3))
+    inverse, det = inverse_3x3(f)
+    np.testing.assert_allclose(det, np.linalg.det(f), rtol=1e-12, atol=1e-14)
+    expected = np.linalg.inv(f)
+    scale = np.abs(expected).max(axis=(1, 2))[:, None, None]
+    assert np.all(np.abs(inverse - expected) <= 1e-12 * scale * np.linalg.cond(f)[:, None, None])
 
 
 def test_neo_hookean_refuses_inverted_elements():

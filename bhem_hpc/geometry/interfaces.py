@@ -6,7 +6,9 @@ runs along the first side's edge, over the knot spans of both sides (the second 
 found on the first edge), Gauss-Legendre points in each piece; each point finds its partner on the
 second edge by the closest point at rest (a bounded Newton iteration on the edge's parameter). The
 two edges must be the same curve at rest: every point's partner within ``tolerance``, and each
-edge's ends on the other edge.
+edge's ends on the other edge. A partial interface (a T-junction: a patch's edge along part of a
+longer one, or two edges that overlap in part) is the part of the first edge between the ends of
+either edge that lie on the other (:func:`edge_overlap`).
 """
 
 from __future__ import annotations
@@ -112,14 +114,36 @@ def closest_on_edge(surface: Patch, edge: str, targets: np.ndarray) -> tuple[np.
     return s, np.linalg.norm(x - targets, axis=-1)
 
 
+def edge_overlap(first: Patch, first_edge: str, second: Patch, second_edge: str,
+                 tolerance: float) -> tuple[float, float]:  # fmt: skip
+    """``(s0, s1)``: the part of ``first_edge``'s parameter range that lies along ``second_edge`` at
+    rest, between the ends of either edge that lie within ``tolerance`` [m] of the other edge.
+
+    Raises:
+        InterfaceError: no such part of positive length (edges apart, crossing, or meeting at a point).
+    """
+    along, value, (lo, hi), _ = edge_line(first.grid, first_edge)
+    _, end_gaps = closest_on_edge(second, second_edge, _edge_ends(first, first_edge))
+    found, other_gaps = closest_on_edge(first, first_edge, _edge_ends(second, second_edge))
+    ends = [s for s, gap in zip((lo, hi), end_gaps, strict=True) if gap <= tolerance]
+    ends += [float(s) for s, gap in zip(found, other_gaps, strict=True) if gap <= tolerance]
+    if not ends or max(ends) - min(ends) <= 1e-9 * (hi - lo):
+        closest = float(min(end_gaps.min(), other_gaps.min()))
+        raise InterfaceError(f"edge {first_edge} of the first patch and edge {second_edge} of the second share no "
+                             f"part of an edge: no end of one lies along the other but at a point, the closest "
+                             f"{closest:.3g} m from it (tolerance {tolerance:.3g} m)")  # fmt: skip
+    return min(ends), max(ends)
+
+
 def pair_edges(first: Patch, first_edge: str, second: Patch, second_edge: str, tolerance: float,
-               points_per_span: int = 4) -> EdgeQuadrature:  # fmt: skip
+               points_per_span: int = 4, partial: bool = False) -> EdgeQuadrature:  # fmt: skip
     """The quadrature of the interface where ``first_edge`` of ``first`` meets ``second_edge`` of
-    ``second`` (whole edges, either orientation).
+    ``second`` (whole edges, either orientation; with ``partial``, the part where they meet).
 
     Args:
         tolerance: the largest rest distance [m] between the two edges.
         points_per_span: Gauss-Legendre points in each piece between consecutive span ends.
+        partial: join only the part the edges share (:func:`edge_overlap`).
 
     Raises:
         InterfaceError: an edge that does not exist, or edges farther apart than ``tolerance``
@@ -127,16 +151,20 @@ def pair_edges(first: Patch, first_edge: str, second: Patch, second_edge: str, t
     """
     along, value, (lo, hi), knots = edge_line(first.grid, first_edge)
     other_along, other_value, _, other_knots = edge_line(second.grid, second_edge)
+    start, end = edge_overlap(first, first_edge, second, second_edge, tolerance) if partial else (lo, hi)
     # the second edge's span ends, found on the first edge: breaks of the quadrature
     other_ends = second.evaluate(*_on_edge(other_along, other_value, other_knots)).x
     found, gaps = closest_on_edge(first, first_edge, other_ends)
-    ends = first.evaluate(*_on_edge(along, value, knots[[0, -1]])).x
-    _, end_gaps = closest_on_edge(second, second_edge, ends)
-    worst = max(float(gaps.max()), float(end_gaps.max()))
-    if worst > tolerance:
-        raise InterfaceError(f"edge {first_edge} of the first patch and edge {second_edge} of the second do not "
-                             f"meet: their ends lie {worst:.3g} m from the other edge "
-                             f"(tolerance {tolerance:.3g} m)")  # fmt: skip
+    if partial:
+        found = found[(gaps <= tolerance) & (found > start) & (found < end)]
+        knots = np.concatenate([[start], knots[(knots > start) & (knots < end)], [end]])
+    else:
+        _, end_gaps = closest_on_edge(second, second_edge, _edge_ends(first, first_edge))
+        worst = max(float(gaps.max()), float(end_gaps.max()))
+        if worst > tolerance:
+            raise InterfaceError(f"edge {first_edge} of the first patch and edge {second_edge} of the second do "
+                                 f"not meet: their ends lie {worst:.3g} m from the other edge "
+                                 f"(tolerance {tolerance:.3g} m)")  # fmt: skip
     breaks = np.unique(np.concatenate([knots, found]))
     breaks = breaks[np.concatenate([[True], np.diff(breaks) > 1e-9 * (hi - lo)])]
     nodes, gauss_weights = np.polynomial.legendre.leggauss(points_per_span)
@@ -219,13 +247,15 @@ def element_across(surface: Patch, edge: str) -> float:
 
 @dataclass(frozen=True)
 class FoundJoint:
-    """Two patches' edges that meet along their whole length (:func:`find_joints`)."""
+    """Two patches' edges that meet along their whole length, or (``partial``) along a part of one
+    or both (:func:`find_joints`)."""
 
     first: int
     second: int
     first_edge: str
     second_edge: str
     quadrature: EdgeQuadrature
+    partial: bool = False
 
 
 def _open_edges(surface: Patch) -> list[str]:
@@ -238,28 +268,53 @@ def _edge_ends(surface: Patch, edge: str) -> np.ndarray:
     return surface.evaluate(*_on_edge(along, value, np.array([lo, hi]))).x
 
 
+#: Samples along an edge for the box that rules out partial joints cheaply.
+EDGE_BOX_SAMPLES = 33
+
+
+def _edge_box(surface: Patch, edge: str) -> np.ndarray:
+    """``(2, 3)``: lower and upper corner of the box around an edge's samples."""
+    along, value, (lo, hi), _ = edge_line(surface.grid, edge)
+    x = surface.evaluate(*_on_edge(along, value, np.linspace(lo, hi, EDGE_BOX_SAMPLES))).x
+    return np.stack([x.min(axis=0), x.max(axis=0)])
+
+
 def find_joints(surfaces: Sequence[Patch], tolerance: float) -> tuple[list[FoundJoint], list[tuple[int, str]]]:
     """Where patches of a model meet: every pair of whole edges, of two patches, whose ends meet
     within ``tolerance`` [m] (either orientation) and that :func:`pair_edges` finds within it all
-    along; and the edges that meet none (free edges, or edges that meet another only in part).
+    along; then, among the edges left, every pair that shares a part (``partial``: a T-junction, or
+    edges that overlap in part; an edge may have several); and the edges that meet none.
 
     Returns:
-        ``(joints, free)``: the joints in patch order, and ``(patch, edge)`` of every edge in none.
+        ``(joints, free)``: the joints in patch order (whole ones first), and ``(patch, edge)`` of
+        every edge in none.
     """
     edges = [[(e, _edge_ends(s, e)) for e in _open_edges(s)] for s in surfaces]
-    joints, joined = [], set()
-    for a in range(len(surfaces)):
-        for b in range(a + 1, len(surfaces)):
-            for edge_a, ends_a in edges[a]:
-                for edge_b, ends_b in edges[b]:
-                    apart = min(np.abs(ends_a - ends_b).max(), np.abs(ends_a - ends_b[::-1]).max())
-                    if apart > tolerance or (a, edge_a) in joined or (b, edge_b) in joined:
-                        continue
-                    try:
-                        quadrature = pair_edges(surfaces[a], edge_a, surfaces[b], edge_b, tolerance)
-                    except InterfaceError:
-                        continue
-                    joints.append(FoundJoint(a, b, edge_a, edge_b, quadrature))
-                    joined |= {(a, edge_a), (b, edge_b)}
+    pairs = [(a, b, edge_a, ends_a, edge_b, ends_b) for a in range(len(surfaces)) for b in range(a + 1, len(surfaces))
+             for edge_a, ends_a in edges[a] for edge_b, ends_b in edges[b]]  # fmt: skip
+    joints, whole = [], set()
+    for a, b, edge_a, ends_a, edge_b, ends_b in pairs:
+        apart = min(np.abs(ends_a - ends_b).max(), np.abs(ends_a - ends_b[::-1]).max())
+        if apart > tolerance or (a, edge_a) in whole or (b, edge_b) in whole:
+            continue
+        try:
+            quadrature = pair_edges(surfaces[a], edge_a, surfaces[b], edge_b, tolerance)
+        except InterfaceError:
+            continue
+        joints.append(FoundJoint(a, b, edge_a, edge_b, quadrature))
+        whole |= {(a, edge_a), (b, edge_b)}
+    boxes = {(k, e): _edge_box(s, e) for k, s in enumerate(surfaces) for e in _open_edges(s)}
+    joined = set(whole)
+    for a, b, edge_a, _, edge_b, _ in pairs:
+        box_a, box_b = boxes[a, edge_a], boxes[b, edge_b]
+        if (a, edge_a) in whole or (b, edge_b) in whole or np.any(box_a[0] > box_b[1] + tolerance) \
+                or np.any(box_b[0] > box_a[1] + tolerance):  # fmt: skip
+            continue
+        try:
+            quadrature = pair_edges(surfaces[a], edge_a, surfaces[b], edge_b, tolerance, partial=True)
+        except InterfaceError:
+            continue
+        joints.append(FoundJoint(a, b, edge_a, edge_b, quadrature, partial=True))
+        joined |= {(a, edge_a), (b, edge_b)}
     free = [(k, edge) for k, s in enumerate(surfaces) for edge in _open_edges(s) if (k, edge) not in joined]
     return joints, free

@@ -1,6 +1,6 @@
 """A shell read from a CAD surface model (``type = "cad_shell"``; numpy + stdlib and the CAD
 readers): every NURBS part of the file becomes a patch of the shell, a body of its own named
-``<name>_<part>``, and patches whose whole edges meet within ``tolerance`` are joined
+``<name>_<part>``, and patches whose edges meet (whole, or in part) within ``tolerance`` are joined
 (:mod:`bhem_hpc.scene.interfaces`'s joints, found instead of listed)::
 
     [[bodies]]
@@ -69,7 +69,7 @@ class CadShell:
         """What a run's summary says of the model: its parts, joints and free edges."""
         return {"body": name, "file": str(self.file), "parts": len(self.bodies), "fit_error_m": self.fit_error,
                 "joints": [[f"{name}_{j.first}", j.first_edge, f"{name}_{j.second}", j.second_edge,
-                            j.quadrature.gap] for j in self.joints],
+                            j.quadrature.gap, "partial" if j.partial else "whole"] for j in self.joints],
                 "free_edges": [f"{name}_{part} {edge}" for part, edge in self.free_edges]}  # fmt: skip
 
 

@@ -8,6 +8,7 @@ registers itself in :data:`INTERFACE_TYPES`::
     edges = ["xi1_max", "xi1_min"]  # rest (smooth, or a fold)
     penalty = 1e3                   # alpha of the penalty rule (bhem_hpc.bodies.coupling)
     tolerance = 1e-6                # [m] how far apart the edges may be at rest
+    partial = false                 # join only the part the edges share (a T-junction)
 
     [[interfaces]]
     type = "seam"                   # edges apart at rest, sewn together: the stitches shorten
@@ -18,7 +19,8 @@ registers itself in :data:`INTERFACE_TYPES`::
     keep_angle = false              # also keep the panels' rest angle across the seam
 
 The edges are checked against the bodies' rest surfaces here, before anything is built: a joint's
-edges must meet within ``tolerance``, a seam's sides must have about one length.
+edges must meet within ``tolerance`` (a partial one's along a part of positive length), a seam's
+sides must have about one length.
 """
 
 from __future__ import annotations
@@ -69,7 +71,8 @@ class InterfaceRecord:
     def summary(self) -> dict:
         """What a run's summary.json says of it."""
         return {"type": self.kind, "bodies": list(self.names), "edges": list(self.edges), "penalty": self.penalty,
-                "points": len(self.quadrature.weights), "rest_gap_m": self.quadrature.gap,
+                "points": len(self.quadrature.weights), "length_m": float(self.quadrature.weights.sum()),
+                "rest_gap_m": self.quadrature.gap,
                 "sewing_time_s": self.sewing_time, "keeps_angle": self.keep_angle}  # fmt: skip
 
 
@@ -110,8 +113,13 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     penalty = parse_penalty(t)
     tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
                       "a length > 0 [m]")  # fmt: skip
+    partial = t.get("partial", "a boolean", False)
     t.done()
-    pair, quadrature = _paired(t, names, bodies, places, lambda a, b: pair_edges(a, edges[0], b, edges[1], tolerance))
+
+    def joint(first: Patch, second: Patch) -> EdgeQuadrature:
+        return pair_edges(first, edges[0], second, edges[1], tolerance, partial=partial)
+
+    pair, quadrature = _paired(t, names, bodies, places, joint)
     return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True)
 
 

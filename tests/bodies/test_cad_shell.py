@@ -75,7 +75,7 @@ def test_a_hood_of_four_parts_is_one_shell_joined_where_its_parts_meet(comm, sha
     sag = np.abs(frames["hood_0"].nodal[..., 0, :] - rest.nodal[..., 0, :]).max()
     assert sag > 1e-5
     along = np.linspace(0.0, 1.0, 7)
-    for name_a, edge_a, name_b, _, _ in report["joints"]:
+    for name_a, edge_a, name_b, _, _, _ in report["joints"]:
         a, b = frames[name_a], frames[name_b]
         on_a = (np.ones(7), along) if edge_a == "xi1_max" else (along, np.ones(7))
         on_b = (np.zeros(7), along) if edge_a == "xi1_max" else (along, np.zeros(7))

@@ -22,9 +22,11 @@ def test_the_folded_bracket_keeps_its_fold_while_its_wall_is_pushed_over(comm, s
     summary = run_scene(RunOptions(REPO / "jobs" / "folded-plate.toml", shared_tmp_path / "fold", steps=30,
                                    progress=False), comm)  # fmt: skip
     assert summary["status"] == "completed"
-    assert summary["interfaces"] == [{"type": "joint", "bodies": ["plate", "wall"], "edges": ["xi1_max", "xi1_min"],
-                                      "penalty": 1000.0, "points": 8, "rest_gap_m": 0.0, "sewing_time_s": None,
-                                      "keeps_angle": True}]  # fmt: skip
+    (interface,) = summary["interfaces"]
+    assert interface.pop("length_m") == pytest.approx(0.1, rel=1e-12)  # the fold: the plate's width
+    assert interface == {"type": "joint", "bodies": ["plate", "wall"], "edges": ["xi1_max", "xi1_min"],
+                         "penalty": 1000.0, "points": 8, "rest_gap_m": 0.0, "sewing_time_s": None,
+                         "keeps_angle": True}  # fmt: skip
     plate, _ = read_frame(shared_tmp_path / "fold" / "plate" / "surface.h5")
     wall, time = read_frame(shared_tmp_path / "fold" / "wall" / "surface.h5")
     rest, _ = read_frame(shared_tmp_path / "fold" / "wall" / "surface.h5", 0)
@@ -91,6 +93,21 @@ def test_two_panels_sewn_along_a_seam_hang_as_the_one_sheet_they_make(comm, shar
     assert seam < 1e-5
 
 
+def test_a_partial_joint_joins_the_part_its_edges_share(comm, shared_tmp_path):
+    """A panel beside half of a panel twice as long (a T-junction): the joint, declared partial, is
+    the shared 0.1 m; its summary says so."""
+    text = SEWN.replace("[0.1, 0.1], patches = [4, 4] }", "[0.2, 0.1], patches = [8, 4] }")
+    text = text.replace("origin = [0.12, 0.0, 0.0]", "origin = [0.1, 0.1, 0.0]")
+    text = text.replace('type = "seam"', 'type = "joint"\npartial = true').replace('["xi1_max", "xi1_min"]',
+                                                                                    '["xi2_max", "xi2_min"]')
+    text = text.replace("sewing_time = 0.1\nkeep_angle = true\n", "")
+    scene = load_any_scene(write_scene(comm, shared_tmp_path / "t.toml", text))
+    (joint,) = scene.interfaces
+    summary = joint.summary()
+    assert summary["type"] == "joint" and summary["length_m"] == pytest.approx(0.1, rel=1e-12)
+    assert summary["rest_gap_m"] < 1e-12
+
+
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
@@ -104,6 +121,13 @@ def test_two_panels_sewn_along_a_seam_hang_as_the_one_sheet_they_make(comm, shar
         (lambda s: s.replace("[0.1, 0.1], patches = [4, 4], origin", "[0.1, 0.15], patches = [4, 4], origin"),
          r"key 'interfaces\[0\].edges': the seam's sides differ in length: edge xi1_max of body 'near' is 0.1 m, "
          r"edge xi1_min of body 'far' 0.15 m"),
+        (lambda s: s.replace('type = "seam"', 'type = "joint"\npartial = true').replace("sewing_time = 0.1\n"
+                                                                                     "keep_angle = true\n", ""),
+         r"key 'interfaces\[0\].edges': edge xi1_max of body 'near' and edge xi1_min of body 'far' share no part "
+         r"of an edge"),
+        (lambda s: s.replace('type = "seam"', 'type = "joint"\npartial = "yes"').replace("sewing_time = 0.1\n"
+                                                                                        "keep_angle = true\n", ""),
+         r"key 'interfaces\[0\].partial' must be a boolean, got 'yes'"),
         (lambda s: s.replace("keep_angle = true", "keep_angle = true\npenalty = 1e9"),
          r"key 'interfaces\[0\].penalty' must be a number in \[1, 1e\+06\], got 1000000000.0"),
         (lambda s: s.replace("keep_angle = true", "keep_angle = true\nstrength = 2"),

@@ -33,6 +33,7 @@ from bhem_hpc.geometry.interfaces import FoundJoint, find_joints
 from bhem_hpc.scene.bodies import BODY_TYPES, DEFAULT_BODY_TYPE
 from bhem_hpc.scene.interfaces import DEFAULT_TOLERANCE, InterfaceRecord, parse_penalty
 from bhem_hpc.scene.records import Scene
+from bhem_hpc.scene.surfaces import model_parts
 from bhem_hpc.scene.table import SceneError, Table, regular_file
 
 #: The tables and keys of a ``cad_shell`` body.
@@ -95,7 +96,6 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
         SceneError: naming the file, the key and, for a part, the part.
     """
     from bhem_hpc.geometry.nurbs import shell_fit_error  # the CAD code loads for CAD models only
-    from bhem_hpc.io.cad import read_parts
 
     t = Table(path, "", {k: v for k, v in tables.items() if k in CAD_SHELL_KEYS})
     for key in tables:
@@ -104,7 +104,7 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
     file = t.get("file", "a string")
     target = regular_file(t, "file", file, path)
     try:
-        parts = read_parts(target)
+        parts = model_parts(target)
     except ValueError as exc:
         raise SceneError(f"{path}: key 'file': {exc}") from None
     patches = t.get("patches", "2 integers", check=lambda v: min(v) >= 1, expected="2 integers >= 1 (per part)")

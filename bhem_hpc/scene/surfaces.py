@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -200,6 +201,20 @@ def _mapped(t: Table, path: Path, discretization: str) -> Shape:
     return surface
 
 
+@functools.lru_cache(maxsize=8)
+def _read_model(resolved: str, modified_ns: int, size: int) -> tuple:
+    from bhem_hpc.io.cad import read_parts  # the CAD code loads for CAD models only
+
+    return tuple(read_parts(resolved))
+
+
+def model_parts(file: Path) -> list:
+    """The NURBS parts of a CAD model file (:func:`~bhem_hpc.io.cad.read_parts`), read once while the
+    file is unchanged (a ``cad_shell`` body's parts each name the file)."""
+    stat = file.stat()
+    return list(_read_model(str(file.resolve()), stat.st_mtime_ns, stat.st_size))
+
+
 @SURFACES.register("cad_part")
 def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
     """``kind = "cad_part"``: part ``part`` (its index in the file) of a NURBS model (IGES or .3dm,
@@ -207,10 +222,9 @@ def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
     (:func:`~bhem_hpc.geometry.nurbs.shell_surface`); a ``cad_shell`` body names every part of a
     model so (:mod:`bhem_hpc.scene.cad_shell`)."""
     from bhem_hpc.geometry.nurbs import shell_surface  # the CAD code loads for CAD models only
-    from bhem_hpc.io.cad import read_parts
 
     target = regular_file(t, "file", t.get("file", "a string"), path)
-    parts = read_parts(target)
+    parts = model_parts(target)
     index = t.get("part", "an integer", check=lambda v: 0 <= v < len(parts),
                   expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
     patches, _, _ = _patches(t, discretization)

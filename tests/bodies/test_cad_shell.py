@@ -54,6 +54,27 @@ CLAMPED = "".join(f'[[bodies.constraints]]\npart = {k}\ntype = "clamp"\nedge = "
                   for k, edge in ((0, "xi1_min"), (1, "xi1_min"), (2, "xi1_max"), (3, "xi1_max")))  # fmt: skip
 
 
+def test_a_models_file_is_read_once_while_it_is_unchanged(comm, shared_tmp_path, monkeypatch):
+    """A cad_shell of four parts reads its file once (not once more per part), and again once the
+    file changes."""
+    import bhem_hpc.io.cad as cad
+
+    reads = []
+    read_parts = cad.read_parts
+    monkeypatch.setattr(cad, "read_parts", lambda path: reads.append(path) or read_parts(path))
+    path = _scene(comm, shared_tmp_path, "hood.igs", _hood_parts())
+    load_any_scene(path)
+    assert len(reads) == 1
+    load_any_scene(path)
+    assert len(reads) == 1
+    comm.Barrier()
+    if comm.rank == 0:  # the same parts written again: another modification time
+        write_parts(shared_tmp_path / "hood.igs", _hood_parts()[::-1])
+    comm.Barrier()
+    load_any_scene(path)
+    assert len(reads) == 2
+
+
 @pytest.mark.parametrize("model", ["hood.3dm", "hood.igs"])
 def test_a_hood_of_four_parts_is_one_shell_joined_where_its_parts_meet(comm, shared_tmp_path, model):
     """Four bicubic parts on uniform knots: the patches are the parts (to round-off); the four

@@ -23,6 +23,7 @@ from mpi4py import MPI
 
 from bhem_hpc.bodies.body import Body, ShellBody
 from bhem_hpc.bodies.layout import body_array_name
+from bhem_hpc.bodies.petsc import StackedBlocks
 from bhem_hpc.bodies.solid import SolidBody, build_solid_model
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
@@ -122,8 +123,9 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
             log.info("%s: %d parts, %d joints, free edges: %s; patches within %.3g m of their parts", model["body"],
                      model["parts"], len(model["joints"]), ", ".join(model["free_edges"]) or "none",
                      model["fit_error_m"])  # fmt: skip
-    barrier = bodies_barrier(bodies, scene, options.scene)
-    couplings = interface_couplings(scene, bodies)
+    blocks = StackedBlocks(models)  # where the barrier and the couplings see every body's blocks
+    barrier = bodies_barrier(bodies, blocks, scene, options.scene)
+    couplings = interface_couplings(scene, bodies, blocks)
     solver = make_solver(models, first, options.scene, ([barrier] if barrier is not None else []) + couplings)
     summary = RunSummary(
         scene=str(options.scene), physics_hash=physics_hash(scene), solution_method=solution_method(first),
@@ -187,17 +189,15 @@ def _probe_rows(output: BodiesOutput | None, probes: list, stepper: TimeStepper,
             on_rank0(comm, lambda k=k, row=row: output.probe_tables[k].add(row), "probes.csv")
 
 
-def interface_couplings(scene: BodiesScene, bodies: list[Body]) -> list:
+def interface_couplings(scene: BodiesScene, bodies: list[Body], blocks: StackedBlocks) -> list:
     """Collective: the penalty couplings of the scene's interfaces (joints and seams between its
     shell bodies; :mod:`bhem_hpc.bodies.coupling`): the stiffer side's stiffness over the narrower
     side's element, the angle term for joints and for seams that keep their angle."""
     if not scene.interfaces:
         return []
     from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames
-    from bhem_hpc.bodies.petsc import StackedBlocks
     from bhem_hpc.geometry.interfaces import element_across
 
-    blocks = StackedBlocks([body.model for body in bodies])
     couplings = []
     for record in scene.interfaces:
         sides = [scene.bodies[k] for k in record.bodies]
@@ -219,19 +219,17 @@ def _joined_meshes(scene: BodiesScene, in_contact: list[Body]) -> list[tuple[int
     return [(place[a], place[b]) for a, b in (r.bodies for r in scene.interfaces) if a in place and b in place]
 
 
-def bodies_barrier(bodies: list[Body], scene: BodiesScene, scene_file: Path):
+def bodies_barrier(bodies: list[Body], blocks: StackedBlocks, scene: BodiesScene, scene_file: Path):
     """Collective: IPC's barrier between the collision meshes of every body whose contact method is
     ``"ipc"`` (each other, themselves where a shell's self-collision says so, the scene's colliders),
     checked to start apart; or None."""
     in_contact = [body for body in bodies if body.scene.contact is not None and body.scene.contact.method == "ipc"]
     if not in_contact:
         return None
-    from bhem_hpc.bodies.petsc import StackedBlocks
     from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps
     from bhem_hpc.contact.ipc_contribution import bodies_barrier as make_barrier
     from bhem_hpc.contact.ipc_friction import surface_friction
 
-    blocks = StackedBlocks([body.model for body in bodies])
     contact = in_contact[0].scene.contact
     meshes = [body.collision_mesh() for body in in_contact]
     barrier = make_barrier(meshes, [blocks.open_offsets[body.index] for body in in_contact], blocks.global_open_blocks,

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from bhem_hpc.bodies.petsc import StackedBlocks
 from bhem_hpc.bodies.run import bodies_barrier, make_body
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.io.cad import write_parts
@@ -86,7 +87,7 @@ class _Run:
         scene = load_any_scene(path)
         self.bodies = [make_body(n, k, b, comm) for k, (n, b) in enumerate(zip(scene.names, scene.bodies, strict=True))]
         self.models = [body.model for body in self.bodies]
-        self.barrier = bodies_barrier(self.bodies, scene, path)
+        self.barrier = bodies_barrier(self.bodies, StackedBlocks(self.models), scene, path)
         self.solver = make_solver(self.models, scene.first, path, [self.barrier])
         state = StackedState([body_state(m) for m in self.models])
         self.stepper = TimeStepper(self.models, self.solver, [], state=state)

@@ -22,9 +22,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Chord steps combined by Anderson mixing in problems with a potential, whose energy line search
+#: applies it (option ``chord_anderson_depth`` under the solver's prefix; 0: plain chord steps);
+#: of 3, 5 and 8, 5 took the fewest Newton iterations on the ball scene in contact.
+CHORD_ANDERSON_DEPTH = 5
 #: Relative Tikhonov term of the least-squares problem's normal equations (Gram matrix): steps
 #: that have become nearly parallel get small, not huge, coefficients.
 GRAM_REGULARIZATION = 1e-12
+
+
+def anderson_depth(value: str, prefix: str) -> int:
+    """The depth option's ``value`` under a solver's ``prefix`` (empty: :data:`CHORD_ANDERSON_DEPTH`).
+
+    Raises:
+        ValueError: not an integer >= 0 (naming the option and the value).
+    """
+    if not value:
+        return CHORD_ANDERSON_DEPTH
+    depth = int(value) if value.lstrip("+").isdigit() else -1
+    if depth < 0:
+        raise ValueError(f"option {prefix}chord_anderson_depth must be an integer >= 0, got {value!r}")
+    return depth
 
 
 def _no_reduction(local: np.ndarray) -> np.ndarray:

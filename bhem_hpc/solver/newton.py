@@ -22,7 +22,7 @@ from bhem_hpc.bodies.petsc import make_problem
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HessianLadder
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.acceleration import AccelerationTest, attach_acceleration_test
-from bhem_hpc.solver.anderson import AndersonMixing
+from bhem_hpc.solver.anderson import AndersonMixing, anderson_depth
 from bhem_hpc.solver.contributions import Contribution
 from bhem_hpc.solver.energy_trust_region import EnergyTrustRegion
 from bhem_hpc.solver.failure import solve_failure
@@ -54,10 +54,12 @@ from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, re
 from bhem_hpc.solver.trust_region import TrustRegionNewton
 
 log = logging.getLogger(__name__)
-#: Chord steps combined by Anderson mixing in problems with a potential, whose energy line search
-#: applies it (option ``chord_anderson_depth`` under the solver's prefix; 0: plain chord steps);
-#: of 3, 5 and 8, 5 took the fewest Newton iterations on the ball scene in contact.
-CHORD_ANDERSON_DEPTH = 5
+#: Where the residual has stopped falling (by half per iteration) and a full Newton step would lower
+#: the potential by less than this times its magnitude (its round-off), the iterate minimizes it to
+#: its precision and the solve stops: a stiff term (a penalty joint far from the origin) can keep the
+#: residual above ``atol`` there in round-off alone. Not sooner: an energy this flat still leaves
+#: errors of the order of the square root of its round-off in the state, which Newton removes.
+ROUNDOFF_DECREASE = 16 * np.finfo(float).eps
 #: The counters of :meth:`ShellSolver.counters` that count what Newton did besides plain steps.
 RECOVERY_COUNTERS = ("projected_iterations", "trust_region_solves", "trust_region_failures")
 #: The counters of :meth:`ShellSolver.counters` that count the linear solver's work.
@@ -138,7 +140,7 @@ class ShellSolver(PetscOwner):
         #: the bodies solved together; :attr:`model` is the first (the only one of a single body)
         self.bodies = ModelGroup(model)
         self.model, self.prefix = self.bodies.models[0], prefix
-        self._closed, self._energy_scale = False, 0.0
+        self._closed, self._energy_scale, self._at_roundoff, self._last_norm = False, 0.0, False, np.inf
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
@@ -158,8 +160,7 @@ class ShellSolver(PetscOwner):
         #: ``load factor -> values of the constrained DOFs`` (``model.constrained``) for static load
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
         #: straight from the initial values to the targets.
-        self.prescribed = None
-        comm = self.bodies.comm
+        self.prescribed, comm = None, self.bodies.comm
         self.x = PETSc.Vec().createMPI(self.bodies.closed_sizes, comm=comm)
         self.f = self.x.duplicate()
         self.factored_state = FactoredState(self.bodies.models)
@@ -199,15 +200,15 @@ class ShellSolver(PetscOwner):
                 self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
             try:
                 self.snes.setFromOptions()
-            except PETSc.Error as exc:
+                depth = anderson_depth(opts.getString(prefix + "chord_anderson_depth", ""), prefix)
+            except (PETSc.Error, ValueError) as exc:
                 given = {k: v for k, v in opts.getAll().items() if k.startswith(prefix)}
                 self.close()
-                raise SolverSetupError(
-                    f"SNES solver '{prefix}': PETSc rejected its options (error code {exc.ierr}: "
+                raise SolverSetupError(f"SNES solver '{prefix}': " + (str(exc) if isinstance(exc, ValueError) else (
+                    f"PETSc rejected its options (error code {exc.ierr}: "
                     f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')}); options under the "
-                    f"prefix: {dict(sorted(given.items()))}"
-                ) from None
-            self.anderson = AndersonMixing(self._anderson_depth(opts), reduce=lambda a: comm.allreduce(a))
+                    f"prefix: {dict(sorted(given.items()))}"))) from None
+            self.anderson = AndersonMixing(depth, reduce=lambda a: comm.allreduce(a))
             if acceleration_tolerance is not None:
                 self.acceleration = attach_acceleration_test(self, acceleration_tolerance)
         finally:
@@ -228,18 +229,6 @@ class ShellSolver(PetscOwner):
     @property
     def _adaptive(self) -> bool:
         return self.problem.hessian_kinds() == COMPOSED_HESSIANS["adaptive"]
-
-    def _anderson_depth(self, opts: PETSc.Options) -> int:
-        name = self.prefix + "chord_anderson_depth"
-        value = opts.getString(name, str(CHORD_ANDERSON_DEPTH))
-        try:
-            depth = int(value)
-        except ValueError:
-            depth = -1
-        if depth < 0:
-            self.close()
-            raise SolverSetupError(f"SNES solver '{self.prefix}': option {name} must be an integer >= 0, got {value!r}")
-        return depth
 
     @property
     def _dofs(self) -> int:
@@ -285,6 +274,7 @@ class ShellSolver(PetscOwner):
             for _ in range(3):
                 self.reuse.start_solve()
                 self._energy_scale = 0.0  # the potential's magnitude, once damp_step has met it
+                self._at_roundoff, self._last_norm = False, np.inf
                 self._accepted_energy = None
                 self.anderson.reset()
                 self._stage.push()
@@ -337,6 +327,12 @@ class ShellSolver(PetscOwner):
             slope = self._fresh_direction(x, y)  # a kept factorization's step that goes uphill
         indefinite = self.negative_pivots() > 0 or slope > 0
         accepted, self._accepted_energy = self._accepted_energy, None
+        norm = self.snes.getFunctionNorm()
+        stalled, self._last_norm = norm > 0.5 * self._last_norm, norm  # the residual at its floor
+        if stalled and not indefinite and abs(slope) <= ROUNDOFF_DECREASE * self._energy_scale:
+            y.zeroEntries()  # SNES stops on the empty step; :meth:`_converged` takes it
+            self._at_roundoff = True
+            return
         if not indefinite and abs(slope) <= 1e-9 * self._energy_scale:
             self._bound_step(x, y)
             return  # below the round-off of the potential met earlier in this solve: no assembly needed
@@ -626,7 +622,8 @@ class ShellSolver(PetscOwner):
         counts only with a residual near the solve's target: the energy line search takes no step
         when it finds no decrease, which SNES would otherwise report as converged."""
         reason, norm = self.snes.getConvergedReason(), self.snes.getFunctionNorm()
-        if reason == PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE and norm > 1e3 * self.target_norm:
+        stalled = reason == PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE and not self._at_roundoff
+        if stalled and norm > 1e3 * self.target_norm:
             return False
         return reason > 0 and bool(np.isfinite(norm))
 

@@ -32,14 +32,15 @@ GRAM_REGULARIZATION = 1e-12
 
 
 def anderson_depth(value: str, prefix: str) -> int:
-    """The depth option's ``value`` under a solver's ``prefix`` (empty: :data:`CHORD_ANDERSON_DEPTH`).
+    """The depth option's ``value`` under a solver's ``prefix`` (the default: :data:`CHORD_ANDERSON_DEPTH`).
 
     Raises:
         ValueError: not an integer >= 0 (naming the option and the value).
     """
-    if not value:
-        return CHORD_ANDERSON_DEPTH
-    depth = int(value) if value.lstrip("+").isdigit() else -1
+    try:
+        depth = int(value)
+    except ValueError:
+        depth = -1
     if depth < 0:
         raise ValueError(f"option {prefix}chord_anderson_depth must be an integer >= 0, got {value!r}")
     return depth

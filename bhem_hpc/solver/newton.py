@@ -22,7 +22,7 @@ from bhem_hpc.bodies.petsc import make_problem
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HessianLadder
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.acceleration import AccelerationTest, attach_acceleration_test
-from bhem_hpc.solver.anderson import AndersonMixing, anderson_depth
+from bhem_hpc.solver.anderson import CHORD_ANDERSON_DEPTH, AndersonMixing, anderson_depth
 from bhem_hpc.solver.contributions import Contribution
 from bhem_hpc.solver.energy_trust_region import EnergyTrustRegion
 from bhem_hpc.solver.failure import solve_failure
@@ -200,7 +200,8 @@ class ShellSolver(PetscOwner):
                 self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
             try:
                 self.snes.setFromOptions()
-                depth = anderson_depth(opts.getString(prefix + "chord_anderson_depth", ""), prefix)
+                depth = anderson_depth(opts.getString(prefix + "chord_anderson_depth", str(CHORD_ANDERSON_DEPTH)),
+                                       prefix)
             except (PETSc.Error, ValueError) as exc:
                 given = {k: v for k, v in opts.getAll().items() if k.startswith(prefix)}
                 self.close()

@@ -1,7 +1,10 @@
 """Shared fixtures. Every test runs serially and under ``mpirun -n 2`` (each rank runs the suite).
 
 Tests marked ``parallel`` compare a run on this process's ranks with a serial one: they can only
-fail on more than one rank, so a serial session does not collect them.
+fail on more than one rank, so a serial session does not collect them. Tests marked ``serial_child``
+start the command line as a serial child process of rank 0 (with no MPI environment) and check only
+what it does: a session on several ranks would start the same child and repeat the serial test, so
+it does not collect them.
 """
 
 from __future__ import annotations
@@ -53,12 +56,11 @@ def rng() -> np.random.Generator:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if MPI.COMM_WORLD.size > 1:
-        return
-    parallel = [item for item in items if item.get_closest_marker("parallel")]
-    if parallel:
-        config.hook.pytest_deselected(items=parallel)
-        items[:] = [item for item in items if not item.get_closest_marker("parallel")]
+    left_out = "serial_child" if MPI.COMM_WORLD.size > 1 else "parallel"
+    deselected = [item for item in items if item.get_closest_marker(left_out)]
+    if deselected:
+        config.hook.pytest_deselected(items=deselected)
+        items[:] = [item for item in items if not item.get_closest_marker(left_out)]
 
 
 @pytest.fixture

@@ -157,6 +157,7 @@ def test_a_path_continued_with_other_probes_is_refused_and_left_as_it_was(comm, 
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
 
 
+@pytest.mark.serial_child
 @pytest.mark.parametrize("ranks", ["abc", "0", "-3", "1.5"])
 def test_the_workstation_script_names_a_bad_rank_count(comm, shared_tmp_path, ranks):
     if comm.rank == 0:

@@ -12,9 +12,12 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import h5py
+import pytest
 from helpers import BASE
 
 from bhem_hpc.io import read_checkpoint
+
+pytestmark = pytest.mark.serial_child  # every test checks serial child processes
 
 
 def _child_env() -> dict[str, str]:

@@ -12,7 +12,10 @@ import tempfile
 import time
 from pathlib import Path
 
+import pytest
 from helpers import BASE, REPO, message_lines
+
+pytestmark = pytest.mark.serial_child  # every test checks serial child processes
 
 #: The child processes run without the parent's MPI environment (one rank each).
 ENV = {k: v for k, v in os.environ.items() if not k.startswith(("OMPI_", "PMIX_", "PMI_"))}

@@ -60,6 +60,7 @@ def test_the_page_compares_both_paths_with_a_factorization_per_newton_iteration(
     assert speedups(rows) == {}  # one rank only: the fresh case is no rank count of its own
 
 
+@pytest.mark.serial_child
 def test_the_command_runs_every_case_in_its_own_mpi_job(comm, shared_tmp_path):
     if comm.rank == 0:
         out = shared_tmp_path / "scaling"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from bhem_hpc.studies.path_page import CASES, write_path_following
 
 #: Largest error per job (the page's measure): arch and strip by their theories' approximations
@@ -13,6 +15,7 @@ BOUNDS = {
 }  # fmt: skip
 
 
+@pytest.mark.study
 def test_the_path_page_runs_every_job_within_its_bounds(comm, shared_tmp_path):
     page = write_path_following(shared_tmp_path / "docs", shared_tmp_path / "runs", comm)
     if comm.rank != 0:

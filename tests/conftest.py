@@ -3,8 +3,9 @@
 Tests marked ``parallel`` compare a run on this process's ranks with a serial one: they can only
 fail on more than one rank, so a serial session does not collect them. Tests marked ``serial_child``
 start the command line as a serial child process of rank 0 (with no MPI environment) and check only
-what it does: a session on several ranks would start the same child and repeat the serial test, so
-it does not collect them.
+what it does; tests marked ``rank_free`` use no communicator at all (numpy geometry, collision, the
+SEM pipeline, serial dolfinx references on ``COMM_SELF``). A session on several ranks would repeat
+either kind as the serial session runs it, on every rank, so it does not collect them.
 """
 
 from __future__ import annotations
@@ -56,11 +57,11 @@ def rng() -> np.random.Generator:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    left_out = "serial_child" if MPI.COMM_WORLD.size > 1 else "parallel"
-    deselected = [item for item in items if item.get_closest_marker(left_out)]
+    left_out = ("serial_child", "rank_free") if MPI.COMM_WORLD.size > 1 else ("parallel",)
+    deselected = [item for item in items if any(item.get_closest_marker(name) for name in left_out)]
     if deselected:
         config.hook.pytest_deselected(items=deselected)
-        items[:] = [item for item in items if not item.get_closest_marker(left_out)]
+        items[:] = [item for item in items if item not in deselected]
 
 
 @pytest.fixture

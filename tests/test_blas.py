@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 from bhem_hpc.blas import (
     choose_openblas_kernels,
     cpu_flags,
     generic_kernels_loaded,
     openblas_core,
 )
+
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
 
 AVX512 = {"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
 

@@ -9,6 +9,8 @@ from helpers import REPO
 from bhem_hpc.collision import Capsule, ColliderError, Cylinder, PatchModel, Plane, Sphere, TriangleMesh
 from bhem_hpc.collision.colliders import icosphere
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 MESHES = REPO / "meshes"
 
 

@@ -21,6 +21,8 @@ from bhem_hpc.collision import (
 )
 from bhem_hpc.geometry import surface as S
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def test_collision_imports_numpy_only():
     assert_imports_without("bhem_hpc.collision")

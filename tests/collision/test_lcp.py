@@ -8,6 +8,8 @@ import pytest
 
 from bhem_hpc.collision.lcp import block_pivoting, lawson_hanson, solve_lcp
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def contact_like(seed: int, rows: int, dofs: int) -> tuple[np.ndarray, np.ndarray]:
     """A dual matrix ``G G^T + eps I`` of ``rows`` rows on ``dofs`` DOFs (more rows than DOFs: nearly

@@ -12,6 +12,8 @@ from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry.surface import ParameterGrid, SurfaceError
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 CASES = [(p, periodic) for p in B.DEGREES for periodic in (False, True)]
 
 

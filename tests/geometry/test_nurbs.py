@@ -11,6 +11,8 @@ from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry import rational_bezier as rb
 from bhem_hpc.geometry.surface import SurfaceError
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def random_surface(rng) -> nurbs.NurbsSurface:
     """Degree 3 x 2 on non-uniform knots with a double interior knot, random positive weights."""

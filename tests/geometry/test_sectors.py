@@ -12,6 +12,8 @@ from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.model import bcs
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 @pytest.mark.parametrize("shapes", [S, B])
 def test_a_slit_full_turn_has_two_edges_at_the_same_place(shapes):

@@ -11,6 +11,8 @@ from helpers import REPO, assert_imports_without
 from bhem_hpc.geometry import hermite
 from bhem_hpc.geometry import surface as S
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def test_surface_module_imports_numpy_only():
     modules = (

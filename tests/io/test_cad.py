@@ -12,6 +12,8 @@ from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.io.cad import read_parts, write_parts
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def model(rng) -> list[nurbs.NurbsSurface]:
     knots_u = np.array([0, 0, 0, 0, 0.2, 0.5, 0.5, 0.9, 1.3, 1.3, 1.3, 1.3])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import ray_triangle_distances
 
 from bhem_hpc.benchmarks.timing import ray_benchmark
@@ -10,6 +11,8 @@ from bhem_hpc.geometry import surface as S
 from bhem_hpc.io import SurfaceTimeSeries, read_frame
 from bhem_hpc.io.render import camera_rays, render
 from bhem_hpc.model.material import Material
+
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
 
 
 def _tessellation_coverage(surface, eye, directions, density=24):

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bhem_hpc.model.hessian import MAX_EXACT_WAIT, HessianLadder
+
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
 
 
 def starts(needs: list[str]) -> list[str]:

@@ -11,11 +11,20 @@ import scipy.optimize
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.blending import ray_distances
-from bhem_hpc.solids.elasticity import Lame, inverse_3x3, neo_hookean, project_psd, st_venant_kirchhoff
+from bhem_hpc.solids.elasticity import (
+    Lame,
+    inverse_3x3,
+    neo_hookean,
+    positive_semidefinite,
+    project_psd,
+    st_venant_kirchhoff,
+)
 from bhem_hpc.solids.equilibrium import linearly_implicit_step, solve_static
 from bhem_hpc.solids.origins import assign_candidates, candidate_groups, deformation_origins
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
+
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
 
 RUBBER = SolidMaterial(density=1000.0, young=1e6, poisson=0.45)
 BOX = ([0.0, 0.0, 0.0], [2.0, 1.0, 0.5])
@@ -44,6 +53,26 @@ def test_stress_and_tangent_match_central_differences(energy, rng):
     assert np.linalg.eigvalsh(projected).min() > -1e-10
     spd = np.einsum("qab,qcb->qac", tangent, tangent)
     np.testing.assert_allclose(project_psd(spd), spd)
+
+
+def test_only_tangents_that_are_not_positive_semidefinite_are_projected(rng):
+    """Seeded Neo-Hookean tangents, some stretched past their stability, some at rest rotated
+    (singular in their rotations): the elimination test agrees with the smallest eigenvalue's sign
+    (zero within round-off of the largest), the semi-definite ones are kept as they are, the others
+    are the eigen-clamped ones (zero negative eigenvalues, the positive ones and their vectors kept)."""
+    from scipy.spatial.transform import Rotation
+
+    f = np.eye(3) + 0.15 * rng.normal(size=(400, 3, 3))
+    f[:100] = Rotation.random(100, random_state=7).as_matrix()
+    _, _, tangent = neo_hookean(f, np.full(400, 1e6), np.full(400, 4e6))
+    values, vectors = np.linalg.eigh(tangent)
+    passed = positive_semidefinite(tangent)
+    assert passed[:100].all() and 0.1 < passed[100:].mean() < 0.9  # both kinds present
+    np.testing.assert_array_equal(passed, values[:, 0] > -1e-12 * values[:, -1])
+    projected = project_psd(tangent)
+    np.testing.assert_array_equal(projected[passed], tangent[passed])
+    clamped = np.einsum("qab,qb,qcb->qac", vectors, np.maximum(values, 0.0), vectors)
+    np.testing.assert_allclose(projected[~passed], clamped[~passed], atol=1e-9 * np.abs(tangent).max())
 
 
 def test_cofactor_inverse_is_numpys_inverse(rng):

@@ -8,6 +8,8 @@ import pytest
 from bhem_hpc.studies.petsc import fem_tip_deflection
 from bhem_hpc.studies.solids_page import BEAM, BEAM_MATERIAL, GRAVITY, cantilever_rows
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 @pytest.mark.study
 def test_cantilever_sag_converges_to_the_fem_reference():

@@ -7,6 +7,8 @@ import pytest
 
 from bhem_hpc.studies.solid_twist import twist, twist_solid
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 @pytest.mark.study
 def test_a_twisted_beam_turns_its_midspan_by_half_the_end_angle():

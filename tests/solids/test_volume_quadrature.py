@@ -13,6 +13,8 @@ from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.solids.quadrature import ray_cast_quadrature
 from bhem_hpc.studies import sem_models
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def rodrigues(axis, angle: float) -> np.ndarray:
     k = np.asarray(axis, dtype=float) / np.linalg.norm(axis)

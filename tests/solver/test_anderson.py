@@ -9,6 +9,8 @@ import pytest
 
 from bhem_hpc.solver.anderson import AndersonMixing
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def linear_problem(seed: int, n: int = 40, perturbation: float = 0.01, condition: float = 1e3):
     """``F(x) = A x - b`` with SPD ``A`` and a kept factorization of ``P = A + E`` (``E`` SPD):

@@ -8,6 +8,8 @@ import pytest
 
 from bhem_hpc.solver.path_events import PathSample, events_between, hermite_extrema
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 def sample(f, df, s: float, pivots: int = 0) -> PathSample:
     return PathSample(s, float(f(s)), float(df(s)), pivots)

@@ -15,6 +15,8 @@ from bhem_hpc.solver.linear import (
 )
 from bhem_hpc.solver.reuse import FactorizationReuse, refactor_cost
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 SIGNATURE = (0.002, 0.0)
 
 

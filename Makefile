@@ -9,6 +9,9 @@ RUFF_VERSION := 0.8.4
 IPCTK_VERSION := 1.6.1
 # McNeel's OpenNURBS for Rhino .3dm files (bhem_hpc/io/cad.py)
 RHINO3DM_VERSION := 8.35.0
+# pytest-xdist: the serial half of the suite on two worker processes (one per core)
+XDIST_VERSION := 3.6.1
+EXECNET_VERSION := 2.1.1
 # The main job: a scene and its output directory (overwritten).
 SCENE ?= jobs/drape.toml
 OUT ?= out/demo
@@ -22,6 +25,7 @@ $(VENV)/.installed: pyproject.toml scripts/install-system-packages Makefile
 	[ -x $(PY) ] || $(SYSTEM_PYTHON) -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
 	$(PY) -m pip install -q ruff==$(RUFF_VERSION) ipctk==$(IPCTK_VERSION) rhino3dm==$(RHINO3DM_VERSION)
+	$(PY) -m pip install -q --no-deps execnet==$(EXECNET_VERSION) pytest-xdist==$(XDIST_VERSION)
 	touch $@
 
 demo: setup
@@ -32,8 +36,9 @@ test: setup lint test-serial test-mpi
 lint: setup
 	$(VENV)/bin/ruff check bhem_hpc forms tests
 
+# Serial tests on two worker processes, each taking the next test as it finishes one.
 test-serial: setup
-	$(PY) -m pytest
+	$(PY) -m pytest -n 2 --dist worksteal
 
 # Every rank runs the whole suite; rank 0 reports, the others write JUnit XML to out/.
 test-mpi: setup

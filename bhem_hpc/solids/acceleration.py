@@ -47,5 +47,9 @@ class SolidAccelerationResidual:
         whole[self.held] = 0.0
         return float(whole @ (self.inverse_mass * whole))
 
+    def lower_bound_squared(self, residual: np.ndarray) -> float:
+        """Collective: :meth:`mass_norm_squared` itself (the lumped mass needs no solve)."""
+        return self.mass_norm_squared(residual)
+
     def close(self) -> None:
         """Nothing to release (numpy arrays)."""

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 from helpers import REPO
@@ -12,7 +14,7 @@ from bhem_hpc.run import build_model, prescribed_motions
 from bhem_hpc.scene.loader import load_scene
 from bhem_hpc.scene.table import SceneError
 from bhem_hpc.solver import ShellSolver
-from bhem_hpc.solver.acceleration import AccelerationResidual
+from bhem_hpc.solver.acceleration import AccelerationResidual, certainly_above
 from bhem_hpc.solver.dynamics import TimeStepper
 from bhem_hpc.solver.state import ShellState
 
@@ -35,12 +37,14 @@ gravity = [1.0, -2.0, -9.5]
 """
 
 
-@pytest.mark.parametrize("discretization", ["hermite", "bspline2", "bspline3"])
-def test_a_uniform_acceleration_field_measures_its_magnitude(comm, shared_tmp_path, discretization):
-    """A free sheet at rest: its first residual is the gravity load ``-M g`` alone (no strain,
-    no inertia at the inertial prediction), so ``a_rms`` is ``|g|`` on every discretization, its
-    derivative and control-point DOFs included; a residual scaled by 3 measures 3 |g|."""
-    path = shared_tmp_path / f"free-{discretization}.toml"
+GRAVITY = np.array([1.0, -2.0, -9.5])
+
+
+@contextmanager
+def free_sheet_at_rest(comm, folder, discretization: str):
+    """A solver on a free sheet at rest, with ``solver.f`` its first time step's residual: the gravity
+    load ``-M g`` alone (no strain, no inertia at the inertial prediction)."""
+    path = folder / f"free-{discretization}.toml"
     if comm.rank == 0:
         path.write_text(FREE_SHEET.format(discretization=discretization))
     comm.barrier()
@@ -52,10 +56,18 @@ def test_a_uniform_acceleration_field_measures_its_magnitude(comm, shared_tmp_pa
         problem.state_to_vector(solver.x)
         problem.update_state(solver.x)
         problem.assemble_residual(solver.x, solver.f)
+        yield solver
+
+
+@pytest.mark.parametrize("discretization", ["hermite", "bspline2", "bspline3"])
+def test_a_uniform_acceleration_field_measures_its_magnitude(comm, shared_tmp_path, discretization):
+    """A free sheet at rest: ``a_rms`` of its gravity load is ``|g|`` on every discretization, its
+    derivative and control-point DOFs included; a residual scaled by 3 measures 3 |g|."""
+    with free_sheet_at_rest(comm, shared_tmp_path, discretization) as solver:
         residual = solver.acceleration.residual
-        assert residual.rms(solver.f) == pytest.approx(np.linalg.norm([1.0, -2.0, -9.5]), rel=1e-9)
+        assert residual.rms(solver.f) == pytest.approx(np.linalg.norm(GRAVITY), rel=1e-9)
         solver.f.scale(3.0)
-        assert residual.rms(solver.f) == pytest.approx(3 * np.linalg.norm([1.0, -2.0, -9.5]), rel=1e-9)
+        assert residual.rms(solver.f) == pytest.approx(3 * np.linalg.norm(GRAVITY), rel=1e-9)
         assert residual.mass == pytest.approx(472.6 * 3.18e-4 * 0.7 * 0.4, rel=1e-12)
 
 
@@ -63,21 +75,8 @@ def test_a_uniform_acceleration_field_measures_its_magnitude(comm, shared_tmp_pa
 def test_the_bound_that_spares_the_mass_solve_is_below_the_measure(comm, shared_tmp_path, discretization):
     """``|r|^2 / ||M||_inf <= r^T M^-1 r`` on seeded residuals, smooth (gravity's, 0.3 to 1 of it on
     these sheets) and rough ones; the stopping test solves only where the bound passes."""
-    from bhem_hpc.solver.acceleration import certainly_above
-
-    path = shared_tmp_path / f"bound-{discretization}.toml"
-    if comm.rank == 0:
-        path.write_text(FREE_SHEET.format(discretization=discretization))
-    comm.barrier()
-    scene = load_scene(path)
-    model = build_model(scene, comm)
-    with ShellSolver(model, prefix=f"bound_{discretization}_", acceleration_tolerance=1.0) as solver:
-        ShellState(model).begin_step(scene.dt)
-        problem = solver.problem
-        problem.state_to_vector(solver.x)
-        problem.update_state(solver.x)
-        problem.assemble_residual(solver.x, solver.f)
-        residual, g = solver.acceleration.residual, np.linalg.norm([1.0, -2.0, -9.5])
+    with free_sheet_at_rest(comm, shared_tmp_path, discretization) as solver:
+        residual, g = solver.acceleration.residual, np.linalg.norm(GRAVITY)
         bound = np.sqrt(residual.lower_bound_squared(solver.f.array_r) / residual.mass)
         assert 0.3 * g < bound <= g * (1 + 1e-12)
         assert certainly_above(residual, solver.f, 0.25 * g) and not certainly_above(residual, solver.f, g)

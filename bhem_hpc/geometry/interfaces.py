@@ -273,10 +273,14 @@ EDGE_BOX_SAMPLES = 33
 
 
 def _edge_box(surface: Patch, edge: str) -> np.ndarray:
-    """``(2, 3)``: lower and upper corner of the box around an edge's samples."""
+    """``(2, 3)``: lower and upper corner of a box around an edge: the box of its samples, widened
+    by their largest second difference. A curve bulges out of its chord between two samples by
+    about ``h^2 |x''| / 8`` (``h`` the sample step), an eighth of that difference: a short edge that
+    lies along a curved one near its extreme would otherwise fall outside its box."""
     along, value, (lo, hi), _ = edge_line(surface.grid, edge)
     x = surface.evaluate(*_on_edge(along, value, np.linspace(lo, hi, EDGE_BOX_SAMPLES))).x
-    return np.stack([x.min(axis=0), x.max(axis=0)])
+    bulge = np.linalg.norm(x[2:] - 2.0 * x[1:-1] + x[:-2], axis=1).max()
+    return np.stack([x.min(axis=0) - bulge, x.max(axis=0) + bulge])
 
 
 def find_joints(surfaces: Sequence[Patch], tolerance: float) -> tuple[list[FoundJoint], list[tuple[int, str]]]:

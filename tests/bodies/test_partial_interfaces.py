@@ -40,6 +40,27 @@ def _t_junction() -> dict[str, S.HermiteSurface]:
             "right": _rect((1.0, 2.0), (0.5, 1.0))}  # fmt: skip
 
 
+def _arc(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """A cylinder of radius 1 m about y: ``u`` the arc length from the top (z = 1), ``v`` along y."""
+    return np.stack([np.sin(u), v, np.cos(u)], -1)
+
+
+def test_a_short_edge_on_a_curved_edge_at_its_top_between_its_samples_is_found():
+    """A 4 cm patch beside a 1.94 m curved one, on its edge's top (z = 1 m at u = 0), halfway between
+    two of the 33 samples that box the long edge (whose chords pass 0.46 mm below the top, more
+    than the tolerance): the box widened by the samples' second difference still holds the short
+    edge, and the partial joint is found."""
+    spans = ParameterGrid(8, 2, (-1.0, 32 / 16.5 - 1.0), (0.0, 0.5), False, False)
+    long_patch = S.from_callable(_arc, spans)
+    short_patch = S.from_callable(_arc, ParameterGrid(1, 2, (-0.02, 0.02), (0.5, 1.0), False, False))
+    samples = long_patch.evaluate(np.linspace(-1.0, 32 / 16.5 - 1.0, 33), np.full(33, 0.5)).x
+    assert 1.0 - samples[:, 2].max() > 4e-4  # the samples miss the top by more than the tolerance
+    joints, _ = find_joints([long_patch, short_patch], 1e-4)
+    assert [(j.first, j.first_edge, j.second, j.second_edge, j.partial) for j in joints] == [
+        (0, "xi2_max", 1, "xi2_min", True)]  # fmt: skip
+    assert joints[0].quadrature.weights.sum() == pytest.approx(0.04, rel=1e-3)
+
+
 def test_a_t_junction_is_found_and_each_short_edge_pairs_with_its_half_of_the_long_one():
     """``find_joints`` joins the halves to each other (whole edges) and each to its half of the
     strip's edge (partial); the quadrature of a partial joint runs over the shared metre only, from

@@ -89,11 +89,12 @@ class AccelerationResidual(PetscOwner):
         else:
             self.matrix = open_mass.PtAP(prolongation)
             open_mass.destroy()
+        # the largest absolute row sum, before the held rows become the identity: at least the
+        # largest eigenvalue of M restricted to the free DOFs (symmetric), which r^T M^-1 r sees
+        self.largest_eigenvalue_bound = self.matrix.norm(PETSc.NormType.INFINITY)
         self.matrix.zeroRowsColumns(np.asarray(constrained_rows, dtype=PETSc.IntType), diag=1.0)
         self.matrix.setOption(PETSc.Mat.Option.SPD, True)
         self.comm = model.comm
-        # the largest absolute row sum: at least M's largest eigenvalue (M is symmetric)
-        self.largest_eigenvalue_bound = self.matrix.norm(PETSc.NormType.INFINITY)
         self.ksp = PETSc.KSP().create(model.comm)
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setOperators(self.matrix)
@@ -197,7 +198,10 @@ def certainly_above(
     return residual.lower_bound_squared(vector.array_r) > tolerance**2 * residual.mass
 
 
-def _passes(residual, vector: PETSc.Vec, tolerance: float) -> bool:
+def _passes(
+    residual: AccelerationResidual | BodiesAccelerationResidual | SolidAccelerationResidual, vector: PETSc.Vec,
+    tolerance: float,
+) -> bool:  # fmt: skip
     """Collective: ``a_rms`` of ``vector`` at most ``tolerance`` (a mass solve only where the bound allows it)."""
     return not certainly_above(residual, vector, tolerance) and residual.rms(vector) <= tolerance
 

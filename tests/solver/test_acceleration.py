@@ -41,12 +41,12 @@ GRAVITY = np.array([1.0, -2.0, -9.5])
 
 
 @contextmanager
-def free_sheet_at_rest(comm, folder, discretization: str):
-    """A solver on a free sheet at rest, with ``solver.f`` its first time step's residual: the gravity
-    load ``-M g`` alone (no strain, no inertia at the inertial prediction)."""
+def free_sheet_at_rest(comm, folder, discretization: str, extra: str = ""):
+    """A solver on a free sheet at rest (``extra``: more scene text), with ``solver.f`` its first time
+    step's residual: the gravity load ``-M g`` alone (no strain, no inertia at the inertial prediction)."""
     path = folder / f"free-{discretization}.toml"
     if comm.rank == 0:
-        path.write_text(FREE_SHEET.format(discretization=discretization))
+        path.write_text(FREE_SHEET.format(discretization=discretization) + extra)
     comm.barrier()
     scene = load_scene(path)
     model = build_model(scene, comm)
@@ -71,11 +71,16 @@ def test_a_uniform_acceleration_field_measures_its_magnitude(comm, shared_tmp_pa
         assert residual.mass == pytest.approx(472.6 * 3.18e-4 * 0.7 * 0.4, rel=1e-12)
 
 
+HELD_CORNERS = '\n[[constraints]]\ntype = "pin"\ncorners = ["min_max", "max_max"]\n'
+
+
+@pytest.mark.parametrize("held", ["", HELD_CORNERS])
 @pytest.mark.parametrize("discretization", ["hermite", "bspline2", "bspline3"])
-def test_the_bound_that_spares_the_mass_solve_is_below_the_measure(comm, shared_tmp_path, discretization):
+def test_the_bound_that_spares_the_mass_solve_is_below_the_measure(comm, shared_tmp_path, discretization, held):
     """``|r|^2 / ||M||_inf <= r^T M^-1 r`` on seeded residuals, smooth (gravity's, 0.3 to 1 of it on
-    these sheets) and rough ones; the stopping test solves only where the bound passes."""
-    with free_sheet_at_rest(comm, shared_tmp_path, discretization) as solver:
+    these sheets) and rough ones, with and without held corners (the held rows of ``M``, made the
+    identity, stay out of the bound); the stopping test solves only where the bound passes."""
+    with free_sheet_at_rest(comm, shared_tmp_path, discretization, held) as solver:
         residual, g = solver.acceleration.residual, np.linalg.norm(GRAVITY)
         bound = np.sqrt(residual.lower_bound_squared(solver.f.array_r) / residual.mass)
         assert 0.3 * g < bound <= g * (1 + 1e-12)

@@ -94,7 +94,6 @@ class AccelerationResidual(PetscOwner):
         self.largest_eigenvalue_bound = self.matrix.norm(PETSc.NormType.INFINITY)
         self.matrix.zeroRowsColumns(np.asarray(constrained_rows, dtype=PETSc.IntType), diag=1.0)
         self.matrix.setOption(PETSc.Mat.Option.SPD, True)
-        self.comm = model.comm
         self.ksp = PETSc.KSP().create(model.comm)
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setOperators(self.matrix)
@@ -118,9 +117,7 @@ class AccelerationResidual(PetscOwner):
     def mass_norm_squared(self, residual: np.ndarray) -> float:
         """Collective: ``r^T M^-1 r`` of this rank's owned entries ``residual`` of a closed residual
         (constrained rows left out) [N^2 / kg]."""
-        self.force.array[:] = residual
-        if len(self.constrained_local):
-            self.force.array[self.constrained_local] = 0.0
+        self._load_free_force(residual)
         self.ksp.solve(self.force, self.acceleration)
         reason = self.ksp.getConvergedReason()
         if reason < 0:
@@ -131,10 +128,14 @@ class AccelerationResidual(PetscOwner):
     def lower_bound_squared(self, residual: np.ndarray) -> float:
         """Collective: a lower bound of :meth:`mass_norm_squared` without a solve,
         ``|r|^2 / largest_eigenvalue_bound`` [N^2 / kg]."""
-        free = np.array(residual, dtype=float)
+        self._load_free_force(residual)
+        return self.force.dot(self.force) / self.largest_eigenvalue_bound
+
+    def _load_free_force(self, residual: np.ndarray) -> None:
+        """``force``: this rank's owned entries ``residual``, its constrained rows zero."""
+        self.force.array[:] = residual
         if len(self.constrained_local):
-            free[self.constrained_local] = 0.0
-        return self.comm.allreduce(float(free @ free)) / self.largest_eigenvalue_bound
+            self.force.array[self.constrained_local] = 0.0
 
     def close(self) -> None:
         """Destroy the mass matrix, its solver and vectors (idempotent)."""

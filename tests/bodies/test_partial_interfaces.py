@@ -11,7 +11,14 @@ from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_
 from bhem_hpc.bodies.petsc import StackedBlocks
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.geometry.grid import ParameterGrid
-from bhem_hpc.geometry.interfaces import InterfaceError, edge_overlap, element_across, find_joints, pair_edges
+from bhem_hpc.geometry.interfaces import (
+    EDGE_BOX_SAMPLES,
+    InterfaceError,
+    edge_overlap,
+    element_across,
+    find_joints,
+    pair_edges,
+)
 from bhem_hpc.model import bcs
 from bhem_hpc.model.loads import AreaLoad, Loads
 from bhem_hpc.model.material import Material
@@ -50,10 +57,11 @@ def test_a_short_edge_on_a_curved_edge_at_its_top_between_its_samples_is_found()
     two of the 33 samples that box the long edge (whose chords pass 0.46 mm below the top, more
     than the tolerance): the box widened by the samples' second difference still holds the short
     edge, and the partial joint is found."""
-    spans = ParameterGrid(8, 2, (-1.0, 32 / 16.5 - 1.0), (0.0, 0.5), False, False)
+    end = 32 / 16.5 - 1.0  # the top, u = 0, halfway between samples 16 and 17 of [-1, end]
+    spans = ParameterGrid(8, 2, (-1.0, end), (0.0, 0.5), False, False)
     long_patch = S.from_callable(_arc, spans)
     short_patch = S.from_callable(_arc, ParameterGrid(1, 2, (-0.02, 0.02), (0.5, 1.0), False, False))
-    samples = long_patch.evaluate(np.linspace(-1.0, 32 / 16.5 - 1.0, 33), np.full(33, 0.5)).x
+    samples = long_patch.evaluate(np.linspace(-1.0, end, EDGE_BOX_SAMPLES), np.full(EDGE_BOX_SAMPLES, 0.5)).x
     assert 1.0 - samples[:, 2].max() > 4e-4  # the samples miss the top by more than the tolerance
     joints, _ = find_joints([long_patch, short_patch], 1e-4)
     assert [(j.first, j.first_edge, j.second, j.second_edge, j.partial) for j in joints] == [

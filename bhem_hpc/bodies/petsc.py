@@ -38,6 +38,10 @@ from bhem_hpc.solver.contributions import (
     PointBasis,
     StepBounded,
     begin_lagged_step,
+    carried_by_obstacles,
+    moving_obstacles,
+    place_obstacles_within_step,
+    step_bound,
 )
 from bhem_hpc.solver.model_group import BodyModel
 from bhem_hpc.solver.petsc import PetscOwner
@@ -430,17 +434,34 @@ class StackedProblem(PetscOwner):
         blocks = [p.open_direction_blocks(v) for p, v in zip(self.problems, self._x, strict=True)]
         return self.max_open_step(np.concatenate([np.asarray(b).reshape(-1, 3) for b in blocks]))
 
-    def max_open_step(self, direction: np.ndarray) -> float:
+    def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
         """Collective: :meth:`max_step` of a direction on every body's open blocks side by side (the
-        rows of :meth:`contribution_state`), ``(blocks, 3)`` or flat."""
+        rows of :meth:`contribution_state`), ``(blocks, 3)`` or flat; ``swept_from``: a guess within a
+        time step, moving obstacles moving along."""
         blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
         offsets = self.open_offsets
-        fraction = min(1.0, *(p.max_open_step(blocks[offsets[b]:offsets[b + 1]]) for b, p in enumerate(self.problems)))
-        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
-        if bounded:
-            state = self.contribution_state()
-            fraction = min(fraction, *(float(c.max_step(state, blocks)) for c in bounded))
+        fraction = min(1.0, *(p.max_open_step(blocks[offsets[b]:offsets[b + 1]], swept_from)
+                              for b, p in enumerate(self.problems)))  # fmt: skip
+        if any(isinstance(c, StepBounded) for c in self.contributions):
+            fraction = min(fraction, step_bound(self.contributions, self.contribution_state(), blocks, swept_from))
         return fraction
+
+    @property
+    def moves_obstacles(self) -> bool:
+        """Whether a body's or a coupling contribution's obstacles move during a time step."""
+        return any(p.moves_obstacles for p in self.problems) or moving_obstacles(self.contributions)
+
+    def place_obstacles_within_step(self, fraction: float) -> None:
+        """Every body's and coupling contribution's moving obstacles where they are at ``fraction`` of the time step."""
+        for problem in self.problems:
+            problem.place_obstacles_within_step(fraction)
+        place_obstacles_within_step(self.contributions, fraction)
+
+    def carried_by_obstacles(self, since: float) -> np.ndarray:
+        """Collective: every body's open blocks' displacement side by side ``(blocks, 3)`` that carries
+        what moving obstacles reach from the fraction ``since`` of the time step to its end."""
+        own = np.concatenate([p.carried_by_obstacles(since) for p in self.problems])
+        return own + carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the stacked Jacobian."""

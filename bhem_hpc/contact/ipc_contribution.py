@@ -17,11 +17,12 @@ blocks lie within the block pairs of the mesh's triangles: the pattern is fixed 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import scipy.sparse
+import scipy.sparse.linalg
 
 from bhem_hpc.contact.ipc import IpcError, chord_gap, collision_lattice, minimum_distance
 from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, FRICTIONLESS, Friction, LaggedFriction, pair_table
@@ -44,6 +45,9 @@ class Communicator(Protocol):
 #: A sphere (a capsule) meets the barrier as an icosphere (a mesh of rings) whose faces lie at most
 #: this fraction of dhat inside it (a shell resting on it may sink that far into the exact shape).
 SPHERE_SAGITTA = 0.25
+#: A step's first guess moves a vertex towards a translating plane until at most this fraction of
+#: its gap at the step's start is left (as ipc-toolkit's additive CCD stops short of contact).
+PLANE_GAP_KEPT = 0.1
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.
 WEIGHT_CUTOFF = 1e-12
@@ -51,17 +55,26 @@ WEIGHT_CUTOFF = 1e-12
 
 @dataclass(frozen=True)
 class Obstacles:
-    """Colliders as the barrier sees them.
+    """Colliders as the barrier sees them, where they are at time 0, each translating at a constant velocity.
 
     Attributes:
         meshes: ``(vertices (V, 3), triangles (F, 3), surface velocity, collider index)``, the
             surface velocity a function of time [s] giving the vertices' ``(V, 3)`` [m/s].
         planes: ``(unit normal, point)``; plane_colliders: each plane's collider index.
+        mesh_velocities, plane_velocities: each mesh's and plane's translation velocity ``(3,)``
+            [m/s] (empty: all at rest).
     """
 
     meshes: list[tuple[np.ndarray, np.ndarray, Callable[[float], np.ndarray], int]]
     planes: list[tuple[np.ndarray, np.ndarray]]
     plane_colliders: list[int]
+    mesh_velocities: list[np.ndarray] = field(default_factory=list)
+    plane_velocities: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def moving(self) -> bool:
+        """Whether some obstacle translates."""
+        return any(np.any(v) for v in [*self.mesh_velocities, *self.plane_velocities])
 
 
 class CoarseCollisionMesh(IpcError):
@@ -145,6 +158,8 @@ class IpcBarrier:
         # iterations in the landing step, additive CCD 0.02 s and 27 (measured)
         self._ccd = ipctk.AdditiveCCD()
         self.friction = friction
+        self._translation = self._translation_weights()
+        self._step = (0.0, 0.0)  # the time step of the last begin_step: its start and length [s]
 
     def _triangle_pattern(self, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs ``(i, j)`` of mesh blocks (columns of the global map) that share a triangle."""
@@ -168,6 +183,18 @@ class IpcBarrier:
             faces.append(np.asarray(obstacle_faces) + start)
             start += len(vertices[-1])
         self._obstacle_vertices = np.concatenate(vertices[1:]) if obstacles.meshes else np.zeros((0, 3))
+        self._obstacle_rest = self._obstacle_vertices  # where the obstacles are at time 0
+        velocities = obstacles.mesh_velocities or [np.zeros(3)] * len(obstacles.meshes)
+        self._obstacle_velocity = np.concatenate(
+            [np.broadcast_to(np.asarray(v, dtype=float), (len(points), 3)) for (points, *_), v
+             in zip(obstacles.meshes, velocities, strict=True)]) if obstacles.meshes else np.zeros((0, 3))  # fmt: skip
+        self._mesh_groups = [(np.asarray(v, dtype=float), len(points))
+                             for (points, *_), v in zip(obstacles.meshes, velocities, strict=True)]  # fmt: skip
+        plane_velocities = obstacles.plane_velocities or [np.zeros(3)] * len(obstacles.planes)
+        self._planes = [(np.asarray(n, dtype=float), np.asarray(p, dtype=float), np.asarray(v, dtype=float))
+                        for (n, p), v in zip(obstacles.planes, plane_velocities, strict=True)]  # fmt: skip
+        #: whether some obstacle translates (its place follows the time steps, :meth:`place_obstacles`)
+        self.moving = obstacles.moving
         faces = np.ascontiguousarray(np.concatenate(faces).astype(np.int32))
         mesh = ipctk.CollisionMesh(np.asfortranarray(np.concatenate(vertices)), ipctk.edges(faces), faces)
         # only pairs across groups meet: a vertex group per body without self-contact, one per vertex
@@ -176,9 +203,18 @@ class IpcBarrier:
         every[: self.num_points] = groups - groups.min() if len(groups) else groups
         every[self.num_points:] = every[: self.num_points].max(initial=-1) + 1
         mesh.can_collide = ipctk.make_vertex_patches_filter(every)
-        mesh.planes = [ipctk.Hyperplane(np.asarray(n, dtype=float), np.asarray(p, dtype=float))
-                       for n, p in obstacles.planes]  # fmt: skip
+        mesh.planes = self._planes_at(0.0)
         return mesh
+
+    def _planes_at(self, time: float) -> list:
+        return [self._ipctk.Hyperplane(n, p + time * v) for n, p, v in self._planes]
+
+    def place_obstacles(self, time: float) -> None:
+        """Put the translating obstacles where they are at ``time`` [s]: the barrier, its Newton step
+        bound and :meth:`starting_problem` meet them there."""
+        if self.moving:
+            self._obstacle_vertices = self._obstacle_rest + time * self._obstacle_velocity
+            self.mesh.planes = self._planes_at(time)
 
     def _vertices(self, positions: np.ndarray) -> np.ndarray:
         """Collective: the mesh's vertices for this rank's open block positions ``(blocks, 3)``."""
@@ -205,10 +241,14 @@ class IpcBarrier:
 
     def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
         """Collective: with friction, lag the contacts at the step's start (their normal forces and
-        tangent bases) for a step from ``time`` of ``dt`` [s]."""
+        tangent bases) for a step from ``time`` of ``dt`` [s]; then the translating obstacles go to
+        where they are at the step's end, where the step's Newton meets them."""
+        self.place_obstacles(time)
         if self.friction is not None:
             vertices = self._vertices(state.positions)
             self.friction.lag(self.mesh, vertices, self._collisions(vertices), self.barrier, time, dt)
+        self._step = (time, dt)
+        self.place_obstacles(time + dt)
 
     def energy(self, state: ContributionState) -> float:
         vertices = self._vertices(state.positions)
@@ -271,6 +311,84 @@ class IpcBarrier:
         start = self._vertices(state.positions)
         end = self._vertices(np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3))
         return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+
+    def _translation_weights(self) -> np.ndarray:
+        """Weights ``c`` ``(local blocks,)`` with ``local_map @ c = 1`` where the rank holds points:
+        adding ``c t`` to the blocks translates their points by ``t`` (B-spline control points 1,
+        Hermite nodal values 1 and derivatives 0; least squares on the map)."""
+        rows = np.flatnonzero(np.diff(self.local_map.indptr))
+        weights = np.zeros(self.local_map.shape[1])
+        if len(rows):
+            weights = scipy.sparse.linalg.lsqr(self.local_map[rows], np.ones(len(rows)), atol=1e-14, btol=1e-14)[0]
+        return weights
+
+    def carried(self, state: ContributionState, since: float) -> np.ndarray:
+        """Collective: the open blocks' displacement ``(blocks, 3)`` that carries what the moving
+        obstacles reach from the fraction ``since`` of the step to its end with them: the blocks of
+        every point within dhat plus the obstacle's remaining travel of it, moved by that travel."""
+        time, dt = self._step
+        remaining = (1.0 - since) * dt
+        displacement = np.zeros_like(np.asarray(state.positions, dtype=float).reshape(-1, 3))
+        if not self.moving:
+            return displacement
+        self.place_obstacles(time + since * dt)
+        shell = self._vertices(state.positions)[: self.num_points]
+        self.place_obstacles(time + dt)
+        travels, reached = [], []
+        for normal, point, velocity in self._planes:
+            travel = remaining * velocity
+            gap = (shell - point - (time + since * dt) * velocity) @ normal
+            travels.append(travel)
+            reached.append(gap < self.dhat + max(travel @ normal, 0.0))
+        start, at = 0, time + since * dt
+        for velocity, points in self._mesh_groups:
+            travel = remaining * velocity
+            vertices = self._obstacle_rest[start:start + points] + at * velocity
+            start += points
+            low = np.minimum(vertices.min(axis=0), vertices.min(axis=0) + travel) - self.dhat
+            high = np.maximum(vertices.max(axis=0), vertices.max(axis=0) + travel) + self.dhat
+            travels.append(travel)
+            reached.append(np.all((shell >= low) & (shell <= high), axis=1))
+        for travel, near in zip(travels, reached, strict=True):
+            if np.any(travel) and np.any(near):
+                blocks = np.unique(self.local_map[np.flatnonzero(near)].indices)
+                displacement[blocks] = self._translation[blocks, None] * travel
+        return displacement
+
+    def place_obstacles_within_step(self, fraction: float) -> None:
+        """Put the translating obstacles where they are at ``fraction`` of the step of the last
+        :meth:`begin_step` (1: its end)."""
+        time, dt = self._step
+        self.place_obstacles(time + fraction * dt)
+
+    def max_swept_step(self, state: ContributionState, direction: np.ndarray, since: float = 0.0) -> float:
+        """Collective: :meth:`max_step` of a guess within the step of the last :meth:`begin_step`,
+        the obstacles moving along with it from where they are at the fraction ``since`` of the step
+        to where they are at its end (and left there). ipc-toolkit's CCD takes the moving meshes;
+        planes are met here, a vertex stopping where :data:`PLANE_GAP_KEPT` of its gap is left."""
+        if not self.moving:
+            return self.max_step(state, direction)
+        time, dt = self._step
+        start_time, end_time = time + since * dt, time + dt
+        end_positions = np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3)
+        self.place_obstacles(start_time)
+        start = self._vertices(state.positions)
+        self.place_obstacles(end_time)
+        end = self._vertices(end_positions)
+        planes, self.mesh.planes = self.mesh.planes, []
+        try:
+            bound = float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+        finally:
+            self.mesh.planes = planes
+        shell = slice(0, self.num_points)
+        for normal, point, velocity in self._planes:
+            gap_start = (start[shell] - point - start_time * velocity) @ normal
+            gap_end = (end[shell] - point - end_time * velocity) @ normal
+            closing = gap_end < PLANE_GAP_KEPT * gap_start
+            if np.any(closing):
+                fractions = (1.0 - PLANE_GAP_KEPT) * gap_start[closing] / (gap_start[closing] - gap_end[closing])
+                bound = min(bound, float(np.clip(fractions, 0.0, 1.0).min()))
+        return bound
 
     def min_distance(self, positions: np.ndarray) -> float:
         """Collective: the smallest distance [m] between the mesh and the obstacles within ``dhat``
@@ -471,28 +589,31 @@ def _obstacles(colliders: Sequence[Any], dhat: float) -> Obstacles:
     within :data:`SPHERE_SAGITTA` dhat, a sphere's vertices moving at its surface velocity) and planes."""
     from bhem_hpc.collision.colliders import Capsule, Plane, Sphere
 
-    meshes, planes, plane_colliders = [], [], []
+    meshes, planes, plane_colliders, mesh_velocities, plane_velocities = [], [], [], [], []
     for index, c in enumerate(colliders):
         if isinstance(c, Plane):
             planes.append((c.normal / np.linalg.norm(c.normal), c.point))
             plane_colliders.append(index)
+            plane_velocities.append(np.asarray(c.velocity, dtype=float))
             continue
         rounded = isinstance(c, Sphere | Capsule)
         points, faces = c.triangles(SPHERE_SAGITTA * dhat) if rounded else (c.vertices, c.triangles)
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
-    return Obstacles(meshes, planes, plane_colliders)
+        mesh_velocities.append(np.asarray(c.velocity, dtype=float))
+    return Obstacles(meshes, planes, plane_colliders, mesh_velocities, plane_velocities)
 
 
 def _surface_velocity(collider: Any, points: np.ndarray) -> Callable[[float], np.ndarray]:
-    """The velocity of a static collider's surface at its mesh's ``points`` ``(V, 3)`` as a function
-    of time (a spinning sphere's turns; other colliders' are at rest)."""
+    """The velocity of a collider's surface at its mesh's ``points`` ``(V, 3)`` as a function of
+    time: its translation's, and a spinning sphere's turn (the turn about the centre is the same
+    wherever the translation has taken the sphere)."""
     from bhem_hpc.collision.colliders import Sphere
 
     if isinstance(collider, Sphere):
         return lambda time: collider.surface_velocity(points, time)
-    resting = np.zeros_like(points)
-    return lambda time: resting
+    translating = np.broadcast_to(np.asarray(collider.velocity, dtype=float), points.shape).copy()
+    return lambda time: translating
 
 
 def _kappa(rest: np.ndarray, dhat: float, mass_per_vertex: float) -> float:

@@ -400,10 +400,14 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
     colliders = parse_colliders(colliders_raw, friction, path, static_friction, method="ipc")
     for i, entry in enumerate(colliders):
         collider = entry.collider
-        if not isinstance(collider, Plane | Sphere | Capsule | TriangleMesh) or np.any(collider.velocity != 0):
-            kind, moving = type(collider).__name__.lower(), list(collider.velocity)
-            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets static planes, spheres (spinning "
-                             f"or not), capsules, needles and meshes, got a {kind} moving at {moving}")  # fmt: skip
+        if not isinstance(collider, Plane | Sphere | Capsule | TriangleMesh):
+            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets planes, spheres (spinning or not), "
+                             f"capsules, needles and meshes, resting or translating, got a "
+                             f"{type(collider).__name__.lower()}")  # fmt: skip
+        if isinstance(collider, Plane) and np.any(collider.velocity != 0) and (entry.friction or entry.static_friction):
+            raise SceneError(f"{path}: key 'colliders[{i}].friction' = {entry.friction!r}: a translating plane meets "
+                             "the shell without friction by 'ipc' (ipc-toolkit's plane contacts rub against a plane "
+                             "at rest); a mesh collider moving so takes friction")  # fmt: skip
     return SceneContact(colliders, 0.0, 1, self_collision, friction, method="ipc", dhat=dhat, barrier_stiffness=kappa,
                         collision_cells=cells, friction=friction, static_friction=static_friction,
                         eps_v=eps_v)  # fmt: skip

@@ -20,7 +20,16 @@ import scipy.sparse
 from petsc4py import PETSc
 
 from bhem_hpc.solids.model import SolidModel
-from bhem_hpc.solver.contributions import Contribution, ContributionState, StepBounded, begin_lagged_step
+from bhem_hpc.solver.contributions import (
+    Contribution,
+    ContributionState,
+    StepBounded,
+    begin_lagged_step,
+    carried_by_obstacles,
+    moving_obstacles,
+    place_obstacles_within_step,
+    step_bound,
+)
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import (
     add_contribution_hessians,
@@ -198,13 +207,26 @@ class SolidProblem(PetscOwner):
         """Collective: the largest fraction of the step every step-bounded contribution admits."""
         return self.max_open_step(self.open_direction_blocks(direction)) if self.has_step_bounds else 1.0
 
-    def max_open_step(self, direction: np.ndarray) -> float:
-        """Collective: :meth:`max_step` of a direction on every control point ``(n_q, 3)``."""
-        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
-        if not bounded:
+    def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
+        """Collective: :meth:`max_step` of a direction on every control point ``(n_q, 3)``; ``swept_from``:
+        a guess within a time step, moving obstacles moving along."""
+        if not self.has_step_bounds:
             return 1.0
-        state = self.contribution_state()
-        return min(1.0, *(float(c.max_step(state, np.asarray(direction).reshape(-1, 3))) for c in bounded))
+        return step_bound(self.contributions, self.contribution_state(), direction, swept_from)
+
+    @property
+    def moves_obstacles(self) -> bool:
+        """Whether a contribution's obstacles move during a time step (translating colliders)."""
+        return moving_obstacles(self.contributions)
+
+    def place_obstacles_within_step(self, fraction: float) -> None:
+        """Moving obstacles where they are at ``fraction`` of the time step."""
+        place_obstacles_within_step(self.contributions, fraction)
+
+    def carried_by_obstacles(self, since: float) -> np.ndarray:
+        """Collective: the open layout's displacement ``(blocks, 3)`` that carries what moving
+        obstacles reach from the fraction ``since`` of the time step to its end along with them."""
+        return carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a direction on the owned DOFs as every control point's ``(n_q, 3)``."""

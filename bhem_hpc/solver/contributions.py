@@ -82,6 +82,65 @@ class StepBounded(Contribution, Protocol):
 
 
 @runtime_checkable
+class SweptStepBounded(StepBounded, Protocol):
+    """A step-bounded contribution whose obstacles may move during a time step (translating
+    colliders): a time step's first guess must not cross them while they move."""
+
+    #: whether some obstacle moves
+    moving: bool
+
+    def max_swept_step(self, state: ContributionState, direction: np.ndarray, since: float) -> float:
+        """Collective: :meth:`StepBounded.max_step` of a guess within a time step, the obstacles
+        moving along with it from their places at the fraction ``since`` of the step to those at
+        its end."""
+        ...
+
+    def place_obstacles_within_step(self, fraction: float) -> None:
+        """Put the obstacles where they are at ``fraction`` of the time step (1: its end, where
+        :meth:`StepLagged.begin_step` puts them)."""
+        ...
+
+    def carried(self, state: ContributionState, since: float) -> np.ndarray:
+        """Collective: a displacement of the open blocks ``(blocks, 3)`` that carries what the moving
+        obstacles reach from the fraction ``since`` of the time step to its end along with them."""
+        ...
+
+
+def step_bound(contributions: Sequence[Contribution], state: ContributionState, direction: np.ndarray,
+               swept_from: float | None = None) -> float:  # fmt: skip
+    """Collective: the largest fraction of ``direction`` ``(blocks, 3)`` from ``state`` that every
+    :class:`StepBounded` one of ``contributions`` admits (1: none bounds it); ``swept_from``: a
+    guess within a time step, moving obstacles moving along from that fraction of the step to its
+    end (:class:`SweptStepBounded`)."""
+    blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
+    bounds = [c.max_swept_step(state, blocks, swept_from)
+              if swept_from is not None and isinstance(c, SweptStepBounded) else c.max_step(state, blocks)
+              for c in contributions if isinstance(c, StepBounded)]  # fmt: skip
+    return min(1.0, *(float(b) for b in bounds))
+
+
+def moving_obstacles(contributions: Sequence[Contribution]) -> bool:
+    """Whether one of ``contributions`` has obstacles that move during a time step."""
+    return any(isinstance(c, SweptStepBounded) and c.moving for c in contributions)
+
+
+def carried_by_obstacles(contributions: Sequence[Contribution], state: ContributionState, since: float) -> np.ndarray:
+    """Collective: the sum of the moving obstacles' :meth:`SweptStepBounded.carried` displacements ``(blocks, 3)``."""
+    displacement = np.zeros_like(np.asarray(state.positions, dtype=float).reshape(-1, 3))
+    for c in contributions:
+        if isinstance(c, SweptStepBounded) and c.moving:
+            displacement += c.carried(state, since)
+    return displacement
+
+
+def place_obstacles_within_step(contributions: Sequence[Contribution], fraction: float) -> None:
+    """Every moving obstacle of ``contributions`` where it is at ``fraction`` of the time step."""
+    for c in contributions:
+        if isinstance(c, SweptStepBounded) and c.moving:
+            c.place_obstacles_within_step(fraction)
+
+
+@runtime_checkable
 class GrowingPattern(Contribution, Protocol):
     """A contribution whose Hessian may reach beyond its fixed pattern (a barrier between parts of
     a mesh that share no triangle: self-contact, contact between bodies)."""

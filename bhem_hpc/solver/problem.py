@@ -27,7 +27,11 @@ from bhem_hpc.solver.contributions import (
     PointLoads,
     StepBounded,
     begin_lagged_step,
+    carried_by_obstacles,
     diagonal_compensation,
+    moving_obstacles,
+    place_obstacles_within_step,
+    step_bound,
 )
 from bhem_hpc.solver.form_terms import ShellFormTerms
 from bhem_hpc.solver.petsc import PetscOwner
@@ -343,15 +347,27 @@ class ShellProblem(PetscOwner):
             return 1.0
         return self.max_open_step(self.open_direction_blocks(direction))
 
-    def max_open_step(self, direction: np.ndarray) -> float:
+    def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
         """Collective: :meth:`max_step` of a direction given on this rank's open layout (owned and
-        ghost entries, ``model.x.x.array``'s layout)."""
-        bounded = [c for c in self.contributions if isinstance(c, StepBounded)]
-        if not bounded:
+        ghost entries, ``model.x.x.array``'s layout); ``swept_from``: a guess within a time step, moving
+        obstacles moving along (:func:`~bhem_hpc.solver.contributions.step_bound`)."""
+        if not self.has_step_bounds:
             return 1.0
-        state = self.contribution_state()
-        blocks = np.asarray(direction).reshape(-1, 3)
-        return min(1.0, *(float(c.max_step(state, blocks)) for c in bounded))
+        return step_bound(self.contributions, self.contribution_state(), direction, swept_from)
+
+    @property
+    def moves_obstacles(self) -> bool:
+        """Whether a contribution's obstacles move during a time step (translating colliders)."""
+        return moving_obstacles(self.contributions)
+
+    def place_obstacles_within_step(self, fraction: float) -> None:
+        """Moving obstacles where they are at ``fraction`` of the time step."""
+        place_obstacles_within_step(self.contributions, fraction)
+
+    def carried_by_obstacles(self, since: float) -> np.ndarray:
+        """Collective: the open layout's displacement ``(blocks, 3)`` that carries what moving
+        obstacles reach from the fraction ``since`` of the time step to its end along with them."""
+        return carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a closed-DOF direction on this rank's open blocks (owned and ghosts), ``(blocks, 3)``."""

@@ -457,11 +457,14 @@ class StackedProblem(PetscOwner):
             problem.place_obstacles_within_step(fraction)
         place_obstacles_within_step(self.contributions, fraction)
 
-    def carried_by_obstacles(self, since: float) -> np.ndarray:
-        """Collective: every body's open blocks' displacement side by side ``(blocks, 3)`` that carries
-        what moving obstacles reach from the fraction ``since`` of the time step to its end."""
-        own = np.concatenate([p.carried_by_obstacles(since) for p in self.problems])
-        return own + carried_by_obstacles(self.contributions, self.contribution_state(), since)
+    def carried_by_obstacles(self, since: float) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: every body's open blocks side by side that moving obstacles reach from the
+        fraction ``since`` of the time step to its end ``(blocks,)``, and their displacement ``(blocks, 3)``."""
+        own = [p.carried_by_obstacles(since) for p in self.problems]
+        reached, displacement = (np.concatenate(parts) for parts in zip(*own, strict=True))
+        shared, moved = carried_by_obstacles(self.contributions, self.contribution_state(), since)
+        displacement[shared] = moved[shared]
+        return reached | shared, displacement
 
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the stacked Jacobian."""

@@ -322,15 +322,16 @@ class IpcBarrier:
             weights = scipy.sparse.linalg.lsqr(self.local_map[rows], np.ones(len(rows)), atol=1e-14, btol=1e-14)[0]
         return weights
 
-    def carried(self, state: ContributionState, since: float) -> np.ndarray:
-        """Collective: the open blocks' displacement ``(blocks, 3)`` that carries what the moving
-        obstacles reach from the fraction ``since`` of the step to its end with them: the blocks of
-        every point within dhat plus the obstacle's remaining travel of it, moved by that travel."""
+    def carried(self, state: ContributionState, since: float) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the open blocks ``(blocks,)`` (a mask) of every point within dhat plus an
+        obstacle's travel from the fraction ``since`` of the step to its end, and the displacement
+        ``(blocks, 3)`` that moves them by that travel (a translation of their points)."""
         time, dt = self._step
         remaining = (1.0 - since) * dt
         displacement = np.zeros_like(np.asarray(state.positions, dtype=float).reshape(-1, 3))
+        carried = np.zeros(len(displacement), dtype=bool)
         if not self.moving:
-            return displacement
+            return carried, displacement
         self.place_obstacles(time + since * dt)
         shell = self._vertices(state.positions)[: self.num_points]
         self.place_obstacles(time + dt)
@@ -353,7 +354,8 @@ class IpcBarrier:
             if np.any(travel) and np.any(near):
                 blocks = np.unique(self.local_map[np.flatnonzero(near)].indices)
                 displacement[blocks] = self._translation[blocks, None] * travel
-        return displacement
+                carried[blocks] = True
+        return carried, displacement
 
     def place_obstacles_within_step(self, fraction: float) -> None:
         """Put the translating obstacles where they are at ``fraction`` of the step of the last

@@ -223,9 +223,9 @@ class SolidProblem(PetscOwner):
         """Moving obstacles where they are at ``fraction`` of the time step."""
         place_obstacles_within_step(self.contributions, fraction)
 
-    def carried_by_obstacles(self, since: float) -> np.ndarray:
-        """Collective: the open layout's displacement ``(blocks, 3)`` that carries what moving
-        obstacles reach from the fraction ``since`` of the time step to its end along with them."""
+    def carried_by_obstacles(self, since: float) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the open blocks moving obstacles reach from the fraction ``since`` of the time
+        step to its end ``(blocks,)`` and the displacement ``(blocks, 3)`` that carries them along."""
         return carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:

@@ -100,9 +100,10 @@ class SweptStepBounded(StepBounded, Protocol):
         :meth:`StepLagged.begin_step` puts them)."""
         ...
 
-    def carried(self, state: ContributionState, since: float) -> np.ndarray:
-        """Collective: a displacement of the open blocks ``(blocks, 3)`` that carries what the moving
-        obstacles reach from the fraction ``since`` of the time step to its end along with them."""
+    def carried(self, state: ContributionState, since: float) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the open blocks the moving obstacles reach from the fraction ``since`` of the
+        time step to its end ``(blocks,)`` (a mask) and the displacement ``(blocks, 3)`` that moves
+        them along with the obstacles (zero elsewhere)."""
         ...
 
 
@@ -124,13 +125,18 @@ def moving_obstacles(contributions: Sequence[Contribution]) -> bool:
     return any(isinstance(c, SweptStepBounded) and c.moving for c in contributions)
 
 
-def carried_by_obstacles(contributions: Sequence[Contribution], state: ContributionState, since: float) -> np.ndarray:
-    """Collective: the sum of the moving obstacles' :meth:`SweptStepBounded.carried` displacements ``(blocks, 3)``."""
+def carried_by_obstacles(contributions: Sequence[Contribution], state: ContributionState,
+                         since: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Collective: the blocks every moving obstacle of ``contributions`` reaches ``(blocks,)`` and
+    their displacement ``(blocks, 3)`` (:meth:`SweptStepBounded.carried`; the last one's where two reach a block)."""
     displacement = np.zeros_like(np.asarray(state.positions, dtype=float).reshape(-1, 3))
+    reached = np.zeros(len(displacement), dtype=bool)
     for c in contributions:
         if isinstance(c, SweptStepBounded) and c.moving:
-            displacement += c.carried(state, since)
-    return displacement
+            mask, moved = c.carried(state, since)
+            reached |= mask
+            displacement[mask] = moved[mask]
+    return reached, displacement
 
 
 def place_obstacles_within_step(contributions: Sequence[Contribution], fraction: float) -> None:

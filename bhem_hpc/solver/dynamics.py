@@ -65,6 +65,7 @@ class StepRecord:
     chord_iterations: int = 0  # Newton iterations on a kept factorization
     refactor_retries: int = 0  # failed solves repeated with a fresh factorization
     krylov_iterations: int = 0  # of the iterative linear solver (0 with MUMPS' preonly)
+    collider_pushes: int = 0  # solves with moving colliders part of the way (TimeStepper._push_by_moving_obstacles)
     linear_solves: int = 0
     wall_s: float = 0.0
     assembly_s: float = 0.0
@@ -164,53 +165,56 @@ class TimeStepper:
             values.append(model.prescribed_values(moved) if moved else model.constrained_target)
         return values[0] if len(values) == 1 else np.concatenate(values)
 
-    def _bound_first_guess(self, start: StepStart, bc_values: np.ndarray) -> int:
+    def _bound_first_guess(self, start: StepStart, bc_values: np.ndarray, report: StepRecord) -> None:
         """Where a contribution bounds steps (a barrier), the inertial prediction is the first guess
         only as far as the straight path from the step's start allows: ``x_n + a (x_pred - x_n)``
         with ``a`` :data:`FIRST_GUESS_FRACTION` of the bound (the start is admissible, and so is
         every Newton iterate after it). Translating obstacles move along that path to their places
         at the step's end; where they would meet the shell on it (a collider pushing the shell),
-        :meth:`_push_by_moving_obstacles` finds the guess. The Newton iterations that took."""
+        :meth:`_push_by_moving_obstacles` finds the guess (its solves counted in ``report``)."""
         problem = self.solver.problem
         if not problem.has_step_bounds:
-            return 0
+            return
         predicted = np.array(self.state.position)
         self.state.roll_back(start)
-        if problem.moves_obstacles:
-            predicted += problem.carried_by_obstacles(0.0).reshape(predicted.shape)
+        if problem.moves_obstacles:  # what a collider reaches moves with it, not as inertia predicts
+            reached, displacement = problem.carried_by_obstacles(0.0)
+            blocks = predicted.reshape(-1, 3)  # a view
+            blocks[reached] = start.position.reshape(-1, 3)[reached] + displacement[reached]
         bound = problem.max_open_step(predicted - start.position, swept_from=0.0)
         if bound < 1.0 and problem.moves_obstacles:
-            return self._push_by_moving_obstacles(start.position, predicted, bound, bc_values)
+            self._push_by_moving_obstacles(start.position, predicted, bound, bc_values, report)
+            return
         fraction = 1.0 if bound >= 1.0 else FIRST_GUESS_FRACTION * bound
         self.state.set_guess(start.position + fraction * (predicted - start.position))
-        return 0
 
     def _push_by_moving_obstacles(self, start: np.ndarray, target: np.ndarray, bound: float,
-                                  bc_values: np.ndarray) -> int:  # fmt: skip
+                                  bc_values: np.ndarray, report: StepRecord) -> None:  # fmt: skip
         """Obstacles that would meet the shell on the straight path to the guess ``target`` (at
         ``bound`` of it) move as far as :data:`FIRST_GUESS_FRACTION` of that within the step; the
-        step is solved with them there, and the shell's motion so far, carried on at its pace to
-        the step's end, is the next guess. Repeated at most :data:`MAX_PUSH_STAGES` times until the
-        obstacles reach their places at the step's end on the guess's path; the Newton iterations
-        that took (a :class:`~bhem_hpc.solver.petsc.SolverError` where they do not: dt is halved).
-        ``start``, ``target``: open positions at the step's start and the guess."""
+        step is solved with them there, and that state, with what the obstacles reach carried on
+        with them to the step's end, is the next guess. Repeated at most :data:`MAX_PUSH_STAGES`
+        times until the obstacles reach their places at the step's end on the guess's path (a
+        :class:`~bhem_hpc.solver.petsc.SolverError` where they do not: dt is halved); the solves
+        and their Newton iterations are counted in ``report``. ``start``, ``target``: open
+        positions at the step's start and the guess."""
         problem, reached, position = self.solver.problem, 0.0, start
-        iterations = 0
         for _ in range(MAX_PUSH_STAGES):
             share = FIRST_GUESS_FRACTION * bound
             reached += share * (1.0 - reached)
             problem.place_obstacles_within_step(reached)
             self.state.set_guess(position + share * (target - position))
-            iterations += self.solver.solve_step(bc_values)
+            report.newton_iterations += self.solver.solve_step(bc_values)
+            report.collider_pushes += 1
             position = np.array(self.state.position)
             # what the obstacles reach goes on with them; the rest stays
-            target = position + problem.carried_by_obstacles(reached).reshape(position.shape)
-            log.info("push of the shell to %.3g of the step: %d Newton iterations", reached, iterations)
+            target = position + problem.carried_by_obstacles(reached)[1].reshape(position.shape)
+            log.info("step %d: moving colliders pushed the shell to %.3g of the step", report.step, reached)
             bound = problem.max_open_step(target - position, swept_from=reached)
             if bound >= 1.0:
                 problem.place_obstacles_within_step(1.0)
                 self.state.set_guess(target)
-                return iterations
+                return
         problem.place_obstacles_within_step(1.0)
         raise SolverError(f"moving colliders reached {reached:.3g} of the step in {MAX_PUSH_STAGES} pushes of the "
                           "shell")  # fmt: skip
@@ -243,7 +247,7 @@ class TimeStepper:
         try:
             self.solver.problem.set_point_targets(t_start + dt)
             bc_values = self.bc_values_at(t_start + dt)
-            report.newton_iterations += self._bound_first_guess(start, bc_values)
+            self._bound_first_guess(start, bc_values, report)
             report.newton_iterations += self.solver.solve_step(bc_values)
         except SolverSetupError:
             self.state.roll_back(start)

@@ -158,7 +158,7 @@ class IpcBarrier:
         # iterations in the landing step, additive CCD 0.02 s and 27 (measured)
         self._ccd = ipctk.AdditiveCCD()
         self.friction = friction
-        self._translation = self._translation_weights()
+        self._translation = self._translation_weights() if self.moving else np.zeros(0)
         self._step = (0.0, 0.0)  # the time step of the last begin_step: its start and length [s]
 
     def _triangle_pattern(self, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -5,6 +5,7 @@ positive semi-definite)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from helpers import hairpin_model
 
 from bhem_hpc.contact.ipc_contribution import shell_barrier
@@ -91,3 +92,29 @@ def test_the_hairpin_arms_meet_without_intersecting_and_keep_the_momentum(comm):
     assert comm.allreduce(max(beyond)) > 0  # rank 0 assembles the Hessian
     assert sum(r.recoveries for r in stepper.history) == 0
     np.testing.assert_allclose(after, before, atol=1e-6 * np.abs(before).max())
+
+
+@pytest.mark.parametrize("discretization", ["hermite", "bspline2"])
+def test_a_translating_plane_carries_the_blocks_it_reaches_as_a_translation(comm, discretization):
+    """A plane 0.4 mm off the hairpin's bend (x = its largest), moving into it at 1 m/s: a step of
+    2 ms reaches every collision vertex within dhat plus its 2 mm travel; the carried blocks move
+    each of those vertices by exactly the travel (Hermite values by it, their derivatives not at
+    all: the weights solve ``B c = 1``), and the plane itself sits where it is at the step's end."""
+    from bhem_hpc.collision.colliders import Plane
+
+    model, _ = hairpin_model(comm, discretization, 12)
+    positions = model.x.x.array.reshape(-1, 3).copy()
+    state = ContributionState(positions, 1.0, np.zeros((0, 3)))
+    probe = shell_barrier(model, [], 1e-3, 1.0, 2, 200.0, 1e-3)
+    vertices = probe._vertices(positions)[: probe.num_points]
+    front = vertices[:, 0].max() + 4e-4
+    plane = Plane(np.array([front, 0.0, 0.0]), np.array([-1.0, 0.0, 0.0]), np.array([-1.0, 0.0, 0.0]))
+    barrier = shell_barrier(model, [plane], 1e-3, 1.0, 2, 200.0, 1e-3)
+    barrier.begin_step(state, 0.0, 2e-3)
+    reached, displacement = barrier.carried(state, 0.0)
+    moved = barrier._vertices(positions + displacement)[: barrier.num_points] - vertices
+    near = front - vertices[:, 0] < 1e-3 + 2e-3
+    assert 0 < near.sum() < len(vertices) and comm.allreduce(int(reached.sum())) > 0
+    np.testing.assert_allclose(moved[near], np.broadcast_to([-2e-3, 0.0, 0.0], moved[near].shape), atol=1e-12)
+    assert np.all(np.abs(moved[~near]).max(axis=1) <= 2e-3 + 1e-12)
+    np.testing.assert_allclose(-barrier.mesh.planes[0].offset(), -(front - 2e-3), rtol=1e-12)

@@ -23,12 +23,8 @@ from bhem_hpc.solids.model import SolidModel
 from bhem_hpc.solver.contributions import (
     Contribution,
     ContributionState,
-    StepBounded,
+    ContributionSteps,
     begin_lagged_step,
-    carried_by_obstacles,
-    moving_obstacles,
-    place_obstacles_within_step,
-    step_bound,
 )
 from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import (
@@ -40,7 +36,7 @@ from bhem_hpc.solver.problem import (
 from bhem_hpc.solver.report import SolveReport
 
 
-class SolidProblem(PetscOwner):
+class SolidProblem(ContributionSteps, PetscOwner):
     """Residual, Jacobian, held rows and potential of a :class:`SolidModel`.
 
     Args:
@@ -198,35 +194,9 @@ class SolidProblem(PetscOwner):
         total[self.model.constrained] = 0.0
         return float(np.linalg.norm(total))
 
-    @property
-    def has_step_bounds(self) -> bool:
-        """Whether a contribution bounds the line search (a barrier's collision-free step)."""
-        return any(isinstance(c, StepBounded) for c in self.contributions)
-
     def max_step(self, direction: PETSc.Vec) -> float:
         """Collective: the largest fraction of the step every step-bounded contribution admits."""
         return self.max_open_step(self.open_direction_blocks(direction)) if self.has_step_bounds else 1.0
-
-    def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
-        """Collective: :meth:`max_step` of a direction on every control point ``(n_q, 3)``; ``swept_from``:
-        a guess within a time step, moving obstacles moving along."""
-        if not self.has_step_bounds:
-            return 1.0
-        return step_bound(self.contributions, self.contribution_state(), direction, swept_from)
-
-    @property
-    def moves_obstacles(self) -> bool:
-        """Whether a contribution's obstacles move during a time step (translating colliders)."""
-        return moving_obstacles(self.contributions)
-
-    def place_obstacles_within_step(self, fraction: float) -> None:
-        """Moving obstacles where they are at ``fraction`` of the time step."""
-        place_obstacles_within_step(self.contributions, fraction)
-
-    def carried_by_obstacles(self, since: float) -> tuple[np.ndarray, np.ndarray]:
-        """Collective: the open blocks moving obstacles reach from the fraction ``since`` of the time
-        step to its end ``(blocks,)`` and the displacement ``(blocks, 3)`` that carries them along."""
-        return carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a direction on the owned DOFs as every control point's ``(n_q, 3)``."""

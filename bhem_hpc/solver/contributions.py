@@ -146,6 +146,42 @@ def place_obstacles_within_step(contributions: Sequence[Contribution], fraction:
             c.place_obstacles_within_step(fraction)
 
 
+class ContributionSteps:
+    """A problem's step bounds and moving obstacles, from its ``contributions`` (a mixin: the
+    problem has ``contributions`` and ``contribution_state()``, its open blocks' state)."""
+
+    contributions: Sequence[Contribution]
+
+    def contribution_state(self) -> ContributionState: ...
+
+    @property
+    def has_step_bounds(self) -> bool:
+        """Whether a contribution bounds the line search (:class:`StepBounded`: a barrier's collision-free step)."""
+        return any(isinstance(c, StepBounded) for c in self.contributions)
+
+    def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
+        """Collective: the largest fraction of a direction on the open blocks ``(blocks, 3)`` that
+        every step-bounded contribution admits from the current state; ``swept_from``: a guess
+        within a time step, moving obstacles moving along (:func:`step_bound`)."""
+        if not self.has_step_bounds:
+            return 1.0
+        return step_bound(self.contributions, self.contribution_state(), direction, swept_from)
+
+    @property
+    def moves_obstacles(self) -> bool:
+        """Whether a contribution's obstacles move during a time step (translating colliders)."""
+        return moving_obstacles(self.contributions)
+
+    def place_obstacles_within_step(self, fraction: float) -> None:
+        """Moving obstacles where they are at ``fraction`` of the time step."""
+        place_obstacles_within_step(self.contributions, fraction)
+
+    def carried_by_obstacles(self, since: float) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the open blocks moving obstacles reach from the fraction ``since`` of the time
+        step to its end ``(blocks,)`` and the displacement ``(blocks, 3)`` that carries them along."""
+        return carried_by_obstacles(self.contributions, self.contribution_state(), since)
+
+
 @runtime_checkable
 class GrowingPattern(Contribution, Protocol):
     """A contribution whose Hessian may reach beyond its fixed pattern (a barrier between parts of

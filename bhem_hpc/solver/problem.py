@@ -22,16 +22,12 @@ from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.contributions import (
     Contribution,
     ContributionState,
+    ContributionSteps,
     GrowingPattern,
     PointConstraints,
     PointLoads,
-    StepBounded,
     begin_lagged_step,
-    carried_by_obstacles,
     diagonal_compensation,
-    moving_obstacles,
-    place_obstacles_within_step,
-    step_bound,
 )
 from bhem_hpc.solver.form_terms import ShellFormTerms
 from bhem_hpc.solver.petsc import PetscOwner
@@ -122,7 +118,7 @@ def add_diagonal_regularization(jac: PETSc.Mat, regularization: float) -> None:
         diagonal.destroy()
 
 
-class ShellProblem(PetscOwner):
+class ShellProblem(ContributionSteps, PetscOwner):
     """Residual, Jacobian, constraint rows and potential of a :class:`ShellModel` on the closed DOFs.
 
     Args:
@@ -335,39 +331,12 @@ class ShellProblem(PetscOwner):
         local += sum(contribution.energy(state) for contribution in self.contributions)
         return self.model.comm.allreduce(local)
 
-    @property
-    def has_step_bounds(self) -> bool:
-        """Whether a contribution bounds the line search (:class:`StepBounded`)."""
-        return any(isinstance(c, StepBounded) for c in self.contributions)
-
     def max_step(self, direction: PETSc.Vec) -> float:
         """Collective: the largest fraction of the step ``x -> x + direction`` (closed DOFs) that every
         step-bounded contribution admits from the current state (1: none bounds it)."""
         if not self.has_step_bounds:
             return 1.0
         return self.max_open_step(self.open_direction_blocks(direction))
-
-    def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
-        """Collective: :meth:`max_step` of a direction given on this rank's open layout (owned and
-        ghost entries, ``model.x.x.array``'s layout); ``swept_from``: a guess within a time step, moving
-        obstacles moving along (:func:`~bhem_hpc.solver.contributions.step_bound`)."""
-        if not self.has_step_bounds:
-            return 1.0
-        return step_bound(self.contributions, self.contribution_state(), direction, swept_from)
-
-    @property
-    def moves_obstacles(self) -> bool:
-        """Whether a contribution's obstacles move during a time step (translating colliders)."""
-        return moving_obstacles(self.contributions)
-
-    def place_obstacles_within_step(self, fraction: float) -> None:
-        """Moving obstacles where they are at ``fraction`` of the time step."""
-        place_obstacles_within_step(self.contributions, fraction)
-
-    def carried_by_obstacles(self, since: float) -> tuple[np.ndarray, np.ndarray]:
-        """Collective: the open blocks moving obstacles reach from the fraction ``since`` of the time
-        step to its end ``(blocks,)`` and the displacement ``(blocks, 3)`` that carries them along."""
-        return carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a closed-DOF direction on this rank's open blocks (owned and ghosts), ``(blocks, 3)``."""

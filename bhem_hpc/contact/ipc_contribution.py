@@ -130,6 +130,7 @@ class IpcBarrier:
         self.self_contact = bool(len(groups) and np.any(np.bincount(groups - groups.min()) == 1))
         self._beyond = no_blocks()
         global_blocks = np.asarray(global_blocks, dtype=np.int64)
+        self._global_blocks = global_blocks  # of the local blocks
         rows, cols, weights = [], [], []
         for point, (blocks, values) in enumerate(bases):
             blocks, values = np.asarray(blocks, dtype=np.int64), np.asarray(values, dtype=float)
@@ -361,8 +362,11 @@ class IpcBarrier:
             travels.append(travel)
             reached.append(np.all((shell >= low) & (shell <= high), axis=1))
         for travel, near in zip(travels, reached, strict=True):
-            if np.any(travel) and np.any(near):
-                blocks = np.unique(self.local_map[np.flatnonzero(near)].indices)
+            if np.any(travel) and np.any(near):  # the same on every rank: the vertices are everyone's
+                # a block is carried on every rank that holds it (owned or ghost), whichever holds the point
+                local = np.unique(self.local_map[np.flatnonzero(near)].indices)
+                union = np.unique(np.concatenate(self._comm.allgather(self._global_blocks[local])))
+                blocks = np.flatnonzero(np.isin(self._global_blocks, union))
                 displacement[blocks] = self._translation[blocks, None] * travel
                 carried[blocks] = True
         return carried, displacement

@@ -405,9 +405,10 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
                              f"capsules, needles and meshes, resting or translating, got a "
                              f"{type(collider).__name__.lower()}")  # fmt: skip
         if isinstance(collider, Plane) and np.any(collider.velocity != 0) and (entry.friction or entry.static_friction):
-            raise SceneError(f"{path}: key 'colliders[{i}].friction' = {entry.friction!r}: a translating plane meets "
-                             "the shell without friction by 'ipc' (ipc-toolkit's plane contacts rub against a plane "
-                             "at rest); a mesh collider moving so takes friction")  # fmt: skip
+            raise SceneError(f"{path}: key 'colliders[{i}].friction' = {entry.friction!r} (static "
+                             f"{entry.static_friction!r}; its own, or the body's 'effects.friction'): a translating "
+                             "plane meets the shell without friction by 'ipc' (ipc-toolkit's plane contacts rub "
+                             "against a plane at rest); a mesh collider moving so takes friction")  # fmt: skip
     return SceneContact(colliders, 0.0, 1, self_collision, friction, method="ipc", dhat=dhat, barrier_stiffness=kappa,
                         collision_cells=cells, friction=friction, static_friction=static_friction,
                         eps_v=eps_v)  # fmt: skip

@@ -187,11 +187,11 @@ class IpcBarrier:
         self._obstacle_vertices = np.concatenate(vertices[1:]) if obstacles.meshes else np.zeros((0, 3))
         self._obstacle_rest = self._obstacle_vertices  # where the obstacles are at time 0
         velocities = obstacles.mesh_velocities or [np.zeros(3)] * len(obstacles.meshes)
-        self._obstacle_velocity = np.concatenate(
-            [np.broadcast_to(np.asarray(v, dtype=float), (len(points), 3)) for (points, *_), v
-             in zip(obstacles.meshes, velocities, strict=True)]) if obstacles.meshes else np.zeros((0, 3))  # fmt: skip
+        # each obstacle mesh's translation velocity and vertex count, in the order of its vertices
         self._mesh_groups = [(np.asarray(v, dtype=float), len(points))
                              for (points, *_), v in zip(obstacles.meshes, velocities, strict=True)]  # fmt: skip
+        self._obstacle_velocity = np.concatenate(
+            [np.zeros((0, 3))] + [np.broadcast_to(v, (count, 3)) for v, count in self._mesh_groups])
         plane_velocities = obstacles.plane_velocities or [np.zeros(3)] * len(obstacles.planes)
         self._planes = [(np.asarray(n, dtype=float), np.asarray(p, dtype=float), np.asarray(v, dtype=float))
                         for (n, p), v in zip(obstacles.planes, plane_velocities, strict=True)]  # fmt: skip
@@ -210,6 +210,13 @@ class IpcBarrier:
 
     def _planes_at(self, time: float) -> list:
         return [self._ipctk.Hyperplane(n, p + time * v) for n, p, v in self._planes]
+
+    @staticmethod
+    def _plane_gaps(vertices: np.ndarray, plane: tuple[np.ndarray, np.ndarray, np.ndarray], time: float) -> np.ndarray:
+        """Signed distances ``(V,)`` of ``vertices`` ``(V, 3)`` from a translating ``plane`` (unit
+        normal, point at time 0, velocity) where it is at ``time`` [s]."""
+        normal, point, velocity = plane
+        return (vertices - point - time * velocity) @ normal
 
     def place_obstacles(self, time: float) -> None:
         """Put the translating obstacles where they are at ``time`` [s]: the barrier, its Newton step
@@ -343,16 +350,14 @@ class IpcBarrier:
         carried = np.zeros(len(displacement), dtype=bool)
         if not self.moving:
             return carried, displacement
-        self.place_obstacles(time + since * dt)
-        shell = self._vertices(state.positions)[: self.num_points]
-        self.place_obstacles(time + dt)
+        at = time + since * dt
+        shell = self._vertices(state.positions)[: self.num_points]  # wherever the obstacles are placed
         travels, reached = [], []
-        for normal, point, velocity in self._planes:
-            travel = remaining * velocity
-            gap = (shell - point - (time + since * dt) * velocity) @ normal
+        for plane in self._planes:
+            travel = remaining * plane[2]
             travels.append(travel)
-            reached.append(gap < self.dhat + max(travel @ normal, 0.0))
-        start, at = 0, time + since * dt
+            reached.append(self._plane_gaps(shell, plane, at) < self.dhat + max(travel @ plane[0], 0.0))
+        start = 0
         for velocity, points in self._mesh_groups:
             travel = remaining * velocity
             vertices = self._obstacle_rest[start:start + points] + at * velocity
@@ -397,9 +402,9 @@ class IpcBarrier:
         finally:
             self.mesh.planes = planes
         shell = slice(0, self.num_points)
-        for normal, point, velocity in self._planes:
-            gap_start = (start[shell] - point - start_time * velocity) @ normal
-            gap_end = (end[shell] - point - end_time * velocity) @ normal
+        for plane in self._planes:
+            gap_start = self._plane_gaps(start[shell], plane, start_time)
+            gap_end = self._plane_gaps(end[shell], plane, end_time)
             closing = gap_end < PLANE_GAP_KEPT * gap_start
             if np.any(closing):
                 fractions = (1.0 - PLANE_GAP_KEPT) * gap_start[closing] / (gap_start[closing] - gap_end[closing])

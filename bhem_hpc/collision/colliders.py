@@ -17,6 +17,7 @@ from typing import ClassVar, Protocol
 import numpy as np
 
 from bhem_hpc.collision.bezier import evaluate
+from bhem_hpc.collision.tessellation import cylinder_mesh, patch_model_mesh, ring_count
 from bhem_hpc.errors import UserError
 
 PATCH_FILE_FORMAT = "bhem-bezier-patches"
@@ -45,6 +46,19 @@ class Collider(Protocol):
 
     def swept_bounds(self, dt: float) -> np.ndarray | None:
         """A box ``(2, 3)`` holding the collider over a step of ``dt``; None if unbounded."""
+        ...
+
+
+class Tessellated(Protocol):
+    """A collider that barrier contact meets as a triangle mesh (every collider but a plane, which
+    ipc-toolkit meets exactly)."""
+
+    velocity: np.ndarray
+
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(vertices (V, 3), triangles (T, 3))`` on the collider, the triangles within
+        ``max_sagitta`` of it; an unbounded collider is meshed over (at least) the part the box
+        ``cover (2, 3)`` (min and max corners: where the bodies are) can reach."""
         ...
 
 
@@ -189,6 +203,9 @@ class Sphere:
         # relative position at the start and relative motion over the step
         return _round_time_of_impact(start - self.center, (end - start) - dt * self.velocity, self.radius + gap)
 
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.triangles(max_sagitta)
+
     def triangles(self, max_sagitta: float) -> tuple[np.ndarray, np.ndarray]:
         """An icosphere on the sphere: ``(vertices (V, 3), triangles (T, 3))`` whose flat faces lie
         at most ``max_sagitta`` inside it (the subdivisions of the icosahedron that need; at most
@@ -308,6 +325,11 @@ class Cylinder:
         motion = self._radial((end - start) - dt * self.velocity)
         return _round_time_of_impact(self._radial(start - self.point), motion, self.radius + gap)
 
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A capped cylinder over the part of the axis the box ``cover (2, 3)`` spans, and one
+        diagonal of it beyond either end (:func:`~bhem_hpc.collision.tessellation.cylinder_mesh`)."""
+        return cylinder_mesh(self.point, self.axis, self.radius, max_sagitta, cover)
+
 
 @dataclass(frozen=True)
 class Capsule:
@@ -345,6 +367,9 @@ class Capsule:
         length = np.linalg.norm(offset, axis=1)
         return length - self.radius, offset / np.maximum(length, 1e-300)[:, None]
 
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.triangles(max_sagitta)
+
     def triangles(self, max_sagitta: float) -> tuple[np.ndarray, np.ndarray]:
         """A triangle mesh on the capsule ``(vertices (V, 3), triangles (T, 3))`` whose flat faces lie
         at most ``max_sagitta`` inside it: ``around`` vertices per ring, a band of two rings along
@@ -352,7 +377,7 @@ class Capsule:
         around, else :class:`ColliderError`)."""
         # the fewest vertices around whose chords keep the band within the sagitta, then more
         # (a tenth at a time) until the ends' faces are within it too
-        around = max(6, math.ceil(math.pi / math.acos(1.0 - min(max_sagitta / self.radius, 1.0))))
+        around = ring_count(self.radius, max_sagitta)
         while around <= MAX_CAPSULE_AROUND:
             vertices, faces, on_caps = capsule_mesh(self.a, self.b, self.radius, around, max(1, around // 4))
             # the band's faces lie within the ring's chords; a cap face within its circumcircle's cap
@@ -461,6 +486,9 @@ class TriangleMesh:
         object.__setattr__(self, "triangles", f.astype(np.int64))
         object.__setattr__(self, "velocity", _vector(f"{self.name} velocity", self.velocity))
 
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.vertices, self.triangles
+
     @classmethod
     def read(cls, path: str | Path, velocity=(0.0, 0.0, 0.0)) -> TriangleMesh:
         """Read any meshio-supported file (OBJ, STL, PLY, ...) keeping its triangles."""
@@ -506,6 +534,11 @@ class PatchModel:
             raise ColliderError(f"patch {int(np.argmax(flat))} of the patch model has a zero-area control net")
         object.__setattr__(self, "nets", nets)
         object.__setattr__(self, "velocity", _vector("patch model velocity", self.velocity))
+
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Its patches on a grid whose triangles lie within ``max_sagitta`` of them
+        (:func:`~bhem_hpc.collision.tessellation.patch_model_mesh`)."""
+        return patch_model_mesh(self.nets, max_sagitta)
 
     def samples(self, per_side: int = 4) -> np.ndarray:
         """Sample points ``(P * per_side^2, 3)`` on every patch (the collider's side of §6.2)."""

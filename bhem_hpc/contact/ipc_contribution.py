@@ -42,9 +42,10 @@ class Communicator(Protocol):
     def allgather(self, value: Any) -> list: ...
 
 
-#: A sphere (a capsule) meets the barrier as an icosphere (a mesh of rings) whose faces lie at most
-#: this fraction of dhat inside it (a shell resting on it may sink that far into the exact shape).
-SPHERE_SAGITTA = 0.25
+#: A curved collider (sphere, capsule, cylinder, patch model) meets the barrier as a triangle mesh
+#: whose faces lie at most this fraction of dhat from it (a shell resting on a sphere, capsule or
+#: cylinder may sink that far into the exact shape: their faces lie inside).
+COLLIDER_SAGITTA = 0.25
 #: A step's first guess moves a vertex towards a translating plane until at most this fraction of
 #: its gap at the step's start is left (as ipc-toolkit's additive CCD stops short of contact).
 PLANE_GAP_KEPT = 0.1
@@ -540,13 +541,12 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
                    joined: Sequence[tuple[int, int]] = ()) -> IpcBarrier:  # fmt: skip
     """The barrier between bodies' collision ``meshes`` (each body's open blocks at rows
     ``open_offsets[b]:`` of the contributions' state, their global blocks ``global_open_blocks``),
-    and between them and static colliders (planes, spheres as icospheres within
-    :data:`SPHERE_SAGITTA` dhat, triangle meshes); ``dhat`` by default 1e-3 of the bodies' rest
-    bounding-box diagonal, ``kappa`` by default the top of ipc-toolkit's adaptive range for that
-    ``dhat`` and the bodies' mean mass per vertex. Where a body (``mesh.friction``) or a collider
-    (``collider_friction``, one per collider; None: frictionless colliders) has friction, lagged
-    friction with sticking speed ``eps_v`` [m/s] acts at the contacts
-    (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`). Meshes ``joined`` (pairs of indices:
+    and between them and colliders (planes exactly, the others as triangle meshes, :func:`_obstacles`);
+    ``dhat`` by default 1e-3 of the bodies' rest bounding-box diagonal, ``kappa`` by default the top
+    of ipc-toolkit's adaptive range for that ``dhat`` and the bodies' mean mass per vertex. Where a
+    body (``mesh.friction``) or a collider (``collider_friction``, one per collider; None:
+    frictionless colliders) has friction, lagged friction with sticking speed ``eps_v`` [m/s] acts
+    at the contacts (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`). Meshes ``joined`` (pairs of indices:
     patches of one shell) share a vertex group: they do not meet each other."""
     rest = np.concatenate([mesh.rest for mesh in meshes])
     dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
@@ -567,7 +567,7 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     for _ in joined:  # each pass joins one more link of a chain of joined meshes
         for first, second in joined:
             groups[first][:] = groups[second][:] = min(groups[first][0], groups[second][0])
-    obstacles = _obstacles(colliders, dhat)
+    obstacles = _obstacles(colliders, dhat, np.stack([rest.min(axis=0), rest.max(axis=0)]))
     frictions = [FRICTIONLESS] * len(colliders) if collider_friction is None else list(collider_friction)
     if len(frictions) != len(colliders):
         raise ValueError(f"{len(colliders)} colliders need as many friction coefficients, got {len(frictions)}")
@@ -605,10 +605,11 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
     return bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, colliders, dhat, stiffness)
 
 
-def _obstacles(colliders: Sequence[Any], dhat: float) -> Obstacles:
-    """Colliders as the barrier's static triangle meshes (spheres as icospheres and capsules as rings
-    within :data:`SPHERE_SAGITTA` dhat, a sphere's vertices moving at its surface velocity) and planes."""
-    from bhem_hpc.collision.colliders import Capsule, Plane, Sphere
+def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obstacles:
+    """Colliders as the barrier's triangle meshes and planes: curved ones tessellated within
+    :data:`COLLIDER_SAGITTA` dhat (an infinite cylinder over the part of its axis the bodies' box
+    ``cover (2, 3)`` spans and a diagonal of it beyond; a sphere's vertices moving at its surface velocity)."""
+    from bhem_hpc.collision.colliders import Plane
 
     meshes, planes, plane_colliders, mesh_velocities, plane_velocities = [], [], [], [], []
     for index, c in enumerate(colliders):
@@ -617,8 +618,7 @@ def _obstacles(colliders: Sequence[Any], dhat: float) -> Obstacles:
             plane_colliders.append(index)
             plane_velocities.append(np.asarray(c.velocity, dtype=float))
             continue
-        rounded = isinstance(c, Sphere | Capsule)
-        points, faces = c.triangles(SPHERE_SAGITTA * dhat) if rounded else (c.vertices, c.triangles)
+        points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
         mesh_velocities.append(np.asarray(c.velocity, dtype=float))

@@ -371,11 +371,11 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
 
 def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path, other_bodies: bool,
                       cells: int = 4) -> SceneContact:  # fmt: skip
-    """``effects.contact`` with ``method = "ipc"``: a barrier against static planes, spheres (spinning
-    or not) and meshes and, with ``other_bodies``, the other bodies in contact (``cells``: collision
+    """``effects.contact`` with ``method = "ipc"``: a barrier against the colliders (resting or
+    translating; spheres also spinning) and, with ``other_bodies``, the other bodies in contact (``cells``: collision
     cells per side by default); lagged friction by ``effects.friction`` / ``static_friction`` and the
     colliders' ``friction`` / ``static_friction``."""
-    from bhem_hpc.collision.colliders import Capsule, Plane, Sphere, TriangleMesh
+    from bhem_hpc.collision.colliders import Plane
     from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, EPS_V_RANGE
     from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE
 
@@ -400,10 +400,6 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
     colliders = parse_colliders(colliders_raw, friction, path, static_friction, method="ipc")
     for i, entry in enumerate(colliders):
         collider = entry.collider
-        if not isinstance(collider, Plane | Sphere | Capsule | TriangleMesh):
-            raise SceneError(f"{path}: key 'colliders[{i}]': contact by 'ipc' meets planes, spheres (spinning or not), "
-                             f"capsules, needles and meshes, resting or translating, got a "
-                             f"{type(collider).__name__.lower()}")  # fmt: skip
         if isinstance(collider, Plane) and np.any(collider.velocity != 0) and (entry.friction or entry.static_friction):
             raise SceneError(f"{path}: key 'colliders[{i}].friction' = {entry.friction!r} (static "
                              f"{entry.static_friction!r}; its own, or the body's 'effects.friction'): a translating "

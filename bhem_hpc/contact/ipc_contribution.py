@@ -610,6 +610,7 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
     :data:`COLLIDER_SAGITTA` dhat (an infinite cylinder over the part of its axis the bodies' box
     ``cover (2, 3)`` spans and a diagonal of it beyond; a sphere's vertices moving at its surface velocity)."""
     from bhem_hpc.collision.colliders import Plane
+    from bhem_hpc.collision.tessellation import TessellationError
 
     meshes, planes, plane_colliders, mesh_velocities, plane_velocities = [], [], [], [], []
     for index, c in enumerate(colliders):
@@ -618,7 +619,11 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
             plane_colliders.append(index)
             plane_velocities.append(np.asarray(c.velocity, dtype=float))
             continue
-        points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
+        try:
+            points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
+        except TessellationError as exc:
+            raise TessellationError(f"key 'colliders[{index}]' ({type(c).__name__.lower()}): {exc} (dhat / 4; a larger "
+                                    "'effects.contact.dhat' allows coarser triangles)") from None  # fmt: skip
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
         mesh_velocities.append(np.asarray(c.velocity, dtype=float))

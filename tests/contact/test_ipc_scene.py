@@ -116,6 +116,15 @@ def test_a_sheet_dropped_across_a_cylinder_drapes_over_it_and_never_enters_it(co
         assert min(gaps) > -0.25e-3 and gaps[-1] < 1e-3
 
 
+def test_a_cylinder_too_wide_for_its_triangles_is_refused_by_key_before_any_output(comm, shared_tmp_path):
+    colliders = '[[colliders]]\ntype = "cylinder"\npoint = [0.1, 0.0, -1e5]\naxis = [0.0, 1.0, 0.0]\nradius = 1e5\n'
+    path = _scene(comm, shared_tmp_path, "wide", colliders=colliders)
+    with pytest.raises(RunError, match=r"wide.toml: key 'colliders\[0\]' \(cylinder\): a cylinder of radius 100000 "
+                                       r"needs more than 1024 vertices around .* a larger 'effects.contact.dhat'"):
+        run_scene(RunOptions(path, shared_tmp_path / "wide", progress=False), comm)
+    assert not (shared_tmp_path / "wide").exists()
+
+
 def test_a_sheet_dropped_on_a_patch_model_stays_above_it(comm, shared_tmp_path):
     """A floor of two bicubic Bezier patches (a patch file) meets the barrier as its tessellation."""
     from bhem_hpc.collision import PatchModel

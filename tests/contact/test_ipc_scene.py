@@ -125,32 +125,28 @@ def test_a_cylinder_too_wide_for_its_triangles_is_refused_by_key_before_any_outp
     assert not (shared_tmp_path / "wide").exists()
 
 
-def test_a_sheet_dropped_on_a_patch_model_stays_above_it(comm, shared_tmp_path):
-    """A floor of two bicubic Bezier patches (a patch file) meets the barrier as its tessellation."""
+def _write_floor(path, kind: str) -> None:
+    """A floor at z = 0 under the sheet: two triangles whose diagonal runs under no lattice point
+    (``mesh``), or two flat bicubic Bezier patches (``patches``, met as their tessellation)."""
     from bhem_hpc.collision import PatchModel
 
-    model = shared_tmp_path / "floor.npz"
-    if comm.rank == 0:
-        i, j = np.meshgrid(np.arange(4) / 3.0, np.arange(4) / 3.0, indexing="ij")
-        halves = [np.stack([-0.1 + 0.2 * i + 0.2 * k, -0.1 + 0.4 * j, 0.0 * i], axis=-1) for k in (0, 1)]
-        PatchModel(np.stack(halves)).save(model)
-    colliders = f'[[colliders]]\ntype = "patches"\nfile = "{model}"\n'
-    out = shared_tmp_path / "on-patches"
-    summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "patches", colliders=colliders), out, steps=10,
-                                   progress=False), comm)  # fmt: skip
-    assert sum(s["recoveries"] for s in summary["steps"]) == 0
-    if comm.rank == 0:
-        lowest = _lowest_heights(out)
-        assert np.all(lowest > 0.0) and lowest[-1] < 1e-3
+    if kind == "mesh":
+        path.write_text("v -1 -0.7 0\nv 1.3 -1 0\nv 0.9 1.1 0\nv -1.2 0.8 0\nf 1 2 3\nf 1 3 4\n")
+        return
+    i, j = np.meshgrid(np.arange(4) / 3.0, np.arange(4) / 3.0, indexing="ij")
+    halves = [np.stack([-0.1 + 0.2 * i + 0.2 * k, -0.1 + 0.4 * j, 0.0 * i], axis=-1) for k in (0, 1)]
+    PatchModel(np.stack(halves)).save(path)
 
 
-def test_a_sheet_dropped_on_a_mesh_stays_above_it(comm, shared_tmp_path):
-    mesh = shared_tmp_path / "floor.obj"
-    if comm.rank == 0:  # two triangles of z = 0 whose diagonal runs under no lattice point
-        mesh.write_text("v -1 -0.7 0\nv 1.3 -1 0\nv 0.9 1.1 0\nv -1.2 0.8 0\nf 1 2 3\nf 1 3 4\n")
-    colliders = f'[[colliders]]\ntype = "mesh"\nfile = "{mesh}"\n'
-    out = shared_tmp_path / "on-mesh"
-    summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "mesh", colliders=colliders), out, steps=10,
+@pytest.mark.parametrize("kind, name", [("mesh", "floor.obj"), ("patches", "floor.npz")])
+def test_a_sheet_dropped_on_a_mesh_or_patch_floor_stays_above_it(comm, shared_tmp_path, kind, name):
+    floor = shared_tmp_path / name
+    if comm.rank == 0:
+        _write_floor(floor, kind)
+    comm.Barrier()
+    colliders = f'[[colliders]]\ntype = "{kind}"\nfile = "{floor}"\n'
+    out = shared_tmp_path / f"on-{kind}"
+    summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, kind, colliders=colliders), out, steps=10,
                                    progress=False), comm)  # fmt: skip
     assert sum(s["recoveries"] for s in summary["steps"]) == 0
     if comm.rank == 0:

@@ -157,7 +157,7 @@ def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
                                  c.dhat, c.barrier_stiffness, [surface_friction(e) for e in c.colliders],
                                  c.eps_v)  # fmt: skip
     except TessellationError as exc:
-        raise RunError(f"{scene_file}: {exc}") from exc
+        raise RunError(f"{scene_file}: key '{c.colliders[exc.collider].key}': {exc}") from exc
     try:
         check_chord_gaps([mesh], barrier.dhat)
     except CoarseCollisionMesh as exc:

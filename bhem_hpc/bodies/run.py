@@ -240,7 +240,7 @@ def bodies_barrier(bodies: list[Body], blocks: StackedBlocks, scene: BodiesScene
                                contact.dhat, contact.barrier_stiffness, [surface_friction(e) for e in colliders],
                                contact.eps_v, _joined_meshes(scene, in_contact))  # fmt: skip
     except TessellationError as exc:
-        raise RunError(f"{scene_file}: {exc}") from exc
+        raise RunError(f"{scene_file}: key '{colliders[exc.collider].key}': {exc}") from exc
     try:
         check_chord_gaps(meshes, barrier.dhat)
     except CoarseCollisionMesh as exc:

@@ -26,7 +26,12 @@ WELD_TOLERANCE = 1e-10
 
 
 class TessellationError(UserError, ValueError):
-    """A collider cannot be meshed within the asked chord error and the mesh size limits."""
+    """A collider cannot be meshed within the asked chord error and the mesh size limits
+    (``collider``: its index in the list the barrier was given, where known)."""
+
+    def __init__(self, message: str, collider: int | None = None):
+        super().__init__(message)
+        self.collider = collider
 
 
 def ring_count(radius: float, max_sagitta: float) -> int:

@@ -34,11 +34,13 @@ from bhem_hpc.geometry.surface import PatchLayout
 @dataclass(frozen=True)
 class ColliderEntry:
     """A collider with the friction coefficient of its contact with the shell (``friction``: the
-    kinetic one; ``static_friction``: the static one of contact by IPC, None: the kinetic one)."""
+    kinetic one; ``static_friction``: the static one of contact by IPC, None: the kinetic one);
+    ``key``: where a scene gave it (``colliders[2]``, ``colliders[0] (capsule 7)``), for messages."""
 
     collider: Collider
     friction: float = 0.0
     static_friction: float | None = None
+    key: str = "a collider"
 
     def __post_init__(self) -> None:
         for value in (self.friction, self.static_friction):

@@ -622,8 +622,8 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
         try:
             points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
         except TessellationError as exc:
-            raise TessellationError(f"key 'colliders[{index}]' ({type(c).__name__.lower()}): {exc} (dhat / 4; a larger "
-                                    "'effects.contact.dhat' allows coarser triangles)") from None  # fmt: skip
+            raise TessellationError(f"{exc} (dhat / 4; a larger 'effects.contact.dhat' allows coarser triangles)",
+                                    index) from None  # fmt: skip
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
         mesh_velocities.append(np.asarray(c.velocity, dtype=float))

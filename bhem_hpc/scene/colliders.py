@@ -39,7 +39,10 @@ def parse_colliders(items: list, friction: float, path: Path, static_friction: f
         mu_s = t.get("static_friction", "a number", static_friction, lambda v: v >= 0, coefficient)
         try:
             velocity = t.get("velocity", "3 numbers", [0.0, 0.0, 0.0])
-            entries += [ColliderEntry(collider, mu, mu_s) for collider in COLLIDERS[kind](t, path, velocity)]
+            made = COLLIDERS[kind](t, path, velocity)
+            # a table that makes several colliders (needles: capsules) names each by its place in it
+            keys = [t.name] if len(made) == 1 else [f"{t.name} (capsule {k})" for k in range(len(made))]
+            entries += [ColliderEntry(c, mu, mu_s, key) for c, key in zip(made, keys, strict=True)]
         except ColliderError as exc:
             raise SceneError(f"{path}: key '{t.name}': {exc}") from exc
         t.done()

@@ -398,10 +398,10 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
         raise SceneError(f"{path}: 'effects.contact' with method 'ipc' needs 'colliders' (planes, spheres, meshes), "
                          "'effects.self_collision' = true or another body in contact")  # fmt: skip
     colliders = parse_colliders(colliders_raw, friction, path, static_friction, method="ipc")
-    for i, entry in enumerate(colliders):
+    for entry in colliders:
         collider = entry.collider
         if isinstance(collider, Plane) and np.any(collider.velocity != 0) and (entry.friction or entry.static_friction):
-            raise SceneError(f"{path}: key 'colliders[{i}].friction' = {entry.friction!r} (static "
+            raise SceneError(f"{path}: key '{entry.key}.friction' = {entry.friction!r} (static "
                              f"{entry.static_friction!r}; its own, or the body's 'effects.friction'): a translating "
                              "plane meets the shell without friction by 'ipc' (ipc-toolkit's plane contacts rub "
                              "against a plane at rest); a mesh collider moving so takes friction")  # fmt: skip

@@ -45,6 +45,16 @@ point = [0.0, 0.0, 0.0]
 normal = [0.0, 0.0, 1.0]
 """
 IPC = '{ method = "ipc", dhat = 1e-3 }'
+#: Four needles (one collider table, four capsules) under the sheet.
+NEEDLES = """
+[[colliders]]
+type = "needles"
+origin = [0.05, 0.05, -0.1]
+spacing = [0.1, 0.1]
+count = [2, 2]
+length = 0.05
+radius = 0.004
+"""
 
 
 def _scene(comm, directory, name: str, discretization: str = "hermite", contact: str = IPC,
@@ -119,7 +129,7 @@ def test_a_sheet_dropped_across_a_cylinder_drapes_over_it_and_never_enters_it(co
 def test_a_cylinder_too_wide_for_its_triangles_is_refused_by_key_before_any_output(comm, shared_tmp_path):
     colliders = '[[colliders]]\ntype = "cylinder"\npoint = [0.1, 0.0, -1e5]\naxis = [0.0, 1.0, 0.0]\nradius = 1e5\n'
     path = _scene(comm, shared_tmp_path, "wide", colliders=colliders)
-    with pytest.raises(RunError, match=r"wide.toml: key 'colliders\[0\]' \(cylinder\): a cylinder of radius 100000 "
+    with pytest.raises(RunError, match=r"wide.toml: key 'colliders\[0\]': a cylinder of radius 100000 "
                                        r"needs more than 1024 vertices around .* a larger 'effects.contact.dhat'"):
         run_scene(RunOptions(path, shared_tmp_path / "wide", progress=False), comm)
     assert not (shared_tmp_path / "wide").exists()
@@ -213,6 +223,9 @@ def test_a_sheet_dropped_across_a_capsule_stays_outside_it(comm, shared_tmp_path
                              'friction = 0.3'),
          r"key 'colliders\[0\].friction' = 0.3 \(static .*'effects.friction'\): a translating plane meets the "
          r"shell without friction by 'ipc'"),
+        (lambda s: s.replace('[[colliders]]\ntype = "plane"', NEEDLES + '[[colliders]]\ntype = "plane"').replace(
+            'normal = [0.0, 0.0, 1.0]', 'normal = [0.0, 0.0, 1.0]\nvelocity = [0.0, 0.0, 0.1]\nfriction = 0.3'),
+         r"key 'colliders\[1\].friction' = 0.3"),  # the scene's index, not that among the needles' capsules
         (lambda s: s + '[solver]\nhessian = "trust_region"\n', r"key 'solver.hessian' = 'trust_region' does not bound"),
         (lambda s: s.replace('method = "ipc"', 'method = "barrier"'), r"key 'effects.contact.method' must be one of"),
     ],

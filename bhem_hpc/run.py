@@ -156,6 +156,7 @@ def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
         barrier = bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, [e.collider for e in c.colliders],
                                  c.dhat, c.barrier_stiffness, [surface_friction(e) for e in c.colliders],
                                  c.eps_v)  # fmt: skip
+        barrier.collider_names = [e.key for e in c.colliders]
     except TessellationError as exc:
         raise RunError(f"{scene_file}: key '{c.colliders[exc.collider].key}': {exc}") from exc
     try:

@@ -239,6 +239,7 @@ def bodies_barrier(bodies: list[Body], blocks: StackedBlocks, scene: BodiesScene
                                blocks.global_open_blocks, blocks.comm, [entry.collider for entry in colliders],
                                contact.dhat, contact.barrier_stiffness, [surface_friction(e) for e in colliders],
                                contact.eps_v, _joined_meshes(scene, in_contact))  # fmt: skip
+        barrier.collider_names = [entry.key for entry in colliders]
     except TessellationError as exc:
         raise RunError(f"{scene_file}: key '{colliders[exc.collider].key}': {exc}") from exc
     try:

@@ -194,6 +194,9 @@ class IpcBarrier:
         self._obstacle_velocity = np.concatenate(
             [np.zeros((0, 3))] + [np.broadcast_to(v, (count, 3)) for v, count in self._mesh_groups])
         plane_velocities = obstacles.plane_velocities or [np.zeros(3)] * len(obstacles.planes)
+        self._plane_colliders = list(obstacles.plane_colliders)
+        #: each collider's name in messages (a scene sets its keys, e.g. ``colliders[1]``)
+        self.collider_names: list[str] | None = None
         self._planes = [(np.asarray(n, dtype=float), np.asarray(p, dtype=float), np.asarray(v, dtype=float))
                         for (n, p), v in zip(obstacles.planes, plane_velocities, strict=True)]  # fmt: skip
         #: whether some obstacle translates (its place follows the time steps, :meth:`place_obstacles`)
@@ -426,7 +429,10 @@ class IpcBarrier:
             normal, offset = np.asarray(plane.normal()).ravel(), float(plane.offset())
             behind = np.flatnonzero(shell @ normal + offset <= 0.0)
             if len(behind):
-                return f"plane {k} has {len(behind)} collision vertices on or behind it, e.g. {shell[behind[0]]}"
+                index = self._plane_colliders[k]
+                name = self.collider_names[index] if self.collider_names else f"collider {index}"
+                return (f"{name} (a plane) has {len(behind)} collision vertices on or behind it, "
+                        f"e.g. {shell[behind[0]]}")
         if self._ipctk.has_intersections(self.mesh, vertices):
             within = ", or within a body that meets itself" if self.self_contact else ""
             return f"the collision mesh intersects (between bodies, or with a collider mesh{within})"

@@ -242,7 +242,8 @@ def test_settings_the_barrier_does_not_take_are_refused(comm, shared_tmp_path, e
 def test_a_sheet_starting_below_the_plane_is_refused_before_the_first_step(comm, shared_tmp_path):
     colliders = PLANE.replace("point = [0.0, 0.0, 0.0]", "point = [0.0, 0.0, 0.004]")  # under the waves' troughs
     path = _scene(comm, shared_tmp_path, "below", colliders=colliders)
-    with pytest.raises(RunError, match=r"starts in contact with its colliders .*plane 0 has \d+ collision vertices"):
+    with pytest.raises(RunError, match=r"starts in contact with its colliders .*colliders\[0\] \(a plane\) has \d+ "
+                                       r"collision vertices"):
         run_scene(RunOptions(path, shared_tmp_path / "below", progress=False), comm)
 
 

@@ -151,6 +151,9 @@ class IpcBarrier:
         self.blocks, column = np.unique(gathered[1], return_inverse=True)  # the global blocks the mesh uses
         self.global_map = scipy.sparse.csr_matrix((gathered[2], (gathered[0], column)),
                                                   shape=(self.num_points, len(self.blocks)))  # fmt: skip
+        # the map of the vertices' coordinates (3 per vertex) to the blocks' (the Hessian's J)
+        self._coordinate_map = scipy.sparse.kron(self.global_map, scipy.sparse.identity(3), format="csr")
+        self._coordinate_map_transposed = self._coordinate_map.T.tocsr()
         self._pattern = self._triangle_pattern(np.asarray(triangles, dtype=np.int64))
         self.mesh = self._collision_mesh(np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), obstacles,
                                          groups)  # fmt: skip
@@ -300,8 +303,7 @@ class IpcBarrier:
             hessian = hessian + self.friction.hessian(self.mesh, vertices)
         size = 3 * self.num_points
         shell = hessian[:size, :size]
-        mapped = scipy.sparse.kron(self.global_map, scipy.sparse.identity(3), format="csr")
-        blocks = (mapped.T @ shell @ mapped).tobsr(blocksize=(3, 3))
+        blocks = (self._coordinate_map_transposed @ shell @ self._coordinate_map).tobsr(blocksize=(3, 3))
         return self._split(blocks)
 
     def _split(self, blocks: scipy.sparse.bsr_matrix) -> np.ndarray:

@@ -554,8 +554,8 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     of ipc-toolkit's adaptive range for that ``dhat`` and the bodies' mean mass per vertex. Where a
     body (``mesh.friction``) or a collider (``collider_friction``, one per collider; None:
     frictionless colliders) has friction, lagged friction with sticking speed ``eps_v`` [m/s] acts
-    at the contacts (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`). Meshes ``joined`` (pairs of indices:
-    patches of one shell) share a vertex group: they do not meet each other."""
+    at the contacts (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`). Meshes ``joined``
+    (pairs of indices: patches of one shell) share a vertex group: they do not meet each other."""
     rest = np.concatenate([mesh.rest for mesh in meshes])
     dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
     if stiffness is None:
@@ -617,7 +617,7 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
     """Colliders as the barrier's triangle meshes and planes: curved ones tessellated within
     :data:`COLLIDER_SAGITTA` dhat (an infinite cylinder over the part of its axis the bodies' box
     ``cover (2, 3)`` spans and a diagonal of it beyond; a sphere's vertices moving at its surface velocity)."""
-    from bhem_hpc.collision.colliders import Plane
+    from bhem_hpc.collision.colliders import ColliderError, Plane
     from bhem_hpc.collision.tessellation import TessellationError
 
     meshes, planes, plane_colliders, mesh_velocities, plane_velocities = [], [], [], [], []
@@ -629,7 +629,7 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
             continue
         try:
             points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
-        except TessellationError as exc:
+        except (TessellationError, ColliderError) as exc:  # spheres' and capsules' limits are the latter
             raise TessellationError(f"{exc} (dhat / 4; a larger 'effects.contact.dhat' allows coarser triangles)",
                                     index) from None  # fmt: skip
         points = np.asarray(points, dtype=float).reshape(-1, 3)

@@ -145,20 +145,13 @@ def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
     checked to start apart from its colliders (collective); None for a scene without it."""
     if scene.contact is None or scene.contact.method != "ipc":
         return None
-    from bhem_hpc.collision.tessellation import TessellationError
-    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, bodies_barrier, check_chord_gaps, shell_mesh
+    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps, scene_barrier, shell_mesh
     from bhem_hpc.contact.ipc_friction import surface_friction
 
     c, material = scene.contact, scene.material
     mesh = shell_mesh(model, c.collision_cells, material.density, material.thickness, c.self_collision,
                       surface_friction(c))  # fmt: skip
-    try:
-        barrier = bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, [e.collider for e in c.colliders],
-                                 c.dhat, c.barrier_stiffness, [surface_friction(e) for e in c.colliders],
-                                 c.eps_v)  # fmt: skip
-        barrier.collider_names = [e.key for e in c.colliders]
-    except TessellationError as exc:
-        raise RunError(f"{scene_file}: key '{c.colliders[exc.collider].key}': {exc}") from exc
+    barrier = scene_barrier([mesh], [0], model.global_open_blocks, model.comm, c, scene_file)
     try:
         check_chord_gaps([mesh], barrier.dhat)
     except CoarseCollisionMesh as exc:

@@ -226,22 +226,13 @@ def bodies_barrier(bodies: list[Body], blocks: StackedBlocks, scene: BodiesScene
     in_contact = [body for body in bodies if body.scene.contact is not None and body.scene.contact.method == "ipc"]
     if not in_contact:
         return None
-    from bhem_hpc.collision.tessellation import TessellationError
-    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps
-    from bhem_hpc.contact.ipc_contribution import bodies_barrier as make_barrier
-    from bhem_hpc.contact.ipc_friction import surface_friction
+    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps, scene_barrier
 
     contact = in_contact[0].scene.contact
     meshes = [body.collision_mesh() for body in in_contact]
-    try:
-        colliders = contact.colliders
-        barrier = make_barrier(meshes, [blocks.open_offsets[body.index] for body in in_contact],
-                               blocks.global_open_blocks, blocks.comm, [entry.collider for entry in colliders],
-                               contact.dhat, contact.barrier_stiffness, [surface_friction(e) for e in colliders],
-                               contact.eps_v, _joined_meshes(scene, in_contact))  # fmt: skip
-        barrier.collider_names = [entry.key for entry in colliders]
-    except TessellationError as exc:
-        raise RunError(f"{scene_file}: key '{colliders[exc.collider].key}': {exc}") from exc
+    barrier = scene_barrier(meshes, [blocks.open_offsets[body.index] for body in in_contact],
+                            blocks.global_open_blocks, blocks.comm, contact, scene_file,
+                            _joined_meshes(scene, in_contact))  # fmt: skip
     try:
         check_chord_gaps(meshes, barrier.dhat)
     except CoarseCollisionMesh as exc:

@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 
+from bhem_hpc.collision.bezier import evaluate
 from bhem_hpc.errors import UserError
 
 #: Vertices around a cylinder's rings its triangles may take.
@@ -103,8 +104,6 @@ def patch_model_mesh(nets: np.ndarray, max_sagitta: float) -> tuple[np.ndarray, 
 
     Returns ``(vertices (V, 3), triangles (T, 3))``, oriented as the patches' ``x_u x x_v``.
     """
-    from bhem_hpc.collision.bezier import evaluate
-
     nets = np.asarray(nets, dtype=float)
     bound = float(bezier_second_derivative_bound(nets).max())
     cells = max(1, math.ceil(math.sqrt(bound / (4.0 * max_sagitta)))) if bound > 0 else 1

@@ -24,8 +24,17 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from bhem_hpc.collision.tessellation import TessellationError
 from bhem_hpc.contact.ipc import IpcError, chord_gap, collision_lattice, minimum_distance
-from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, FRICTIONLESS, Friction, LaggedFriction, pair_table
+from bhem_hpc.contact.ipc_friction import (
+    DEFAULT_EPS_V,
+    FRICTIONLESS,
+    Friction,
+    LaggedFriction,
+    pair_table,
+    surface_friction,
+)
+from bhem_hpc.errors import RunError
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
 if TYPE_CHECKING:
@@ -586,6 +595,24 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
                       np.concatenate(groups), friction)  # fmt: skip
 
 
+def scene_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], global_open_blocks: np.ndarray,
+                  comm: Communicator, contact: Any, scene_file: Any,
+                  joined: Sequence[tuple[int, int]] = ()) -> IpcBarrier:  # fmt: skip
+    """:func:`bodies_barrier` for a scene's ``contact`` settings (its collider entries with their
+    friction and scene keys, ``dhat``, ``barrier_stiffness``, ``eps_v``): a collider it cannot mesh
+    is a :class:`~bhem_hpc.errors.RunError` naming ``scene_file`` and the collider's key, and
+    :meth:`IpcBarrier.starting_problem` names colliders by their keys."""
+    entries = contact.colliders
+    try:
+        barrier = bodies_barrier(meshes, open_offsets, global_open_blocks, comm, [e.collider for e in entries],
+                                 contact.dhat, contact.barrier_stiffness, [surface_friction(e) for e in entries],
+                                 contact.eps_v, joined)  # fmt: skip
+    except TessellationError as exc:
+        raise RunError(f"{scene_file}: key '{entries[exc.collider].key}': {exc}") from exc
+    barrier.collider_names = [e.key for e in entries]
+    return barrier
+
+
 def _lagged_friction(meshes: Sequence[BodyMesh], obstacles: Obstacles, colliders: Sequence[Friction],
                      eps_v: float) -> LaggedFriction:  # fmt: skip
     """The friction of bodies' ``meshes`` and the ``obstacles`` made of colliders with coefficients
@@ -618,7 +645,6 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
     :data:`COLLIDER_SAGITTA` dhat (an infinite cylinder over the part of its axis the bodies' box
     ``cover (2, 3)`` spans and a diagonal of it beyond; a sphere's vertices moving at its surface velocity)."""
     from bhem_hpc.collision.colliders import ColliderError, Plane
-    from bhem_hpc.collision.tessellation import TessellationError
 
     meshes, planes, plane_colliders, mesh_velocities, plane_velocities = [], [], [], [], []
     for index, c in enumerate(colliders):
@@ -630,8 +656,8 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
         try:
             points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
         except (TessellationError, ColliderError) as exc:  # spheres' and capsules' limits are the latter
-            raise TessellationError(f"{exc} (dhat / 4; a larger 'effects.contact.dhat' allows coarser triangles)",
-                                    index) from None  # fmt: skip
+            raise TessellationError(f"{exc} ({COLLIDER_SAGITTA:g} dhat; a larger 'effects.contact.dhat' allows "
+                                    "coarser triangles)", index) from None  # fmt: skip
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
         mesh_velocities.append(np.asarray(c.velocity, dtype=float))

@@ -372,9 +372,9 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
 def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path, other_bodies: bool,
                       cells: int = 4) -> SceneContact:  # fmt: skip
     """``effects.contact`` with ``method = "ipc"``: a barrier against the colliders (resting or
-    translating; spheres also spinning) and, with ``other_bodies``, the other bodies in contact (``cells``: collision
-    cells per side by default); lagged friction by ``effects.friction`` / ``static_friction`` and the
-    colliders' ``friction`` / ``static_friction``."""
+    translating; spheres also spinning) and, with ``other_bodies``, the other bodies in contact
+    (``cells``: collision cells per side by default); lagged friction by ``effects.friction`` /
+    ``static_friction`` and the colliders' ``friction`` / ``static_friction``."""
     from bhem_hpc.collision.colliders import Plane
     from bhem_hpc.contact.ipc_friction import DEFAULT_EPS_V, EPS_V_RANGE
     from bhem_hpc.contact.metrics import COLLISION_CELLS_RANGE

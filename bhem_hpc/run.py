@@ -145,8 +145,9 @@ def ipc_barrier(scene: Scene, model: ShellModel, scene_file: Path):
     checked to start apart from its colliders (collective); None for a scene without it."""
     if scene.contact is None or scene.contact.method != "ipc":
         return None
-    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps, scene_barrier, shell_mesh
+    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh
     from bhem_hpc.contact.ipc_friction import surface_friction
+    from bhem_hpc.contact.ipc_setup import check_chord_gaps, scene_barrier, shell_mesh
 
     c, material = scene.contact, scene.material
     mesh = shell_mesh(model, c.collision_cells, material.density, material.thickness, c.self_collision,

@@ -28,6 +28,7 @@ PETSC_MODULES = {"solids/petsc.py", "solver/newton.py", "solver/path.py", "solve
         ("bhem_hpc.contact.bodies", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.ipc", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.ipc_contribution", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.contact.ipc_setup", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.forms", ("dolfinx", "petsc4py", "mpi4py", "basix")),
         ("bhem_hpc.solver.contributions", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.bodies.layout", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),

@@ -24,7 +24,7 @@ from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene.records import Scene
 
 if TYPE_CHECKING:
-    from bhem_hpc.contact.ipc_contribution import BodyMesh
+    from bhem_hpc.contact.ipc_setup import BodyMesh
 
 
 class Body(Protocol):
@@ -125,8 +125,8 @@ class ShellBody:
         return matrix
 
     def collision_mesh(self) -> BodyMesh:
-        from bhem_hpc.contact.ipc_contribution import shell_mesh  # loaded with IPC contact only
         from bhem_hpc.contact.ipc_friction import surface_friction
+        from bhem_hpc.contact.ipc_setup import shell_mesh  # loaded with IPC contact only
 
         contact, material = self.scene.contact, self.scene.material
         return shell_mesh(self.model, contact.collision_cells, material.density, material.thickness,

@@ -226,7 +226,8 @@ def bodies_barrier(bodies: list[Body], blocks: StackedBlocks, scene: BodiesScene
     in_contact = [body for body in bodies if body.scene.contact is not None and body.scene.contact.method == "ipc"]
     if not in_contact:
         return None
-    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh, check_chord_gaps, scene_barrier
+    from bhem_hpc.contact.ipc_contribution import CoarseCollisionMesh
+    from bhem_hpc.contact.ipc_setup import check_chord_gaps, scene_barrier
 
     contact = in_contact[0].scene.contact
     meshes = [body.collision_mesh() for body in in_contact]

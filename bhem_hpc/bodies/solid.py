@@ -19,7 +19,7 @@ from bhem_hpc.solids.model import FixedPoints, SolidDynamics, SolidModel
 from bhem_hpc.solids.sem import ShapeMatchingSolid
 
 if TYPE_CHECKING:
-    from bhem_hpc.contact.ipc_contribution import BodyMesh
+    from bhem_hpc.contact.ipc_setup import BodyMesh
 
 
 def build_solid_model(scene: SolidScene, comm: MPI.Comm, name: str = "solid") -> SolidModel:
@@ -72,8 +72,8 @@ class SolidBody:
                          f"{np.shape(parameters)}: it meets other bodies by contact method 'ipc'")  # fmt: skip
 
     def collision_mesh(self) -> BodyMesh:
-        from bhem_hpc.contact.ipc_contribution import solid_mesh  # loaded with IPC contact only
         from bhem_hpc.contact.ipc_friction import surface_friction
+        from bhem_hpc.contact.ipc_setup import solid_mesh  # loaded with IPC contact only
 
         contact = self.scene.contact
         return solid_mesh(self.model.solid.parts, self.model.comm.rank, self.mass(), contact.collision_cells + 1,

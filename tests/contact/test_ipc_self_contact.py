@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from helpers import hairpin_model
 
-from bhem_hpc.contact.ipc_contribution import shell_barrier
+from bhem_hpc.contact.ipc_setup import shell_barrier
 from bhem_hpc.solver.contributions import ContributionState, diagonal_compensation
 
 

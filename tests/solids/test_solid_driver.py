@@ -159,7 +159,7 @@ def test_a_solid_lands_on_a_floor_without_crossing_it(comm):
     bounces back (the centre of mass moves up again) within 6 steps. The landing step halves dt once
     (its first Newton steps stall on the collision-free bound: measured, not yet understood)."""
     from bhem_hpc.collision.colliders import Plane
-    from bhem_hpc.contact.ipc_contribution import solid_barrier
+    from bhem_hpc.contact.ipc_setup import solid_barrier
     from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
 
     parts = nurbs.box_faces([0.0, 0.0, 0.01], [0.3, 0.2, 0.26], degree=2)

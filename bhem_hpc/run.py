@@ -278,12 +278,16 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         title = f"{options.scene.name}, {where}"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
     except Exception as exc:
+        if barrier is not None:  # the stiffness it grew to
+            summary.contact |= barrier.summary()
         record_failure(summary, exc, options.out, comm)
         raise
     finally:
         if run.series is not None:
             run.series.close()
         close_solver(solver, summary, comm)
+    if barrier is not None:
+        summary.contact |= barrier.summary()
     summary.status = "completed"
     on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()
@@ -552,6 +556,8 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
     stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact, state=run.state)
     if checkpoint is not None:
         arrays, attrs = checkpoint.arrays, checkpoint.attrs
+        solver.problem.restore_adapted({k.removeprefix("adapted_"): v for k, v in attrs.items()
+                                        if k.startswith("adapted_")})  # fmt: skip
         if "factorization_state_dofs" in arrays:
             state = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
             solver.restore_reuse_checkpoint(arrays, state)
@@ -582,6 +588,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
             if wrote:  # after the step's rows: a restart from it finds them all
                 arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
                 attrs = {f"reuse_{k}": v for k, v in reuse.items()}
+                attrs |= {f"adapted_{k}": v for k, v in solver.problem.adapted_parameters().items()}
                 _checkpoint(options.out / "checkpoint.h5", run.state, surface, (stepper.time, stepper.step), summary,
                             comm, arrays, attrs)  # fmt: skip
             # summary.json shows the records so far, at most every SUMMARY_EVERY_S (a restart reads

@@ -37,10 +37,13 @@ from bhem_hpc.solver.contributions import (
     ContributionState,
     PointBasis,
     StepBounded,
+    adapt_to_iterate,
+    adapted_parameters,
     begin_lagged_step,
     carried_by_obstacles,
     moving_obstacles,
     place_obstacles_within_step,
+    restore_adapted,
     step_bound,
 )
 from bhem_hpc.solver.model_group import BodyModel
@@ -285,6 +288,23 @@ class StackedProblem(PetscOwner):
         for problem in self.problems:
             problem.begin_step(time, dt)
         begin_lagged_step(self.contributions, self.contribution_state(), time, dt)
+
+    def adapt_to_iterate(self) -> bool:
+        """Collective: every body's contributions and the coupling ones adapt at the current state
+        (:class:`~bhem_hpc.solver.contributions.IterationAdapted`); returns whether some energy changed."""
+        changed = [p.adapt_to_iterate() for p in self.problems]
+        return adapt_to_iterate(self.contributions, self.contribution_state()) or any(changed)
+
+    def adapted_parameters(self) -> dict[str, float]:
+        """Every body's and the coupling contributions' adapted parameters, for a checkpoint."""
+        return adapted_parameters(self.contributions) | {k: v for p in self.problems
+                                                          for k, v in p.adapted_parameters().items()}  # fmt: skip
+
+    def restore_adapted(self, parameters: dict[str, float]) -> None:
+        """Take every contribution's adapted parameters from a checkpoint."""
+        restore_adapted(self.contributions, parameters)
+        for problem in self.problems:
+            problem.restore_adapted(parameters)
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:
         """Every body's point-constraint targets at time (or load factor) ``t``."""

@@ -156,12 +156,16 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
         title = f"{options.scene.name}, t = {summary.time or 0:.4g} s"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", surfaces, title), "last.png")
     except Exception as exc:
+        if barrier is not None:  # the stiffness it grew to
+            summary.contact |= barrier.summary()
         record_failure(summary, exc, options.out, comm)
         raise
     finally:
         if output is not None:
             output.close()
         close_solver(solver, summary, comm)
+    if barrier is not None:
+        summary.contact |= barrier.summary()
     summary.status = "completed"
     on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()
@@ -293,6 +297,8 @@ def _step(run: _BodiesRun, checkpoint: RestartPoint | None, continuing: bool, st
 def _restore(run: _BodiesRun, stepper: TimeStepper, checkpoint: RestartPoint) -> None:
     """Collective: every body's state, the clock and the kept factorization of ``checkpoint``."""
     arrays, attrs = checkpoint.arrays, checkpoint.attrs
+    run.solver.problem.restore_adapted({k.removeprefix("adapted_"): v for k, v in attrs.items()
+                                        if k.startswith("adapted_")})  # fmt: skip
     if run.key("factorization_state_dofs", 0) in arrays:
         reuse = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
         run.solver.restore_reuse_checkpoint(arrays, reuse)
@@ -375,5 +381,6 @@ class _BodiesRun:
             arrays[self.key("position_nodal", k)] = surface.nodal
         attrs = checkpoint_attributes((stepper.time, stepper.step), self.summary, False)
         attrs |= {f"reuse_{k}": v for k, v in reuse.items()}
+        attrs |= {f"adapted_{k}": v for k, v in self.solver.problem.adapted_parameters().items()}
         path = self.options.out / "checkpoint.h5"
         on_rank0(self.comm, lambda: write_checkpoint(path, arrays, attrs), path.name)

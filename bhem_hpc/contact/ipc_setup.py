@@ -14,6 +14,7 @@ from bhem_hpc.collision.tessellation import TessellationError
 from bhem_hpc.contact.ipc import chord_gap, collision_lattice
 from bhem_hpc.contact.ipc_contribution import (
     COLLIDER_SAGITTA,
+    STIFFNESS_GROWTH_LIMIT,
     CoarseCollisionMesh,
     Communicator,
     IpcBarrier,
@@ -143,15 +144,18 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     """The barrier between bodies' collision ``meshes`` (each body's open blocks at rows
     ``open_offsets[b]:`` of the contributions' state, their global blocks ``global_open_blocks``),
     and between them and colliders (planes exactly, the others as triangle meshes, :func:`_obstacles`);
-    ``dhat`` by default 1e-3 of the bodies' rest bounding-box diagonal, ``kappa`` by default the top
-    of ipc-toolkit's adaptive range for that ``dhat`` and the bodies' mean mass per vertex. Where a
+    ``dhat`` by default 1e-3 of the bodies' rest bounding-box diagonal. ``kappa`` by default starts at
+    the top of ipc-toolkit's adaptive range for that ``dhat`` and the bodies' mean mass per vertex and
+    grows up to :data:`STIFFNESS_GROWTH_LIMIT` times that (:meth:`IpcBarrier.adapt`); a given one
+    stays fixed. Where a
     body (``mesh.friction``) or a collider (``collider_friction``, one per collider; None:
     frictionless colliders) has friction, lagged friction with sticking speed ``eps_v`` [m/s] acts
     at the contacts (:class:`~bhem_hpc.contact.ipc_friction.LaggedFriction`). Meshes ``joined``
     (pairs of indices: patches of one shell) share a vertex group: they do not meet each other."""
     rest = np.concatenate([mesh.rest for mesh in meshes])
     dhat = 1e-3 * float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if dhat is None else float(dhat)
-    if stiffness is None:
+    adaptive = stiffness is None
+    if adaptive:
         mass = sum(mesh.vertex_mass * len(mesh.rest) for mesh in meshes)
         stiffness = _kappa(rest, dhat, mass / len(rest))
     bases, triangles, groups, start = [], [], [], 0
@@ -175,8 +179,11 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     friction = None
     if any(f.any for f in [mesh.friction for mesh in meshes] + frictions):
         friction = _lagged_friction(meshes, obstacles, frictions, eps_v)
-    return IpcBarrier(bases, global_open_blocks, np.concatenate(triangles), rest, obstacles, dhat, stiffness, comm,
-                      np.concatenate(groups), friction)  # fmt: skip
+    barrier = IpcBarrier(bases, global_open_blocks, np.concatenate(triangles), rest, obstacles, dhat, stiffness, comm,
+                         np.concatenate(groups), friction)  # fmt: skip
+    if adaptive:
+        barrier.allow_stiffness_growth(STIFFNESS_GROWTH_LIMIT * stiffness)
+    return barrier
 
 
 def scene_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], global_open_blocks: np.ndarray,

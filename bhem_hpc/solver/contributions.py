@@ -181,6 +181,19 @@ class ContributionSteps:
         step to its end ``(blocks,)`` and the displacement ``(blocks, 3)`` that carries them along."""
         return carried_by_obstacles(self.contributions, self.contribution_state(), since)
 
+    def adapt_to_iterate(self) -> bool:
+        """Collective: the contributions adapt at the current state (:class:`IterationAdapted`);
+        returns whether some energy changed."""
+        return adapt_to_iterate(self.contributions, self.contribution_state())
+
+    def adapted_parameters(self) -> dict[str, float]:
+        """The contributions' adapted parameters, for a checkpoint."""
+        return adapted_parameters(self.contributions)
+
+    def restore_adapted(self, parameters: dict[str, float]) -> None:
+        """Take the contributions' adapted parameters from a checkpoint."""
+        restore_adapted(self.contributions, parameters)
+
 
 @runtime_checkable
 class GrowingPattern(Contribution, Protocol):
@@ -211,6 +224,45 @@ def begin_lagged_step(contributions: Sequence[Contribution], state: Contribution
     for contribution in contributions:
         if isinstance(contribution, StepLagged):
             contribution.begin_step(state, time, dt)
+
+
+@runtime_checkable
+class IterationAdapted(Contribution, Protocol):
+    """A contribution that adapts a parameter of its energy between Newton iterations (IPC's
+    barrier stiffness, which grows while contacts keep closing in)."""
+
+    def adapt(self, state: ContributionState) -> bool:
+        """Collective: adapt at the Newton iterate ``state`` (the line search's accepted state, before
+        the residual there is assembled); returns whether the energy changed, so that energies
+        evaluated before no longer hold."""
+        ...
+
+    def parameters(self) -> dict[str, float]:
+        """The adapted parameters by name, for a checkpoint (names unique among contributions)."""
+        ...
+
+    def restore(self, parameters: dict[str, float]) -> None:
+        """Take this contribution's parameters from a checkpoint's (names it does not know: ignored)."""
+        ...
+
+
+def adapt_to_iterate(contributions: Sequence[Contribution], state: ContributionState) -> bool:
+    """Collective: let every :class:`IterationAdapted` one of ``contributions`` adapt at ``state``;
+    returns whether some energy changed."""
+    changed = [c.adapt(state) for c in contributions if isinstance(c, IterationAdapted)]
+    return any(changed)
+
+
+def adapted_parameters(contributions: Sequence[Contribution]) -> dict[str, float]:
+    """The :class:`IterationAdapted` ones' parameters, for a checkpoint."""
+    return {k: v for c in contributions if isinstance(c, IterationAdapted) for k, v in c.parameters().items()}
+
+
+def restore_adapted(contributions: Sequence[Contribution], parameters: dict[str, float]) -> None:
+    """Hand a checkpoint's adapted ``parameters`` to every :class:`IterationAdapted` contribution."""
+    for contribution in contributions:
+        if isinstance(contribution, IterationAdapted):
+            contribution.restore(parameters)
 
 
 def diagonal_compensation(rows: np.ndarray, columns: np.ndarray,

@@ -70,11 +70,9 @@ def residual_callback(snes: PETSc.SNES, x: PETSc.Vec, f: PETSc.Vec, solver: Shel
     """SNES function callback (``kargs={"solver": solver}``): the residual of ``solver``'s problem at
     ``x`` into ``f``. Public for other SNES on the same problem (path following, trust region)."""
     solver.problem.update_state(x)
+    if solver.problem.adapt_to_iterate():  # an energy changed (IPC's barrier stiffness grew)
+        solver.forget_energy()
     solver.problem.assemble_residual(x, f)
-
-
-def _energy_precheck(x: PETSc.Vec, y: PETSc.Vec, solver: ShellSolver) -> None:
-    solver.damp_step(x, y)
 
 
 def jacobian_callback(snes: PETSc.SNES, x: PETSc.Vec, jac: PETSc.Mat, pmat: PETSc.Mat, solver: ShellSolver) -> None:
@@ -197,7 +195,7 @@ class ShellSolver(PetscOwner):
             self._trial: PETSc.Vec | None = None  # the energy line search's trial state
             if self.bodies.has_potential:
                 self._trial = self.x.duplicate()
-                self.snes.setLineSearchPreCheck(_energy_precheck, kargs={"solver": self})
+                self.snes.setLineSearchPreCheck(lambda x, y, solver: solver.damp_step(x, y), kargs={"solver": self})
             try:
                 self.snes.setFromOptions()
                 depth = anderson_depth(opts.getString(prefix + "chord_anderson_depth", str(CHORD_ANDERSON_DEPTH)),
@@ -368,6 +366,11 @@ class ShellSolver(PetscOwner):
         self.report.backtracks += int(step < 1.0)
         if step < 1.0:
             y.scale(step)
+
+    def forget_energy(self) -> None:
+        """The potential changed at fixed states: drop the line search's last energy and the kept factorization."""
+        self._accepted_energy = None
+        self.reuse.invalidate()
 
     def _bound_step(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
         """Shorten the step ``x -> x - y`` to what the step-bounded contributions admit (a barrier
@@ -629,8 +632,7 @@ class ShellSolver(PetscOwner):
         return reason > 0 and bool(np.isfinite(norm))
 
     def raise_failure(self, factor: float, after: str) -> None:
-        """Raise the :class:`SolverError` of a solve that failed at load ``factor`` after ``after``
-        (:func:`~bhem_hpc.solver.failure.solve_failure`: the reasons, the dominant terms, advice)."""
+        """Raise the :class:`SolverError` of a solve that failed at load ``factor`` after ``after``."""
         raise solve_failure(self, factor, after)
 
     def factor_matrix(self) -> PETSc.Mat | None:

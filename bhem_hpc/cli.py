@@ -49,6 +49,16 @@ def _add_solids(sub) -> None:
     solids.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/solids.md, .json, .png")
 
 
+def _add_contact_page(sub) -> None:
+    """``bhem-hpc contact-page``: the contact jobs by impulses and by IPC, head to head."""
+    page = sub.add_parser("contact-page", help="the contact jobs by impulses and by IPC over windows where contact "
+                          "happens (serial, one run after the other)")  # fmt: skip
+    page.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/contact-comparison.md, .json")
+    page.add_argument("--out", type=Path, default=Path("out/contact"), help="the runs' scenes and output directories")
+    page.add_argument("--jobs", nargs="+", default=None, help="jobs (default: every contact job with a window)")
+    page.add_argument("--timeout", type=float, default=1800.0, help="seconds each run may take before it is stopped")
+
+
 def _add_states(sub) -> None:
     """``bhem-hpc states``: the shipped jobs' final states recorded, or compared with a record."""
     states = sub.add_parser("states", help="record the shipped jobs' final states, or compare with a record")
@@ -101,6 +111,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_cloth(sub)
     _add_solids(sub)
     _add_states(sub)
+    _add_contact_page(sub)
     _add_intersections(sub)
     render = sub.add_parser("render", help="ray-trace a saved frame's patches to PNG")
     render.add_argument("directory", type=Path,
@@ -350,6 +361,23 @@ def _cloth(args: argparse.Namespace, comm) -> None:
         print(f"wrote {page} ({len(cases)} cases, {args.steps} steps each)")
 
 
+def _contact_page(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.benchmarks.contact_page import CONTACT_WINDOWS, write_contact_page
+    from bhem_hpc.studies.cloth_page import machine_label
+
+    if comm.size > 1:
+        raise InputError("bhem-hpc contact-page runs its jobs one after the other itself: run it without mpirun")
+    known = [w.job for w in CONTACT_WINDOWS]
+    if args.jobs is not None and not set(args.jobs) <= set(known):
+        raise InputError(f"--jobs takes {known}, got {args.jobs}")
+    if not args.timeout > 0:
+        raise InputError(f"--timeout must be a positive number of seconds, got {args.timeout}")
+    windows = tuple(w for w in CONTACT_WINDOWS if args.jobs is None or w.job in args.jobs)
+    command = f"bhem-hpc contact-page --docs {args.docs}" + (f" --jobs {' '.join(args.jobs)}" if args.jobs else "")
+    page = write_contact_page(args.docs, args.out, windows, args.timeout, command, machine_label())
+    print(f"wrote {page} ({len(windows)} jobs, 2 methods each)")
+
+
 def _solids(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.solids_page import write_solids_page
 
@@ -407,6 +435,7 @@ HANDLERS = {
     "paths": _paths,
     "cloth": _cloth,
     "solids": _solids,
+    "contact-page": _contact_page,
     "states": _states,
     "intersections": _intersections,
     "cantilever": _cantilever,

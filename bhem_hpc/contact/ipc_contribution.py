@@ -16,7 +16,9 @@ blocks lie within the block pairs of the mesh's triangles: the pattern is fixed 
 
 from __future__ import annotations
 
+import functools
 import logging
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -30,6 +32,21 @@ from bhem_hpc.contact.ipc_friction import LaggedFriction
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
 log = logging.getLogger(__name__)
+
+
+def _timed(method: Callable) -> Callable:
+    """Add the seconds a barrier method takes to the barrier's :attr:`IpcBarrier.seconds`."""
+
+    @functools.wraps(method)
+    def timed(self: IpcBarrier, *args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return method(self, *args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - start
+
+    return timed
+
 
 class Communicator(Protocol):
     """What the barrier needs of an MPI communicator (mpi4py's has it)."""
@@ -136,6 +153,8 @@ class IpcBarrier:
         #: itself: fixed), the closest distance of the last Newton iterate [m], the doublings made
         self.stiffness_limit, self._last_distance, self.stiffness_doublings = self.stiffness, np.inf, 0
         self._start_stiffness = self.stiffness
+        #: seconds spent in the barrier's energy, gradient, Hessian, step bounds and adaptation
+        self.seconds = 0.0
         rest = np.asarray(rest, dtype=float).reshape(-1, 3)
         self._diagonal = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(rest) else 1.0
         #: the distance [m] below which contacts still closing in grow the stiffness
@@ -279,6 +298,7 @@ class IpcBarrier:
         :attr:`growth_distance` (:meth:`adapt`)."""
         self.stiffness_limit = max(float(limit), self.stiffness)
 
+    @_timed
     def adapt(self, state: ContributionState) -> bool:
         """Collective: IPC's adaptive stiffness at a Newton iterate: double it (up to its limit) where
         the closest pair is nearer than at the previous iterate of the step's solve, both nearer than
@@ -322,10 +342,11 @@ class IpcBarrier:
         friction = self.friction
         return {"method": "ipc", "dhat_m": self.dhat, "barrier_stiffness": self.stiffness,
                 "barrier_stiffness_start": self._start_stiffness, "barrier_stiffness_limit": self.stiffness_limit,
-                "stiffness_doublings": self.stiffness_doublings,
+                "stiffness_doublings": self.stiffness_doublings, "barrier_s": self.seconds,
                 "collision_vertices": self.num_points, "friction": friction is not None,
                 "eps_v_m_s": friction.eps_v if friction is not None else None}  # fmt: skip
 
+    @_timed
     def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
         """Collective: with friction, lag the contacts at the step's start (their normal forces and
         tangent bases) for a step from ``time`` of ``dt`` [s]; then the translating obstacles go to
@@ -338,6 +359,7 @@ class IpcBarrier:
         self._step = (time, dt)
         self.place_obstacles(time + dt)
 
+    @_timed
     def energy(self, state: ContributionState) -> float:
         vertices = self._vertices(state.positions)
         energy = float(self.barrier(self._collisions(vertices), self.mesh, vertices))
@@ -345,6 +367,7 @@ class IpcBarrier:
             energy += self.friction.energy(self.mesh, vertices)
         return energy if self.rank == 0 else 0.0
 
+    @_timed
     def add_gradient(self, state: ContributionState, gradient: np.ndarray) -> None:
         vertices = self._vertices(state.positions)
         full = np.asarray(self.barrier.gradient(self._collisions(vertices), self.mesh, vertices)).reshape(-1, 3)
@@ -352,6 +375,7 @@ class IpcBarrier:
             full = full + self.friction.gradient(self.mesh, vertices)
         gradient += self.local_map.T @ full[: self.num_points]
 
+    @_timed
     def hessian(self, state: ContributionState) -> np.ndarray:
         """Rank 0: the blocks of :meth:`hessian_pattern` ``(k, 3, 3)``, each barrier pair's Hessian
         clamped to positive semi-definite before it is mapped to the blocks."""
@@ -394,6 +418,7 @@ class IpcBarrier:
         columns, values (k, 3, 3))`` (empty elsewhere and without self-contact)."""
         return self._beyond
 
+    @_timed
     def max_step(self, state: ContributionState, direction: np.ndarray) -> float:
         start = self._vertices(state.positions)
         end = self._vertices(np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3))
@@ -409,6 +434,7 @@ class IpcBarrier:
             weights = scipy.sparse.linalg.lsqr(self.local_map[rows], np.ones(len(rows)), atol=1e-14, btol=1e-14)[0]
         return weights
 
+    @_timed
     def carried(self, state: ContributionState, since: float) -> tuple[np.ndarray, np.ndarray]:
         """Collective: the open blocks ``(blocks,)`` (a mask) of every point within dhat plus an
         obstacle's travel from the fraction ``since`` of the step to its end, and the displacement
@@ -458,6 +484,11 @@ class IpcBarrier:
         planes are met here, a vertex stopping where :data:`PLANE_GAP_KEPT` of its gap is left."""
         if not self.moving:
             return self.max_step(state, direction)
+        return self._swept_bound(state, direction, since)
+
+    @_timed
+    def _swept_bound(self, state: ContributionState, direction: np.ndarray, since: float) -> float:
+        """:meth:`max_swept_step` with moving obstacles."""
         time, dt = self._step
         start_time, end_time = time + since * dt, time + dt
         end_positions = np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3)

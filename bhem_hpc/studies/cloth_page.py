@@ -189,7 +189,7 @@ def run_case(case: ClothCase, runs: Path, steps: int, comm: MPI.Comm) -> dict:
 
 def cloth_markdown(rows: list[dict], steps: int, command: str = "") -> str:
     """The page: how it was made, the machine, and a row per case."""
-    cpu = _cpu_model()
+    cpu = machine_label()
     lines = [
         "# Cotton cloth against the B-spline cloth paper's table",
         "",
@@ -218,7 +218,8 @@ def cloth_markdown(rows: list[dict], steps: int, command: str = "") -> str:
     return "\n".join(lines + ["", "![seconds per step against DoFs](cloth-comparison.png)"]) + "\n"
 
 
-def _cpu_model() -> str:
+def machine_label() -> str:
+    """The CPU model and how many ranks of how many cores ran (a page names the machine it measured)."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):

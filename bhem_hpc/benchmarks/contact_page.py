@@ -1,0 +1,250 @@
+"""The contact head-to-head page (``bhem-hpc contact-page --docs DIR`` writes
+``DIR/contact-comparison.md`` and its JSON rows): the shipped contact jobs by impulses between steps
+and by IPC inside the solve, each timed over a window of steps where contact happens.
+
+Every run is a ``bhem-hpc run`` of its own process, as a user runs it: the job's steps up to its
+window without frames, then the window continued from that checkpoint with a frame at every step.
+A run that fails or outlasts its time limit is reported with the steps it completed. Serial: the
+runs take the machine one after the other.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import h5py
+import numpy as np
+
+JOBS = Path(__file__).resolve().parents[2] / "jobs"
+#: The contact of a job by IPC: ipc-toolkit's barrier with its defaults (dhat 1e-3 of the bounding
+#: box, adaptive stiffness), the job's friction and self-collision settings kept.
+IPC_CONTACT = 'contact = { method = "ipc" }'
+METHODS = ("impulse", "ipc")
+
+
+@dataclass(frozen=True)
+class ContactWindow:
+    """Where a job is timed: after ``start`` untimed steps, ``steps`` steps; ``phase``: what happens."""
+
+    job: str
+    start: int
+    steps: int
+    phase: str
+
+
+#: The windows of the shipped contact jobs.
+CONTACT_WINDOWS = (
+    ContactWindow("ball", 70, 20, "the cloth lies on the ball and slides off it"),
+    ContactWindow("needles", 240, 10, "the cloth hangs on the needles and folds onto itself"),
+    ContactWindow("mesh-obstacle", 110, 10, "the cloth lies on the mesh obstacle"),
+    ContactWindow("crushed-can", 20, 10, "the plank presses the rim down"),
+    ContactWindow("mandrel", 150, 20, "the buckling wall lands on the mandrel"),
+)
+
+
+@runtime_checkable
+class SignedDistance(Protocol):
+    """A collider with an exact signed distance (planes, spheres, capsules, cylinders)."""
+
+    def signed_distance(self, points: np.ndarray, t: float = 0.0) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@runtime_checkable
+class Tessellated(Protocol):
+    """A collider given or met as a triangle mesh (mesh and patch models)."""
+
+    def tessellation(self, max_sagitta: float, cover: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def job_variant(text: str, method: str, every: int, source: str) -> str:
+    """The scene ``text`` with its contact by ``method`` (``impulse``: as given) and a frame every
+    ``every`` steps.
+
+    Raises:
+        ValueError: the scene does not have exactly one ``contact = ...`` line (named by ``source``).
+    """
+    lines = re.findall(r"^contact\s*=.*$", text, flags=re.MULTILINE)
+    if len(lines) != 1:
+        raise ValueError(f"{source}: expected one 'contact = ...' line in [effects], found {len(lines)}")
+    if method == "ipc":
+        text = text.replace(lines[0], IPC_CONTACT)
+    # the variant is written elsewhere: files the job names relative to itself, by absolute path
+    text = re.sub(r'^(file\s*=\s*)"([^"/][^"]*)"', lambda m: f'{m.group(1)}"{(JOBS / m.group(2)).resolve()}"', text,
+                  flags=re.MULTILINE)  # fmt: skip
+    if re.search(r"^every\s*=", text, flags=re.MULTILINE):
+        return re.sub(r"^every\s*=.*$", f"every = {every}", text, count=1, flags=re.MULTILINE)
+    if re.search(r"^\[output\]\s*$", text, flags=re.MULTILINE):
+        return re.sub(r"^\[output\]\s*$", f"[output]\nevery = {every}", text, count=1, flags=re.MULTILINE)
+    return text + f"\n[output]\nevery = {every}\n"
+
+
+def _run(scene: Path, out: Path, steps: int, timeout: float, restart: Path | None = None) -> str:
+    """``bhem-hpc run`` of ``steps`` steps in a process of its own; returns ``completed``,
+    ``failed: <its last message line>`` or ``stopped after <timeout> s``."""
+    command = [sys.executable, "-m", "bhem_hpc.cli", "run", str(scene), "--out", str(out), "--steps", str(steps),
+               "--no-progress", "--force"] + (["--restart", str(restart)] if restart is not None else [])  # fmt: skip
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return f"stopped after {timeout:g} s"
+    if done.returncode == 0:
+        return "completed"
+    message = [line for line in done.stderr.splitlines() if line.strip()]
+    return "failed: " + (message[-1] if message else f"exit code {done.returncode}")
+
+
+def _records(out: Path, after: int) -> list[dict]:
+    path = out / "steps.jsonl"
+    if not path.is_file():
+        return []
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return [r for r in rows if r["step"] > after]
+
+
+def _total_energy(energies: dict[str, float]) -> float:
+    """Kinetic plus elastic energy less the dead loads' work (gravity's potential is in it)."""
+    return energies["kinetic"] + energies.get("membrane", 0.0) + energies.get("bending", 0.0) - energies.get(
+        "external_work", 0.0)  # fmt: skip
+
+
+def frame_gaps(out: Path, colliders: list, within: float) -> dict:
+    """The frames of ``out``: the smallest signed distance [m] of the output meshes' vertices from the
+    exact colliders that have one (negative: inside), the smallest distance to colliders given as
+    meshes, and the frames whose meshes intersect themselves or a mesh collider (ipc-toolkit)."""
+    import ipctk
+
+    from bhem_hpc.contact.audit import audit_run
+    from bhem_hpc.contact.ipc import minimum_distance
+
+    audits = audit_run(out, within)
+    signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
+    with h5py.File(out / "surface.h5", "r") as f:
+        quads = np.asarray(f["topology"][...], dtype=np.int32)
+        faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+        for k in range(len(f["frames"])):
+            points, t = np.asarray(f[f"frames/{k}/geometry"][...]), float(f[f"frames/{k}"].attrs["time"])
+            cover = np.stack([points.min(axis=0), points.max(axis=0)])
+            for collider in colliders:
+                if isinstance(collider, SignedDistance):
+                    signed = min(signed, float(np.min(collider.signed_distance(points, t)[0])))
+                elif isinstance(collider, Tessellated):
+                    vertices, triangles = collider.tessellation(0.25 * within, cover)
+                    both = np.concatenate([points, vertices])
+                    all_faces = np.concatenate([faces, np.asarray(triangles, dtype=np.int32) + len(points)])
+                    mesh = ipctk.CollisionMesh(np.asfortranarray(both), ipctk.edges(all_faces), all_faces)
+                    groups = np.r_[np.zeros(len(points), np.int32), np.ones(len(vertices), np.int32)]
+                    mesh.can_collide = ipctk.make_vertex_patches_filter(groups)
+                    mesh_gap = min(mesh_gap, minimum_distance(mesh, both, within))
+                    mesh_crossings += int(ipctk.has_intersections(mesh, both))
+    return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
+            "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
+            "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip
+
+
+def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
+    """Run ``window``'s job by ``method`` into ``runs/<job>-<method>-{warm,window}`` (scene files beside
+    them); its figures over the window."""
+    from bhem_hpc.scene import load_scene
+
+    source = JOBS / f"{window.job}.toml"
+    text = source.read_text()
+    name = f"{window.job}-{method}"
+    warm_scene, window_scene = runs / f"{name}-warm.toml", runs / f"{name}-window.toml"
+    warm_scene.write_text(job_variant(text, method, 10**6, str(source)))
+    window_scene.write_text(job_variant(text, method, 1, str(source)))
+    warm, out = runs / f"{name}-warm", runs / f"{name}-window"
+    started = time.perf_counter()
+    status = _run(warm_scene, warm, window.start, timeout)
+    warm_s = time.perf_counter() - started
+    row = {"job": window.job, "method": method, "window": [window.start + 1, window.start + window.steps],
+           "phase": window.phase, "warm_up": status, "warm_up_s": warm_s}  # fmt: skip
+    if status != "completed":
+        return row | {"status": f"warm-up {status}", "steps": 0}
+    row["status"] = _run(window_scene, out, window.steps, timeout, restart=warm)
+    records = [r for r in _records(out, window.start) if r["step"] <= window.start + window.steps]
+    row["steps"] = len(records)
+    if not records:
+        return row
+    wall = sum(r["wall_s"] for r in records)
+    summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").is_file() else {}
+    contact = summary.get("contact") or {}
+    contact_s = contact.get("barrier_s", 0.0) if method == "ipc" else sum(r.get("collision_s", 0.0) for r in records)
+    energies = [_total_energy(r["energies"]) for r in records if "energies" in r]
+    scene = load_scene(window_scene)
+    colliders = [entry.collider for entry in scene.contact.colliders]
+    dhat = contact.get("dhat_m") or 1e-3
+    row |= {
+        "step_s": wall / len(records), "newton_per_step": sum(r["newton_iterations"] for r in records) / len(records),
+        "max_newton": max(r["newton_iterations"] for r in records),
+        "recoveries": sum(r["recoveries"] for r in records), "dt_halvings": sum(r["dt_halvings"] for r in records),
+        "contact_share": contact_s / wall if wall > 0 else 0.0,
+        "energy_change": (energies[-1] - energies[0]) / max(abs(e) for e in energies) if len(energies) > 1 else 0.0,
+        "stiffness": contact.get("barrier_stiffness"), "stiffness_doublings": contact.get("stiffness_doublings"),
+    }  # fmt: skip
+    return row | frame_gaps(out, colliders, max(dhat, 1e-3))
+
+
+def _gap(row: dict) -> str:
+    values = [row.get("min_signed_gap_m", np.inf), row.get("min_mesh_gap_m", np.inf)]
+    finite = [v for v in values if np.isfinite(v)]
+    return f"{min(finite):.2e}" if finite else "> 1e-3"
+
+
+def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
+    """The page: how it was made, then a row per job and method."""
+    lines = [
+        "# Contact by impulses and by IPC, head to head",
+        "",
+        f"Generated by `{command}` in one run on {machine}. Each job of `jobs/` runs twice, with its "
+        f"impulse contact as shipped and with `{IPC_CONTACT}` (dhat 1e-3 of the bounding box, the adaptive "
+        "barrier stiffness), each by `bhem-hpc run` in a process of its own: the steps before the window "
+        "without frames, then the window, continued from that checkpoint, with a frame at every step. "
+        "s/step and Newton/step are means over the window's steps; contact share: the impulse step's "
+        "collision detection and response, or the IPC barrier's energy, gradient, Hessian, step bounds and "
+        "stiffness updates, as a share of the step's wall time. Smallest gap: the output meshes' vertices "
+        "against the exact colliders (negative: inside one) or, for mesh colliders, the distance between "
+        "the meshes; intersecting frames: frames whose output meshes intersect themselves or a mesh "
+        "collider (ipc-toolkit's test). ΔE: the change of kinetic plus elastic energy less the dead loads' "
+        "work over the window, relative to its largest value (prescribed motions, colliders, damping and "
+        "the barrier do work too, so it is not a conservation figure for these driven scenes).",
+        "",
+        "| job | method | window (steps) | status | s/step | Newton/step (max) | recoveries | contact share | "
+        "smallest gap [m] | intersecting frames | ΔE | κ [N/m] (doublings) |",
+        "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in rows:
+        window = f"{r['window'][0]}–{r['window'][1]} ({r['steps']} done)"
+        status = r["status"] if len(r["status"]) < 90 else r["status"][:87] + "..."
+        if not r["steps"]:
+            lines.append(f"| {r['job']} | {r['method']} | {window} | {status} | | | | | | | | |")
+            continue
+        crossings = r["self_intersecting_frames"] + r["mesh_collider_crossings"]
+        stiffness = "" if r["stiffness"] is None else f"{r['stiffness']:.3g} ({r['stiffness_doublings']})"
+        lines.append(
+            f"| {r['job']} | {r['method']} | {window} | {status} | {r['step_s']:.3g} | "
+            f"{r['newton_per_step']:.1f} ({r['max_newton']}) | {r['recoveries']} | {100 * r['contact_share']:.0f} % | "
+            f"{_gap(r)} | {crossings} of {r['frames']} | {r['energy_change']:+.2e} | {stiffness} |"
+        )
+    lines += ["", "Windows:", ""] + [f"- {w.job}: steps {w.start + 1}–{w.start + w.steps}, {w.phase}."
+                                     for w in CONTACT_WINDOWS if any(r["job"] == w.job for r in rows)]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def write_contact_page(docs: Path, runs: Path, windows: tuple[ContactWindow, ...], timeout: float, command: str,
+                       machine: str) -> Path:  # fmt: skip
+    """Run every window by both methods and write ``docs/contact-comparison.md`` and ``.json``."""
+    runs.mkdir(parents=True, exist_ok=True)
+    rows = [run_window(window, method, runs, timeout) for window in windows for method in METHODS]
+    docs.mkdir(parents=True, exist_ok=True)
+    finite = [{k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in r.items()} for r in rows]
+    (docs / "contact-comparison.json").write_text(json.dumps(finite, indent=1) + "\n")
+    page = docs / "contact-comparison.md"
+    page.write_text(contact_markdown(rows, command, machine))
+    return page

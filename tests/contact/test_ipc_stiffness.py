@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import RUBBER, hairpin_model
+from helpers import RUBBER, SHEET, hairpin_model, write_scene
 
 from bhem_hpc.contact.ipc_contribution import STIFFNESS_GROWTH_DISTANCE
 from bhem_hpc.contact.ipc_setup import shell_barrier
@@ -66,39 +66,24 @@ def test_the_stiffness_doubles_only_while_the_closest_pair_closes_in_below_its_t
     assert restarted.stiffness == 80.0
 
 
-#: The rubber sheet of the IPC scene tests pressed onto the floor by 10 MPa: with the stiffness at
-#: the top of ipc-toolkit's range its collision mesh would sink to about 1e-9 m of the floor.
+#: A rubber sheet 5 mm above a floor, pressed onto it by 10 MPa (``rest`` of :data:`SHEET`): with the
+#: stiffness at the top of ipc-toolkit's range its collision mesh would sink to about 1e-9 m of it.
 PRESSED = """
-[surface]
-kind = "rectangle"
-size = [0.2, 0.2]
-patches = [4, 4]
-origin = [0.0, 0.0, 0.005]
-height = "0.002 * sin(20.0 * xi1)"
-[material]
-young = {young}
-poisson = {poisson}
-thickness = {thickness}
-density = {density}
 [effects]
 gravity = [0.0, 0.0, -9.81]
-area_loads = [{{ force = [0.0, 0.0, -1.0e7] }}]
-contact = {{ method = "ipc", dhat = 1e-3 }}
+area_loads = [{ force = [0.0, 0.0, -1.0e7] }]
+contact = { method = "ipc", dhat = 1e-3 }
 [[colliders]]
 type = "plane"
 point = [0.0, 0.0, 0.0]
 normal = [0.0, 0.0, 1.0]
-[time]
-dt = 0.005
-steps = 6
 """
 
 
 def test_a_pressed_sheet_grows_the_stiffness_and_a_restart_goes_on_with_it(comm, shared_tmp_path):
-    path = shared_tmp_path / "pressed.toml"
-    if comm.rank == 0:
-        path.write_text(PRESSED.format(**RUBBER))
-    comm.Barrier()
+    text = SHEET.format(size=0.2, discretization="hermite", origin=[0.0, 0.0, 0.005], time="dt = 0.005\nsteps = 6",
+                        rest=PRESSED, **RUBBER)  # fmt: skip
+    path = write_scene(comm, shared_tmp_path / "pressed.toml", text)
     whole, split = shared_tmp_path / "whole", shared_tmp_path / "split"
     summary = run_scene(RunOptions(path, whole, progress=False), comm)
     contact = summary["contact"]

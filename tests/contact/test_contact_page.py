@@ -12,6 +12,8 @@ from bhem_hpc.benchmarks.contact_page import CONTACT_WINDOWS, IPC_CONTACT, JOBS,
 from bhem_hpc.collision.colliders import Plane, Sphere
 from bhem_hpc.scene import load_scene
 
+pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
 
 @pytest.mark.parametrize("window", CONTACT_WINDOWS, ids=lambda w: w.job)
 def test_every_contact_job_has_an_ipc_variant_that_loads_with_the_jobs_other_settings(tmp_path, window):

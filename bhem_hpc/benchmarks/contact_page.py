@@ -86,18 +86,21 @@ def job_variant(text: str, method: str, every: int, source: str) -> str:
 
 
 def _run(scene: Path, out: Path, steps: int, timeout: float, restart: Path | None = None) -> str:
-    """``bhem-hpc run`` of ``steps`` steps in a process of its own; returns ``completed``,
-    ``failed: <its last message line>`` or ``stopped after <timeout> s``."""
-    command = [sys.executable, "-m", "bhem_hpc.cli", "run", str(scene), "--out", str(out), "--steps", str(steps),
-               "--no-progress", "--force"] + (["--restart", str(restart)] if restart is not None else [])  # fmt: skip
+    """``bhem-hpc -v run`` of ``steps`` steps in a process of its own, its log in ``<out>.log``;
+    returns ``completed``, ``failed: <its last message line>`` or ``stopped after <timeout> s``."""
+    command = [sys.executable, "-m", "bhem_hpc.cli", "-v", "run", str(scene), "--out", str(out), "--steps",
+               str(steps), "--no-progress", "--force"]  # fmt: skip
+    command += ["--restart", str(restart)] if restart is not None else []
+    log = out.with_name(out.name + ".log")
     try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, check=False)
+        with log.open("w") as stream:
+            done = subprocess.run(command, stdout=stream, stderr=subprocess.STDOUT, timeout=timeout, check=False)
     except subprocess.TimeoutExpired:
         return f"stopped after {timeout:g} s"
     if done.returncode == 0:
         return "completed"
-    message = [line for line in done.stderr.splitlines() if line.strip()]
-    return "failed: " + (message[-1] if message else f"exit code {done.returncode}")
+    errors = [line for line in log.read_text().splitlines() if line.startswith("bhem-hpc")]
+    return "failed: " + (errors[-1] if errors else f"exit code {done.returncode} (see {log.name})")
 
 
 def _records(out: Path, after: int) -> list[dict]:
@@ -210,10 +213,13 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "collision detection and response, or the IPC barrier's energy, gradient, Hessian, step bounds and "
         "stiffness updates, as a share of the step's wall time. Smallest gap: the output meshes' vertices "
         "against the exact colliders (negative: inside one) or, for mesh colliders, the distance between "
-        "the meshes; intersecting frames: frames whose output meshes intersect themselves or a mesh "
-        "collider (ipc-toolkit's test). ΔE: the change of kinetic plus elastic energy less the dead loads' "
-        "work over the window, relative to its largest value (prescribed motions, colliders, damping and "
-        "the barrier do work too, so it is not a conservation figure for these driven scenes).",
+        "the meshes. IPC meets a sphere, capsule or cylinder as triangles within dhat/4 inside it, so a "
+        "negative gap down to dhat/4 is the surface resting on those triangles. Intersecting frames: frames "
+        "whose output meshes intersect themselves or a mesh collider (ipc-toolkit's test). ΔE: the change "
+        "of kinetic plus elastic energy less the dead loads' work over the window, relative to its largest "
+        "value; implicit Euler dissipates, and prescribed motions, colliders, damping and the barrier do work, "
+        "so it is not a conservation figure for these scenes. κ: the IPC barrier's stiffness at the window's "
+        "end and its doublings within the window (a window continues from the warm-up's κ).",
         "",
         "| job | method | window (steps) | status | s/step | Newton/step (max) | recoveries | contact share | "
         "smallest gap [m] | intersecting frames | ΔE | κ [N/m] (doublings) |",

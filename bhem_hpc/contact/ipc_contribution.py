@@ -69,11 +69,12 @@ PLANE_GAP_KEPT = 0.1
 #: previous iterate's, both nearer than this fraction of the bodies' rest bounding-box diagonal
 #: (IPC's rule, Li et al. 2020, as ipc-toolkit's ``update_barrier_stiffness`` applies it). A
 #: threshold of 1e-3 dhat got the mandrel's worst landing step through in 35 Newton iterations
-#: where this one takes 61, but it grew kappa on contacts that rest well at its start (a solid
-#: landing on a floor then halved dt twice, measured): only where Newton crawls does kappa grow.
+#: where this one takes 61; with it, and without asking the previous iterate to be within it too,
+#: kappa grew on contacts that rest well (a solid landing on a floor halved dt twice, a frictionless
+#: sheet on a spinning sphere drifted farther, measured): here kappa grows only where Newton crawls.
 STIFFNESS_GROWTH_DISTANCE = 1e-9
 #: The adaptive stiffness grows up to this many times its start (the top of ipc-toolkit's range):
-#: on the mandrel the can's wall, pressed onto the mandrel by the axial load, needed all of it.
+#: on the mandrel the can's wall, pressed onto the mandrel by the axial load, took 2^13 of it.
 STIFFNESS_GROWTH_LIMIT = 1e4
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.

@@ -127,25 +127,33 @@ def frame_gaps(out: Path, colliders: list, within: float) -> dict:
     from bhem_hpc.contact.ipc import minimum_distance
 
     audits = audit_run(out, within)
+    exact = [c for c in colliders if isinstance(c, SignedDistance)]
     signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
     with h5py.File(out / "surface.h5", "r") as f:
         quads = np.asarray(f["topology"][...], dtype=np.int32)
         faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-        for k in range(len(f["frames"])):
-            points, t = np.asarray(f[f"frames/{k}/geometry"][...]), float(f[f"frames/{k}"].attrs["time"])
-            cover = np.stack([points.min(axis=0), points.max(axis=0)])
-            for collider in colliders:
-                if isinstance(collider, SignedDistance):
-                    signed = min(signed, float(np.min(collider.signed_distance(points, t)[0])))
-                elif isinstance(collider, Tessellated):
-                    vertices, triangles = collider.tessellation(0.25 * within, cover)
-                    both = np.concatenate([points, vertices])
-                    all_faces = np.concatenate([faces, np.asarray(triangles, dtype=np.int32) + len(points)])
-                    mesh = ipctk.CollisionMesh(np.asfortranarray(both), ipctk.edges(all_faces), all_faces)
-                    groups = np.r_[np.zeros(len(points), np.int32), np.ones(len(vertices), np.int32)]
-                    mesh.can_collide = ipctk.make_vertex_patches_filter(groups)
-                    mesh_gap = min(mesh_gap, minimum_distance(mesh, both, within))
-                    mesh_crossings += int(ipctk.has_intersections(mesh, both))
+        frames = [(np.asarray(f[f"frames/{k}/geometry"][...]), float(f[f"frames/{k}"].attrs["time"]))
+                  for k in range(len(f["frames"]))]  # fmt: skip
+    count = len(frames[0][0]) if frames else 0
+    # a mesh collider and the output meshes as one collision mesh whose two groups only meet each
+    # other (the colliders here are given as meshes: the box they cover does not matter)
+    meshes = []
+    for collider in colliders:
+        if isinstance(collider, Tessellated) and not isinstance(collider, SignedDistance):
+            vertices, triangles = collider.tessellation(0.25 * within, np.zeros((2, 3)))
+            all_faces = np.concatenate([faces, np.asarray(triangles, dtype=np.int32) + count])
+            mesh = ipctk.CollisionMesh(np.asfortranarray(np.concatenate([frames[0][0], vertices])),
+                                       ipctk.edges(all_faces), all_faces)  # fmt: skip
+            mesh.can_collide = ipctk.make_vertex_patches_filter(
+                np.r_[np.zeros(count, np.int32), np.ones(len(vertices), np.int32)])
+            meshes.append((mesh, np.asarray(vertices, dtype=float)))
+    for points, t in frames:
+        for collider in exact:
+            signed = min(signed, float(np.min(collider.signed_distance(points, t)[0])))
+        for mesh, vertices in meshes:
+            both = np.asfortranarray(np.concatenate([points, vertices]))
+            mesh_gap = min(mesh_gap, minimum_distance(mesh, both, within))
+            mesh_crossings += int(ipctk.has_intersections(mesh, both))
     return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
             "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
             "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip

@@ -42,6 +42,12 @@ def minimum_distance(mesh, vertices: np.ndarray, within: float) -> float:
     vertices = np.asfortranarray(vertices)
     collisions = ipctk.NormalCollisions()
     collisions.build(mesh, vertices, within)
+    return closest_distance(collisions, mesh, vertices)
+
+
+def closest_distance(collisions, mesh, vertices: np.ndarray) -> float:
+    """The smallest distance [m] among ipc-toolkit ``collisions`` built on ``mesh`` at ``vertices
+    (V, 3)`` (``inf`` if there are none)."""
     if collisions.empty():
         return float("inf")
     # ipc-toolkit 1.6 returns the squared distance

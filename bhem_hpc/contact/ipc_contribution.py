@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from bhem_hpc.contact.ipc import IpcError, minimum_distance
+from bhem_hpc.contact.ipc import IpcError, closest_distance
 from bhem_hpc.contact.ipc_friction import LaggedFriction
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
@@ -307,11 +307,7 @@ class IpcBarrier:
         to grow once is kept for the contacts that follow."""
         if self.stiffness >= self.stiffness_limit:
             return False
-        vertices = self._vertices(state.positions)
-        collisions = self._collisions(vertices)
-        # ipc-toolkit 1.6 returns the squared distance
-        distance = np.inf if collisions.empty() else float(np.sqrt(collisions.compute_minimum_distance(self.mesh,
-                                                                                                    vertices)))
+        distance = self.min_distance(state.positions)
         previous, self._last_distance = self._last_distance, distance
         grown = self._ipctk.update_barrier_stiffness(previous**2, distance**2, self.stiffness_limit, self.stiffness,
                                                      self._diagonal, STIFFNESS_GROWTH_DISTANCE)  # fmt: skip
@@ -515,7 +511,8 @@ class IpcBarrier:
     def min_distance(self, positions: np.ndarray) -> float:
         """Collective: the smallest distance [m] between the mesh and the obstacles within ``dhat``
         (``inf`` if none is)."""
-        return minimum_distance(self.mesh, self._vertices(positions), self.dhat)
+        vertices = self._vertices(positions)
+        return closest_distance(self._collisions(vertices), self.mesh, vertices)
 
     def starting_problem(self, positions: np.ndarray) -> str | None:
         """Collective: why the mesh at ``positions`` cannot start a barrier solve (it intersects an

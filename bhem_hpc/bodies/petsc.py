@@ -16,8 +16,9 @@ see every body's open blocks side by side:
 The stacked Jacobian is AIJ with 3 x 3 blocks: each body's closed Jacobian (constrained rows and
 columns already the identity) copied in at its offsets, plus the coupling Hessian ``P^T H P``
 (``H`` on the stacked open blocks, ``P`` the bodies' prolongations side by side: seams, ties and
-B-spline control points as each body has them), every constrained row and column set to the
-identity again, then the diagonal regularizer.
+B-spline control points as each body has them; formed by :mod:`.coupling_product` from the blocks
+the contributions give), every constrained row and column set to the identity again, then the
+diagonal regularizer.
 """
 
 from __future__ import annotations
@@ -25,8 +26,11 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import scipy.sparse
+from mpi4py import MPI
 from petsc4py import PETSc
 
+from bhem_hpc.bodies.coupling_product import CouplingProduct, PatternKeys, contribution_blocks
 from bhem_hpc.bodies.layout import StackedLayout
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS
 from bhem_hpc.model.shell import ShellModel
@@ -48,12 +52,7 @@ from bhem_hpc.solver.contributions import (
 )
 from bhem_hpc.solver.model_group import BodyModel
 from bhem_hpc.solver.petsc import PetscOwner
-from bhem_hpc.solver.problem import (
-    ShellProblem,
-    add_contribution_hessians,
-    add_diagonal_regularization,
-    stored_entries,
-)
+from bhem_hpc.solver.problem import ShellProblem, add_diagonal_regularization, stored_entries
 from bhem_hpc.solver.report import SolveReport
 
 
@@ -156,9 +155,10 @@ class StackedProblem(PetscOwner):
         self.regularization = 0.0
         #: called when the Jacobian's pattern grew: a factorization must start again from its analysis
         self.on_pattern_growth: Callable[[], None] | None = None
-        self._coupling_stored = 0  # stored entries of the coupling Hessian (it grows: contact between bodies)
-        #: the coupling Hessian on the stacked open blocks, the prolongation and P^T H P (None: no coupling)
-        self._coupling: tuple[PETSc.Mat, PETSc.Mat, PETSc.Mat] | None = None
+        #: forms P^T H P of the coupling contributions (None: no coupling)
+        self._coupling: CouplingProduct | None = None
+        #: the stacked Jacobian's pattern on this rank's rows (grows with contact between bodies)
+        self._pattern_keys: PatternKeys | None = None
         self.jacobian = self._create_jacobian()
         if contributions:
             self.add_contributions(contributions)
@@ -172,8 +172,7 @@ class StackedProblem(PetscOwner):
                 raise TypeError(f"{contribution!r} is not an energy contribution (bhem_hpc.solver.contributions)")
         self.contributions += list(contributions)
         self._patterns += [_pattern(c) for c in contributions]
-        for obj in (self.jacobian, *(self._coupling or ())):
-            obj.destroy()
+        self.jacobian.destroy()
         self._coupling = self._create_coupling() if self.comm.allreduce(len(self.contributions)) else None
         self.jacobian = self._create_jacobian()
 
@@ -184,10 +183,11 @@ class StackedProblem(PetscOwner):
         row_pointer, columns, values = self.problems[body].jacobian.getValuesCSR()
         return row_pointer, self.closed.to_stacked(body, columns).astype(PETSc.IntType), values
 
-    def _prolongation(self) -> PETSc.Mat:
-        """The bodies' prolongations side by side: stacked open DOFs (rows) from stacked closed DOFs."""
+    def _prolongation(self) -> scipy.sparse.csr_matrix:
+        """Collective: the bodies' prolongations side by side, every rank's rows: stacked open DOFs
+        ``3 * block + component`` (rows) from stacked closed DOFs (columns)."""
         rank = self.comm.rank
-        pointers, columns, values, rows = [np.zeros(1, np.int64)], [], [], 0
+        pointers, columns, values = [np.zeros(1, np.int64)], [], []
         for body, problem in enumerate(self.problems):
             if problem.prolongation is not None:
                 row_pointer, body_columns, body_values = problem.prolongation.getValuesCSR()
@@ -198,28 +198,23 @@ class StackedProblem(PetscOwner):
                 body_columns = self.closed.rank_start[rank] + np.arange(self.closed.local_slice(body).start,
                                                                         self.closed.local_slice(body).stop)  # fmt: skip
             pointers.append(np.asarray(row_pointer[1:], np.int64) + pointers[-1][-1])
-            columns.append(body_columns)
-            values.append(body_values)
-            rows += len(row_pointer) - 1
-        csr = (np.concatenate(pointers).astype(PETSc.IntType), np.concatenate(columns).astype(PETSc.IntType),
-               np.concatenate(values))  # fmt: skip
-        open_size = (3 * self.open.size_local, 3 * self.open.size_global)
-        return PETSc.Mat().createAIJ((open_size, (self.closed.size_local, self.closed.size_global)), csr=csr,
-                                     comm=self.comm)  # fmt: skip
+            columns.append(np.asarray(body_columns, np.int64))
+            values.append(np.asarray(body_values, dtype=float))
+        local = scipy.sparse.csr_matrix((np.concatenate(values), np.concatenate(columns), np.concatenate(pointers)),
+                                        shape=(len(np.concatenate(pointers)) - 1, self.closed.size_global))  # fmt: skip
+        return scipy.sparse.vstack(self.comm.allgather(local), format="csr")  # rank after rank: the open order
 
-    def _create_coupling(self) -> tuple[PETSc.Mat, PETSc.Mat, PETSc.Mat]:
-        """``H`` with room for every coupling block, ``P``, and ``P^T H P``'s structure."""
-        open_size = (3 * self.open.size_local, 3 * self.open.size_global)
-        hessian = PETSc.Mat().createAIJ((open_size, open_size), bsize=3, nnz=(0, 0), comm=self.comm)
-        hessian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)  # its pattern: the blocks below
-        for rows, cols in self._patterns:
-            if len(rows):
-                hessian.setValuesBlockedRCV(rows, cols, np.zeros((len(rows), 1, 9)), addv=PETSc.InsertMode.ADD)
-        hessian.assemble()
-        # contributions' blocks beyond their patterns grow it (contact between bodies)
-        self._coupling_stored = stored_entries(hessian)
-        prolongation = self._prolongation()
-        return hessian, prolongation, hessian.PtAP(prolongation)
+    def _create_coupling(self) -> CouplingProduct:
+        """Collective: the product's prolongation and this rank's closed rows."""
+        start = int(self.closed.rank_start[self.comm.rank])
+        return CouplingProduct(self._prolongation(), slice(start, start + self.closed.size_local))
+
+    def _gathered(self, rows: np.ndarray, columns: np.ndarray, values: np.ndarray | None = None):
+        """Collective: every rank's blocks (or block pairs without ``values``), on every rank."""
+        if self.comm.size == 1:
+            return (rows, columns) if values is None else (rows, columns, values)
+        parts = self.comm.allgather((rows, columns) if values is None else (rows, columns, values))
+        return tuple(np.concatenate(part) for part in zip(*parts, strict=True))
 
     def _create_jacobian(self) -> PETSc.Mat:
         """The stacked AIJ: every body's pattern at its offsets and the coupling's ``P^T H P``."""
@@ -229,11 +224,13 @@ class StackedProblem(PetscOwner):
             row_pointer, body_columns, _ = self.body_csr(body)
             local_rows.append(self._rows[body][np.repeat(np.arange(len(row_pointer) - 1), np.diff(row_pointer))])
             columns.append(body_columns)
-        if self._coupling is not None:
-            row_pointer, coupled_columns, _ = self._coupling[2].getValuesCSR()
+        if self._coupling is not None:  # room for every block of the contributions' fixed patterns
+            pairs = self._gathered(*(np.concatenate([np.asarray(p, np.int64).reshape(-1) for p, _ in self._patterns]),
+                                     np.concatenate([np.asarray(c, np.int64).reshape(-1) for _, c in self._patterns])))
+            coupled = self._coupling.pattern(*pairs)
             start = self.closed.rank_start[self.comm.rank]
-            local_rows.append(start + np.repeat(np.arange(len(row_pointer) - 1), np.diff(row_pointer)))
-            columns.append(coupled_columns)
+            local_rows.append(start + np.repeat(np.arange(coupled.shape[0]), np.diff(coupled.indptr)))
+            columns.append(coupled.indices.astype(np.int64))
         rows, columns = np.concatenate(local_rows) - self.closed.rank_start[self.comm.rank], np.concatenate(columns)
         keys = np.unique(rows * self.closed.size_global + columns.astype(np.int64))  # sorted by row, then column
         rows, columns = keys // self.closed.size_global, keys % self.closed.size_global
@@ -243,6 +240,7 @@ class StackedProblem(PetscOwner):
         jacobian.assemble()
         jacobian.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, all(p.model.symmetric for p in self.problems))
+        self._pattern_keys = PatternKeys(row_pointer, columns, self.closed.size_global)
         return jacobian
 
     def create_vector(self) -> PETSc.Vec:
@@ -378,8 +376,9 @@ class StackedProblem(PetscOwner):
             values[self.closed.local_slice(body)] = self._f[body].array_r
 
     def assemble_jacobian(self, jac: PETSc.Mat) -> None:
-        """Every body's closed Jacobian at its offsets plus the coupling blocks; constrained rows and
-        columns the identity; then ``J + r |diag J|``."""
+        """Every body's closed Jacobian at its offsets plus the coupling blocks ``P^T H P``; constrained
+        rows and columns the identity; then ``J + r |diag J|``. Coupling blocks beyond the Jacobian's
+        pattern (contact between bodies) grow it (:attr:`on_pattern_growth` is called)."""
         jac.zeroEntries()
         for body, problem in enumerate(self.problems):
             problem.regularization = 0.0  # applied once, to the stacked matrix
@@ -387,31 +386,38 @@ class StackedProblem(PetscOwner):
             row_pointer, columns, values = self.body_csr(body)
             jac.setValuesIJV(row_pointer, columns, values, addv=PETSc.InsertMode.ADD,
                              rowmap=self._rows[body].astype(PETSc.IntType))  # fmt: skip
-        jac.assemble()
+        coupled = None
         if self._coupling is not None:
-            self._add_coupling(jac)
+            blocks = contribution_blocks(self.contributions, self._patterns, self.contribution_state())
+            coupled = self._coupling.product(self._gathered(*blocks))
+        grows = self.comm.allreduce(coupled is not None and not self._pattern_keys.holds(coupled), op=MPI.LOR)
+        if coupled is not None and not grows:  # within the pattern: added with the bodies' entries
+            self._add_rows(jac, coupled)
+        jac.assemble()
+        if grows:
+            self._grow(jac, coupled)
+        if self._coupling is not None:
             jac.zeroRowsColumns(self.bc_rows, diag=1.0)
         add_diagonal_regularization(jac, self.regularization)
 
-    def _add_coupling(self, jac: PETSc.Mat) -> None:
-        """``jac += P^T H P`` of the coupling contributions. Blocks of :class:`GrowingPattern` ones
-        beyond their patterns (contact between bodies) grow ``H``; then its product is formed anew
-        and added with its own pattern, which grows ``jac``'s (:attr:`on_pattern_growth` is called)."""
-        hessian, prolongation, coupled = self._coupling
-        hessian.zeroEntries()
-        add_contribution_hessians(hessian, self.contributions, self._patterns, self.contribution_state(),
-                                  grow=True)  # fmt: skip
-        hessian.assemble()
-        stored = stored_entries(hessian)
-        if stored == self._coupling_stored:
-            hessian.PtAP(prolongation, result=coupled)
-            jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            return
-        self._coupling_stored = stored
-        coupled.destroy()
-        coupled = hessian.PtAP(prolongation)  # the product's structure follows H's
-        self._coupling = (hessian, prolongation, coupled)
-        jac.axpy(1.0, coupled, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+    def _add_rows(self, jac: PETSc.Mat, coupled: scipy.sparse.csr_matrix) -> None:
+        """Add ``coupled`` (this rank's rows) into ``jac`` where its pattern has room."""
+        rows = np.arange(self._coupling.rows.start, self._coupling.rows.stop, dtype=PETSc.IntType)
+        jac.setValuesIJV(coupled.indptr.astype(PETSc.IntType), coupled.indices.astype(PETSc.IntType), coupled.data,
+                         addv=PETSc.InsertMode.ADD, rowmap=rows)  # fmt: skip
+
+    def _grow(self, jac: PETSc.Mat, coupled: scipy.sparse.csr_matrix) -> None:
+        """Collective: ``jac += coupled`` with the pattern of both (new nonzeros: a factorization must
+        start again from its analysis)."""
+        size = (self.closed.size_local, self.closed.size_global)
+        addition = PETSc.Mat().createAIJ((size, size), bsize=3, comm=self.comm, csr=(
+            coupled.indptr.astype(PETSc.IntType), coupled.indices.astype(PETSc.IntType), coupled.data))
+        try:
+            jac.axpy(1.0, addition, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        finally:
+            addition.destroy()
+        row_pointer, columns, _ = jac.getValuesCSR()
+        self._pattern_keys = PatternKeys(row_pointer, columns, self.closed.size_global)
         if self.on_pattern_growth is not None:
             self.on_pattern_growth()
 
@@ -495,7 +501,7 @@ class StackedProblem(PetscOwner):
         if self._closed:
             return
         self._closed = True
-        for obj in (*self._x, *self._f, self.jacobian, *(self._coupling or ())):
+        for obj in (*self._x, *self._f, self.jacobian):
             obj.destroy()
         for problem in self.problems:
             problem.close()

@@ -26,6 +26,11 @@ JOBS = Path(__file__).resolve().parents[2] / "jobs"
 #: The contact of a job by IPC: ipc-toolkit's barrier with its defaults (dhat 1e-3 of the bounding
 #: box, adaptive stiffness), the job's friction and self-collision settings kept.
 IPC_CONTACT = 'contact = { method = "ipc" }'
+#: A contact table of a scene (or ``contact = true``), on a line of its own or inline in a body's ``effects``.
+CONTACT_TABLE = re.compile(r"\bcontact\s*=\s*(\{[^{}]*\}|true\b)")
+#: IPC bounds line-search Newton steps by its collision-free step: a job's trust region becomes the
+#: default line-search Hessian.
+TRUST_REGION = re.compile(r'^(hessian\s*=\s*)"trust_region"', flags=re.MULTILINE)
 METHODS = ("impulse", "ipc")
 
 
@@ -46,6 +51,7 @@ CONTACT_WINDOWS = (
     ContactWindow("mesh-obstacle", 110, 10, "the cloth lies on the mesh obstacle"),
     ContactWindow("crushed-can", 20, 10, "the plank presses the rim down"),
     ContactWindow("mandrel", 150, 20, "the buckling wall lands on the mandrel"),
+    ContactWindow("cloth-pile", 20, 10, "four cloths land on each other and on the held one"),
 )
 
 
@@ -64,17 +70,17 @@ class Tessellated(Protocol):
 
 
 def job_variant(text: str, method: str, every: int, source: str) -> str:
-    """The scene ``text`` with its contact by ``method`` (``impulse``: as given) and a frame every
-    ``every`` steps.
+    """The scene ``text`` with its contact by ``method`` (``impulse``: as given; ``ipc``: every
+    contact table replaced, a trust-region Hessian by the default one) and a frame every ``every`` steps.
 
     Raises:
-        ValueError: the scene does not have exactly one ``contact = ...`` line (named by ``source``).
+        ValueError: the scene has no ``contact = { ... }`` table (named by ``source``).
     """
-    lines = re.findall(r"^contact\s*=.*$", text, flags=re.MULTILINE)
-    if len(lines) != 1:
-        raise ValueError(f"{source}: expected one 'contact = ...' line in [effects], found {len(lines)}")
+    if not CONTACT_TABLE.search(text):
+        raise ValueError(f"{source}: expected a 'contact = {{ ... }}' table (or 'contact = true') in its effects, "
+                         "found none")
     if method == "ipc":
-        text = text.replace(lines[0], IPC_CONTACT)
+        text = TRUST_REGION.sub(r'\1"adaptive"', CONTACT_TABLE.sub(IPC_CONTACT, text))
     # the variant is written elsewhere: files the job names relative to itself, by absolute path
     text = re.sub(r'^(file\s*=\s*)"([^"/][^"]*)"', lambda m: f'{m.group(1)}"{(JOBS / m.group(2)).resolve()}"', text,
                   flags=re.MULTILINE)  # fmt: skip
@@ -121,19 +127,43 @@ def frame_gaps(out: Path, colliders: list, within: float) -> dict:
     """The frames of ``out``: the smallest signed distance [m] of the output meshes' vertices from the
     exact colliders that have one (negative: inside), the smallest distance to colliders given as
     meshes, and the frames whose meshes intersect themselves or a mesh collider (ipc-toolkit)."""
-    import ipctk
-
     from bhem_hpc.contact.audit import audit_run
-    from bhem_hpc.contact.ipc import minimum_distance
 
     audits = audit_run(out, within)
     exact = [c for c in colliders if isinstance(c, SignedDistance)]
     signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
-    with h5py.File(out / "surface.h5", "r") as f:
-        quads = np.asarray(f["topology"][...], dtype=np.int32)
-        faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-        frames = [(np.asarray(f[f"frames/{k}/geometry"][...]), float(f[f"frames/{k}"].attrs["time"]))
-                  for k in range(len(f["frames"]))]  # fmt: skip
+    if colliders:
+        signed, mesh_gap, mesh_crossings = _collider_gaps(out, colliders, exact, within)
+    return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
+            "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
+            "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip
+
+
+def _collider_gaps(out: Path, colliders: list, exact: list, within: float) -> tuple[float, float, int]:
+    """The smallest signed gap to the ``exact`` colliders, the smallest distance to mesh colliders and
+    the frames crossing one, over the frames of the run in ``out`` (every shell's series).
+
+    Raises:
+        ValueError: the run holds a solid (whose series the page does not read).
+    """
+    import ipctk
+
+    from bhem_hpc.contact.ipc import minimum_distance
+    from bhem_hpc.io.run_directory import run_series
+
+    signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
+    faces, frames, start = [], [], 0
+    for path in run_series(out):
+        if path.suffix != ".h5":
+            raise ValueError(f"{path}: the contact page measures gaps of shells' series only")
+        with h5py.File(path, "r") as f:
+            quads = np.asarray(f["topology"][...], dtype=np.int32) + start
+            faces += [quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]
+            frames.append([(np.asarray(f[f"frames/{k}/geometry"][...]), float(f[f"frames/{k}"].attrs["time"]))
+                           for k in range(len(f["frames"]))])  # fmt: skip
+            start += len(frames[-1][0][0]) if frames[-1] else 0
+    faces = np.concatenate(faces)
+    frames = [(np.concatenate([points for points, _ in frame]), frame[0][1]) for frame in zip(*frames, strict=True)]
     count = len(frames[0][0]) if frames else 0
     # a mesh collider and the output meshes as one collision mesh whose two groups only meet each
     # other (the colliders here are given as meshes: the box they cover does not matter)
@@ -154,15 +184,14 @@ def frame_gaps(out: Path, colliders: list, within: float) -> dict:
             both = np.asfortranarray(np.concatenate([points, vertices]))
             mesh_gap = min(mesh_gap, minimum_distance(mesh, both, within))
             mesh_crossings += int(ipctk.has_intersections(mesh, both))
-    return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
-            "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
-            "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip
+    return signed, mesh_gap, mesh_crossings
 
 
 def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
     """Run ``window``'s job by ``method`` into ``runs/<job>-<method>-{warm,window}`` (scene files beside
     them); its figures over the window."""
-    from bhem_hpc.scene import load_scene
+    from bhem_hpc.scene.bodies import BodiesScene
+    from bhem_hpc.scene.loader import load_any_scene
 
     source = JOBS / f"{window.job}.toml"
     text = source.read_text()
@@ -188,8 +217,11 @@ def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -
     contact = summary.get("contact") or {}
     contact_s = contact.get("barrier_s", 0.0) if method == "ipc" else sum(r.get("collision_s", 0.0) for r in records)
     energies = [_total_energy(r["energies"]) for r in records if "energies" in r]
-    scene = load_scene(window_scene)
-    colliders = [entry.collider for entry in scene.contact.colliders]
+    scene = load_any_scene(window_scene)
+    bodies = scene.bodies if isinstance(scene, BodiesScene) else (scene,)
+    # the colliders are the scene's: every body in contact lists them
+    colliders = next(([entry.collider for entry in body.contact.colliders] for body in bodies
+                      if body.contact is not None), [])  # fmt: skip
     dhat = contact.get("dhat_m") or 1e-3
     row |= {
         "step_s": wall / len(records), "newton_per_step": sum(r["newton_iterations"] for r in records) / len(records),

@@ -1,6 +1,7 @@
-"""The contact head-to-head page's scene variants and its gap measure: every contact job has one
-contact line to replace, a variant keeps the rest of the job (its files by absolute path), and the
-smallest gap of a frame is measured against the exact collider, signed."""
+"""The contact head-to-head page's scene variants and its gap measure: every contact job has contact
+tables to replace (a body's inline ones too), a variant keeps the rest of the job (its files by
+absolute path), and the smallest gap of a frame is measured against the exact collider, signed, over
+every body's series."""
 
 from __future__ import annotations
 
@@ -10,31 +11,50 @@ import pytest
 
 from bhem_hpc.benchmarks.contact_page import CONTACT_WINDOWS, IPC_CONTACT, JOBS, frame_gaps, job_variant
 from bhem_hpc.collision.colliders import Plane, Sphere
-from bhem_hpc.scene import load_scene
+from bhem_hpc.scene.bodies import BodiesScene
+from bhem_hpc.scene.loader import load_any_scene
 
 pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
+
+
+def _bodies(path):
+    scene = load_any_scene(path)
+    return scene.bodies if isinstance(scene, BodiesScene) else (scene,)
 
 
 @pytest.mark.parametrize("window", CONTACT_WINDOWS, ids=lambda w: w.job)
 def test_every_contact_job_has_an_ipc_variant_that_loads_with_the_jobs_other_settings(tmp_path, window):
     source = JOBS / f"{window.job}.toml"
-    shipped = load_scene(source)
-    assert shipped.contact is not None and shipped.contact.method == "impulse"
-    assert window.start + window.steps <= shipped.steps
+    shipped = _bodies(source)
     variant = tmp_path / "variant.toml"
     variant.write_text(job_variant(source.read_text(), "ipc", 1, str(source)))
-    scene = load_scene(variant)
-    assert scene.contact.method == "ipc" and scene.output_every == 1
-    assert scene.contact.self_collision == shipped.contact.self_collision
-    assert len(scene.contact.colliders) == len(shipped.contact.colliders)
-    assert scene.steps == shipped.steps and scene.material == shipped.material
+    bodies = _bodies(variant)
+    assert len(bodies) == len(shipped)
+    for scene, original in zip(bodies, shipped, strict=True):
+        assert original.contact is not None and original.contact.method == "impulse"
+        assert window.start + window.steps <= original.steps
+        assert scene.contact.method == "ipc" and scene.output_every == 1
+        assert scene.hessian == (original.hessian if original.hessian != "trust_region" else "adaptive")
+        assert scene.contact.self_collision == original.contact.self_collision
+        assert len(scene.contact.colliders) == len(original.contact.colliders)
+        assert scene.steps == original.steps and scene.material == original.material
     impulse = job_variant(source.read_text(), "impulse", 7, str(source))
     assert IPC_CONTACT not in impulse and "\nevery = 7" in impulse
 
 
-def test_a_scene_without_one_contact_line_is_refused_by_name():
-    with pytest.raises(ValueError, match=r"nowhere\.toml: expected one 'contact = \.\.\.' line .*, found 0"):
+def test_a_scene_without_a_contact_table_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"nowhere\.toml: expected a 'contact = \{ \.\.\. \}' table .*, found none"):
         job_variant("[effects]\ngravity = [0.0, 0.0, -9.81]\n", "ipc", 1, "nowhere.toml")
+
+
+def test_inline_contact_tables_of_every_body_are_replaced():
+    text = ('[[bodies]]\neffects = { gravity = [0.0, 0.0, -9.81], contact = { push_out = 2.0e-4 }, friction = 0.3 }\n'
+            '[[bodies]]\neffects = { contact = {push_out=1e-4}, damping = { mass = 1.0 } }\n[solver]\n'
+            'hessian = "trust_region"   # a comment\n')
+    variant = job_variant(text, "ipc", 1, "pile.toml")
+    assert variant.count(IPC_CONTACT) == 2 and "push_out" not in variant
+    assert 'friction = 0.3 }' in variant and "damping = { mass = 1.0 } }" in variant
+    assert 'hessian = "adaptive"   # a comment' in variant
 
 
 def _write_frames(path, heights: list[float]) -> None:
@@ -58,3 +78,17 @@ def test_the_smallest_gap_is_signed_against_the_exact_colliders(tmp_path):
     assert gaps["frames"] == 3 and gaps["self_intersecting_frames"] == 0
     assert gaps["min_signed_gap_m"] == pytest.approx(-0.02, abs=1e-12)
     assert not np.isfinite(gaps["min_mesh_gap_m"]) and gaps["mesh_collider_crossings"] == 0
+
+
+def test_the_smallest_gap_of_a_run_of_several_bodies_is_over_every_bodys_series(tmp_path):
+    from bhem_hpc.io.run_directory import MANIFEST
+
+    for name, heights in (("upper", [0.3, 0.2]), ("lower", [0.1, -0.03])):
+        (tmp_path / name).mkdir()
+        _write_frames(tmp_path / name, heights)
+    (tmp_path / MANIFEST).write_text('{"bodies": ["upper", "lower"]}')
+    floor = Plane(np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    gaps = frame_gaps(tmp_path, [floor], 0.5)  # distances between the sheets measured up to 0.5 m
+    assert gaps["frames"] == 2 and gaps["self_intersecting_frames"] == 0
+    assert gaps["min_signed_gap_m"] == pytest.approx(-0.03, abs=1e-12)
+    assert gaps["min_self_distance_m"] == pytest.approx(0.2, abs=1e-12)  # the sheets 0.2 m apart in the first frame

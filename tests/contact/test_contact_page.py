@@ -23,23 +23,26 @@ def _bodies(path):
 
 
 @pytest.mark.parametrize("window", CONTACT_WINDOWS, ids=lambda w: w.job)
-def test_every_contact_job_has_an_ipc_variant_that_loads_with_the_jobs_other_settings(tmp_path, window):
+def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_other_settings(tmp_path, window):
     source = JOBS / f"{window.job}.toml"
     shipped = _bodies(source)
-    variant = tmp_path / "variant.toml"
-    variant.write_text(job_variant(source.read_text(), "ipc", 1, str(source)))
-    bodies = _bodies(variant)
-    assert len(bodies) == len(shipped)
-    for scene, original in zip(bodies, shipped, strict=True):
-        assert original.contact is not None and original.contact.method == "impulse"
-        assert window.start + window.steps <= original.steps
-        assert scene.contact.method == "ipc" and scene.output_every == 1
-        assert scene.hessian == (original.hessian if original.hessian != "trust_region" else "adaptive")
-        assert scene.contact.self_collision == original.contact.self_collision
-        assert len(scene.contact.colliders) == len(original.contact.colliders)
-        assert scene.steps == original.steps and scene.material == original.material
-    impulse = job_variant(source.read_text(), "impulse", 7, str(source))
-    assert IPC_CONTACT not in impulse and "\nevery = 7" in impulse
+    for method in ("impulse", "ipc"):
+        variant = tmp_path / f"{method}.toml"
+        variant.write_text(job_variant(source.read_text(), method, 7, str(source), window.impulse_contact))
+        bodies = _bodies(variant)
+        assert len(bodies) == len(shipped)
+        for scene, original in zip(bodies, shipped, strict=True):
+            assert original.contact is not None
+            assert original.contact.method == ("impulse" if window.impulse_contact is None else "ipc")
+            assert window.start + window.steps <= original.steps
+            assert scene.contact.method == method and scene.output_every == 7
+            if method == "ipc" and original.hessian == "trust_region":
+                assert scene.hessian == "adaptive"
+            else:
+                assert scene.hessian == original.hessian
+            assert scene.contact.self_collision == original.contact.self_collision
+            assert len(scene.contact.colliders) == len(original.contact.colliders)
+            assert scene.steps == original.steps and scene.material == original.material
 
 
 def test_a_scene_without_a_contact_table_is_refused_by_name():

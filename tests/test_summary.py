@@ -27,14 +27,15 @@ def test_summary_reports_the_rows_it_is_given(shared_tmp_path, comm):
                 f"{name},1,1,0.5,0.25,100\n{name},1,1,0.004,1.5,400\n{name},1,1,0.002,7.0,900\n"
             )
         newton = {"patches": 30, "dofs": 11532, "newton_iteration_s": 0.125, "factor_s": 0.0625}
-        scene = {"scene": "jobs/ball.toml", "sample_points": 10, "step_s": 0.5, "collision_fraction": 0.05, "dofs": 9}
+        scene = {"scene": "jobs/ball.toml", "sample_points": 10, "step_s": 0.5, "collision_fraction": 0.05, "dofs": 9,
+                 "warmup": 70, "steps": 5}  # fmt: skip
         rows = {"newton": [newton], "scenes": [scene], "rays": [{"patches": 10, "speedup": 9.25}]}
         (docs / "performance.json").write_text(json.dumps(rows))
     comm.Barrier()
     text = summary_markdown(docs)
     assert text.count("1 % error in 1.5 s (400 DoFs); best 2.0e-03") == 5  # the fastest row within 1 %
     assert "30 x 30 sheet (11532 DoFs): 0.125 s, of which MUMPS LDL^T factorization 0.0625 s" in text
-    assert "`ball`: 0.5 s per time step, collision 5.0 % of it" in text
+    assert "`ball`: 0.5 s per time step in contact (steps 71-75), collision 5.0 % of it" in text
     assert "9.2x the rays per second" in text
     readme = shared_tmp_path / f"README-{comm.rank}.md"
     readme.write_text(f"intro\n{BEGIN}\nold figures\n{END}\nrest\n")

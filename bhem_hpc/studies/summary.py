@@ -66,7 +66,8 @@ def _performance_lines(docs: Path) -> list[str]:
     for scene in rows["scenes"]:
         if scene["sample_points"]:
             lines.append(
-                f"- `{Path(scene['scene']).stem}`: {scene['step_s']:.3g} s per time step, collision "
+                f"- `{Path(scene['scene']).stem}`: {scene['step_s']:.3g} s per time step in contact (steps "
+                f"{scene['warmup'] + 1}-{scene['warmup'] + scene['steps']}), collision "
                 f"{100 * scene['collision_fraction']:.1f} % of it ({scene['dofs']} DoFs, "
                 f"{scene['sample_points']} sample points)."
             )

@@ -139,17 +139,14 @@ def frame_gaps(out: Path, colliders: list, within: float) -> dict:
     from bhem_hpc.contact.audit import audit_run
 
     audits = audit_run(out, within)
-    exact = [c for c in colliders if isinstance(c, SignedDistance)]
-    signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
-    if colliders:
-        signed, mesh_gap, mesh_crossings = _collider_gaps(out, colliders, exact, within)
+    signed, mesh_gap, mesh_crossings = _collider_gaps(out, colliders, within) if colliders else (np.inf, np.inf, 0)
     return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
             "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
             "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip
 
 
-def _collider_gaps(out: Path, colliders: list, exact: list, within: float) -> tuple[float, float, int]:
-    """The smallest signed gap to the ``exact`` colliders, the smallest distance to mesh colliders and
+def _collider_gaps(out: Path, colliders: list, within: float) -> tuple[float, float, int]:
+    """The smallest signed gap to the colliders with an exact distance, the smallest distance to mesh colliders and
     the frames crossing one, over the frames of the run in ``out`` (every shell's series).
 
     Raises:
@@ -160,6 +157,7 @@ def _collider_gaps(out: Path, colliders: list, exact: list, within: float) -> tu
     from bhem_hpc.contact.ipc import minimum_distance
     from bhem_hpc.io.run_directory import run_series
 
+    exact = [c for c in colliders if isinstance(c, SignedDistance)]
     signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
     faces, frames, start = [], [], 0
     for path in run_series(out):
@@ -196,12 +194,18 @@ def _collider_gaps(out: Path, colliders: list, exact: list, within: float) -> tu
     return signed, mesh_gap, mesh_crossings
 
 
-def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
-    """Run ``window``'s job by ``method`` into ``runs/<job>-<method>-{warm,window}`` (scene files beside
-    them); its figures over the window."""
+def job_bodies(path: Path) -> tuple:
+    """The scene of each body of the scene file ``path`` (one body's: itself)."""
     from bhem_hpc.scene.bodies import BodiesScene
     from bhem_hpc.scene.loader import load_any_scene
 
+    scene = load_any_scene(path)
+    return scene.bodies if isinstance(scene, BodiesScene) else (scene,)
+
+
+def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
+    """Run ``window``'s job by ``method`` into ``runs/<job>-<method>-{warm,window}`` (scene files beside
+    them); its figures over the window."""
     source = JOBS / f"{window.job}.toml"
     text = source.read_text()
     name = f"{window.job}-{method}"
@@ -226,8 +230,7 @@ def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -
     contact = summary.get("contact") or {}
     contact_s = contact.get("barrier_s", 0.0) if method == "ipc" else sum(r.get("collision_s", 0.0) for r in records)
     energies = [_total_energy(r["energies"]) for r in records if "energies" in r]
-    scene = load_any_scene(window_scene)
-    bodies = scene.bodies if isinstance(scene, BodiesScene) else (scene,)
+    bodies = job_bodies(window_scene)
     # the colliders are the scene's: every body in contact lists them
     colliders = next(([entry.collider for entry in body.contact.colliders] for body in bodies
                       if body.contact is not None), [])  # fmt: skip

@@ -200,8 +200,9 @@ class StackedProblem(PetscOwner):
             pointers.append(np.asarray(row_pointer[1:], np.int64) + pointers[-1][-1])
             columns.append(np.asarray(body_columns, np.int64))
             values.append(np.asarray(body_values, dtype=float))
-        local = scipy.sparse.csr_matrix((np.concatenate(values), np.concatenate(columns), np.concatenate(pointers)),
-                                        shape=(len(np.concatenate(pointers)) - 1, self.closed.size_global))  # fmt: skip
+        row_pointer = np.concatenate(pointers)
+        local = scipy.sparse.csr_matrix((np.concatenate(values), np.concatenate(columns), row_pointer),
+                                        shape=(len(row_pointer) - 1, self.closed.size_global))  # fmt: skip
         return scipy.sparse.vstack(self.comm.allgather(local), format="csr")  # rank after rank: the open order
 
     def _create_coupling(self) -> CouplingProduct:
@@ -209,12 +210,12 @@ class StackedProblem(PetscOwner):
         start = int(self.closed.rank_start[self.comm.rank])
         return CouplingProduct(self._prolongation(), slice(start, start + self.closed.size_local))
 
-    def _gathered(self, rows: np.ndarray, columns: np.ndarray, values: np.ndarray | None = None):
-        """Collective: every rank's blocks (or block pairs without ``values``), on every rank."""
+    def _gathered(self, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Collective: every rank's ``arrays`` (block rows, columns and maybe values), concatenated
+        rank after rank, on every rank."""
         if self.comm.size == 1:
-            return (rows, columns) if values is None else (rows, columns, values)
-        parts = self.comm.allgather((rows, columns) if values is None else (rows, columns, values))
-        return tuple(np.concatenate(part) for part in zip(*parts, strict=True))
+            return arrays
+        return tuple(np.concatenate(part) for part in zip(*self.comm.allgather(arrays), strict=True))
 
     def _create_jacobian(self) -> PETSc.Mat:
         """The stacked AIJ: every body's pattern at its offsets and the coupling's ``P^T H P``."""
@@ -390,7 +391,8 @@ class StackedProblem(PetscOwner):
         if self._coupling is not None:
             blocks = contribution_blocks(self.contributions, self._patterns, self.contribution_state())
             coupled = self._coupling.product(self._gathered(*blocks))
-        grows = self.comm.allreduce(coupled is not None and not self._pattern_keys.holds(coupled), op=MPI.LOR)
+        # (every rank has a coupling or none: it is made collectively)
+        grows = coupled is not None and self.comm.allreduce(not self._pattern_keys.holds(coupled), op=MPI.LOR)
         if coupled is not None and not grows:  # within the pattern: added with the bodies' entries
             self._add_rows(jac, coupled)
         jac.assemble()

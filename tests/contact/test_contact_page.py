@@ -9,27 +9,20 @@ import h5py
 import numpy as np
 import pytest
 
-from bhem_hpc.benchmarks.contact_page import CONTACT_WINDOWS, IPC_CONTACT, JOBS, frame_gaps, job_variant
+from bhem_hpc.benchmarks.contact_page import CONTACT_WINDOWS, IPC_CONTACT, JOBS, frame_gaps, job_bodies, job_variant
 from bhem_hpc.collision.colliders import Plane, Sphere
-from bhem_hpc.scene.bodies import BodiesScene
-from bhem_hpc.scene.loader import load_any_scene
 
 pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
-
-
-def _bodies(path):
-    scene = load_any_scene(path)
-    return scene.bodies if isinstance(scene, BodiesScene) else (scene,)
 
 
 @pytest.mark.parametrize("window", CONTACT_WINDOWS, ids=lambda w: w.job)
 def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_other_settings(tmp_path, window):
     source = JOBS / f"{window.job}.toml"
-    shipped = _bodies(source)
+    shipped = job_bodies(source)
     for method in ("impulse", "ipc"):
         variant = tmp_path / f"{method}.toml"
         variant.write_text(job_variant(source.read_text(), method, 7, str(source), window.impulse_contact))
-        bodies = _bodies(variant)
+        bodies = job_bodies(variant)
         assert len(bodies) == len(shipped)
         for scene, original in zip(bodies, shipped, strict=True):
             assert original.contact is not None

@@ -285,6 +285,12 @@ class IpcBarrier:
             return collisions
         collisions = self._ipctk.NormalCollisions()
         collisions.build(self.mesh, vertices, self.dhat)
+        if self.mesh.planes and len(self._obstacle_vertices):
+            # ipc-toolkit's vertex filter does not reach planes: a collider mesh resting on a plane
+            # collider (a ball on the ground) would meet it, with a constant energy that swamps the
+            # line search's energy scale and a closest pair that hides the bodies' own from the
+            # stiffness rule; colliders never meet each other
+            collisions.pv_collisions = [c for c in collisions.pv_collisions if c.vertex_id < self.num_points]
         self._last_collisions = (np.array(vertices), collisions)
         return collisions
 

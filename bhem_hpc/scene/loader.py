@@ -152,9 +152,6 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     constraints = parse_constraints(top, surface, path)
     points = parse_point_constraints(top, surface, path)
     contact = _contact(top, path, static, other_bodies_in_contact)
-    if contact is not None and contact.method == "ipc" and hessian == "trust_region":
-        raise SceneError(f"{path}: key 'solver.hessian' = 'trust_region' does not bound its steps by the "
-                         "barrier's collision-free step; contact by 'ipc' takes the line-search Hessians")  # fmt: skip
     if contact is not None and contact.method == "ipc":
         factorization, acceleration_tolerance, options = ipc_newton_settings(factorization, acceleration_tolerance,
                                                                              options)  # fmt: skip

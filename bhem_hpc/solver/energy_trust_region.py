@@ -6,13 +6,18 @@ trust region, by Steihaug's conjugate gradients (KSP ``stcg``) preconditioned by
 factorization of the projected (positive definite) Hessian. The exact Hessian's directions of
 negative curvature, which make a line-search Newton stall on compressed cloth, end the CG at the
 region's boundary instead; the radius follows the ratio of the actual to the predicted decrease of
-the potential, so every accepted step lowers the energy. Its options live under its own prefix
-(``<solver prefix>ntr_``; the CG and its preconditioner under ``<solver prefix>ntr_tao_ntr_``).
+the potential, so every accepted step lowers the energy. Where contributions bound steps (IPC's
+barrier), a trial whose straight path from the current iterate the bound cuts short (it would pass
+through a contact) counts as an infinite potential: TAO rejects it and shrinks the region, so no
+iterate is ever in intersection. Contributions that adapt between line-search iterations (the
+barrier's stiffness) keep their parameters within a trust-region solve. Its options live under its
+own prefix (``<solver prefix>ntr_``; the CG and its preconditioner under ``<solver prefix>ntr_tao_ntr_``).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
@@ -61,6 +66,8 @@ class EnergyTrustRegion(PetscOwner):
         comm = solver.model.comm
         self.preconditioner = solver.jacobian.duplicate()
         self.gradient = solver.f.duplicate()
+        #: the current iterate, from which a trial's straight path must stay free of contact
+        self.iterate = solver.f.duplicate()
         self.tao: PETSc.TAO | None = None
         rtol, atol, _, _ = solver.snes.getTolerances()
         ksp_prefix = self.prefix + "tao_ntr_"
@@ -96,8 +103,17 @@ class EnergyTrustRegion(PetscOwner):
 
     # -- TAO callbacks (the problem's state follows the point asked about) ----------------------
     def _objective(self, tao: PETSc.TAO, x: PETSc.Vec) -> float:
-        self.solver.problem.update_state(x)
-        return self.solver.problem.potential_energy()
+        problem = self.solver.problem
+        if problem.has_step_bounds:
+            direction = x.copy()
+            direction.axpy(-1.0, self.iterate)
+            problem.update_state(self.iterate)
+            bound = problem.max_step(direction)
+            direction.destroy()
+            if bound < 1.0:
+                return math.inf
+        problem.update_state(x)
+        return problem.potential_energy()
 
     def _objective_gradient(self, tao: PETSc.TAO, x: PETSc.Vec, gradient: PETSc.Vec) -> float:
         problem = self.solver.problem
@@ -106,7 +122,9 @@ class EnergyTrustRegion(PetscOwner):
         return problem.potential_energy()
 
     def _hessian(self, tao: PETSc.TAO, x: PETSc.Vec, hessian: PETSc.Mat, preconditioner: PETSc.Mat) -> None:
+        """At each iterate TAO accepts (before any trial from it)."""
         problem = self.solver.problem
+        x.copy(self.iterate)
         problem.update_state(x)
         kind = problem.hessian
         try:  # the problem assembles into its own matrix, ``hessian``: the projected kind is copied out
@@ -154,6 +172,6 @@ class EnergyTrustRegion(PetscOwner):
         if self._closed:
             return
         self._closed = True
-        for obj in (self.tao, self.preconditioner, self.gradient):
+        for obj in (self.tao, self.preconditioner, self.gradient, self.iterate):
             if obj is not None:
                 obj.destroy()

@@ -579,7 +579,7 @@ class ShellSolver(PetscOwner):
             if kinds != {"exact", "projected"} or self.linear.kind != "direct" or not self.bodies.has_potential:
                 return False
             self.energy_trust_region = EnergyTrustRegion(self, default_options(self.bodies.stiffest(), "direct"))
-        return self._trust_region_applies()
+        return not len(self.problem.alm_multipliers)  # it rejects trials that a step bound cuts short
 
     def _energy_trust_region_step(self) -> int:
         """The time step by the energy trust region from ``self.x`` (constrained DOFs set first);

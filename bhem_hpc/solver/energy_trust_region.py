@@ -131,12 +131,23 @@ class EnergyTrustRegion(PetscOwner):
             if tao.getIterationNumber() % PRECONDITIONER_PERIOD == 0:
                 problem.hessian = "projected"
                 problem.assemble_jacobian(hessian)
-                hessian.copy(preconditioner, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+                self._copy_preconditioner(hessian)
             problem.hessian = "exact"
             problem.assemble_jacobian(hessian)
         finally:
             problem.hessian = kind
         self.solver.reuse.invalidate()  # the line-search solver's kept factorization is of another matrix
+
+    def _copy_preconditioner(self, hessian: PETSc.Mat) -> None:
+        """Copy ``hessian`` (the projected kind) into the preconditioner. Contact between bodies grows
+        the Hessian's pattern (the stacked problem); a grown pattern is copied as such and the
+        factorization's analysis redone."""
+        total = PETSc.Mat.InfoType.GLOBAL_SUM
+        same = hessian.getInfo(total)["nz_used"] == self.preconditioner.getInfo(total)["nz_used"]
+        structure = PETSc.Mat.Structure.SAME_NONZERO_PATTERN if same else PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN
+        hessian.copy(self.preconditioner, structure=structure)
+        if not same:
+            self.tao.getKSP().getPC().reset()
 
     # -- solve ----------------------------------------------------------------------------------
     def solve(self, x: PETSc.Vec) -> bool:

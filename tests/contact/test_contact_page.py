@@ -5,6 +5,8 @@ every body's series."""
 
 from __future__ import annotations
 
+import tomllib
+
 import h5py
 import numpy as np
 import pytest
@@ -21,7 +23,8 @@ def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_
     shipped = job_bodies(source)
     for method in ("impulse", "ipc"):
         variant = tmp_path / f"{method}.toml"
-        variant.write_text(job_variant(source.read_text(), method, 7, str(source), window.impulse_contact))
+        variant.write_text(job_variant(source.read_text(), method, 7, str(source), window.impulse_contact,
+                                       window.ipc_hessian))  # fmt: skip
         bodies = job_bodies(variant)
         assert len(bodies) == len(shipped)
         for scene, original in zip(bodies, shipped, strict=True):
@@ -29,8 +32,8 @@ def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_
             assert original.contact.method == ("impulse" if window.impulse_contact is None else "ipc")
             assert window.start + window.steps <= original.steps
             assert scene.contact.method == method and scene.output_every == 7
-            if method == "ipc" and original.hessian == "trust_region":
-                assert scene.hessian == "adaptive"
+            if method == "ipc" and window.ipc_hessian is not None:
+                assert scene.hessian == window.ipc_hessian != original.hessian
             else:
                 assert scene.hessian == original.hessian
             assert scene.contact.self_collision == original.contact.self_collision
@@ -50,7 +53,17 @@ def test_inline_contact_tables_of_every_body_are_replaced():
     variant = job_variant(text, "ipc", 1, "pile.toml")
     assert variant.count(IPC_CONTACT) == 2 and "push_out" not in variant
     assert 'friction = 0.3 }' in variant and "damping = { mass = 1.0 } }" in variant
-    assert 'hessian = "adaptive"   # a comment' in variant
+    assert 'hessian = "trust_region"   # a comment' in variant
+    assert 'hessian = "projected"   # a comment' in job_variant(text, "ipc", 1, "pile.toml", ipc_hessian="projected")
+
+
+@pytest.mark.parametrize("solver", ["", "[solver]\nlinear = \"direct\"\n"])
+def test_the_ipc_hessian_of_a_window_is_set_with_or_without_a_solver_table(tmp_path, solver):
+    text = f'[effects]\ncontact = {{ push_out = 1e-4 }}\n{solver}[[colliders]]\ntype = "plane"\n'
+    variant = job_variant(text, "ipc", 1, "can.toml", ipc_hessian="trust_region")
+    assert variant.count('hessian = "trust_region"') == 1
+    assert tomllib.loads(variant)["solver"]["hessian"] == "trust_region"
+    assert job_variant(text, "impulse", 1, "can.toml", ipc_hessian="trust_region").count("hessian") == 0
 
 
 def _write_frames(path, heights: list[float]) -> None:

@@ -29,7 +29,7 @@ IPC_CONTACT = 'contact = { method = "ipc" }'
 #: A contact table of a scene (or ``contact = true``), on a line of its own or inline in a body's ``effects``.
 CONTACT_TABLE = re.compile(r"\bcontact\s*=\s*(\{[^{}]*\}|true\b)")
 #: A scene's Hessian setting (in its ``[solver]`` table).
-HESSIAN_LINE = re.compile(r'^(hessian\s*=\s*)"[a-z_]+"', flags=re.MULTILINE)
+HESSIAN_LINE = re.compile(r'^hessian\s*=\s*"[a-z_]+"', flags=re.MULTILINE)
 METHODS = ("impulse", "ipc")
 
 

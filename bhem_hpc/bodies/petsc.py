@@ -41,6 +41,7 @@ from bhem_hpc.solver.contributions import (
     ContributionState,
     PointBasis,
     StepBounded,
+    StepTested,
     adapt_to_iterate,
     adapted_parameters,
     begin_lagged_step,
@@ -49,6 +50,7 @@ from bhem_hpc.solver.contributions import (
     place_obstacles_within_step,
     restore_adapted,
     step_bound,
+    step_converged,
 )
 from bhem_hpc.solver.model_group import BodyModel
 from bhem_hpc.solver.petsc import PetscOwner
@@ -461,6 +463,24 @@ class StackedProblem(PetscOwner):
         self._split(direction)
         blocks = [p.open_direction_blocks(v) for p, v in zip(self.problems, self._x, strict=True)]
         return self.max_open_step(np.concatenate([np.asarray(b).reshape(-1, 3) for b in blocks]))
+
+    @property
+    def has_step_tests(self) -> bool:
+        return any(p.has_step_tests for p in self.problems) or any(
+            isinstance(c, StepTested) for c in self.contributions)  # fmt: skip
+
+    def step_converged(self, direction: PETSc.Vec) -> bool:
+        """Collective: whether every body's and coupling step test lets the solve stop rather than
+        take the stacked step (False: none tests steps)."""
+        if not self.has_step_tests:
+            return False
+        self._split(direction)
+        blocks = [np.asarray(p.open_direction_blocks(v)).reshape(-1, 3) for p, v in zip(self.problems, self._x,
+                                                                                       strict=True)]  # fmt: skip
+        tested = [p.open_step_converged(b) for p, b in zip(self.problems, blocks, strict=True) if p.has_step_tests]
+        if any(isinstance(c, StepTested) for c in self.contributions):
+            tested.append(step_converged(self.contributions, self.contribution_state(), np.concatenate(blocks)))
+        return all(tested)
 
     def max_open_step(self, direction: np.ndarray, swept_from: float | None = None) -> float:
         """Collective: :meth:`max_step` of a direction on every body's open blocks side by side (the

@@ -154,6 +154,8 @@ class IpcBarrier:
         #: itself: fixed), the closest distance of the last Newton iterate [m], the doublings made
         self.stiffness_limit, self._last_distance, self.stiffness_doublings = self.stiffness, np.inf, 0
         self._start_stiffness = self.stiffness
+        #: IPC's Newton stopping test [m/s] (:meth:`step_converged`); None: the solver's own tests only
+        self.velocity_tolerance: float | None = None
         #: seconds spent in the barrier's energy, gradient, Hessian, step bounds and adaptation
         self.seconds = 0.0
         rest = np.asarray(rest, dtype=float).reshape(-1, 3)
@@ -426,6 +428,21 @@ class IpcBarrier:
         start = self._vertices(state.positions)
         end = self._vertices(np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3))
         return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+
+    @_timed
+    def step_converged(self, state: ContributionState, direction: np.ndarray) -> bool:
+        """Collective: IPC's termination test (Li et al. 2020; libuipc's ``velocity_tol``): a time
+        step's Newton may stop rather than take a step that moves no vertex of the collision mesh
+        by more than ``velocity_tolerance * dt`` and that is collision-free in full (a step the
+        barrier cuts short still closes in on a contact)."""
+        if self.velocity_tolerance is None:
+            return False
+        start = self._vertices(state.positions)
+        end = self._vertices(np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3))
+        moved = float(np.max(np.linalg.norm((end - start)[: self.num_points], axis=1), initial=0.0))
+        if moved > self.velocity_tolerance * self._step[1]:
+            return False
+        return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd)) >= 1.0
 
     def _translation_weights(self) -> np.ndarray:
         """Weights ``c`` ``(local blocks,)`` with ``local_map @ c = 1`` where the rank holds points:

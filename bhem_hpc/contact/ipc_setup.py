@@ -190,9 +190,9 @@ def scene_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], globa
                   comm: Communicator, contact: Any, scene_file: Any,
                   joined: Sequence[tuple[int, int]] = ()) -> IpcBarrier:  # fmt: skip
     """:func:`bodies_barrier` for a scene's ``contact`` settings (its collider entries with their
-    friction and scene keys, ``dhat``, ``barrier_stiffness``, ``eps_v``): a collider it cannot mesh
-    is a :class:`~bhem_hpc.errors.RunError` naming ``scene_file`` and the collider's key, and
-    :meth:`IpcBarrier.starting_problem` names colliders by their keys."""
+    friction and scene keys, ``dhat``, ``barrier_stiffness``, ``eps_v``, ``velocity_tolerance``): a
+    collider it cannot mesh is a :class:`~bhem_hpc.errors.RunError` naming ``scene_file`` and the
+    collider's key, and :meth:`IpcBarrier.starting_problem` names colliders by their keys."""
     entries = contact.colliders
     try:
         barrier = bodies_barrier(meshes, open_offsets, global_open_blocks, comm, [e.collider for e in entries],
@@ -201,6 +201,7 @@ def scene_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], globa
     except TessellationError as exc:
         raise RunError(f"{scene_file}: key '{entries[exc.collider].key}': {exc}") from exc
     barrier.collider_names = [e.key for e in entries]
+    barrier.velocity_tolerance = contact.velocity_tolerance
     return barrier
 
 

@@ -216,7 +216,8 @@ def _check_contact_between(scene: BodiesScene) -> None:
         return f"body '{scene.names[k]}' (bodies[{k}])"
 
     method = scene.bodies[first].contact.method
-    shared = ("push_out", "metric") if method == "impulse" else ("dhat", "barrier_stiffness", "eps_v")
+    ipc_shared = ("dhat", "barrier_stiffness", "eps_v", "velocity_tolerance")
+    shared = ("push_out", "metric") if method == "impulse" else ipc_shared
     for k in contact[1:]:
         if scene.bodies[k].contact.method != method:
             raise SceneError(f"{path}: {where(k)}: key 'effects.contact.method' is "

@@ -42,6 +42,8 @@ MAX_NAME_LENGTH = 64
 MIN_ACCELERATION, MAX_ACCELERATION = 1e-12, 1e6  # m/s^2: solver.acceleration_tolerance
 #: solver.acceleration_tolerance by default with contact by "ipc" [m/s^2] (0.1 % of g)
 IPC_ACCELERATION_TOLERANCE = 1e-2
+#: effects.contact.velocity_tolerance with contact by "ipc" [m/s]
+VELOCITY_TOLERANCE_RANGE = (1e-9, 1e3)
 #: the most Newton iterations of an attempt with contact by "ipc" (solver.options.snes_max_it)
 IPC_NEWTON_ITERATIONS = 100
 
@@ -383,6 +385,9 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
     low, high = EPS_V_RANGE
     eps_v = et.get("eps_v", "a number", DEFAULT_EPS_V, lambda v: low <= v <= high,
                    f"a sticking speed in [{low:g}, {high:g}] [m/s]")  # fmt: skip
+    low, high = VELOCITY_TOLERANCE_RANGE
+    velocity_tolerance = et.get("velocity_tolerance", "a number", None, lambda v: low <= v <= high,
+                                f"a speed in [{low:g}, {high:g}] [m/s]")  # fmt: skip
     et.done()
     self_collision = effects.data.get("self_collision", False)
     if not isinstance(self_collision, bool):
@@ -404,7 +409,7 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
                              "against a plane at rest); a mesh collider moving so takes friction")  # fmt: skip
     return SceneContact(colliders, 0.0, 1, self_collision, friction, method="ipc", dhat=dhat, barrier_stiffness=kappa,
                         collision_cells=cells, friction=friction, static_friction=static_friction,
-                        eps_v=eps_v)  # fmt: skip
+                        eps_v=eps_v, velocity_tolerance=velocity_tolerance)  # fmt: skip
 
 
 def _self_collision(value: Any, friction: float, path: Path) -> tuple[bool, float]:

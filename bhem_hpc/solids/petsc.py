@@ -198,6 +198,10 @@ class SolidProblem(ContributionSteps, PetscOwner):
         """Collective: the largest fraction of the step every step-bounded contribution admits."""
         return self.max_open_step(self.open_direction_blocks(direction)) if self.has_step_bounds else 1.0
 
+    def step_converged(self, direction: PETSc.Vec) -> bool:
+        """Collective: whether the step-testing contributions let the solve stop rather than take the step."""
+        return self.has_step_tests and self.open_step_converged(self.open_direction_blocks(direction))
+
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a direction on the owned DOFs as every control point's ``(n_q, 3)``."""
         return np.concatenate(self.comm.allgather(direction.array_r)).reshape(-1, 3)

@@ -120,6 +120,25 @@ def step_bound(contributions: Sequence[Contribution], state: ContributionState, 
     return min(1.0, *(float(b) for b in bounds))
 
 
+@runtime_checkable
+class StepTested(Contribution, Protocol):
+    """A contribution with a stopping test of its own on Newton's step (IPC's: the full step is
+    collision-free and moves no point of the collision mesh by more than a tolerance)."""
+
+    def step_converged(self, state: ContributionState, direction: np.ndarray) -> bool:
+        """Collective: whether a Newton solve may stop at ``state`` rather than take the step
+        ``direction`` ``(blocks, 3)`` (the same answer on every rank)."""
+        ...
+
+
+def step_converged(contributions: Sequence[Contribution], state: ContributionState, direction: np.ndarray) -> bool:
+    """Collective: whether every :class:`StepTested` one of ``contributions`` lets the solve stop
+    instead of taking ``direction`` ``(blocks, 3)`` from ``state`` (False: none tests steps)."""
+    tested = [c for c in contributions if isinstance(c, StepTested)]
+    blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
+    return bool(tested) and all([c.step_converged(state, blocks) for c in tested])
+
+
 def moving_obstacles(contributions: Sequence[Contribution]) -> bool:
     """Whether one of ``contributions`` has obstacles that move during a time step."""
     return any(isinstance(c, SweptStepBounded) and c.moving for c in contributions)
@@ -166,6 +185,16 @@ class ContributionSteps:
         if not self.has_step_bounds:
             return 1.0
         return step_bound(self.contributions, self.contribution_state(), direction, swept_from)
+
+    @property
+    def has_step_tests(self) -> bool:
+        """Whether a contribution has a stopping test on Newton's step (:class:`StepTested`)."""
+        return any(isinstance(c, StepTested) for c in self.contributions)
+
+    def open_step_converged(self, direction: np.ndarray) -> bool:
+        """Collective: whether the step-testing contributions let the solve stop rather than take
+        a direction on the open blocks ``(blocks, 3)`` from the current state (:func:`step_converged`)."""
+        return self.has_step_tests and step_converged(self.contributions, self.contribution_state(), direction)
 
     @property
     def moves_obstacles(self) -> bool:

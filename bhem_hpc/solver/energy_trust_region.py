@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 from petsc4py import PETSc
 
 from bhem_hpc.solver.acceleration import tao_acceleration_test
-from bhem_hpc.solver.petsc import PETSC_ERRORS, PetscOwner, SolverSetupError, push_options, solve_stopped
+from bhem_hpc.solver.petsc import PetscOwner, push_options, rejected_options, solve_stopped
 
 if TYPE_CHECKING:
     from bhem_hpc.solver.newton import ShellSolver
@@ -93,10 +93,7 @@ class EnergyTrustRegion(PetscOwner):
                 self.tao.setFromOptions()
             except PETSc.Error as exc:
                 self.close()
-                raise SolverSetupError(
-                    f"TAO solver '{self.prefix}': PETSc rejected its options (error code {exc.ierr}: "
-                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
-                ) from None
+                raise rejected_options(f"TAO solver '{self.prefix}'", exc) from None
         finally:
             for name in pushed:
                 opts.delValue(name)

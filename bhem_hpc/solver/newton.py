@@ -13,7 +13,7 @@ stepping :mod:`.load_steps`, and the timing of a Newton iteration is in the benc
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 from petsc4py import PETSc
@@ -38,13 +38,14 @@ from bhem_hpc.solver.load_steps import solve_in_load_steps
 from bhem_hpc.solver.model_group import ModelGroup
 from bhem_hpc.solver.petsc import (
     KSP_REASONS,
-    PETSC_ERRORS,
     SNES_REASONS,
     PetscOwner,
     SolverSetupError,
     mumps_factor,
+    negated,
     negative_pivots,
     push_options,
+    rejected_options,
     solve_stopped,
     stage_seconds,
     unused_options,
@@ -138,12 +139,11 @@ class ShellSolver(PetscOwner):
         #: the bodies solved together; :attr:`model` is the first (the only one of a single body)
         self.bodies = ModelGroup(model)
         self.model, self.prefix = self.bodies.models[0], prefix
-        self._closed, self._energy_scale, self._at_roundoff, self._last_norm = False, 0.0, False, np.inf
+        self._closed, self._energy_scale, self._stopped_on_step, self._last_norm = False, 0.0, False, np.inf
         # the potential at the state the energy line search accepted last (None: not evaluated there)
         self._accepted_energy: float | None = None
         self.target_norm = 0.0  # the residual norm at which the current SNES solve converges
-        # recoveries made when first needed; where the adaptive Hessian starts each time step; the
-        # stopping test of acceleration_tolerance (made with the SNES)
+        # recoveries made when needed; the adaptive Hessian's ladder; acceleration_tolerance's test
         self.trust_region, self.energy_trust_region, self.ladder = None, None, HessianLadder()
         self.acceleration: AccelerationTest | None = None
         self.linear = self._choose_linear(linear)
@@ -203,10 +203,9 @@ class ShellSolver(PetscOwner):
             except (PETSc.Error, ValueError) as exc:
                 given = {k: v for k, v in opts.getAll().items() if k.startswith(prefix)}
                 self.close()
-                raise SolverSetupError(f"SNES solver '{prefix}': " + (str(exc) if isinstance(exc, ValueError) else (
-                    f"PETSc rejected its options (error code {exc.ierr}: "
-                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')}); options under the "
-                    f"prefix: {dict(sorted(given.items()))}"))) from None
+                raise (SolverSetupError(f"SNES solver '{prefix}': {exc}") if isinstance(exc, ValueError) else
+                       rejected_options(f"SNES solver '{prefix}'", exc, "; options under the prefix: "
+                                        f"{dict(sorted(given.items()))}")) from None  # fmt: skip
             self.anderson = AndersonMixing(depth, reduce=lambda a: comm.allreduce(a))
             if acceleration_tolerance is not None:
                 self.acceleration = attach_acceleration_test(self, acceleration_tolerance)
@@ -257,11 +256,9 @@ class ShellSolver(PetscOwner):
         log.warning("%s: the Krylov solve failed (%s); continuing with the direct solver (MUMPS)", self.prefix, reason)
         return True
 
-    # -- assembly --------------------------------------------------------------------------------
     def operator_signature(self) -> tuple:
-        """What the Jacobian's operator depends on besides the state: the time step (the mass term
-        scales with 1 / dt^2) and the diagonal regularizer. A kept factorization of another
-        signature is not reused."""
+        """What the Jacobian depends on besides the state: the time step (the mass term scales with
+        1 / dt^2) and the diagonal regularizer; a kept factorization of another is not reused."""
         return (self.bodies.time_step, self.problem.regularization)
 
     def _snes_solve(self) -> None:
@@ -273,7 +270,7 @@ class ShellSolver(PetscOwner):
             for _ in range(3):
                 self.reuse.start_solve()
                 self._energy_scale = 0.0  # the potential's magnitude, once damp_step has met it
-                self._at_roundoff, self._last_norm = False, np.inf
+                self._stopped_on_step, self._last_norm = False, np.inf
                 self._accepted_energy = None
                 self.anderson.reset()
                 self._stage.push()
@@ -328,9 +325,12 @@ class ShellSolver(PetscOwner):
         accepted, self._accepted_energy = self._accepted_energy, None
         norm = self.snes.getFunctionNorm()
         stalled, self._last_norm = norm > 0.5 * self._last_norm, norm  # the residual at its floor
-        if stalled and not indefinite and abs(slope) <= ROUNDOFF_DECREASE * self._energy_scale:
+        at_roundoff = stalled and abs(slope) <= ROUNDOFF_DECREASE * self._energy_scale
+        # or a contribution's own test (IPC's) ends the solve rather than take the step
+        if not indefinite and (at_roundoff or self.problem.has_step_tests
+                               and self._along_step(x, y, self.problem.step_converged)):  # fmt: skip
             y.zeroEntries()  # SNES stops on the empty step; :meth:`_converged` takes it
-            self._at_roundoff = True
+            self._stopped_on_step = True
             return
         if not indefinite and abs(slope) <= 1e-9 * self._energy_scale:
             self._bound_step(x, y)
@@ -372,16 +372,18 @@ class ShellSolver(PetscOwner):
         self._accepted_energy = None
         self.reuse.invalidate()
 
+    def _along_step(self, x: PETSc.Vec, y: PETSc.Vec, query: Callable[[PETSc.Vec], float]) -> float:
+        """Collective: the problem's ``query`` of the step ``x -> x - y`` (its direction), at ``x``."""
+        self.problem.update_state(x)
+        with negated(y) as direction:
+            return query(direction)
+
     def _bound_step(self, x: PETSc.Vec, y: PETSc.Vec) -> float:
         """Shorten the step ``x -> x - y`` to what the step-bounded contributions admit (a barrier
         is never crossed, not even by a trial of the line search). Returns the factor applied."""
         if not self.problem.has_step_bounds:
             return 1.0
-        self.problem.update_state(x)
-        direction = y.copy()
-        direction.scale(-1.0)
-        bound = self.problem.max_step(direction)
-        direction.destroy()
+        bound = self._along_step(x, y, self.problem.max_step)
         if bound < 1.0:
             y.scale(bound)
             self.report.bounded_steps += 1
@@ -598,8 +600,7 @@ class ShellSolver(PetscOwner):
         return self._step_converged(self.energy_trust_region.iterations, 0)  # it factors an SPD matrix
 
     def _trust_region_applies(self) -> bool:
-        """The trust-region recovery lacks the augmented Lagrangian's outer loop (point constraints)
-        and the contributions' step bounds (its steps could cross a barrier)."""
+        """The trust-region recovery lacks the augmented Lagrangian (point constraints) and step bounds (a barrier)."""
         return not len(self.problem.alm_multipliers) and not self.problem.has_step_bounds
 
     def _trust_region_recovers(self, start: PETSc.Vec) -> bool:
@@ -626,7 +627,7 @@ class ShellSolver(PetscOwner):
         counts only with a residual near the solve's target: the energy line search takes no step
         when it finds no decrease, which SNES would otherwise report as converged."""
         reason, norm = self.snes.getConvergedReason(), self.snes.getFunctionNorm()
-        stalled = reason == PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE and not self._at_roundoff
+        stalled = reason == PETSc.SNES.ConvergedReason.CONVERGED_SNORM_RELATIVE and not self._stopped_on_step
         if stalled and norm > 1e3 * self.target_norm:
             return False
         return reason > 0 and bool(np.isfinite(norm))
@@ -676,7 +677,6 @@ class ShellSolver(PetscOwner):
         factor, solve = stage_seconds(self._stage, "PCSetUp"), stage_seconds(self._stage, "KSPSolve")
         return solver_counters(self.report, self.reuse, factor, solve)
 
-    # -- lifetime -------------------------------------------------------------------------------
     def unused_options(self) -> list[str]:
         """Options under this solver's prefix (command line or caller's) that PETSc never read:
         misspelled or not applicable (this solver's own defaults left out: a run that never factors

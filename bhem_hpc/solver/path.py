@@ -39,13 +39,13 @@ from bhem_hpc.solver.linear_strategy import default_options
 from bhem_hpc.solver.newton import ShellSolver, jacobian_callback, residual_callback
 from bhem_hpc.solver.path_events import PathEvent, PathSample, events_between
 from bhem_hpc.solver.petsc import (
-    PETSC_ERRORS,
     SNES_REASONS,
     PetscOwner,
     SolverError,
     SolverSetupError,
     negative_pivots,
     push_options,
+    rejected_options,
     solve_stopped,
 )
 
@@ -241,10 +241,7 @@ class PathFollower(PetscOwner):
                 snes.setFromOptions()
             except PETSc.Error as exc:
                 snes.destroy()
-                raise SolverSetupError(
-                    f"SNES solver '{self.prefix}': PETSc rejected its options (error code {exc.ierr}: "
-                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
-                ) from None
+                raise rejected_options(f"SNES solver '{self.prefix}'", exc) from None
             if snes.getType() != "python":
                 snes.destroy()
                 raise SolverSetupError(f"SNES solver '{self.prefix}': snes_type must stay 'python' (bordered steps)")

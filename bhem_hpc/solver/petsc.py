@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 
 from petsc4py import PETSc
 
@@ -27,6 +28,24 @@ class SolverError(UserError, RuntimeError):
 
 class SolverSetupError(SolverError):
     """PETSc refused the solver's configuration (a bad option): no retry with a smaller step helps."""
+
+
+@contextmanager
+def negated(vector: PETSc.Vec) -> Iterator[PETSc.Vec]:
+    """A copy of ``vector`` times -1, destroyed on leaving the context."""
+    copy = vector.copy()
+    copy.scale(-1.0)
+    try:
+        yield copy
+    finally:
+        copy.destroy()
+
+
+def rejected_options(solver: str, exc: PETSc.Error, detail: str = "") -> SolverSetupError:
+    """The error of a solver (``"SNES solver 'bhem_'"``) whose options PETSc rejected with ``exc``;
+    ``detail``: what follows the explanation (e.g. the options given)."""
+    return SolverSetupError(f"{solver}: PETSc rejected its options (error code {exc.ierr}: "
+                            f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')}){detail}")  # fmt: skip
 
 
 def push_options(prefix: str, defaults: Mapping[str, str], overrides: Mapping[str, object]) -> list[str]:

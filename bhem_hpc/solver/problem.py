@@ -338,6 +338,11 @@ class ShellProblem(ContributionSteps, PetscOwner):
             return 1.0
         return self.max_open_step(self.open_direction_blocks(direction))
 
+    def step_converged(self, direction: PETSc.Vec) -> bool:
+        """Collective: whether the step-testing contributions let the solve stop rather than take
+        the step ``x -> x + direction`` (closed DOFs) from the current state (False: none tests)."""
+        return self.has_step_tests and self.open_step_converged(self.open_direction_blocks(direction))
+
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:
         """Collective: a closed-DOF direction on this rank's open blocks (owned and ghosts), ``(blocks, 3)``."""
         open_direction = self.model.x.vector.duplicate()

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 from petsc4py import PETSc
 
-from bhem_hpc.solver.petsc import PETSC_ERRORS, SNES_REASONS, PetscOwner, SolverSetupError, push_options, solve_stopped
+from bhem_hpc.solver.petsc import SNES_REASONS, PetscOwner, push_options, rejected_options, solve_stopped
 
 if TYPE_CHECKING:
     from bhem_hpc.solver.newton import ShellSolver
@@ -63,10 +63,7 @@ class TrustRegionNewton(PetscOwner):
             except PETSc.Error as exc:
                 self.snes.destroy()
                 self._closed = True
-                raise SolverSetupError(
-                    f"SNES solver '{self.prefix}': PETSc rejected its options (error code {exc.ierr}: "
-                    f"{PETSC_ERRORS.get(exc.ierr, 'see the PETSc message above')})"
-                ) from None
+                raise rejected_options(f"SNES solver '{self.prefix}'", exc) from None
         finally:
             for name in pushed:
                 opts.delValue(name)

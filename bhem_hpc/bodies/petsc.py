@@ -470,8 +470,8 @@ class StackedProblem(PetscOwner):
             isinstance(c, StepTested) for c in self.contributions)  # fmt: skip
 
     def step_converged(self, direction: PETSc.Vec) -> bool:
-        """Collective: whether every body's and coupling step test lets the solve stop rather than
-        take the stacked step (False: none tests steps)."""
+        """Collective: whether every body's and coupling step test lets the solve end with the
+        stacked step (False: none tests steps)."""
         if not self.has_step_tests:
             return False
         self._split(direction)

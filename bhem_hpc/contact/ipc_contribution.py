@@ -287,14 +287,26 @@ class IpcBarrier:
             return collisions
         collisions = self._ipctk.NormalCollisions()
         collisions.build(self.mesh, vertices, self.dhat)
-        if self.mesh.planes and len(self._obstacle_vertices):
-            # ipc-toolkit's vertex filter does not reach planes: a collider mesh resting on a plane
-            # collider (a ball on the ground) would meet it, with a constant energy that swamps the
-            # line search's energy scale and a closest pair that hides the bodies' own from the
-            # stiffness rule; colliders never meet each other
-            collisions.pv_collisions = [c for c in collisions.pv_collisions if c.vertex_id < self.num_points]
+        if self.mesh.planes:
+            collisions.pv_collisions = self._plane_collisions(vertices)
         self._last_collisions = (np.array(vertices), collisions)
         return collisions
+
+    def _plane_collisions(self, vertices: np.ndarray) -> list:
+        """The plane-vertex pairs closer than dhat: every body vertex within dhat of a plane.
+        ipc-toolkit 1.6.1 builds them only within dhat / 2 while its barrier reaches dhat, so a
+        vertex crossing dhat / 2 met an energy step: a cloth's corner hanging onto the ground stuck
+        there and the line search stalled (the cloth on a spinning sphere at t = 0.965 s). Its
+        vertex filter does not reach planes either: a collider mesh resting on a plane collider
+        (a ball on the ground) met it, with a constant energy that swamps the line search's energy
+        scale; colliders never meet each other."""
+        body = np.asarray(vertices)[: self.num_points]
+        pairs = []
+        for plane in self.mesh.planes:
+            gaps = body @ plane.normal() + plane.offset()
+            near = np.flatnonzero(np.abs(gaps) < self.dhat)
+            pairs += [self._ipctk.PlaneVertexNormalCollision(plane, int(v)) for v in near]
+        return pairs
 
     def hessian_pattern(self) -> tuple[np.ndarray, np.ndarray]:
         if self.rank != 0:
@@ -431,10 +443,10 @@ class IpcBarrier:
 
     @_timed
     def step_converged(self, state: ContributionState, direction: np.ndarray) -> bool:
-        """Collective: IPC's termination test (Li et al. 2020; libuipc's ``velocity_tol``): a time
-        step's Newton may stop rather than take a step that moves no vertex of the collision mesh
-        by more than ``velocity_tolerance * dt`` and that is collision-free in full (a step the
-        barrier cuts short still closes in on a contact)."""
+        """Collective: IPC's termination test (libuipc's ``velocity_tol``): a time step's Newton
+        ends with a step ``direction`` that moves no vertex of the collision mesh by more than
+        ``velocity_tolerance * dt`` and is collision-free in full (a step the barrier cuts short
+        still closes in on a contact)."""
         if self.velocity_tolerance is None:
             return False
         start = self._vertices(state.positions)

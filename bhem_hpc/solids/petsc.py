@@ -199,7 +199,7 @@ class SolidProblem(ContributionSteps, PetscOwner):
         return self.max_open_step(self.open_direction_blocks(direction)) if self.has_step_bounds else 1.0
 
     def step_converged(self, direction: PETSc.Vec) -> bool:
-        """Collective: whether the step-testing contributions let the solve stop rather than take the step."""
+        """Collective: whether the step-testing contributions let the solve end with the step ``direction``."""
         return self.has_step_tests and self.open_step_converged(self.open_direction_blocks(direction))
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:

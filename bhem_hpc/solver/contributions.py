@@ -126,14 +126,14 @@ class StepTested(Contribution, Protocol):
     collision-free and moves no point of the collision mesh by more than a tolerance)."""
 
     def step_converged(self, state: ContributionState, direction: np.ndarray) -> bool:
-        """Collective: whether a Newton solve may stop at ``state`` rather than take the step
-        ``direction`` ``(blocks, 3)`` (the same answer on every rank)."""
+        """Collective: whether a Newton solve at ``state`` ends with the step ``direction``
+        ``(blocks, 3)``, taken without a line search (the same answer on every rank)."""
         ...
 
 
 def step_converged(contributions: Sequence[Contribution], state: ContributionState, direction: np.ndarray) -> bool:
-    """Collective: whether every :class:`StepTested` one of ``contributions`` lets the solve stop
-    instead of taking ``direction`` ``(blocks, 3)`` from ``state`` (False: none tests steps)."""
+    """Collective: whether every :class:`StepTested` one of ``contributions`` lets the solve end
+    with the step ``direction`` ``(blocks, 3)`` from ``state`` (False: none tests steps)."""
     tested = [c for c in contributions if isinstance(c, StepTested)]
     blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
     return bool(tested) and all([c.step_converged(state, blocks) for c in tested])
@@ -192,8 +192,8 @@ class ContributionSteps:
         return any(isinstance(c, StepTested) for c in self.contributions)
 
     def open_step_converged(self, direction: np.ndarray) -> bool:
-        """Collective: whether the step-testing contributions let the solve stop rather than take
-        a direction on the open blocks ``(blocks, 3)`` from the current state (:func:`step_converged`)."""
+        """Collective: whether the step-testing contributions let the solve end with a step on the
+        open blocks ``(blocks, 3)`` from the current state (:func:`step_converged`)."""
         return self.has_step_tests and step_converged(self.contributions, self.contribution_state(), direction)
 
     @property

@@ -128,6 +128,8 @@ class ShellSolver(PetscOwner):
     trust_region: TrustRegionNewton | None
     #: the energy trust region (``hessian = "trust_region"``), made at the first time step
     energy_trust_region: EnergyTrustRegion | None
+    #: a contribution's stopping test ended the current solve: its step is taken once SNES stops
+    _final_step: bool = False
 
     def __init__(
         self, model: ShellModel | Sequence[ShellModel], prefix: str = "bhem_static_",
@@ -270,7 +272,7 @@ class ShellSolver(PetscOwner):
             for _ in range(3):
                 self.reuse.start_solve()
                 self._energy_scale = 0.0  # the potential's magnitude, once damp_step has met it
-                self._stopped_on_step, self._last_norm = False, np.inf
+                self._stopped_on_step, self._final_step, self._last_norm = False, False, np.inf
                 self._accepted_energy = None
                 self.anderson.reset()
                 self._stage.push()
@@ -280,6 +282,8 @@ class ShellSolver(PetscOwner):
                     raise solve_stopped(self.prefix, exc) from None
                 finally:
                     self._stage.pop()
+                if self._final_step:  # the step a contribution's test ended the solve on (damp_step)
+                    self.x.axpy(-1.0, self._trial)
                 self.report.krylov_iterations += self.snes.getLinearSolveIterations()
                 self.report.linear_solves += self.snes.getIterationNumber()
                 reason = self.snes.getConvergedReason()
@@ -326,9 +330,13 @@ class ShellSolver(PetscOwner):
         norm = self.snes.getFunctionNorm()
         stalled, self._last_norm = norm > 0.5 * self._last_norm, norm  # the residual at its floor
         at_roundoff = stalled and abs(slope) <= ROUNDOFF_DECREASE * self._energy_scale
-        # or a contribution's own test (IPC's) ends the solve rather than take the step
-        if not indefinite and (at_roundoff or self.problem.has_step_tests
-                               and self._along_step(x, y, self.problem.step_converged)):  # fmt: skip
+        # or a contribution's own test (IPC's) ends the solve: its step, small and collision-free,
+        # is taken once SNES has stopped (:meth:`_snes_solve`), not left to the line search
+        self._final_step = not (indefinite or at_roundoff) and self.problem.has_step_tests and bool(
+            self._along_step(x, y, self.problem.step_converged))  # fmt: skip
+        if not indefinite and (at_roundoff or self._final_step):
+            if self._final_step:
+                y.copy(self._trial)
             y.zeroEntries()  # SNES stops on the empty step; :meth:`_converged` takes it
             self._stopped_on_step = True
             return
@@ -604,23 +612,12 @@ class ShellSolver(PetscOwner):
         return not len(self.problem.alm_multipliers) and not self.problem.has_step_bounds
 
     def _trust_region_recovers(self, start: PETSc.Vec) -> bool:
-        """After a failed line-search solve: the trust-region Newton from the step's start (counted
-        in ``trust_region_solves`` when it converges; logged either way)."""
+        """After a failed line-search solve: the trust-region Newton from the step's start."""
         if self.trust_region is None:
             self.trust_region = TrustRegionNewton(self, default_options(self.bodies.stiffest(), self.linear.kind),
                                                   (residual_callback, jacobian_callback),
                                                   self._caller_options)  # fmt: skip
-        log.info("%s: Newton failed (%s); trying trust-region Newton", self.prefix,
-                 SNES_REASONS.get(self.snes.getConvergedReason()))  # fmt: skip
-        start.copy(self.x)
-        if len(self.problem.bc_local):
-            self.x.array[self.problem.bc_local] = self.problem.bc_values
-        self.problem.regularization = 0.0
-        converged = self.trust_region.solve(self.x)
-        self.report.linear_solves += self.trust_region.iterations()
-        if converged:
-            self.report.trust_region_solves += 1
-        return converged
+        return self.trust_region.recover(start)
 
     def _converged(self) -> bool:
         """Whether the last SNES solve converged. A step-size test (the update fell below ``stol``)

@@ -339,8 +339,8 @@ class ShellProblem(ContributionSteps, PetscOwner):
         return self.max_open_step(self.open_direction_blocks(direction))
 
     def step_converged(self, direction: PETSc.Vec) -> bool:
-        """Collective: whether the step-testing contributions let the solve stop rather than take
-        the step ``x -> x + direction`` (closed DOFs) from the current state (False: none tests)."""
+        """Collective: whether the step-testing contributions let the solve end with the step
+        ``x -> x + direction`` (closed DOFs) from the current state (False: none tests)."""
         return self.has_step_tests and self.open_step_converged(self.open_direction_blocks(direction))
 
     def open_direction_blocks(self, direction: PETSc.Vec) -> np.ndarray:

@@ -80,6 +80,23 @@ class TrustRegionNewton(PetscOwner):
                  self.snes.getFunctionNorm())  # fmt: skip
         return reason > 0
 
+    def recover(self, start: PETSc.Vec) -> bool:
+        """After a failed solve of the line-search solver: this solve from its step's ``start`` into
+        its ``x`` (counted in its report's ``trust_region_solves`` when it converges; logged either
+        way); whether it converged."""
+        solver = self.solver
+        log.info("%s: Newton failed (%s); trying trust-region Newton", solver.prefix,
+                 SNES_REASONS.get(solver.snes.getConvergedReason()))  # fmt: skip
+        start.copy(solver.x)
+        if len(solver.problem.bc_local):
+            solver.x.array[solver.problem.bc_local] = solver.problem.bc_values
+        solver.problem.regularization = 0.0
+        converged = self.solve(solver.x)
+        solver.report.linear_solves += self.iterations()
+        if converged:
+            solver.report.trust_region_solves += 1
+        return converged
+
     def iterations(self) -> int:
         return self.snes.getIterationNumber()
 

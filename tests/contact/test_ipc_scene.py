@@ -12,8 +12,9 @@ from helpers import RUBBER
 
 from bhem_hpc.errors import RunError
 from bhem_hpc.io import read_checkpoint
-from bhem_hpc.run import RunOptions, run_scene
+from bhem_hpc.run import RunOptions, build_model, ipc_barrier, run_scene
 from bhem_hpc.scene import SceneError, load_scene
+from bhem_hpc.solver.contributions import ContributionState
 
 #: A waved rubber sheet 3.5 to 7 mm above the plane z = 0, falling onto it ({discretization},
 #: {contact}, {colliders}).
@@ -101,6 +102,33 @@ def test_the_trust_region_drops_the_sheet_on_the_floor_without_ever_reaching_it(
     if comm.rank == 0:
         lowest = _lowest_heights(out)
         assert np.all(lowest > 0.0) and lowest[-1] < 1e-3 and np.all(lowest[10:] < 1e-3)
+
+
+def test_the_floors_barrier_reaches_dhat_without_a_step_in_its_energy(comm, shared_tmp_path):
+    """A flat sheet (quadratic B-splines: a translation of its control points moves it whole)
+    lowered onto the floor: its barrier energy is zero from dhat up and grows continuously below,
+    across dhat / 2, where ipc-toolkit 1.6.1 alone starts its plane-vertex pairs (an energy step
+    there stalled the line search of a cloth corner hanging onto the ground; without the scene's
+    own pairs the energy at 0.51 dhat was 0)."""
+    path = shared_tmp_path / "flat.toml"
+    if comm.rank == 0:
+        path.write_text(DROP.format(discretization="bspline2", contact=IPC, colliders=PLANE, **RUBBER).replace(
+            'height = "0.002 * sin(20.0 * xi1)"\n', ""))  # fmt: skip
+    comm.Barrier()
+    scene = load_scene(path)
+    model = build_model(scene, comm)
+    barrier = ipc_barrier(scene, model, path)
+    start = model.x.x.array.reshape(-1, 3).copy()
+
+    def energy(height: float) -> float:
+        positions = start + [0.0, 0.0, height - 0.005]  # the sheet is made 5 mm above the floor
+        return comm.allreduce(barrier.energy(ContributionState(positions, 1.0, model.point_positions)))
+
+    dhat = barrier.dhat
+    energies = np.array([energy(f * dhat) for f in (0.3, 0.45, 0.49, 0.51, 0.55, 0.9, 0.99, 1.01, 1.5)])
+    assert np.all(energies[:7] > 0.0) and np.all(energies[7:] == 0.0)
+    assert np.all(np.diff(energies[:7]) < 0.0)
+    assert energies[3] > 0.8 * energies[2]  # 0.51 against 0.49 dhat: the barrier's own ratio is 0.89
 
 
 def test_ipcs_step_test_ends_the_solves_sooner_and_the_sheet_still_rests_above_the_floor(comm, shared_tmp_path):

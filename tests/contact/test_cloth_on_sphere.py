@@ -33,3 +33,19 @@ def test_a_cotton_cloth_lands_on_a_sphere_on_the_ground_without_crossing_it(comm
     gaps = frame_gaps(out, [sphere, ground], 1e-3)
     assert gaps["frames"] == STEPS // 10 + 1 and gaps["self_intersecting_frames"] == 0
     assert -0.25 * dhat <= gaps["min_signed_gap_m"] < dhat
+
+
+def test_the_rotating_sphere_job_is_the_cloth_on_sphere_with_its_sphere_spinning_from_0_4_s():
+    """``jobs/cloth-on-rotating-sphere.toml`` says it is this job until the sphere starts turning:
+    the same cloth, material, time step, sphere and ground; the sphere spins at 3 rad/s about z from
+    t = 0.4 s (its run is measured in the job's comment: a 240-step run takes minutes)."""
+    import tomllib
+
+    still = tomllib.loads((JOBS / "cloth-on-sphere.toml").read_text())
+    spinning = tomllib.loads((JOBS / "cloth-on-rotating-sphere.toml").read_text())
+    for table in ("surface", "material"):
+        assert spinning[table] == still[table]
+    assert spinning["time"]["dt"] == still["time"]["dt"] and spinning["colliders"][1] == still["colliders"][1]
+    sphere = dict(spinning["colliders"][0])
+    assert sphere.pop("spin") == [0.0, 0.0, 3.0] and sphere.pop("spin_from") == 0.4
+    assert sphere == still["colliders"][0]

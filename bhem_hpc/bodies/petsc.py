@@ -460,25 +460,27 @@ class StackedProblem(PetscOwner):
         """Collective: the largest fraction of the stacked step every bounded contribution admits."""
         if not self.has_step_bounds:
             return 1.0
+        return self.max_open_step(np.concatenate(self._direction_blocks(direction)))
+
+    def _direction_blocks(self, direction: PETSc.Vec) -> list[np.ndarray]:
+        """Collective: a stacked closed-DOF direction on every body's open blocks, ``(blocks, 3)`` each."""
         self._split(direction)
-        blocks = [p.open_direction_blocks(v) for p, v in zip(self.problems, self._x, strict=True)]
-        return self.max_open_step(np.concatenate([np.asarray(b).reshape(-1, 3) for b in blocks]))
+        return [np.asarray(p.open_direction_blocks(v)).reshape(-1, 3)
+                for p, v in zip(self.problems, self._x, strict=True)]  # fmt: skip
 
     @property
     def has_step_tests(self) -> bool:
         return any(p.has_step_tests for p in self.problems) or any(
-            isinstance(c, StepTested) for c in self.contributions)  # fmt: skip
+            isinstance(c, StepTested) and c.tests_steps for c in self.contributions)  # fmt: skip
 
     def step_converged(self, direction: PETSc.Vec) -> bool:
         """Collective: whether every body's and coupling step test lets the solve end with the
         stacked step (False: none tests steps)."""
         if not self.has_step_tests:
             return False
-        self._split(direction)
-        blocks = [np.asarray(p.open_direction_blocks(v)).reshape(-1, 3) for p, v in zip(self.problems, self._x,
-                                                                                       strict=True)]  # fmt: skip
+        blocks = self._direction_blocks(direction)
         tested = [p.open_step_converged(b) for p, b in zip(self.problems, blocks, strict=True) if p.has_step_tests]
-        if any(isinstance(c, StepTested) for c in self.contributions):
+        if any(isinstance(c, StepTested) and c.tests_steps for c in self.contributions):
             tested.append(step_converged(self.contributions, self.contribution_state(), np.concatenate(blocks)))
         return all(tested)
 

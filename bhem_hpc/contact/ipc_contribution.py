@@ -439,7 +439,17 @@ class IpcBarrier:
     def max_step(self, state: ContributionState, direction: np.ndarray) -> float:
         start = self._vertices(state.positions)
         end = self._vertices(np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3))
+        return self._collision_free_fraction(start, end)
+
+    def _collision_free_fraction(self, start: np.ndarray, end: np.ndarray) -> float:
+        """The largest fraction of the straight motion of the mesh's vertices ``start -> end``
+        ``(vertices, 3)`` that no pair crosses (ipc-toolkit's additive CCD)."""
         return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+
+    @property
+    def tests_steps(self) -> bool:
+        """Whether :meth:`step_converged` is on (a ``velocity_tolerance`` is set)."""
+        return self.velocity_tolerance is not None
 
     @_timed
     def step_converged(self, state: ContributionState, direction: np.ndarray) -> bool:
@@ -447,14 +457,14 @@ class IpcBarrier:
         ends with a step ``direction`` that moves no vertex of the collision mesh by more than
         ``velocity_tolerance * dt`` and is collision-free in full (a step the barrier cuts short
         still closes in on a contact)."""
-        if self.velocity_tolerance is None:
+        if not self.tests_steps:
             return False
         start = self._vertices(state.positions)
         end = self._vertices(np.asarray(state.positions) + np.asarray(direction).reshape(-1, 3))
         moved = float(np.max(np.linalg.norm((end - start)[: self.num_points], axis=1), initial=0.0))
         if moved > self.velocity_tolerance * self._step[1]:
             return False
-        return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd)) >= 1.0
+        return self._collision_free_fraction(start, end) >= 1.0
 
     def _translation_weights(self) -> np.ndarray:
         """Weights ``c`` ``(local blocks,)`` with ``local_map @ c = 1`` where the rank holds points:
@@ -530,7 +540,7 @@ class IpcBarrier:
         end = self._vertices(end_positions)
         planes, self.mesh.planes = self.mesh.planes, []
         try:
-            bound = float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+            bound = self._collision_free_fraction(start, end)
         finally:
             self.mesh.planes = planes
         shell = slice(0, self.num_points)

@@ -125,6 +125,9 @@ class StepTested(Contribution, Protocol):
     """A contribution with a stopping test of its own on Newton's step (IPC's: the full step is
     collision-free and moves no point of the collision mesh by more than a tolerance)."""
 
+    #: whether the test is on (IPC's: a velocity tolerance is set); off, the solver never asks it
+    tests_steps: bool
+
     def step_converged(self, state: ContributionState, direction: np.ndarray) -> bool:
         """Collective: whether a Newton solve at ``state`` ends with the step ``direction``
         ``(blocks, 3)``, taken without a line search (the same answer on every rank)."""
@@ -134,7 +137,7 @@ class StepTested(Contribution, Protocol):
 def step_converged(contributions: Sequence[Contribution], state: ContributionState, direction: np.ndarray) -> bool:
     """Collective: whether every :class:`StepTested` one of ``contributions`` lets the solve end
     with the step ``direction`` ``(blocks, 3)`` from ``state`` (False: none tests steps)."""
-    tested = [c for c in contributions if isinstance(c, StepTested)]
+    tested = [c for c in contributions if isinstance(c, StepTested) and c.tests_steps]
     blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
     return bool(tested) and all([c.step_converged(state, blocks) for c in tested])
 
@@ -189,7 +192,7 @@ class ContributionSteps:
     @property
     def has_step_tests(self) -> bool:
         """Whether a contribution has a stopping test on Newton's step (:class:`StepTested`)."""
-        return any(isinstance(c, StepTested) for c in self.contributions)
+        return any(isinstance(c, StepTested) and c.tests_steps for c in self.contributions)
 
     def open_step_converged(self, direction: np.ndarray) -> bool:
         """Collective: whether the step-testing contributions let the solve end with a step on the

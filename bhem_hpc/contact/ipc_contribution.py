@@ -361,7 +361,8 @@ class IpcBarrier:
                 "barrier_stiffness_start": self._start_stiffness, "barrier_stiffness_limit": self.stiffness_limit,
                 "stiffness_doublings": self.stiffness_doublings, "barrier_s": self.seconds,
                 "collision_vertices": self.num_points, "friction": friction is not None,
-                "eps_v_m_s": friction.eps_v if friction is not None else None}  # fmt: skip
+                "eps_v_m_s": friction.eps_v if friction is not None else None,
+                "velocity_tolerance_m_s": self.velocity_tolerance}  # fmt: skip
 
     @_timed
     def begin_step(self, state: ContributionState, time: float, dt: float) -> None:
@@ -445,6 +446,11 @@ class IpcBarrier:
         """The largest fraction of the straight motion of the mesh's vertices ``start -> end``
         ``(vertices, 3)`` that no pair crosses (ipc-toolkit's additive CCD)."""
         return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+
+    @property
+    def diagonal(self) -> float:
+        """The diagonal [m] of the bodies' rest bounding box (``dhat``'s and the growth distance's scale)."""
+        return self._diagonal
 
     @property
     def tests_steps(self) -> bool:

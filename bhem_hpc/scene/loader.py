@@ -42,7 +42,8 @@ MAX_NAME_LENGTH = 64
 MIN_ACCELERATION, MAX_ACCELERATION = 1e-12, 1e6  # m/s^2: solver.acceleration_tolerance
 #: solver.acceleration_tolerance by default with contact by "ipc" [m/s^2] (0.1 % of g)
 IPC_ACCELERATION_TOLERANCE = 1e-2
-#: effects.contact.velocity_tolerance with contact by "ipc" [m/s]
+#: effects.contact.velocity_tolerance with contact by "ipc" [m/s] (or "auto": IPC's choice, a fraction of the
+#: bodies' rest bounding-box diagonal per second, :data:`bhem_hpc.contact.ipc_setup.AUTO_VELOCITY_TOLERANCE`)
 VELOCITY_TOLERANCE_RANGE = (1e-9, 1e3)
 #: the most Newton iterations of an attempt with contact by "ipc" (solver.options.snes_max_it)
 IPC_NEWTON_ITERATIONS = 100
@@ -386,8 +387,9 @@ def parse_ipc_contact(et: Table, effects: Table, colliders_raw: list, path: Path
     eps_v = et.get("eps_v", "a number", DEFAULT_EPS_V, lambda v: low <= v <= high,
                    f"a sticking speed in [{low:g}, {high:g}] [m/s]")  # fmt: skip
     low, high = VELOCITY_TOLERANCE_RANGE
-    velocity_tolerance = et.get("velocity_tolerance", "a number", None, lambda v: low <= v <= high,
-                                f"a speed in [{low:g}, {high:g}] [m/s]")  # fmt: skip
+    velocity_tolerance = et.get("velocity_tolerance", "a number or a string", None,
+                                lambda v: v == "auto" or (not isinstance(v, str) and low <= v <= high),
+                                f'a speed in [{low:g}, {high:g}] [m/s] or "auto"')  # fmt: skip
     et.done()
     self_collision = effects.data.get("self_collision", False)
     if not isinstance(self_collision, bool):

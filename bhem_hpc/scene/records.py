@@ -79,7 +79,8 @@ class SceneContact:
     collision_cells: int = 4  # ipc: collision-lattice cells per patch side
     static_friction: float | None = None  # ipc: the body's static Coulomb coefficient (None: ``friction``)
     eps_v: float = 1e-3  # ipc: the sticking speed of lagged friction [m/s]
-    velocity_tolerance: float | None = None  # ipc: Newton also stops at IPC's step test [m/s] (None: not)
+    # ipc: Newton also stops at IPC's step test [m/s] ("auto": IPC's choice; None: not)
+    velocity_tolerance: float | str | None = None
 
 
 @dataclass(frozen=True)

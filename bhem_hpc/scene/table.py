@@ -94,6 +94,7 @@ VALUE_KINDS: dict[str, Callable[[Any], bool]] = {
     "an integer": is_int,
     "a string": lambda v: isinstance(v, str),
     "an integer or a string": lambda v: is_int(v) or isinstance(v, str),
+    "a number or a string": lambda v: is_number(v) or isinstance(v, str),
     "a boolean": lambda v: isinstance(v, bool),
     "3 numbers": vector(3),
     "2 numbers": vector(2),

@@ -135,17 +135,23 @@ def test_ipcs_step_test_ends_the_solves_sooner_and_the_sheet_still_rests_above_t
     """``velocity_tolerance``: a solve also stops where the full Newton step is collision-free and
     moves no collision-mesh vertex by more than the tolerance times dt. With 0.01 m/s (50 um a
     step) the drop takes fewer Newton iterations and lands where the acceleration test lands it,
-    never at or below the floor; with 1e-9 m/s the test never passes before the acceleration test."""
-    runs = {}
+    never at or below the floor; with 1e-9 m/s the test never passes before the acceleration test;
+    "auto" is IPC's 1e-2 of the rest bounding-box diagonal per second (the wavy 0.2 m sheet's)."""
+    runs, tolerances = {}, {}
     for name, contact in (("default", IPC), ("loose", '{ method = "ipc", dhat = 1e-3, velocity_tolerance = 0.01 }'),
-                          ("tight", '{ method = "ipc", dhat = 1e-3, velocity_tolerance = 1e-9 }')):  # fmt: skip
+                          ("tight", '{ method = "ipc", dhat = 1e-3, velocity_tolerance = 1e-9 }'),
+                          ("auto", '{ method = "ipc", dhat = 1e-3, velocity_tolerance = "auto" }')):  # fmt: skip
         out = shared_tmp_path / name
         summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, name, contact=contact), out, progress=False), comm)
         assert sum(s["recoveries"] for s in summary["steps"]) == 0
         runs[name] = ([s["newton_iterations"] for s in summary["steps"]], out)
-    default, loose, tight = (runs[k][0] for k in ("default", "loose", "tight"))
+        tolerances[name] = summary["contact"]["velocity_tolerance_m_s"]
+    default, loose, tight, auto = (runs[k][0] for k in ("default", "loose", "tight", "auto"))
     assert tight == default
     assert sum(loose) <= 0.85 * sum(default)  # measured 53 against 72
+    assert tolerances["default"] is None and tolerances["loose"] == 0.01
+    assert tolerances["auto"] == pytest.approx(1e-2 * np.hypot(0.2, 0.2), rel=0.02)  # the sheet's waves: 4 mm
+    assert sum(loose) <= sum(auto) <= 0.85 * sum(default)  # measured 53 (2.8 mm/s) against 72
     if comm.rank == 0:
         lowest, reference = _lowest_heights(runs["loose"][1]), _lowest_heights(runs["default"][1])
         assert np.all(lowest > 0.0) and lowest[-1] < 1e-3
@@ -298,7 +304,9 @@ def test_a_sheet_dropped_across_a_capsule_stays_outside_it(comm, shared_tmp_path
         (lambda s: s.replace("dhat = 1e-3", "dhat = 1e-3, eps_v = 0.0"),
          r"'effects.contact.eps_v' must be a sticking speed"),
         (lambda s: s.replace("dhat = 1e-3", "dhat = 1e-3, velocity_tolerance = 0.0"),
-         r"key 'effects.contact.velocity_tolerance' must be a speed in \[1e-09, 1000\] \[m/s\], got 0.0"),
+         r"key 'effects.contact.velocity_tolerance' must be a speed in \[1e-09, 1000\] \[m/s\] or \"auto\", got 0.0"),
+        (lambda s: s.replace("dhat = 1e-3", 'dhat = 1e-3, velocity_tolerance = "fast"'),
+         r"key 'effects.contact.velocity_tolerance' must be a speed in .* or \"auto\", got 'fast'"),
         (lambda s: s.replace('method = "ipc", dhat = 1e-3', 'method = "impulse"').replace(
             "contact = {", "static_friction = 0.5\ncontact = {"),
          r"key 'effects.static_friction' = 0.5: impulses have one Coulomb coefficient"),

@@ -32,6 +32,8 @@ def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_
             assert original.contact.method == ("impulse" if window.impulse_contact is None else "ipc")
             assert window.start + window.steps <= original.steps
             assert scene.contact.method == method and scene.output_every == 7
+            if method == "ipc":  # IPC's step test at IPC's tolerance
+                assert scene.contact.velocity_tolerance == "auto"
             if method == "ipc" and window.ipc_hessian is not None:
                 assert scene.hessian == window.ipc_hessian != original.hessian
             else:

@@ -49,19 +49,19 @@ VELOCITY_TOLERANCE_RANGE = (1e-9, 1e3)
 IPC_NEWTON_ITERATIONS = 100
 
 
-def ipc_newton_settings(factorization: str | None, tolerance: float | None, options: dict,
-                        step_test: bool = False) -> tuple[str, float, dict]:  # fmt: skip
-    """The Newton of a body in contact by "ipc" where the scene leaves it open: fresh factorizations
-    (kept ones with IPC's ``step_test``), the acceleration test and :data:`IPC_NEWTON_ITERATIONS`.
-    On the acceleration test alone kept factorizations' chord steps stall in contact (a block hitting
-    the jelly castle: 0.66 per iteration for 100 iterations); the step test ends those solves, and
-    kept factorizations made the contact page's IPC windows faster (from one checkpoint each, at the
-    "auto" tolerance: the ball 0.70 to 0.52 s/step, needles 0.81 to 0.60, mesh obstacle 0.92 to 0.63,
-    mandrel 3.02 to 2.22, cloth on sphere 1.43 to 1.33, cloth pile 8.5 to 7.9; the linked bands, of
-    few DoFs, 0.18 to 0.25). A relative residual of 1e-9 lies below the barrier's round-off (the
-    hairpin's arms meeting: dt halvings either way), and collision-bounded steps need more
-    iterations where contacts close (33 there)."""
-    return (factorization or ("reuse" if step_test else "fresh"), tolerance or IPC_ACCELERATION_TOLERANCE,
+def ipc_newton_settings(factorization: str | None, tolerance: float | None,
+                        options: dict) -> tuple[str, float, dict]:  # fmt: skip
+    """The Newton of a body in contact by "ipc" where the scene leaves it open: fresh factorizations,
+    the acceleration test and :data:`IPC_NEWTON_ITERATIONS`. Kept factorizations' chord steps stall
+    in contact on the acceleration test alone (a block hitting the jelly castle: 0.66 per iteration
+    for 100 iterations). With IPC's step test at the "auto" tolerance they are a scene's choice, not
+    a default: from one checkpoint each they made six of the contact page's windows faster (the ball
+    0.70 to 0.52 s/step, needles 0.81 to 0.60, mesh obstacle 0.92 to 0.63, mandrel 3.02 to 2.22,
+    cloth on sphere 1.43 to 1.33, cloth pile 8.5 to 7.9) and two runs slower (the linked bands 0.18
+    to 0.25; the cotton cloth landing on the spinning sphere, up to 91 iterations a step against 66). A relative residual of 1e-9 lies below the barrier's round-off (the hairpin's arms
+    meeting: dt halvings either way), and collision-bounded steps need more iterations where
+    contacts close (33 there)."""
+    return (factorization or "fresh", tolerance or IPC_ACCELERATION_TOLERANCE,
             {"snes_max_it": IPC_NEWTON_ITERATIONS, **options})  # fmt: skip
 
 
@@ -161,8 +161,8 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     points = parse_point_constraints(top, surface, path)
     contact = _contact(top, path, static, other_bodies_in_contact)
     if contact is not None and contact.method == "ipc":
-        factorization, acceleration_tolerance, options = ipc_newton_settings(
-            factorization, acceleration_tolerance, options, contact.velocity_tolerance is not None)
+        factorization, acceleration_tolerance, options = ipc_newton_settings(factorization, acceleration_tolerance,
+                                                                             options)  # fmt: skip
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip

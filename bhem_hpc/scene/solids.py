@@ -304,8 +304,7 @@ def parse_solid(path: Path, raw: dict, other_bodies_in_contact: bool = False) ->
     if contact is not None:  # a barrier's Newton, as a shell's in contact by "ipc"
         from bhem_hpc.scene.loader import ipc_newton_settings
 
-        factorization, tolerance, petsc_options = ipc_newton_settings(factorization, tolerance, petsc_options,
-                                                                      contact.velocity_tolerance is not None)
+        factorization, tolerance, petsc_options = ipc_newton_settings(factorization, tolerance, petsc_options)
     return SolidScene(path=path, file=file, parts=parts, materials=materials, options=options, gravity=gravity,
                       wind=wind, held=held, dt=clock.dt, steps=clock.steps, hessian=hessian, linear=linear,
                       factorization=factorization or "reuse", petsc_options=dict(petsc_options), output_every=every,

@@ -58,9 +58,10 @@ def ipc_newton_settings(factorization: str | None, tolerance: float | None,
     a default: from one checkpoint each they made six of the contact page's windows faster (the ball
     0.70 to 0.52 s/step, needles 0.81 to 0.60, mesh obstacle 0.92 to 0.63, mandrel 3.02 to 2.22,
     cloth on sphere 1.43 to 1.33, cloth pile 8.5 to 7.9) and two runs slower (the linked bands 0.18
-    to 0.25; the cotton cloth landing on the spinning sphere, up to 91 iterations a step against 66). A relative residual of 1e-9 lies below the barrier's round-off (the hairpin's arms
-    meeting: dt halvings either way), and collision-bounded steps need more iterations where
-    contacts close (33 there)."""
+    to 0.25; the cotton cloth landing on the spinning sphere, up to 91 iterations a step against 66).
+    A relative residual of 1e-9 lies below the barrier's round-off (the hairpin's arms meeting: dt
+    halvings either way), and collision-bounded steps need more iterations where contacts close (33
+    there)."""
     return (factorization or "fresh", tolerance or IPC_ACCELERATION_TOLERANCE,
             {"snes_max_it": IPC_NEWTON_ITERATIONS, **options})  # fmt: skip
 

@@ -11,6 +11,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +24,32 @@ from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.solver.reuse import FactorizationReuse
 
 log = logging.getLogger(__name__)
+
+#: Prefixes of a checkpoint's solver attributes: the refactor policy's state, the contributions'
+#: adapted parameters (the IPC barrier's stiffness).
+REUSE_PREFIX, ADAPTED_PREFIX = "reuse_", "adapted_"
+
+
+def solver_checkpoint(solver: Any) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Collective: what a run continued from a checkpoint needs of ``solver`` (a
+    :class:`~bhem_hpc.solver.ShellSolver`) to decide as an uninterrupted run: the arrays its kept
+    factorization is remade from, and as attributes its refactor policy's state and its
+    contributions' adapted parameters."""
+    arrays, reuse = solver.reuse_checkpoint()
+    attrs = {f"{REUSE_PREFIX}{k}": v for k, v in reuse.items()}
+    return arrays, attrs | {f"{ADAPTED_PREFIX}{k}": v for k, v in solver.problem.adapted_parameters().items()}
+
+
+def restore_solver(solver: Any, arrays: dict, attrs: dict, kept: bool) -> None:
+    """Collective: :func:`solver_checkpoint`'s state back into ``solver``; its kept factorization
+    remade where the checkpoint has one (``kept``)."""
+    solver.problem.restore_adapted(_prefixed(attrs, ADAPTED_PREFIX))
+    if kept:
+        solver.restore_reuse_checkpoint(arrays, _prefixed(attrs, REUSE_PREFIX))
+
+
+def _prefixed(attrs: dict, prefix: str) -> dict:
+    return {k.removeprefix(prefix): v for k, v in attrs.items() if k.startswith(prefix)}
 
 
 @dataclass(frozen=True)
@@ -160,7 +187,7 @@ def _reuse_problem(arrays: dict, attrs: dict, shapes: list[tuple], static: bool,
             kept = np.asarray(arrays.get(name, np.zeros(0)))
             if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
                 return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
-    counters = [attrs.get(f"reuse_{k}") for k in FactorizationReuse.STATE_KEYS]
+    counters = [attrs.get(f"{REUSE_PREFIX}{k}") for k in FactorizationReuse.STATE_KEYS]
     if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
         return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
     return None

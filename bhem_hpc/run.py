@@ -39,15 +39,17 @@ from bhem_hpc.restart import (
     physics_hash,
     previous_steps,
     read_restart,
+    restore_solver,
     solution_method,
+    solver_checkpoint,
 )
+from bhem_hpc.run_ending import on_rank0, summarized
 from bhem_hpc.scene import Scene
 from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.scene.loader import load_any_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import PrescribedMotion, StepFailure, StepRecord, TimeStepper
 from bhem_hpc.solver.linear import LinearSolverError
-from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
 from bhem_hpc.solver.petsc import library_versions
 from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.state import ShellState
@@ -267,7 +269,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         steps=previous_steps(options.out, checkpoint) if continuing else [],
     )
     run = _Run(options, scene, model, solver, ShellState(model), summary, comm)
-    try:
+    with summarized(summary, barrier, solver, options.out, comm, lambda: run.series and run.series.close()):
         run.series = _start_output(run, scene_text, checkpoint if continuing else None)
         with Interruption() as run.interruption:
             if scene.static:
@@ -277,19 +279,6 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         where = f"load factor {summary.load_factor:.4g}" if scene.static else f"t = {summary.time or 0:.4g} s"
         title = f"{options.scene.name}, {where}"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
-    except Exception as exc:
-        if barrier is not None:  # the stiffness it grew to
-            summary.contact |= barrier.summary()
-        record_failure(summary, exc, options.out, comm)
-        raise
-    finally:
-        if run.series is not None:
-            run.series.close()
-        close_solver(solver, summary, comm)
-    if barrier is not None:
-        summary.contact |= barrier.summary()
-    summary.status = "completed"
-    on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()
 
 
@@ -307,34 +296,6 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
                            acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
-
-
-def record_failure(summary: RunSummary, exc: Exception, out: Path, comm: MPI.Comm) -> None:
-    """``summary.json`` says why the run stopped (``interrupted`` by a signal, else ``failed``), if
-    its output directory was started (rank 0 writes)."""
-    summary.status, summary.error = "interrupted" if isinstance(exc, RunInterrupted) else "failed", str(exc)
-    if comm.rank == 0 and out.is_dir():
-        try:
-            summary.write(out)
-        except OSError:
-            log.error("could not record the failure in %s/summary.json", out)
-
-
-def close_solver(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:
-    """The solver's unused options, fallbacks and totals into the summary; then close it."""
-    report_unused_options(solver, summary, comm)
-    summary.linear_solver_fallbacks = solver.fallbacks
-    summary.solver_totals = {k: v for k, v in solver.counters().items() if k in (*LINEAR_COUNTERS, *RECOVERY_COUNTERS)}
-    solver.close()
-
-
-def report_unused_options(solver: ShellSolver, summary: RunSummary, comm: MPI.Comm) -> None:
-    """Options under the run's prefix that PETSc never read (a misspelling, or an option that does
-    not apply): a warning and ``summary.json``'s ``unused_petsc_options``."""
-    unused = solver.unused_options()
-    summary.unused_petsc_options = unused
-    if unused and comm.rank == 0:
-        log.warning("PETSc options never used (misspelled or not applicable): %s", ", ".join(unused))
 
 
 def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene | BodiesScene, RestartPoint | None, bool]:
@@ -376,23 +337,6 @@ def _start_output(run: _Run, scene_text: bytes, continued: RestartPoint | None) 
         )  # fmt: skip
 
     return on_rank0(run.comm, start, f"the output directory {out}")
-
-
-def on_rank0(comm: MPI.Comm, action, what: str):
-    """Run a file operation on rank 0 and raise :class:`RunError` on every rank if it fails (so no
-    rank waits for a collective that rank 0 never reaches). Returns the action's result on rank 0,
-    None elsewhere."""
-    error = result = None
-    if comm.rank == 0:
-        try:
-            result = action()
-        except (OSError, ValueError, RuntimeError) as exc:  # h5py reports failed writes as RuntimeError
-            detail = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-            error = f"cannot write {what}: {detail}"
-    error = comm.bcast(error)
-    if error:
-        raise RunError(error)
-    return result
 
 
 def steps_to_run(scene: Scene, options: RunOptions, checkpoint: RestartPoint | None) -> int:
@@ -556,11 +500,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
     stepper = TimeStepper(model, solver, prescribed_motions(scene), contact=contact, state=run.state)
     if checkpoint is not None:
         arrays, attrs = checkpoint.arrays, checkpoint.attrs
-        solver.problem.restore_adapted({k.removeprefix("adapted_"): v for k, v in attrs.items()
-                                        if k.startswith("adapted_")})  # fmt: skip
-        if "factorization_state_dofs" in arrays:
-            state = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
-            solver.restore_reuse_checkpoint(arrays, state)
+        restore_solver(solver, arrays, attrs, "factorization_state_dofs" in arrays)
         stepper.state.set_raw(arrays["position_dofs"], arrays["velocity_dofs"])
         stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
     surface = model.state_surface()
@@ -586,9 +526,7 @@ def _run_dynamic(run: _Run, steps: int, checkpoint: RestartPoint | None) -> Herm
             records.add(step_summary(record, time.perf_counter() - t_out + checkpoint_s, energies))
             t_checkpoint = time.perf_counter()
             if wrote:  # after the step's rows: a restart from it finds them all
-                arrays, reuse = solver.reuse_checkpoint()  # a continued run remakes the kept factorization
-                attrs = {f"reuse_{k}": v for k, v in reuse.items()}
-                attrs |= {f"adapted_{k}": v for k, v in solver.problem.adapted_parameters().items()}
+                arrays, attrs = solver_checkpoint(solver)  # a continued run remakes the kept factorization
                 _checkpoint(options.out / "checkpoint.h5", run.state, surface, (stepper.time, stepper.step), summary,
                             comm, arrays, attrs)  # fmt: skip
             # summary.json shows the records so far, at most every SUMMARY_EVERY_S (a restart reads

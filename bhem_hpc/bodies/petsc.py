@@ -23,6 +23,7 @@ diagonal regularizer.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -363,6 +364,8 @@ class StackedProblem(PetscOwner):
     def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
         """Every body's residual at its offsets, the coupling gradients added to its open blocks
         before its constrained rows are replaced by ``x - x_bc``."""
+        report, t0 = self.problems[0].report, time.perf_counter()
+        before = report.assemble_residual_s  # the bodies add their own shares: the whole is timed here
         gradient = np.zeros((self.open_offsets[-1], 3))
         state = self.contribution_state()
         for contribution in self.contributions:
@@ -377,11 +380,14 @@ class StackedProblem(PetscOwner):
 
             problem.assemble_residual(self._x[body], self._f[body], add_share)
             values[self.closed.local_slice(body)] = self._f[body].array_r
+        report.assemble_residual_s = before + time.perf_counter() - t0
 
     def assemble_jacobian(self, jac: PETSc.Mat) -> None:
         """Every body's closed Jacobian at its offsets plus the coupling blocks ``P^T H P``; constrained
         rows and columns the identity; then ``J + r |diag J|``. Coupling blocks beyond the Jacobian's
         pattern (contact between bodies) grow it (:attr:`on_pattern_growth` is called)."""
+        report, t0 = self.problems[0].report, time.perf_counter()
+        before = report.assemble_jacobian_s  # the bodies add their own shares: the whole is timed here
         jac.zeroEntries()
         for body, problem in enumerate(self.problems):
             problem.regularization = 0.0  # applied once, to the stacked matrix
@@ -403,6 +409,7 @@ class StackedProblem(PetscOwner):
         if self._coupling is not None:
             jac.zeroRowsColumns(self.bc_rows, diag=1.0)
         add_diagonal_regularization(jac, self.regularization)
+        report.assemble_jacobian_s = before + time.perf_counter() - t0
 
     def _add_rows(self, jac: PETSc.Mat, coupled: scipy.sparse.csr_matrix) -> None:
         """Add ``coupled`` (this rank's rows) into ``jac`` where its pattern has room."""

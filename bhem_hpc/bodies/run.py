@@ -34,24 +34,29 @@ from bhem_hpc.io.run_directory import start_output_directory, write_replacing
 from bhem_hpc.io.run_summary import RunSummary
 from bhem_hpc.io.vtu import write_pvd
 from bhem_hpc.model.path import ProbeSet
-from bhem_hpc.restart import RestartPoint, physics_hash, previous_steps, solution_method
+from bhem_hpc.restart import (
+    RestartPoint,
+    physics_hash,
+    previous_steps,
+    restore_solver,
+    solution_method,
+    solver_checkpoint,
+)
 from bhem_hpc.run import (
     SOLVER_PREFIX,
     RunOptions,
     StepRecords,
     build_model,
     checkpoint_attributes,
-    close_solver,
     contact_detector,
     contact_settings,
     make_solver,
-    on_rank0,
     prescribed_motions,
     progress_bar,
-    record_failure,
     step_summary,
     steps_to_run,
 )
+from bhem_hpc.run_ending import on_rank0, summarized
 from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.scene.solids import SolidScene
 from bhem_hpc.solver import ShellSolver
@@ -139,7 +144,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
         cad_models=list(scene.cad_models) or None,
     )  # fmt: skip
     output: BodiesOutput | None = None
-    try:
+    with summarized(summary, barrier, solver, options.out, comm, lambda: output and output.close()):
 
         def start() -> BodiesOutput:
             if not continuing:
@@ -155,19 +160,6 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
         surfaces = _step(run, checkpoint, continuing, steps)
         title = f"{options.scene.name}, t = {summary.time or 0:.4g} s"
         on_rank0(comm, lambda: render_surface_png(options.out / "last.png", surfaces, title), "last.png")
-    except Exception as exc:
-        if barrier is not None:  # the stiffness it grew to
-            summary.contact |= barrier.summary()
-        record_failure(summary, exc, options.out, comm)
-        raise
-    finally:
-        if output is not None:
-            output.close()
-        close_solver(solver, summary, comm)
-    if barrier is not None:
-        summary.contact |= barrier.summary()
-    summary.status = "completed"
-    on_rank0(comm, lambda: summary.write(options.out), "summary.json")
     return summary.as_dict()
 
 
@@ -297,11 +289,7 @@ def _step(run: _BodiesRun, checkpoint: RestartPoint | None, continuing: bool, st
 def _restore(run: _BodiesRun, stepper: TimeStepper, checkpoint: RestartPoint) -> None:
     """Collective: every body's state, the clock and the kept factorization of ``checkpoint``."""
     arrays, attrs = checkpoint.arrays, checkpoint.attrs
-    run.solver.problem.restore_adapted({k.removeprefix("adapted_"): v for k, v in attrs.items()
-                                        if k.startswith("adapted_")})  # fmt: skip
-    if run.key("factorization_state_dofs", 0) in arrays:
-        reuse = {k.removeprefix("reuse_"): v for k, v in attrs.items() if k.startswith("reuse_")}
-        run.solver.restore_reuse_checkpoint(arrays, reuse)
+    restore_solver(run.solver, arrays, attrs, run.key("factorization_state_dofs", 0) in arrays)
     for k, state in enumerate(stepper.state.states):
         state.set_raw(arrays[run.key("position_dofs", k)], arrays[run.key("velocity_dofs", k)])
     stepper.time, stepper.step = float(attrs["time"]), int(attrs["step"])
@@ -374,13 +362,12 @@ class _BodiesRun:
     def write_checkpoint(self, stepper: TimeStepper, surfaces: list[HermiteSurface]) -> None:
         """Collective: ``checkpoint.h5`` with every body's raw position and velocity DOFs and surface,
         the kept factorization's state and the clock."""
-        arrays, reuse = self.solver.reuse_checkpoint()  # a continued run remakes the kept factorization
+        arrays, solver_attrs = solver_checkpoint(self.solver)  # a continued run remakes the kept factorization
         for k, (state, surface) in enumerate(zip(stepper.state.states, surfaces, strict=True)):
             arrays[self.key("position_dofs", k)] = state.raw_position()
             arrays[self.key("velocity_dofs", k)] = state.raw_velocity()
             arrays[self.key("position_nodal", k)] = surface.nodal
         attrs = checkpoint_attributes((stepper.time, stepper.step), self.summary, False)
-        attrs |= {f"reuse_{k}": v for k, v in reuse.items()}
-        attrs |= {f"adapted_{k}": v for k, v in self.solver.problem.adapted_parameters().items()}
+        attrs |= solver_attrs
         path = self.options.out / "checkpoint.h5"
         on_rank0(self.comm, lambda: write_checkpoint(path, arrays, attrs), path.name)

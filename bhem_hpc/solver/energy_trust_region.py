@@ -129,6 +129,8 @@ class EnergyTrustRegion(PetscOwner):
                 problem.hessian = "projected"
                 problem.assemble_jacobian(hessian)
                 self._copy_preconditioner(hessian)
+                # factored at the CG's next setup: counted with the line search's factorizations
+                self.solver.reuse.refactorizations += 1
             problem.hessian = "exact"
             problem.assemble_jacobian(hessian)
         finally:

@@ -8,7 +8,7 @@ import logging
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from mpi4py import MPI
 
@@ -17,6 +17,9 @@ from bhem_hpc.io.interruption import RunInterrupted
 from bhem_hpc.io.run_summary import RunSummary
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.newton import LINEAR_COUNTERS, RECOVERY_COUNTERS
+
+if TYPE_CHECKING:
+    from bhem_hpc.contact.ipc_contribution import IpcBarrier
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +42,7 @@ def on_rank0(comm: MPI.Comm, action, what: str):
 
 
 @contextmanager
-def summarized(summary: RunSummary, barrier: Any, solver: ShellSolver, out: Path, comm: MPI.Comm,
+def summarized(summary: RunSummary, barrier: IpcBarrier | None, solver: ShellSolver, out: Path, comm: MPI.Comm,
                close_output: Callable[[], object]) -> Iterator[None]:  # fmt: skip
     """The end of a run's body, however it ends: the output (``close_output``) and the solver are
     closed, the contact barrier's figures (the stiffness it grew to; ``barrier`` None: none) join

@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
-import h5py
 import numpy as np
 
 JOBS = Path(__file__).resolve().parents[2] / "jobs"
@@ -156,42 +155,36 @@ def _total_energy(energies: dict[str, float]) -> float:
 def frame_gaps(out: Path, colliders: list, within: float) -> dict:
     """The frames of ``out``: the smallest signed distance [m] of the output meshes' vertices from the
     exact colliders that have one (negative: inside), the smallest distance to colliders given as
-    meshes, and the frames whose meshes intersect themselves or a mesh collider (ipc-toolkit)."""
-    from bhem_hpc.contact.audit import audit_run
+    meshes, and the frames whose meshes intersect themselves or a mesh collider (ipc-toolkit); the
+    frames read once for both.
 
-    audits = audit_run(out, within)
-    signed, mesh_gap, mesh_crossings = _collider_gaps(out, colliders, within) if colliders else (np.inf, np.inf, 0)
+    Raises:
+        ValueError: the run holds a solid (whose series the page does not read).
+    """
+    from bhem_hpc.contact.audit import audit_frames, read_frames
+    from bhem_hpc.io.run_directory import run_series
+
+    if any(path.suffix != ".h5" for path in run_series(out)):
+        raise ValueError(f"{out}: the contact page measures gaps of shells' series only")
+    faces, frames = read_frames(out)
+    audits = audit_frames(faces, frames, within)
+    signed, mesh_gap, mesh_crossings = _collider_gaps(faces, frames, colliders, within) if colliders else (
+        np.inf, np.inf, 0)  # fmt: skip
     return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
             "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
             "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip
 
 
-def _collider_gaps(out: Path, colliders: list, within: float) -> tuple[float, float, int]:
+def _collider_gaps(faces: np.ndarray, frames: list[tuple[np.ndarray, float]], colliders: list,
+                   within: float) -> tuple[float, float, int]:  # fmt: skip
     """The smallest signed gap to the colliders with an exact distance, the smallest distance to mesh colliders and
-    the frames crossing one, over the frames of the run in ``out`` (every shell's series).
-
-    Raises:
-        ValueError: the run holds a solid (whose series the page does not read).
-    """
+    the frames crossing one, over a run's output meshes (:func:`~bhem_hpc.contact.audit.read_frames`)."""
     import ipctk
 
     from bhem_hpc.contact.ipc import minimum_distance
-    from bhem_hpc.io.run_directory import run_series
 
     exact = [c for c in colliders if isinstance(c, SignedDistance)]
     signed, mesh_gap, mesh_crossings = np.inf, np.inf, 0
-    faces, frames, start = [], [], 0
-    for path in run_series(out):
-        if path.suffix != ".h5":
-            raise ValueError(f"{path}: the contact page measures gaps of shells' series only")
-        with h5py.File(path, "r") as f:
-            quads = np.asarray(f["topology"][...], dtype=np.int32) + start
-            faces += [quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]
-            frames.append([(np.asarray(f[f"frames/{k}/geometry"][...]), float(f[f"frames/{k}"].attrs["time"]))
-                           for k in range(len(f["frames"]))])  # fmt: skip
-            start += len(frames[-1][0][0]) if frames[-1] else 0
-    faces = np.concatenate(faces)
-    frames = [(np.concatenate([points for points, _ in frame]), frame[0][1]) for frame in zip(*frames, strict=True)]
     count = len(frames[0][0]) if frames else 0
     # a mesh collider and the output meshes as one collision mesh whose two groups only meet each
     # other (the colliders here are given as meshes: the box they cover does not matter)

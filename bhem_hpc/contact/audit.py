@@ -44,21 +44,16 @@ def _quads_to_triangles(quads: np.ndarray) -> np.ndarray:
     return np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
 
 
-def audit_run(directory: Path, within: float) -> list[FrameAudit]:
-    """Every frame of the run in ``directory`` (its one series, or each body's of a run of several
-    bodies, frame by frame).
+def read_frames(directory: Path) -> tuple[np.ndarray, list[tuple[np.ndarray, float]]]:
+    """The output meshes of the run in ``directory`` (its one series, or each body's of a run of
+    several bodies, stacked): triangles ``(T, 3)`` and, per frame, its vertices ``(V, 3)`` [m] and time.
 
     Raises:
         InputError: ``directory`` holds no readable series, or series of different frame counts.
     """
-    import ipctk  # loaded for audits only
-
-    if not (np.isfinite(within) and within > 0):
-        raise InputError(f"--within must be a positive distance, got {within!r}")
-    files = run_series(directory)
     handles = []
     try:
-        for path in files:
+        for path in run_series(directory):
             try:
                 handles.append(h5py.File(path, "r"))
             except OSError as exc:
@@ -70,16 +65,39 @@ def audit_run(directory: Path, within: float) -> list[FrameAudit]:
         for h in handles:
             triangles.append(_quads_to_triangles(h["topology"][...]) + start)
             start += len(h["parameters"])
-        faces = np.concatenate(triangles)
-        edges = ipctk.edges(faces)
-        audits = []
-        for k in range(counts.pop()):
-            vertices = np.concatenate([h[f"frames/{k}/geometry"][...] for h in handles])
-            mesh = ipctk.CollisionMesh(np.asfortranarray(vertices), edges, faces)
-            distance = minimum_distance(mesh, vertices, within)
-            time = float(handles[0][f"frames/{k}"].attrs["time"])
-            audits.append(FrameAudit(k, time, bool(ipctk.has_intersections(mesh, vertices)), distance))
-        return audits
+        frames = [(np.concatenate([h[f"frames/{k}/geometry"][...] for h in handles]),
+                   float(handles[0][f"frames/{k}"].attrs["time"])) for k in range(counts.pop())]  # fmt: skip
+        return np.concatenate(triangles), frames
     finally:
         for h in handles:
             h.close()
+
+
+def audit_frames(faces: np.ndarray, frames: list[tuple[np.ndarray, float]], within: float) -> list[FrameAudit]:
+    """Every frame of :func:`read_frames`' ``faces`` and ``frames``, distances measured up to ``within`` [m]."""
+    import ipctk  # loaded for audits only
+
+    _check_within(within)
+    edges = ipctk.edges(faces)
+    audits = []
+    for k, (vertices, time) in enumerate(frames):
+        mesh = ipctk.CollisionMesh(np.asfortranarray(vertices), edges, faces)
+        distance = minimum_distance(mesh, vertices, within)
+        audits.append(FrameAudit(k, time, bool(ipctk.has_intersections(mesh, vertices)), distance))
+    return audits
+
+
+def audit_run(directory: Path, within: float) -> list[FrameAudit]:
+    """Every frame of the run in ``directory`` (:func:`read_frames`, :func:`audit_frames`).
+
+    Raises:
+        InputError: ``within`` is not a positive distance, ``directory`` holds no readable series, or
+            series of different frame counts.
+    """
+    _check_within(within)  # before the files are read
+    return audit_frames(*read_frames(directory), within)
+
+
+def _check_within(within: float) -> None:
+    if not (np.isfinite(within) and within > 0):
+        raise InputError(f"--within must be a positive distance, got {within!r}")

@@ -15,8 +15,8 @@ STEPS = 20
 
 
 def test_a_cotton_cloth_lands_on_a_sphere_on_the_ground_without_crossing_it(comm, shared_tmp_path):
-    """No dt halving or recovery, at most 50 Newton iterations in a step (measured 41 in step 16, as
-    the compressed cotton wrinkles over the sphere); in the 3 frames no vertex of the output mesh is
+    """No dt halving or recovery, at most 40 Newton iterations in a step (measured 28 in step 19 with
+    IPC's step test, as the compressed cotton wrinkles over the sphere); in the 3 frames no vertex of the output mesh is
     inside the sphere by more than dhat / 4 (IPC meets it as triangles within dhat / 4 inside it),
     none self-intersects, and the cloth rests within dhat of it."""
     out = shared_tmp_path / "cloth-on-sphere"
@@ -24,7 +24,7 @@ def test_a_cotton_cloth_lands_on_a_sphere_on_the_ground_without_crossing_it(comm
     records = summary["steps"]
     assert summary["status"] == "completed" and len(records) == STEPS
     assert sum(r["recoveries"] + r["dt_halvings"] for r in records) == 0
-    assert max(r["newton_iterations"] for r in records) <= 50
+    assert max(r["newton_iterations"] for r in records) <= 40
     if comm.rank != 0:
         return
     dhat = summary["contact"]["dhat_m"]

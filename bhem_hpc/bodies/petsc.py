@@ -42,7 +42,6 @@ from bhem_hpc.solver.contributions import (
     ContributionState,
     PointBasis,
     StepBounded,
-    StepTested,
     adapt_to_iterate,
     adapted_parameters,
     begin_lagged_step,
@@ -52,6 +51,7 @@ from bhem_hpc.solver.contributions import (
     restore_adapted,
     step_bound,
     step_converged,
+    step_testers,
 )
 from bhem_hpc.solver.model_group import BodyModel
 from bhem_hpc.solver.petsc import PetscOwner
@@ -477,8 +477,7 @@ class StackedProblem(PetscOwner):
 
     @property
     def has_step_tests(self) -> bool:
-        return any(p.has_step_tests for p in self.problems) or any(
-            isinstance(c, StepTested) and c.tests_steps for c in self.contributions)  # fmt: skip
+        return any(p.has_step_tests for p in self.problems) or bool(step_testers(self.contributions))
 
     def step_converged(self, direction: PETSc.Vec) -> bool:
         """Collective: whether every body's and coupling step test lets the solve end with the
@@ -487,7 +486,7 @@ class StackedProblem(PetscOwner):
             return False
         blocks = self._direction_blocks(direction)
         tested = [p.open_step_converged(b) for p, b in zip(self.problems, blocks, strict=True) if p.has_step_tests]
-        if any(isinstance(c, StepTested) and c.tests_steps for c in self.contributions):
+        if step_testers(self.contributions):
             tested.append(step_converged(self.contributions, self.contribution_state(), np.concatenate(blocks)))
         return all(tested)
 

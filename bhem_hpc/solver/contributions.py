@@ -134,10 +134,15 @@ class StepTested(Contribution, Protocol):
         ...
 
 
+def step_testers(contributions: Sequence[Contribution]) -> list[StepTested]:
+    """The :class:`StepTested` ones of ``contributions`` whose test is on."""
+    return [c for c in contributions if isinstance(c, StepTested) and c.tests_steps]
+
+
 def step_converged(contributions: Sequence[Contribution], state: ContributionState, direction: np.ndarray) -> bool:
     """Collective: whether every :class:`StepTested` one of ``contributions`` lets the solve end
     with the step ``direction`` ``(blocks, 3)`` from ``state`` (False: none tests steps)."""
-    tested = [c for c in contributions if isinstance(c, StepTested) and c.tests_steps]
+    tested = step_testers(contributions)
     blocks = np.asarray(direction, dtype=float).reshape(-1, 3)
     return bool(tested) and all([c.step_converged(state, blocks) for c in tested])
 
@@ -192,7 +197,7 @@ class ContributionSteps:
     @property
     def has_step_tests(self) -> bool:
         """Whether a contribution has a stopping test on Newton's step (:class:`StepTested`)."""
-        return any(isinstance(c, StepTested) and c.tests_steps for c in self.contributions)
+        return bool(step_testers(self.contributions))
 
     def open_step_converged(self, direction: np.ndarray) -> bool:
         """Collective: whether the step-testing contributions let the solve end with a step on the

@@ -15,6 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "bhem_hpc"
 PETSC_MODULES = {"solids/petsc.py", "solver/newton.py", "solver/path.py", "solver/problem.py", "solver/petsc.py",
                  "solver/linear_strategy.py", "solver/load_steps.py", "solver/acceleration.py",
                  "solver/trust_region.py", "solver/energy_trust_region.py", "solver/form_terms.py",
+                 "solver/hessian_action.py",
                  "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py",
                  "studies/petsc.py"}
 

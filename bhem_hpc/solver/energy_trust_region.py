@@ -6,12 +6,15 @@ trust region, by Steihaug's conjugate gradients (KSP ``stcg``) preconditioned by
 factorization of the projected (positive definite) Hessian. The exact Hessian's directions of
 negative curvature, which make a line-search Newton stall on compressed cloth, end the CG at the
 region's boundary instead; the radius follows the ratio of the actual to the predicted decrease of
-the potential, so every accepted step lowers the energy. Where contributions bound steps (IPC's
-barrier), a trial whose straight path from the current iterate the bound cuts short (it would pass
-through a contact) counts as an infinite potential: TAO rejects it and shrinks the region, so no
-iterate is ever in intersection. Contributions that adapt between line-search iterations (the
-barrier's stiffness) keep their parameters within a trust-region solve. Its options live under its
-own prefix (``<solver prefix>ntr_``; the CG and its preconditioner under ``<solver prefix>ntr_tao_ntr_``).
+the potential, so every accepted step lowers the energy. A single shell's exact Hessian is applied
+matrix-free (:mod:`bhem_hpc.solver.hessian_action`: an assembly of the residual's derivative per CG
+iteration instead of the matrix's per trust-region iteration); several bodies' is assembled. Where
+contributions bound steps (IPC's barrier), a trial whose straight path from the current iterate the
+bound cuts short (it would pass through a contact) counts as an infinite potential: TAO rejects it
+and shrinks the region, so no iterate is ever in intersection. Contributions that adapt between
+line-search iterations (the barrier's stiffness) keep their parameters within a trust-region solve.
+Its options live under its own prefix (``<solver prefix>ntr_``; the CG and its preconditioner
+under ``<solver prefix>ntr_tao_ntr_``).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from typing import TYPE_CHECKING
 from petsc4py import PETSc
 
 from bhem_hpc.solver.acceleration import tao_acceleration_test
+from bhem_hpc.solver.hessian_action import ExactHessianAction, exact_hessian_action
 from bhem_hpc.solver.petsc import PetscOwner, push_options, rejected_options, solve_stopped
 
 if TYPE_CHECKING:
@@ -68,6 +72,8 @@ class EnergyTrustRegion(PetscOwner):
         self.gradient = solver.f.duplicate()
         #: the current iterate, from which a trial's straight path must stay free of contact
         self.iterate = solver.f.duplicate()
+        #: the exact Hessian applied matrix-free, or None (then assembled into the solver's Jacobian)
+        self.action: ExactHessianAction | None = exact_hessian_action(solver.problem)
         self.tao: PETSc.TAO | None = None
         rtol, atol, _, _ = solver.snes.getTolerances()
         ksp_prefix = self.prefix + "tao_ntr_"
@@ -84,7 +90,8 @@ class EnergyTrustRegion(PetscOwner):
             self.tao.setType("ntr")
             self.tao.setObjectiveGradient(self._objective_gradient, self.gradient)
             self.tao.setObjective(self._objective)
-            self.tao.setHessian(self._hessian, solver.jacobian, self.preconditioner)
+            model = solver.jacobian if self.action is None else self.action.matrix
+            self.tao.setHessian(self._hessian, model, self.preconditioner)
             if solver.acceleration is not None:  # the line-search solver's stopping test, in TAO's terms
                 test = solver.acceleration
                 self.tao.setConvergenceTest(tao_acceleration_test, kargs={"residual": test.residual,
@@ -124,15 +131,19 @@ class EnergyTrustRegion(PetscOwner):
         x.copy(self.iterate)
         problem.update_state(x)
         kind = problem.hessian
-        try:  # the problem assembles into its own matrix, ``hessian``: the projected kind is copied out
+        assembled = self.solver.jacobian  # the problem assembles into its own matrix; the projected kind is copied out
+        try:
             if tao.getIterationNumber() % PRECONDITIONER_PERIOD == 0:
                 problem.hessian = "projected"
-                problem.assemble_jacobian(hessian)
-                self._copy_preconditioner(hessian)
+                problem.assemble_jacobian(assembled)
+                self._copy_preconditioner(assembled)
                 # factored at the CG's next setup: counted with the line search's factorizations
                 self.solver.reuse.refactorizations += 1
             problem.hessian = "exact"
-            problem.assemble_jacobian(hessian)
+            if self.action is None:
+                problem.assemble_jacobian(assembled)
+            else:
+                self.action.set_iterate()
         finally:
             problem.hessian = kind
         self.solver.reuse.invalidate()  # the line-search solver's kept factorization is of another matrix
@@ -185,3 +196,5 @@ class EnergyTrustRegion(PetscOwner):
         for obj in (self.tao, self.preconditioner, self.gradient, self.iterate):
             if obj is not None:
                 obj.destroy()
+        if self.action is not None:
+            self.action.close()

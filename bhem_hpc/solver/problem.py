@@ -259,6 +259,25 @@ class ShellProblem(ContributionSteps, PetscOwner):
             closed.copy(target)
         target.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
+    def open_direction(self, direction: PETSc.Vec, target: PETSc.Vec) -> None:
+        """``target = P direction``: a direction on the closed DOFs onto the open ones (ghosts updated)."""
+        self._to_open(direction, target, offset=False)
+
+    def to_closed(self, open_vector: PETSc.Vec, closed: PETSc.Vec) -> None:
+        """``closed = P^T open_vector``: a gradient on the open DOFs (its owned entries summed over
+        the ranks already) onto the closed ones."""
+        if self.prolongation is not None:
+            self.prolongation.multTranspose(open_vector, closed)
+        else:
+            open_vector.copy(closed)
+
+    def add_contribution_hessians(self, matrix: PETSc.Mat) -> None:
+        """Add the contributions' Hessian blocks at the current state into the unassembled open-layout
+        ``matrix`` as the Jacobian takes them (blocks beyond a pattern where they are, or on the
+        diagonal where the Jacobian's pattern is fixed: :func:`add_contribution_hessians`)."""
+        add_contribution_hessians(matrix, self.contributions, self._patterns, self.contribution_state(),
+                                  self._may_grow)  # fmt: skip
+
     def state_to_vector(self, x: PETSc.Vec) -> None:
         """Copy the model's current position into closed DOFs ``x``."""
         x.array[:] = self.model.discretization.open_to_closed(self.model.x.x.array)
@@ -280,10 +299,7 @@ class ShellProblem(ContributionSteps, PetscOwner):
             if extra_gradient is not None:
                 extra_gradient(gradient)
         self.f_open.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        if self.prolongation is not None:
-            self.prolongation.multTranspose(self.f_open, f)
-        else:
-            self.f_open.copy(f)
+        self.to_closed(self.f_open, f)
         if len(self.bc_local):
             values = f.array
             values[self.bc_local] = x.array_r[self.bc_local] - self.bc_values
@@ -357,8 +373,7 @@ class ShellProblem(ContributionSteps, PetscOwner):
         target = self.jacobian_open if self.jacobian_blocked is None else self.jacobian_blocked
         target.zeroEntries()
         self.form_terms.add_hessian(target, self.hessian)
-        add_contribution_hessians(target, self.contributions, self._patterns, self.contribution_state(),
-                                  self._may_grow)  # fmt: skip
+        self.add_contribution_hessians(target)
         target.assemble()
         if self.jacobian_blocked is not None:
             self.jacobian_blocked.convert(self.matrix_format, self.jacobian_open)

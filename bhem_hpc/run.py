@@ -53,6 +53,7 @@ from bhem_hpc.solver.linear import LinearSolverError
 from bhem_hpc.solver.petsc import library_versions
 from bhem_hpc.solver.problem import ShellProblem
 from bhem_hpc.solver.state import ShellState
+from bhem_hpc.solver.step_test import StepVelocityTest, auto_velocity_tolerance
 
 log = logging.getLogger(__name__)
 SOLVER_PREFIX = "bhem_"
@@ -254,6 +255,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
             )
     barrier = ipc_barrier(scene, model, options.scene)
     solver = make_solver(model, scene, options.scene, [barrier] if barrier is not None else [])
+    velocity_test = solver.problem.step_velocity_test
     summary = RunSummary(
         scene=str(options.scene),
         physics_hash=physics_hash(scene),
@@ -267,6 +269,7 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
         contact=barrier.summary() if barrier is not None else None,
         factorization=scene.factorization,
         steps=previous_steps(options.out, checkpoint) if continuing else [],
+        velocity_tolerance_m_s=None if velocity_test is None else velocity_test.tolerance,
     )
     run = _Run(options, scene, model, solver, ShellState(model), summary, comm)
     with summarized(summary, barrier, solver, options.out, comm, lambda: run.series and run.series.close()):
@@ -290,12 +293,22 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
     if contributions is None:
         barrier = ipc_barrier(scene, model, scene_file)
         contributions = [barrier] if barrier is not None else []
+    if scene.velocity_tolerance is not None and not isinstance(model, ShellModel):
+        raise RunError(f"{scene_file}: key 'solver.velocity_tolerance' = {scene.velocity_tolerance!r} applies to a "
+                       "scene of one shell; leave it out with several bodies")  # fmt: skip
     try:
-        return ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
-                           factorization=scene.factorization, linear=scene.linear, contributions=contributions,
-                           acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
+        solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
+                             factorization=scene.factorization, linear=scene.linear, contributions=contributions,
+                             acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
+    if scene.velocity_tolerance is not None:  # the line search and the energy trust region both take it
+        tolerance = scene.velocity_tolerance
+        if tolerance == "auto":
+            rest = model.rest_surface
+            tolerance = auto_velocity_tolerance(rest.evaluate(*rest.grid.node_parameters()).x)
+        solver.problem.step_velocity_test = StepVelocityTest(float(tolerance), model.comm)
+    return solver
 
 
 def _prepare(options: RunOptions, comm: MPI.Comm) -> tuple[Scene | BodiesScene, RestartPoint | None, bool]:

@@ -32,6 +32,8 @@ class RunSummary:
         static: a path of equilibria (True) or time steps.
         linear_solver: the linear solver chosen, and why.
         factorization: the factorization policy.
+        velocity_tolerance_m_s: the solver's step test's tolerance (``solver.velocity_tolerance``,
+            ``"auto"`` resolved), or None without one.
         steps: one record per time step or path point (the step's row of ``steps.jsonl``).
         contact: colliders and contact samples (contact by impulses), or the barrier's settings (by IPC).
         time: the simulated time (dynamic), or the last frame's time value (static).
@@ -58,6 +60,7 @@ class RunSummary:
     linear_solver: dict
     factorization: str
     steps: list[dict] = field(default_factory=list)
+    velocity_tolerance_m_s: float | None = None
     status: str = "running"
     contact: dict | None = None
     time: float | None = None

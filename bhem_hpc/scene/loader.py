@@ -132,7 +132,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     # for time steps (exact where it is positive definite, otherwise every Newton step goes downhill)
     default_hessian = "exact" if static else "adaptive"
     hessian, quadrature, options, linear, factorization = default_hessian, None, {}, "auto", None
-    acceleration_tolerance = None
+    acceleration_tolerance, velocity_tolerance = None, None
     if solver is not None:
         linear, factorization = parse_linear_strategy(solver)
         # the energy trust region minimizes a time step's incremental potential
@@ -154,6 +154,12 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
             lambda v: not static and MIN_ACCELERATION <= v <= MAX_ACCELERATION,
             "absent: a static scene has no accelerations" if static
             else f"a number in [{MIN_ACCELERATION:g}, {MAX_ACCELERATION:g}] (m/s^2)",
+        )  # fmt: skip
+        low, high = VELOCITY_TOLERANCE_RANGE
+        velocity_tolerance = solver.get(
+            "velocity_tolerance", "a number or a string", None,
+            lambda v: not static and (v == "auto" or (not isinstance(v, str) and low <= v <= high)),
+            "absent: a static scene has no velocities" if static else f'a speed in [{low:g}, {high:g}] [m/s] or "auto"',
         )  # fmt: skip
         options = parse_petsc_options(solver)
         solver.done()
@@ -186,6 +192,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
         linear=linear,
         factorization=factorization or "reuse",
         acceleration_tolerance=acceleration_tolerance,
+        velocity_tolerance=velocity_tolerance,
         petsc_options=dict(options),
         point_constraints=points,
         output_every=every,

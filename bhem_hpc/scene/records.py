@@ -99,6 +99,9 @@ class Scene:
     linear: str = "auto"  # linear solver: auto | direct | iterative
     factorization: str = "reuse"  # reuse | fresh
     acceleration_tolerance: float | None = None  # time steps: Newton stops at this RMS acceleration [m/s^2]
+    #: time steps: Newton also stops once its step leaves a velocity below this [m/s], or "auto"
+    #: (:mod:`bhem_hpc.solver.step_test`)
+    velocity_tolerance: float | str | None = None
     petsc_options: dict[str, Any] = field(default_factory=dict)
     point_constraints: tuple[ScenePoint, ...] = ()
     output_every: int = 1

@@ -25,6 +25,7 @@ convergence that bound already exceeds the tolerance.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -228,10 +229,12 @@ def snes_acceleration_test(
     return reasons.ITERATING
 
 
-def tao_acceleration_test(tao: PETSc.TAO, residual: AccelerationResidual, tolerance: float) -> None:
+def tao_stopping_test(tao: PETSc.TAO, residual: AccelerationResidual | None, tolerance: float,
+                      step_small: Callable[[PETSc.TAO], bool] | None = None) -> None:  # fmt: skip
     """TAO convergence test (``tao.setConvergenceTest``): ``CONVERGED_USER`` once ``a_rms`` of the
-    current gradient is at most ``tolerance`` [m/s^2]; ``CONVERGED_GATOL`` below ``gatol``; diverged
-    on non-finite values or at the iteration limit."""
+    current gradient is at most ``tolerance`` [m/s^2] (with a ``residual``) or once ``step_small(tao)``
+    (the solver's step test); ``CONVERGED_GATOL`` below ``gatol``; diverged on non-finite values or
+    at the iteration limit."""
     iteration, value, gradient_norm = tao.getSolutionStatus()[:3]
     gatol, _, _ = tao.getTolerances()
     reasons = PETSc.TAO.Reason
@@ -239,7 +242,9 @@ def tao_acceleration_test(tao: PETSc.TAO, residual: AccelerationResidual, tolera
         reason = reasons.DIVERGED_NAN
     elif gradient_norm <= gatol:
         reason = reasons.CONVERGED_GATOL
-    elif _passes(residual, tao.getGradient()[0], tolerance):
+    elif residual is not None and _passes(residual, tao.getGradient()[0], tolerance):
+        reason = reasons.CONVERGED_USER
+    elif step_small is not None and step_small(tao):
         reason = reasons.CONVERGED_USER
     elif iteration >= tao.getMaximumIterations():
         reason = reasons.DIVERGED_MAXITS

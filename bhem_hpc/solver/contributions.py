@@ -23,6 +23,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from bhem_hpc.solver.step_test import StepVelocityTest
+
 #: A material point's ``(local open blocks, basis values)`` on the rank that owns its patch
 #: (empty elsewhere), as ``discretization.point_basis`` gives it.
 PointBasis = tuple[np.ndarray, np.ndarray]
@@ -178,6 +180,8 @@ class ContributionSteps:
     problem has ``contributions`` and ``contribution_state()``, its open blocks' state)."""
 
     contributions: Sequence[Contribution]
+    #: the solver's own test on Newton's step (``solver.velocity_tolerance``), or None
+    step_velocity_test: StepVelocityTest | None = None
 
     def contribution_state(self) -> ContributionState: ...
 
@@ -196,13 +200,20 @@ class ContributionSteps:
 
     @property
     def has_step_tests(self) -> bool:
-        """Whether a contribution has a stopping test on Newton's step (:class:`StepTested`)."""
-        return bool(step_testers(self.contributions))
+        """Whether Newton's step is tested: by the solver's own test or by a contribution
+        (:class:`StepTested`)."""
+        return self.step_velocity_test is not None or bool(step_testers(self.contributions))
 
     def open_step_converged(self, direction: np.ndarray) -> bool:
-        """Collective: whether the step-testing contributions let the solve end with a step on the
-        open blocks ``(blocks, 3)`` from the current state (:func:`step_converged`)."""
-        return self.has_step_tests and step_converged(self.contributions, self.contribution_state(), direction)
+        """Collective: whether the solver's step test and the step-testing contributions all let the
+        solve end with a step on the open blocks ``(blocks, 3)`` from the current state
+        (:func:`step_converged`)."""
+        if not self.has_step_tests:
+            return False
+        if self.step_velocity_test is not None and not self.step_velocity_test.passes(direction):
+            return False
+        return not step_testers(self.contributions) or step_converged(self.contributions, self.contribution_state(),
+                                                                      direction)  # fmt: skip
 
     @property
     def moves_obstacles(self) -> bool:

@@ -26,7 +26,8 @@ from typing import TYPE_CHECKING
 
 from petsc4py import PETSc
 
-from bhem_hpc.solver.acceleration import tao_acceleration_test
+from bhem_hpc.solver.acceleration import tao_stopping_test
+from bhem_hpc.solver.contributions import ContributionSteps
 from bhem_hpc.solver.hessian_action import ExactHessianAction, exact_hessian_action
 from bhem_hpc.solver.petsc import PetscOwner, push_options, rejected_options, solve_stopped
 
@@ -72,6 +73,7 @@ class EnergyTrustRegion(PetscOwner):
         self.gradient = solver.f.duplicate()
         #: the current iterate, from which a trial's straight path must stay free of contact
         self.iterate = solver.f.duplicate()
+        self.step = solver.f.duplicate()  # the step test's projected Newton step
         #: the exact Hessian applied matrix-free, or None (then assembled into the solver's Jacobian)
         self.action: ExactHessianAction | None = exact_hessian_action(solver.problem)
         self.tao: PETSc.TAO | None = None
@@ -92,10 +94,15 @@ class EnergyTrustRegion(PetscOwner):
             self.tao.setObjective(self._objective)
             model = solver.jacobian if self.action is None else self.action.matrix
             self.tao.setHessian(self._hessian, model, self.preconditioner)
-            if solver.acceleration is not None:  # the line-search solver's stopping test, in TAO's terms
+            problem = solver.problem
+            #: the solver's step test (``solver.velocity_tolerance``), or None
+            self.velocity_test = problem.step_velocity_test if isinstance(problem, ContributionSteps) else None
+            if solver.acceleration is not None or self.velocity_test is not None:  # the line search's tests
                 test = solver.acceleration
-                self.tao.setConvergenceTest(tao_acceleration_test, kargs={"residual": test.residual,
-                                                                          "tolerance": test.tolerance})  # fmt: skip
+                self.tao.setConvergenceTest(tao_stopping_test, kargs={
+                    "residual": None if test is None else test.residual,
+                    "tolerance": 0.0 if test is None else test.tolerance,
+                    "step_small": None if self.velocity_test is None else self._step_small})  # fmt: skip
             try:
                 self.tao.setFromOptions()
             except PETSc.Error as exc:
@@ -104,6 +111,15 @@ class EnergyTrustRegion(PetscOwner):
         finally:
             for name in pushed:
                 opts.delValue(name)
+
+    def _step_small(self, tao: PETSc.TAO) -> bool:
+        """Collective: the solver's step test on the projected Newton step ``P^-1 g`` from the current
+        iterate, ``P`` the preconditioner's factorization (of the projected Hessian, at most
+        :data:`PRECONDITIONER_PERIOD` - 1 iterates old); the solve ends at the iterate, the step untaken."""
+        if tao.getIterationNumber() < 1:  # nothing factored yet in this solve
+            return False
+        tao.getKSP().getPC().apply(tao.getGradient()[0], self.step)
+        return self.velocity_test.passes(self.solver.problem.open_direction_blocks(self.step))
 
     # -- TAO callbacks (the problem's state follows the point asked about) ----------------------
     def _objective(self, tao: PETSc.TAO, x: PETSc.Vec) -> float:
@@ -193,7 +209,7 @@ class EnergyTrustRegion(PetscOwner):
         if self._closed:
             return
         self._closed = True
-        for obj in (self.tao, self.preconditioner, self.gradient, self.iterate):
+        for obj in (self.tao, self.preconditioner, self.gradient, self.iterate, self.step):
             if obj is not None:
                 obj.destroy()
         if self.action is not None:

@@ -400,6 +400,8 @@ class ShellProblem(ContributionSteps, PetscOwner):
         """Collective, before a time step from ``time`` [s] of ``dt`` [s] at the model's current
         position: the contributions that lag quantities from the step's start take them."""
         begin_lagged_step(self.contributions, self.contribution_state(), time, dt)
+        if self.step_velocity_test is not None:
+            self.step_velocity_test.dt = dt
 
     def set_point_targets(self, t: float, ramp: bool = False) -> None:
         """Targets of the point constraints at time (or load factor) ``t``.

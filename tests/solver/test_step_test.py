@@ -50,7 +50,7 @@ def test_the_step_test_ends_cotton_steps_sooner_within_its_tolerance(comm, job, 
     the 1 m sheet) the steps take fewer Newton iterations in all than with the acceleration
     tolerance alone, and the state after them is within the tolerance's reach of that one's
     (each step may leave ``tolerance * dt`` to correct)."""
-    tight, tight_state, none = run_steps(comm, job, steps, {})
+    tight, tight_state, none = run_steps(comm, job, steps, {"velocity_tolerance": None})
     loose, loose_state, test = run_steps(comm, job, steps, {"velocity_tolerance": "auto"})
     assert none is None and test.tolerance == pytest.approx(1e-2 * np.sqrt(2.0))
     assert sum(loose) < sum(tight)

@@ -29,7 +29,7 @@ from petsc4py import PETSc
 from bhem_hpc.solver.acceleration import tao_stopping_test
 from bhem_hpc.solver.contributions import ContributionSteps
 from bhem_hpc.solver.hessian_action import ExactHessianAction, exact_hessian_action
-from bhem_hpc.solver.petsc import PetscOwner, push_options, rejected_options, solve_stopped
+from bhem_hpc.solver.petsc import PetscOwner, SolverSetupError, push_options, rejected_options, solve_stopped
 
 if TYPE_CHECKING:
     from bhem_hpc.solver.newton import ShellSolver
@@ -47,6 +47,8 @@ CG_RTOL = "1e-2"
 #: 10 steps, s/step for periods 1, 2, 3, 5: drape 1.11, 0.92, 0.85, 0.82; hanging 0.36, 0.31, 0.27,
 #: 0.25; shear 1.42, 1.40, 1.18, 1.32; never refactored: 1.54, 0.24, 4.79.
 PRECONDITIONER_PERIOD = 3
+#: The Krylov solvers of the trust-region subproblem a scene may choose (``ntr_tao_ntr_ksp_type``).
+SUBPROBLEM_SOLVERS = ("stcg", "nash")
 TAO_REASONS = {v: k for k, v in vars(PETSc.TAO.Reason).items() if k.isupper()}
 
 
@@ -108,6 +110,13 @@ class EnergyTrustRegion(PetscOwner):
             except PETSc.Error as exc:
                 self.close()
                 raise rejected_options(f"TAO solver '{self.prefix}'", exc) from None
+            subproblem = self.tao.getKSP().getType()
+            if subproblem not in SUBPROBLEM_SOLVERS:
+                self.close()
+                raise SolverSetupError(
+                    f"TAO solver '{self.prefix}': option -{ksp_prefix}ksp_type = {subproblem!r}: the trust region's "
+                    f"subproblem takes {' or '.join(map(repr, SUBPROBLEM_SOLVERS))} ('gltr' frees an invalid pointer "
+                    "in PETSc 3.18's ntr and aborts the process)")  # fmt: skip
         finally:
             for name in pushed:
                 opts.delValue(name)

@@ -200,8 +200,10 @@ def cloth_markdown(rows: list[dict], steps: int, command: str = "") -> str:
         f"the height out of the initial plane less its quadratic fit crosses ±{WRINKLE_AMPLITUDE * 1e3:g} mm "
         "alternately; the locking test's figure is how far its free corners hang below the held ones (membrane "
         "locking makes it smaller). FBW rows use the FEM Baraff–Witkin membrane with shear_ratio = 1. Hessian: "
-        "the job's `solver.hessian` (`trust_region`: TAO's Newton trust region on the energy). "
-        f"Paper s/step: {PAPER_MACHINE}.",
+        "the job's `solver.hessian` (`trust_region`: TAO's Newton trust region on the energy). Newton stops by the "
+        "job's `[solver]` tests: an RMS acceleration residual of 1e-2 m/s², or a step that leaves less than 1e-2 of "
+        "the sheet's diagonal per second to correct (`velocity_tolerance = \"auto\"`, IPC's test, which the paper's "
+        f"solver uses). Paper s/step: {PAPER_MACHINE}.",
         "",
         "| case | Hessian | DoFs | nonzeros | steps | s/step | Newton/step | dt halvings | recoveries | quality | "
         "paper s/step |",

@@ -11,6 +11,7 @@ from bhem_hpc.scene.loader import load_scene
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import StepFailure, TimeStepper
 from bhem_hpc.solver.energy_trust_region import MAX_ITERATIONS
+from bhem_hpc.solver.petsc import SolverSetupError
 
 
 def sheared_cotton(hessian: str, patches: int = 8):
@@ -49,3 +50,14 @@ def test_the_energy_trust_region_steps_cotton_where_line_search_newton_fails(com
     for kind in ("exact", "adaptive", "projected"):
         with pytest.raises(StepFailure, match=r"time step 1 .* failed after 0 halvings"):
             advance(comm, sheared_cotton(kind), 1, f"etr_{kind}_")
+
+
+@pytest.mark.parametrize("subproblem", ["gltr", "gmres"])
+def test_a_subproblem_solver_other_than_steihaug_or_nash_is_refused_by_option_and_value(comm, subproblem):
+    """PETSc 3.18's ntr with ``gltr`` aborts the process (free(): invalid pointer): the option is
+    refused by name and value before the first solve."""
+    scene = sheared_cotton("trust_region", patches=4)
+    scene.petsc_options["ntr_tao_ntr_ksp_type"] = subproblem
+    with pytest.raises(SolverSetupError, match=rf"option -etr_bad_ntr_tao_ntr_ksp_type = '{subproblem}': the trust "
+                                               r"region's subproblem takes 'stcg' or 'nash'"):  # fmt: skip
+        advance(comm, scene, 1, "etr_bad_")

@@ -293,17 +293,18 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
     if contributions is None:
         barrier = ipc_barrier(scene, model, scene_file)
         contributions = [barrier] if barrier is not None else []
-    if scene.velocity_tolerance is not None and not isinstance(model, ShellModel):
-        raise RunError(f"{scene_file}: key 'solver.velocity_tolerance' = {scene.velocity_tolerance!r} applies to a "
-                       "scene of one shell; leave it out with several bodies")  # fmt: skip
+    velocity = scene.velocity_tolerance if isinstance(scene, Scene) else None  # a solid's [solver] has no such key
+    if velocity is not None and not isinstance(model, ShellModel):
+        raise RunError(f"{scene_file}: key 'solver.velocity_tolerance' = {velocity!r} applies to a scene of one "
+                       "shell; leave it out with several bodies")  # fmt: skip
     try:
         solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
                              factorization=scene.factorization, linear=scene.linear, contributions=contributions,
                              acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
-    if scene.velocity_tolerance is not None:  # the line search and the energy trust region both take it
-        tolerance = scene.velocity_tolerance
+    if velocity is not None:  # the line search and the energy trust region both take it
+        tolerance = velocity
         if tolerance == "auto":
             rest = model.rest_surface
             tolerance = auto_velocity_tolerance(rest.evaluate(*rest.grid.node_parameters()).x)

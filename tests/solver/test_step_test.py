@@ -9,7 +9,7 @@ import pytest
 from helpers import REPO
 
 from bhem_hpc.errors import RunError
-from bhem_hpc.run import build_model, make_solver, prescribed_motions
+from bhem_hpc.run import RunOptions, build_model, make_solver, prescribed_motions, run_scene
 from bhem_hpc.scene.loader import load_scene
 from bhem_hpc.scene.table import SceneError
 from bhem_hpc.solver.dynamics import TimeStepper
@@ -80,3 +80,19 @@ def test_several_bodies_refuse_a_velocity_tolerance(comm):
     models = [build_model(scene, comm), build_model(scene, comm)]
     with pytest.raises(RunError, match=r"key 'solver.velocity_tolerance' = 'auto' applies to a scene of one shell"):
         make_solver(models, scene, scene.path)
+
+
+def test_a_run_records_the_tolerance_it_used(comm, shared_tmp_path):
+    """summary.json holds the resolved tolerance ("auto" -> 1e-2 of the 1 m sheet's diagonal per
+    second); without the key it has none."""
+    text = (REPO / "jobs" / "drape-cotton.toml").read_text().replace("patches = [25, 25]", "patches = [4, 4]")
+    for name, keep in (("auto", True), ("none", False)):
+        path = shared_tmp_path / f"drape-{name}.toml"
+        if comm.rank == 0:
+            path.write_text(text if keep else text.replace('velocity_tolerance = "auto"', ""))
+        comm.Barrier()
+        summary = run_scene(RunOptions(path, shared_tmp_path / f"run-{name}", steps=1, progress=False), comm)
+        if keep:
+            assert summary["velocity_tolerance_m_s"] == pytest.approx(1e-2 * np.sqrt(2.0), rel=1e-12)
+        else:
+            assert "velocity_tolerance_m_s" not in summary

@@ -304,11 +304,8 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
     except LinearSolverError as exc:
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
     if velocity is not None:  # the line search and the energy trust region both take it
-        tolerance = velocity
-        if tolerance == "auto":
-            rest = model.rest_surface
-            tolerance = auto_velocity_tolerance(rest.evaluate(*rest.grid.node_parameters()).x)
-        solver.problem.step_velocity_test = StepVelocityTest(float(tolerance), model.comm)
+        tolerance = auto_velocity_tolerance(model.rest_diagonal) if velocity == "auto" else float(velocity)
+        solver.problem.step_velocity_test = StepVelocityTest(tolerance, model.comm)
     return solver
 
 

@@ -30,13 +30,10 @@ from bhem_hpc.contact.ipc_friction import (
 )
 from bhem_hpc.errors import RunError
 from bhem_hpc.solver.contributions import PointBasis
+from bhem_hpc.solver.step_test import auto_velocity_tolerance
 
 if TYPE_CHECKING:
     from bhem_hpc.model.shell import ShellModel
-
-#: ``velocity_tolerance = "auto"``: IPC's step test at this fraction of the bodies' rest bounding-box
-#: diagonal per second (IPC's epsilon_d, Li et al. 2020, section 5)
-AUTO_VELOCITY_TOLERANCE = 1e-2
 
 
 @dataclass(frozen=True)
@@ -206,7 +203,7 @@ def scene_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], globa
         raise RunError(f"{scene_file}: key '{entries[exc.collider].key}': {exc}") from exc
     barrier.collider_names = [e.key for e in entries]
     tolerance = contact.velocity_tolerance
-    barrier.velocity_tolerance = AUTO_VELOCITY_TOLERANCE * barrier.diagonal if tolerance == "auto" else tolerance
+    barrier.velocity_tolerance = auto_velocity_tolerance(barrier.diagonal) if tolerance == "auto" else tolerance
     return barrier
 
 

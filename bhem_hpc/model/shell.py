@@ -474,6 +474,12 @@ class ShellModel:
         return 3 * self.discretization.num_closed
 
     @property
+    def rest_diagonal(self) -> float:
+        """The diagonal [m] of the bounding box of the rest surface's nodes (tolerances scale with it)."""
+        nodes = self.rest_surface.evaluate(*self.rest_surface.grid.node_parameters()).x.reshape(-1, 3)
+        return float(np.linalg.norm(nodes.max(axis=0) - nodes.min(axis=0)))
+
+    @property
     def global_open_blocks(self) -> np.ndarray:
         """The global index of each of this rank's open blocks (owned, then ghosts), ``(blocks,)``:
         the names of Hessian blocks that may couple blocks of different ranks."""

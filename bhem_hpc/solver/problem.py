@@ -214,10 +214,8 @@ class ShellProblem(ContributionSteps, PetscOwner):
         mask = np.zeros((count, 3))
         for k, pc in enumerate(model.point_constraints):
             mask[k, list(pc.components)] = 1.0
-        nodes = model.rest_surface.evaluate(*model.rest_surface.grid.node_parameters()).x
-        lo, hi = nodes.min(axis=(0, 1)), nodes.max(axis=(0, 1))
         penalty = 1e3 * model.material.young * model.material.thickness
-        tolerance = 1e-10 * float(np.linalg.norm(hi - lo))
+        tolerance = 1e-10 * model.rest_diagonal
         constraints = PointConstraints(model.point_constraint_basis, model.global_open_blocks, mask, penalty,
                                        tolerance, model.comm.rank)  # fmt: skip
         constraints.targets[:] = np.array([pc.target_at(0.0) for pc in model.point_constraints]).reshape(count, 3)

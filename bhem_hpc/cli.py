@@ -40,6 +40,8 @@ def _add_cloth(sub) -> None:
     cloth.add_argument("--bspline3", type=int, nargs="*", default=[75, 100, 125], help="knot spans per side")
     cloth.add_argument("--jobs", nargs="+", default=None, help="jobs (default: hanging, drape-cotton, shear, "
                        "locking-cotton)")  # fmt: skip
+    cloth.add_argument("--whole", nargs="+", default=[], metavar="CASE",
+                       help="cases (by the page's names, e.g. shear-hermite-25) run to their job's end instead")
 
 
 def _add_solids(sub) -> None:
@@ -353,10 +355,14 @@ def _cloth(args: argparse.Namespace, comm) -> None:
     if jobs is not None and not set(jobs) <= set(CLOTH_JOBS):
         raise InputError(f"--jobs takes {CLOTH_JOBS}, got {list(jobs)}")
     cases = cloth_cases(sizes, jobs) if jobs else cloth_cases(sizes)
+    unknown = sorted(set(args.whole) - {case.name for case in cases})
+    if unknown:
+        raise InputError(f"--whole names cases the page does not run: {unknown} (its cases: "
+                         f"{[case.name for case in cases]})")  # fmt: skip
     flags = " ".join(f"--{name} {' '.join(map(str, values))}".rstrip() for name, values in sizes.items())
     command = f"bhem-hpc cloth --docs {args.docs} --steps {args.steps} {flags}" + (
-        f" --jobs {' '.join(jobs)}" if jobs else "")  # fmt: skip
-    page = write_cloth_comparison(args.docs, args.out, args.steps, cases, comm, command)
+        f" --jobs {' '.join(jobs)}" if jobs else "") + (f" --whole {' '.join(args.whole)}" if args.whole else "")
+    page = write_cloth_comparison(args.docs, args.out, args.steps, cases, comm, command, frozenset(args.whole))
     if comm.rank == 0:
         print(f"wrote {page} ({len(cases)} cases, {args.steps} steps each)")
 

@@ -104,3 +104,12 @@ def test_debug_shows_the_traceback_behind_the_error_line(comm, shared_tmp_path, 
     if comm.rank == 0:
         assert "Traceback" not in plain and "bhem-hpc: error:" in plain
         assert "Traceback" in debug and "SceneError" in debug and "bhem-hpc: error:" in debug
+
+
+def test_the_cloth_page_refuses_a_whole_run_of_a_case_it_does_not_run(comm, shared_tmp_path, capsys):
+    code = cli.main(["cloth", "--docs", str(shared_tmp_path / "d"), "--jobs", "shear", "--hermite", "25",
+                     "--bspline2", "--bspline3", "--whole", "shear-hermite-26"])  # fmt: skip
+    assert code == 2
+    err = capsys.readouterr().err
+    if comm.rank == 0:  # the error line is printed once
+        assert "--whole" in err and "shear-hermite-26" in err and "shear-hermite-25" in err

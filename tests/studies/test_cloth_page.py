@@ -70,14 +70,17 @@ def test_wrinkles_are_counted_along_the_line(wrinkles):
 
 def test_a_small_page_is_written_with_its_figures(shared_tmp_path, comm):
     cases = [ClothCase("hanging", "hermite", 6), ClothCase("hanging", "bspline2", 8, "reduced")]
-    page = write_cloth_comparison(shared_tmp_path / "docs", shared_tmp_path / "runs", 3, cases, comm)
+    whole = frozenset({"hanging-hermite-6"})  # 200 steps: the job's 2 s at 10 ms
+    page = write_cloth_comparison(shared_tmp_path / "docs", shared_tmp_path / "runs", 3, cases, comm, whole=whole)
     comm.Barrier()
     rows = json.loads((shared_tmp_path / "docs" / "cloth-comparison.json").read_text())
     assert [r["case"] for r in rows] == ["hanging-hermite-6", "hanging-bspline2-8-reduced"]
-    assert all(r["steps"] == 3 and r["status"] == "completed" and r["step_s"] > 0 for r in rows)
-    assert all(r["newton_per_step"] >= 1 and r["quality"][0] == "wrinkles" for r in rows)
+    assert [(r["steps"], r["whole"]) for r in rows] == [(200, True), (3, False)]
+    assert all(r["status"] == "completed" and r["step_s"] > 0 for r in rows)
+    assert all(0 < r["newton_per_step"] <= r["newton_max"] and r["quality"][0] == "wrinkles" for r in rows)
     text = page.read_text()
-    assert "| hanging-hermite-6 |" in text and (shared_tmp_path / "docs" / "cloth-comparison.png").stat().st_size > 0
+    assert "| hanging-hermite-6 | adaptive | 588 |" in text and "| 200* |" in text and "(hanging-hermite-6)" in text
+    assert (shared_tmp_path / "docs" / "cloth-comparison.png").stat().st_size > 0
 
 
 def test_the_shear_jobs_edges_move_until_a_tenth_of_a_second_then_hold(shared_tmp_path, comm):

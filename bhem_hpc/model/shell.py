@@ -37,6 +37,7 @@ from bhem_hpc.model.loads import (  # noqa: F401 - re-exported: the model API
 )
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, shell_quadrature
+from bhem_hpc.model.trimmed import Trim, check_trimmed, outside_constraints, restrict_term, weight_function
 
 #: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
 #: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
@@ -96,7 +97,8 @@ class ShellModel:
             B-splines: the B-spline paper's reduced rule for membrane and bending, see
             :mod:`bhem_hpc.model.quadrature`; mass and loads keep 3 x 3 Gauss); default: the
             surface's :data:`DEFAULT_QUADRATURE` (4 x 4 for bicubic Hermite and cubic B-splines, the
-            BHEM paper's rule; 3 x 3 for quadratic B-splines).
+            BHEM paper's rule; 3 x 3 for quadratic B-splines); or a :class:`~bhem_hpc.model.trimmed.Trim`:
+            its cut-cell rule on its Gauss points, and only the part of the surface it keeps simulated.
         comm: MPI communicator.
         initial: initial state (default: the rest surface).
         point_constraints: material points held at (moving) targets by the augmented Lagrangian
@@ -112,19 +114,24 @@ class ShellModel:
         loads: Loads | None = None,
         constraints: Sequence[NodalConstraint] = (),
         hessian: HessianKind | None = None,
-        quadrature_points: Quadrature | None = None,
+        quadrature_points: Quadrature | Trim | None = None,
         comm: MPI.Comm = MPI.COMM_WORLD,
         initial: HermiteSurface | None = None,
         dynamics: Dynamics | None = None,
         point_constraints: Sequence[PointConstraint] = (),
     ):
         loads = loads or Loads()
+        trim = quadrature_points if isinstance(quadrature_points, Trim) else None
+        if trim is not None:
+            quadrature_points = trim.points
         if hessian is None:
             hessian = "exact" if dynamics is None else "adaptive"
         if quadrature_points is None:
             quadrature_points = DEFAULT_QUADRATURE[rest.discretization]
         _validate(rest, initial or rest, loads, constraints, hessian, quadrature_points, dynamics,
                   point_constraints, material)  # fmt: skip
+        if trim is not None:
+            check_trimmed(trim, rest.grid, loads, point_constraints)
         initial = initial or rest
         self.comm = comm
         self.material = material
@@ -139,6 +146,10 @@ class ShellModel:
         self.discretization: Discretization = create_discretization(rest, comm)
         if self.ties:
             self.discretization.set_ties(self.ties, rest)
+        self.trim = trim  # entries that move no kept point are held
+        if trim is not None:
+            self.constraints += tuple(outside_constraints(self.discretization.patches.patch_entries(), trim,
+                                                          rest.node_shape, rest.kind_count))  # fmt: skip
         space = self.discretization.function_space
         self.x = fem.Function(space, name="position")
         self.x_rest = fem.Function(space, name="rest_position")
@@ -150,6 +161,7 @@ class ShellModel:
         self.density = self._constant(material.density)
         self.load_factor = self._constant(1.0)
         self.quadrature = shell_quadrature(self.discretization.grid_mesh, quadrature_points)
+        self.trim_weight = None if trim is None else weight_function(self.discretization.grid_mesh, trim)
         self._term_residual_forms: dict[str, fem.Form] | None = None
         self.dx = self.quadrature.mass
         self._compose_forms()
@@ -298,6 +310,8 @@ class ShellModel:
         space = self.discretization.function_space
         test, trial = ufl.TestFunction(space), ufl.TrialFunction(space)
         self.terms = self._terms(test)
+        if self.trim_weight is not None:  # every cell integrand weighted by the cut-cell rule
+            self.terms = [restrict_term(term, self.trim_weight) for term in self.terms]
         potentials = [t for t in self.terms if t.role == "potential"]
         works = [t for t in self.terms if t.role == "work"]
         # the summation order of the potential (it fixes the round-off of the residual): terms

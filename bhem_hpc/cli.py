@@ -174,9 +174,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def _render(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.io import read_frame
-    from bhem_hpc.io.render import render, write_png
+    from bhem_hpc.io.render import TrimmedSurface, render, write_png
     from bhem_hpc.io.run_directory import run_series
     from bhem_hpc.io.solid_output import read_solid_frame
+    from bhem_hpc.io.xdmf import read_trim_loops
 
     if comm.rank != 0:  # serial: one rank renders
         return
@@ -197,9 +198,10 @@ def _render(args: argparse.Namespace, comm) -> None:
             continue
         try:
             surface, time = read_frame(h5, args.frame)
+            loops = read_trim_loops(h5)
         except (OSError, KeyError, TypeError) as exc:
             raise InputError(f"{h5}: not a readable surface series ({exc})") from None
-        surfaces.append(surface)
+        surfaces.append(surface if loops is None else TrimmedSurface(surface, tuple(loops)))
     image, mask = render(surfaces, width, height)
     out = args.out or args.directory / f"frame_{args.frame if args.frame >= 0 else 'last'}.png"
     write_png(out, image)

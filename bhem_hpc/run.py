@@ -20,6 +20,7 @@ from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, render_surface_png, write_checkpoint
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
 from bhem_hpc.io.path_table import CsvTable, JsonLinesTable, plot_path, probe_columns, read_rows
+from bhem_hpc.io.render import TrimmedSurface
 from bhem_hpc.io.run_directory import (
     OutputDirectoryError,
     OutputLock,
@@ -127,7 +128,7 @@ def build_model(scene: Scene, comm: MPI.Comm) -> ShellModel:
         loads,
         [sc.constraint for sc in scene.constraints],
         hessian=scene.hessian,
-        quadrature_points=scene.quadrature,
+        quadrature_points=scene.quadrature if scene.trim is None else scene.trim,
         comm=comm,
         dynamics=dynamics,
         point_constraints=[
@@ -281,7 +282,8 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
                 final = _run_dynamic(run, steps, checkpoint)
         where = f"load factor {summary.load_factor:.4g}" if scene.static else f"t = {summary.time or 0:.4g} s"
         title = f"{options.scene.name}, {where}"
-        on_rank0(comm, lambda: render_surface_png(options.out / "last.png", final, title), "last.png")
+        drawn = final if scene.trim is None else TrimmedSurface(final, scene.trim.loops)
+        on_rank0(comm, lambda: render_surface_png(options.out / "last.png", drawn, title), "last.png")
     return summary.as_dict()
 
 
@@ -344,7 +346,7 @@ def _start_output(run: _Run, scene_text: bytes, continued: RestartPoint | None) 
         run.summary.write(out)
         return SurfaceTimeSeries(
             out / "surface.xdmf", scene.surface, scene.material, scene.output_density,
-            continue_at=None if continued is None else float(continued.attrs["time"]),
+            continue_at=None if continued is None else float(continued.attrs["time"]), trim=scene.trim,
         )  # fmt: skip
 
     return on_rank0(run.comm, start, f"the output directory {out}")

@@ -24,6 +24,8 @@ PETSC_MODULES = {"solids/petsc.py", "solver/newton.py", "solver/path.py", "solve
     ("module", "forbidden"),
     [
         ("bhem_hpc.geometry.surface", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.geometry.trim", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
+        ("bhem_hpc.scene.loader", ("dolfinx", "petsc4py", "ufl", "basix")),
         ("bhem_hpc.collision", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.detection", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),
         ("bhem_hpc.contact.bodies", ("dolfinx", "petsc4py", "mpi4py", "ufl", "basix")),

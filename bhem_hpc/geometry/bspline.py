@@ -443,6 +443,9 @@ def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, 
 
 #: The surface kinds a scene or a file can name, by their discretization.
 DISCRETIZATIONS = ("hermite", "bspline2", "bspline3")
+#: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
+#: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
+DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4}
 
 
 def surface_from_nodal(discretization: str, grid: ParameterGrid, nodal: np.ndarray):

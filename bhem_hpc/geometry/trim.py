@@ -15,6 +15,9 @@ energy whose density is convex stays convex. The points stay where the full rule
 finite-element assembly with one rule per cell only needs a factor per point (``weights / full``).
 Where non-negative weights on the fixed points cannot match every moment (a sliver of a cell), the
 area is matched exactly and the other moments as well as they can be: the residual is reported.
+
+A :class:`Trim` is a surface's checked loops with the rule on its knot spans: what a trimmed shell
+model (:mod:`bhem_hpc.model.trimmed`) and a scene's ``[trim]`` table build on.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import numpy as np
 import scipy.optimize
 from numpy.polynomial import legendre
 
-from bhem_hpc.geometry.grid import SurfaceError
+from bhem_hpc.geometry.grid import ParameterGrid, SurfaceError
 
 #: Points a patch's trim loops may have together (the self-intersection test compares every pair
 #: of segments near each other).
@@ -36,6 +39,11 @@ MAX_TRIM_POINTS = 20_000
 SLIVER_FRACTION = 1e-10
 #: How much more the area equation weighs than the other moments in the fit.
 AREA_EQUATION_WEIGHT = 1e3
+#: How far [relative to the parameter domain's diagonal] a loop's ends may be apart and its points
+#: outside the domain.
+LOOP_TOLERANCE = 1e-9
+#: Points sampled along each edge to decide whether the trim keeps it whole.
+EDGE_SAMPLES = 257
 #: Cell states in :class:`CutCellRule`.
 OUTSIDE, INSIDE, CUT = 0, 1, 2
 
@@ -317,3 +325,70 @@ def _touched_cells(loops: Sequence[np.ndarray], lows: np.ndarray, highs: np.ndar
         overlap = np.all((lo[None, :, :] <= highs[:, None, :]) & (hi[None, :, :] >= lows[:, None, :]), axis=2)
         touched |= overlap.any(axis=1)
     return touched
+
+
+@dataclass(frozen=True)
+class Trim:
+    """A patch's trim: checked loops (:func:`~bhem_hpc.geometry.trim.check_loops`) and the rule on
+    its knot spans.
+
+    Attributes:
+        loops: the loops ``(n_k, 2)`` in the patch's parameters, outer ones counterclockwise.
+        rule: the cut-cell rule of the spans in the grid's order ``p1 * n2 + p2``.
+        points: Gauss points per direction of the rule (the shell's quadrature).
+    """
+
+    loops: tuple[np.ndarray, ...]
+    rule: CutCellRule
+    points: int
+
+    @classmethod
+    def of(cls, grid: ParameterGrid, loops: Sequence, points: int, where: str = "trim") -> Trim:
+        """Check ``loops`` on ``grid``'s parameter domain and fit the rule of ``points`` x ``points``
+        Gauss points on its spans (:class:`~bhem_hpc.geometry.trim.TrimError` naming ``where``)."""
+        domain = (grid.xi1_range, grid.xi2_range)
+        diagonal = float(np.hypot(grid.xi1_range[1] - grid.xi1_range[0], grid.xi2_range[1] - grid.xi2_range[0]))
+        if grid.periodic1 or grid.periodic2:
+            raise TrimError(f"{where}: a surface closed in a direction (periodic) cannot be trimmed")
+        checked = check_loops(loops, domain, LOOP_TOLERANCE * diagonal, where)
+        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(grid.n1), np.arange(grid.n2), indexing="ij"))
+        lows = np.column_stack([grid.xi1_range[0] + p1 * grid.h1, grid.xi2_range[0] + p2 * grid.h2])
+        rule = cut_cell_rule(checked, lows, lows + [grid.h1, grid.h2], points)
+        if np.all(rule.states == OUTSIDE):
+            raise TrimError(f"{where}: the loops keep no knot span of the surface")
+        return cls(tuple(checked), rule, points)
+
+    def keeps_edge(self, grid: ParameterGrid, edge: str) -> bool:
+        """Whether the whole ``edge`` (``"xi1_min"``, ...) lies in the kept region."""
+        t = np.linspace(0.0, 1.0, EDGE_SAMPLES)
+        (a, b), (c, d) = grid.xi1_range, grid.xi2_range
+        # a hair inside the domain: a loop along the edge itself keeps it
+        inset = 1e-9 * max(b - a, d - c)
+        along1, along2 = a + inset + t * (b - a - 2 * inset), c + inset + t * (d - c - 2 * inset)
+        points = {"xi1_min": (np.full_like(t, a + inset), along2), "xi1_max": (np.full_like(t, b - inset), along2),
+                  "xi2_min": (along1, np.full_like(t, c + inset)),
+                  "xi2_max": (along1, np.full_like(t, d - inset))}[edge]  # fmt: skip
+        return bool(np.all(inside(self.loops, np.column_stack(points))))
+
+    def keeps(self, xi: np.ndarray) -> np.ndarray:
+        """Whether each parameter point ``(k, 2)`` lies in the kept region."""
+        return inside(self.loops, np.asarray(xi, dtype=float).reshape(-1, 2))
+
+    @property
+    def kept_spans(self) -> np.ndarray:
+        """Spans ``(k,)`` (order ``p1 * n2 + p2``) with some weight."""
+        return np.flatnonzero(self.rule.states != OUTSIDE)
+
+
+def check_trimmed(trim: Trim, grid: ParameterGrid, edge_loads: Sequence[tuple[str, str]],
+                  points: Sequence[tuple[str, float, float]]) -> None:  # fmt: skip
+    """What a trimmed shell refuses (:class:`~bhem_hpc.geometry.trim.TrimError`): an edge load (named,
+    and its edge) on an edge the trim cuts, a point load or point constraint (named, and its
+    parameters) outside the kept region."""
+    for name, edge in edge_loads:
+        if not trim.keeps_edge(grid, edge):
+            raise TrimError(f"{name} acts on edge '{edge}', which the trim cuts: edge loads need an edge the trim "
+                            "keeps whole")  # fmt: skip
+    for name, xi1, xi2 in points:
+        if not trim.keeps(np.array([xi1, xi2]))[0]:
+            raise TrimError(f"{name} at (xi1, xi2) = ({xi1:g}, {xi2:g}) lies outside the trimmed surface")

@@ -3,12 +3,15 @@ exact normals.
 
 Every pixel's ray is intersected with a shell's Bezier patches (:mod:`bhem_hpc.collision`) or a
 solid's rational Bezier patches (:func:`bhem_hpc.geometry.rational_bezier.first_hits`), no
-tessellation; the nearest hit of all bodies is shaded with its patch normal. numpy + matplotlib only.
+tessellation; the nearest hit of all bodies is shaded with its patch normal. A trimmed shell
+(:class:`TrimmedSurface`) lets its rays pass where the trim cuts the patch away: each such ray is
+traced again from just beyond that hit, at most :data:`MAX_TRIM_PASSES` times. numpy + matplotlib only.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, Union, runtime_checkable
 
@@ -19,6 +22,7 @@ from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.geometry import rational_bezier
 from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
 from bhem_hpc.geometry.surface import HermiteSurface
+from bhem_hpc.geometry.trim import inside
 
 LIGHT = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
 VIEW = np.array([1.0, -1.6, 1.1])
@@ -31,27 +35,73 @@ class NurbsParts(Protocol):
     parts: list[NurbsSurface]
 
 
-#: A body of a picture: a shell's surface (Hermite or B-spline) or a solid's parts.
-Drawable = Union[HermiteSurface, NurbsParts]  # noqa: UP007 (a runtime alias of a Protocol)
+@dataclass(frozen=True)
+class TrimmedSurface:
+    """A shell's surface drawn only where its trim loops keep it (:mod:`bhem_hpc.geometry.trim`).
+
+    Attributes:
+        surface: the whole surface (Hermite or B-spline).
+        loops: closed polygons ``(n_k, 2)`` in the surface's parameters; the region inside an odd
+            number of them is drawn.
+    """
+
+    surface: HermiteSurface
+    loops: tuple[np.ndarray, ...]
+
+
+#: A body of a picture: a shell's surface (Hermite or B-spline), a trimmed one, or a solid's parts.
+Drawable = Union[HermiteSurface, TrimmedSurface, NurbsParts]  # noqa: UP007 (a runtime alias of a Protocol)
+#: Times a ray of a trimmed shell is traced again beyond a hit the trim cuts away.
+MAX_TRIM_PASSES = 8
+#: How far beyond such a hit [relative to its distance] the ray starts again.
+TRIM_PASS_OFFSET = 1e-9
 
 
 def _corner_points(body: Drawable) -> np.ndarray:
     """``(n, 3)`` points whose bounding box holds the body (nodes or control points)."""
     if isinstance(body, NurbsParts):
         return np.concatenate([part.control.reshape(-1, 3) for part in body.parts])
+    if isinstance(body, TrimmedSurface):
+        body = body.surface
     return body.nodal[..., 0, :].reshape(-1, 3)
+
+
+def _trace_shell(body: HermiteSurface | TrimmedSurface, eye: np.ndarray, directions: np.ndarray):
+    """:func:`_trace` of a shell's bicubic nets; a trimmed shell's rays pass its trimmed-away hits."""
+    surface, loops = (body.surface, body.loops) if isinstance(body, TrimmedSurface) else (body, None)
+    tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
+    nets, grid = surface.bezier_nets(), surface.grid
+    bvh = PatchBVH(nets)
+    origins = np.array(np.broadcast_to(eye, directions.shape), dtype=float)
+    travelled = np.zeros(len(directions))  # along each ray's direction, to where it starts again
+    pending = np.arange(len(directions))
+    for _ in range(MAX_TRIM_PASSES if loops is not None else 1):
+        hits = trace_rays(bvh, origins[pending], directions[pending])
+        hit = hits.patch >= 0
+        kept = hit.copy()
+        if loops is not None and np.any(hit):
+            p1, p2 = np.divmod(hits.patch[hit], grid.n2)
+            xi = np.column_stack([grid.xi1_range[0] + (p1 + hits.u[hit]) * grid.h1,
+                                  grid.xi2_range[0] + (p2 + hits.v[hit]) * grid.h2])  # fmt: skip
+            kept[hit] = inside(loops, xi)
+        rays = pending[kept]
+        hit_nets, u, v = nets[hits.patch[kept]], hits.u[kept], hits.v[kept]
+        tau[rays] = (travelled[rays] + hits.tau[kept]) * np.linalg.norm(directions[rays], axis=1)
+        normal[rays] = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
+        passing = hit & ~kept
+        pending, step = pending[passing], hits.tau[passing] * (1.0 + TRIM_PASS_OFFSET) + TRIM_PASS_OFFSET
+        origins[pending] += step[:, None] * directions[pending]
+        travelled[pending] += step
+        if not len(pending):
+            break
+    return tau, normal
 
 
 def _trace(body: Drawable, eye: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each ray's distance to its first hit on the body ``(R,)`` (inf: none) and the unit normal there ``(R, 3)``."""
     tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
     if not isinstance(body, NurbsParts):  # a shell's surface (Hermite or B-spline): bicubic nets
-        nets = body.bezier_nets()
-        hits = trace_rays(PatchBVH(nets), np.broadcast_to(eye, directions.shape), directions)
-        mask = hits.patch >= 0
-        hit_nets, u, v = nets[hits.patch[mask]], hits.u[mask], hits.v[mask]
-        tau[mask] = hits.tau[mask] * np.linalg.norm(directions[mask], axis=1)
-        normal[mask] = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
+        tau, normal = _trace_shell(body, eye, directions)
     else:
         unit = directions / np.linalg.norm(directions, axis=1)[:, None]
         origins = np.broadcast_to(eye, directions.shape)

@@ -21,6 +21,7 @@ import numpy as np
 
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.surface import HermiteSurface
+from bhem_hpc.geometry.trim import Trim
 from bhem_hpc.io.run_directory import write_replacing
 from bhem_hpc.io.vtu import write_pvd, write_vtu
 
@@ -160,10 +161,12 @@ class SurfaceTimeSeries:
     """
 
     def __init__(
-        self, path: str | Path, rest: HermiteSurface, material, density: int = 4, continue_at: float | None = None
+        self, path: str | Path, rest: HermiteSurface, material, density: int = 4, continue_at: float | None = None,
+        trim: Trim | None = None,
     ):
         """Start a series at ``path``, or with ``continue_at`` continue the one there: its frames up to
-        that time are kept (later ones, written after the checkpoint being continued, are dropped)."""
+        that time are kept (later ones, written after the checkpoint being continued, are dropped).
+        With a ``trim``, the quads whose centre it keeps (the file keeps its loops for the ray tracer)."""
         self.path = Path(path)
         self.h5_path = self.path.with_suffix(".h5")
         self.pvd_path = self.path.with_suffix(".pvd")
@@ -171,6 +174,8 @@ class SurfaceTimeSeries:
         self.material = material
         self.density = density
         _, self.quads, self.params = rest.tessellate(density)
+        if trim is not None:
+            self.quads = self.quads[trim.keeps(self.params[self.quads].mean(axis=1))]
         self.rest_point = rest.evaluate(self.params[:, 0], self.params[:, 1])
         self.times: list[float] = []
         self._failed = False
@@ -187,6 +192,9 @@ class SurfaceTimeSeries:
         self.file.attrs["xi2_range"] = grid.xi2_range
         self.file.attrs["periodic"] = [grid.periodic1, grid.periodic2]
         self.file.attrs["discretization"] = rest.discretization
+        if trim is not None:
+            self.file["trim_loops"] = np.concatenate(trim.loops)
+            self.file["trim_loop_sizes"] = np.array([len(loop) for loop in trim.loops], dtype=np.int64)
 
     def _continue(self, until: float) -> None:
         if not self.h5_path.is_file():
@@ -322,3 +330,12 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
         )
         discretization = str(a.get("discretization", "hermite"))
         return surface_from_nodal(discretization, grid, nodal), time
+
+
+def read_trim_loops(h5_path: str | Path) -> list[np.ndarray] | None:
+    """The trim loops ``(n_k, 2)`` a :class:`SurfaceTimeSeries` of a trimmed surface keeps, or None."""
+    with h5py.File(h5_path, "r") as f:
+        if "trim_loops" not in f:
+            return None
+        points, sizes = f["trim_loops"][()], f["trim_loop_sizes"][()]
+    return np.split(points, np.cumsum(sizes)[:-1])

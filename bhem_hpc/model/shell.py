@@ -21,6 +21,7 @@ from mpi4py import MPI
 
 from bhem_hpc import forms
 from bhem_hpc.discretization import ConstrainedDofs, Discretization, create_discretization
+from bhem_hpc.geometry.bspline import DEFAULT_QUADRATURE
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.model.bcs import NodalConstraint, NodalTie, target_surface
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HESSIAN_KINDS, HessianKind
@@ -37,11 +38,8 @@ from bhem_hpc.model.loads import (  # noqa: F401 - re-exported: the model API
 )
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, shell_quadrature
-from bhem_hpc.model.trimmed import Trim, check_trimmed, outside_constraints, restrict_term, weight_function
+from bhem_hpc.model.trimmed import Trim, check_model, outside_constraints, restrict_term, weight_function
 
-#: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
-#: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
-DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4}
 ScalarType = np.float64  # the dolfinx build is real, double precision
 
 
@@ -131,7 +129,7 @@ class ShellModel:
         _validate(rest, initial or rest, loads, constraints, hessian, quadrature_points, dynamics,
                   point_constraints, material)  # fmt: skip
         if trim is not None:
-            check_trimmed(trim, rest.grid, loads, point_constraints)
+            check_model(trim, rest.grid, loads, point_constraints)
         initial = initial or rest
         self.comm = comm
         self.material = material

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import basix
 import numpy as np
@@ -24,67 +23,8 @@ import ufl
 from dolfinx import fem
 
 from bhem_hpc.geometry.surface import ParameterGrid
-from bhem_hpc.geometry.trim import OUTSIDE, CutCellRule, TrimError, check_loops, cut_cell_rule, inside
+from bhem_hpc.geometry.trim import Trim, TrimError, check_trimmed
 from bhem_hpc.model.bcs import NodalConstraint
-
-#: How far [relative to the parameter domain's diagonal] a loop's ends may be apart and its points
-#: outside the domain.
-LOOP_TOLERANCE = 1e-9
-#: Points sampled along each edge to decide whether the trim keeps it whole.
-EDGE_SAMPLES = 257
-
-
-@dataclass(frozen=True)
-class Trim:
-    """A patch's trim: checked loops (:func:`~bhem_hpc.geometry.trim.check_loops`) and the rule on
-    its knot spans.
-
-    Attributes:
-        loops: the loops ``(n_k, 2)`` in the patch's parameters, outer ones counterclockwise.
-        rule: the cut-cell rule of the spans in the grid's order ``p1 * n2 + p2``.
-        points: Gauss points per direction of the rule (the shell's quadrature).
-    """
-
-    loops: tuple[np.ndarray, ...]
-    rule: CutCellRule
-    points: int
-
-    @classmethod
-    def of(cls, grid: ParameterGrid, loops: Sequence, points: int, where: str = "trim") -> Trim:
-        """Check ``loops`` on ``grid``'s parameter domain and fit the rule of ``points`` x ``points``
-        Gauss points on its spans (:class:`~bhem_hpc.geometry.trim.TrimError` naming ``where``)."""
-        domain = (grid.xi1_range, grid.xi2_range)
-        diagonal = float(np.hypot(grid.xi1_range[1] - grid.xi1_range[0], grid.xi2_range[1] - grid.xi2_range[0]))
-        if grid.periodic1 or grid.periodic2:
-            raise TrimError(f"{where}: a surface closed in a direction (periodic) cannot be trimmed")
-        checked = check_loops(loops, domain, LOOP_TOLERANCE * diagonal, where)
-        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(grid.n1), np.arange(grid.n2), indexing="ij"))
-        lows = np.column_stack([grid.xi1_range[0] + p1 * grid.h1, grid.xi2_range[0] + p2 * grid.h2])
-        rule = cut_cell_rule(checked, lows, lows + [grid.h1, grid.h2], points)
-        if np.all(rule.states == OUTSIDE):
-            raise TrimError(f"{where}: the loops keep no knot span of the surface")
-        return cls(tuple(checked), rule, points)
-
-    def keeps_edge(self, grid: ParameterGrid, edge: str) -> bool:
-        """Whether the whole ``edge`` (``"xi1_min"``, ...) lies in the kept region."""
-        t = np.linspace(0.0, 1.0, EDGE_SAMPLES)
-        (a, b), (c, d) = grid.xi1_range, grid.xi2_range
-        # a hair inside the domain: a loop along the edge itself keeps it
-        inset = 1e-9 * max(b - a, d - c)
-        along1, along2 = a + inset + t * (b - a - 2 * inset), c + inset + t * (d - c - 2 * inset)
-        points = {"xi1_min": (np.full_like(t, a + inset), along2), "xi1_max": (np.full_like(t, b - inset), along2),
-                  "xi2_min": (along1, np.full_like(t, c + inset)),
-                  "xi2_max": (along1, np.full_like(t, d - inset))}[edge]  # fmt: skip
-        return bool(np.all(inside(self.loops, np.column_stack(points))))
-
-    def keeps(self, xi: np.ndarray) -> np.ndarray:
-        """Whether each parameter point ``(k, 2)`` lies in the kept region."""
-        return inside(self.loops, np.asarray(xi, dtype=float).reshape(-1, 2))
-
-    @property
-    def kept_spans(self) -> np.ndarray:
-        """Spans ``(k,)`` (order ``p1 * n2 + p2``) with some weight."""
-        return np.flatnonzero(self.rule.states != OUTSIDE)
 
 
 def outside_constraints(patch_entries: np.ndarray, trim: Trim, node_shape: tuple[int, int],
@@ -157,16 +97,10 @@ def restrict_term(term, chi: fem.Function):
                                hessians={kind: hessian(h) for kind, h in term.hessians.items()})  # fmt: skip
 
 
-def check_trimmed(trim: Trim, grid: ParameterGrid, loads, point_constraints: Sequence) -> None:
-    """What a trimmed model refuses (:class:`~bhem_hpc.geometry.trim.TrimError`): edge loads on an
-    edge the trim cuts, and point loads or point constraints outside the kept region."""
-    for name, edge_loads in (("line_loads", loads.line_loads), ("edge_moments", loads.edge_moments)):
-        for k, load in enumerate(edge_loads):
-            if not trim.keeps_edge(grid, load.edge):
-                raise TrimError(f"{name}[{k}] acts on edge '{load.edge}', which the trim cuts: edge loads need "
-                                "an edge the trim keeps whole")  # fmt: skip
-    for name, points in (("point_loads", loads.point_loads), ("point_constraints", point_constraints)):
-        for k, point in enumerate(points):
-            if not trim.keeps(np.array([point.xi1, point.xi2]))[0]:
-                raise TrimError(f"{name}[{k}] at (xi1, xi2) = ({point.xi1:g}, {point.xi2:g}) lies outside the "
-                                "trimmed surface")  # fmt: skip
+def check_model(trim: Trim, grid: ParameterGrid, loads, point_constraints: Sequence) -> None:
+    """:func:`check_trimmed` of a model's :class:`~bhem_hpc.model.loads.Loads` and point constraints."""
+    edge_loads = [(f"{family}[{k}]", load.edge) for family in ("line_loads", "edge_moments")
+                  for k, load in enumerate(getattr(loads, family))]  # fmt: skip
+    points = [(f"{family}[{k}]", p.xi1, p.xi2) for family, items in (("point_loads", loads.point_loads),
+              ("point_constraints", point_constraints)) for k, p in enumerate(items)]  # fmt: skip
+    check_trimmed(trim, grid, edge_loads, points)

@@ -27,6 +27,7 @@ from bhem_hpc.scene.records import Effects, Scene, SceneContact
 from bhem_hpc.scene.shared import parse_clock, parse_linear_strategy, parse_output, parse_petsc_options
 from bhem_hpc.scene.surfaces import parse_surface
 from bhem_hpc.scene.table import SceneError, Table, is_number
+from bhem_hpc.scene.trim import parse_trim
 
 # Effects a scene may list; contact effects import the collision code only when listed.
 EFFECTS = ("gravity", "pressure", "damping", *LOADS.names, "contact", "self_collision", "friction", "static_friction")
@@ -173,6 +174,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     if contact is not None and any(isinstance(sc.constraint, bcs.NodalTie) for sc in constraints):
         raise SceneError(f"{path}: contact effects and symmetry planes on a B-spline surface cannot be combined "
                          "(contact rows would push the tied control points)")  # fmt: skip
+    trim = parse_trim(top.table("trim", None), surface, quadrature, effects, points, contact)
     probes = _probes(top, surface)
     plan = _path_plan(top, static, load_steps, probes, path)
     initial_velocity = _initial_velocity(top, static)
@@ -189,6 +191,7 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
         load_steps=load_steps,
         hessian=hessian,
         quadrature=quadrature,
+        trim=trim,
         linear=linear,
         factorization=factorization or "reuse",
         acceleration_tolerance=acceleration_tolerance,

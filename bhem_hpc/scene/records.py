@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from bhem_hpc.geometry import surface as S
+from bhem_hpc.geometry.trim import Trim
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.path import PathPlan, Probe
@@ -111,6 +112,7 @@ class Scene:
     path_plan: PathPlan | None = None  # static scenes: how the equilibrium path is followed
     probes: tuple[Probe, ...] = ()
     initial_velocity: tuple[float, float, float] | None = None  # the shell's uniform velocity at t = 0 [m/s]
+    trim: Trim | None = None  # the part of the surface simulated (``[trim]``); None: all of it
 
     @property
     def nodal_shape(self) -> tuple[int, ...]:

@@ -8,11 +8,10 @@ import pytest
 
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
-from bhem_hpc.geometry.trim import TrimError, legendre_moments
+from bhem_hpc.geometry.trim import Trim, TrimError, legendre_moments
 from bhem_hpc.model.loads import LineLoad, Loads, PointLoad
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import ShellModel
-from bhem_hpc.model.trimmed import Trim
 
 COTTON = Material(young=2.0e6, poisson=0.243, thickness=3.18e-4, density=472.6)
 RADIUS, CENTRE = 0.35, (0.5, 0.5)

@@ -134,4 +134,5 @@ class ShellBody:
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
         scene = self.scene
-        return SurfaceTimeSeries(path, scene.surface, scene.material, scene.output_density, continue_at=continue_at)
+        return SurfaceTimeSeries(path, scene.surface, scene.material, scene.output_density, continue_at=continue_at,
+                                 trim=scene.trim)  # fmt: skip

@@ -30,6 +30,7 @@ from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import render_surface_png, write_checkpoint
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
 from bhem_hpc.io.path_table import CsvTable, probe_columns, read_rows
+from bhem_hpc.io.render import TrimmedSurface
 from bhem_hpc.io.run_directory import start_output_directory, write_replacing
 from bhem_hpc.io.run_summary import RunSummary
 from bhem_hpc.io.vtu import write_pvd
@@ -57,6 +58,7 @@ from bhem_hpc.run import (
     steps_to_run,
 )
 from bhem_hpc.run_ending import on_rank0, summarized
+from bhem_hpc.scene import Scene
 from bhem_hpc.scene.bodies import BodiesScene
 from bhem_hpc.scene.solids import SolidScene
 from bhem_hpc.solver import ShellSolver
@@ -125,8 +127,11 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     models = [body.model for body in bodies]
     for model in scene.cad_models:
         if comm.rank == 0:
-            log.info("%s: %d parts, %d joints, free edges: %s; patches within %.3g m of their parts", model["body"],
-                     model["parts"], len(model["joints"]), ", ".join(model["free_edges"]) or "none",
+            log.info("%s: %d parts, %d joints, free edges: %s; edges trimmed away: %s; trimmed parts (not joined "
+                     "along their trims): %s; patches within %.3g m of their parts", model["body"], model["parts"],
+                     len(model["joints"]), ", ".join(model["free_edges"]) or "none",
+                     ", ".join(model["trimmed_edges"]) or "none",
+                     ", ".join(model["trimmed_parts_not_joined_along_their_trims"]) or "none",
                      model["fit_error_m"])  # fmt: skip
     blocks = StackedBlocks(models)  # where the barrier and the couplings see every body's blocks
     barrier = bodies_barrier(bodies, blocks, scene, options.scene)
@@ -159,7 +164,9 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
         run = _BodiesRun(options, scene, bodies, solver, summary, output, comm)
         surfaces = _step(run, checkpoint, continuing, steps)
         title = f"{options.scene.name}, t = {summary.time or 0:.4g} s"
-        on_rank0(comm, lambda: render_surface_png(options.out / "last.png", surfaces, title), "last.png")
+        drawn = [s if not isinstance(b.scene, Scene) or b.scene.trim is None else TrimmedSurface(s, b.scene.trim.loops)
+                 for b, s in zip(bodies, surfaces, strict=True)]  # fmt: skip
+        on_rank0(comm, lambda: render_surface_png(options.out / "last.png", drawn, title), "last.png")
     return summary.as_dict()
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -50,10 +51,14 @@ def read_parts(path: str | Path) -> list[NurbsSurface]:
     return parts
 
 
-def write_parts(path: str | Path, parts: Sequence[NurbsSurface]) -> None:
-    """Write ``parts`` as an IGES or .3dm file (by the suffix), one NURBS surface per part."""
+def write_parts(path: str | Path, parts: Sequence[NurbsSurface | ShellPart]) -> None:
+    """Write ``parts`` as an IGES or .3dm file (by the suffix), one NURBS surface per part; IGES
+    keeps the trims of trimmed :class:`ShellPart` s (trimmed surfaces, entity 144)."""
     path = Path(path)
     suffix = path.suffix.lower()
+    if suffix in RHINO_SUFFIXES and any(isinstance(p, ShellPart) and p.loops is not None for p in parts):
+        raise SurfaceError(f"{path}: trimmed parts are written as IGES (.igs), not .3dm")
+    parts = [p.surface if isinstance(p, ShellPart) and suffix not in IGES_SUFFIXES else p for p in parts]
     if suffix in IGES_SUFFIXES:
         path.write_text(_iges_text(parts, path.name))
     elif suffix in RHINO_SUFFIXES:
@@ -164,14 +169,17 @@ def _iges_surface(fields: list[str], label: str, path: Path) -> NurbsSurface:
     return surface
 
 
-def _read_iges(path: Path) -> list[NurbsSurface]:
-    entities = _iges_entities(path)
+def _refuse_trimming(entities, path: Path, allowed: tuple[int, ...], whom: str) -> None:
     for pointer, (kind, *_rest) in entities.items():
-        if kind in TRIMMING_ENTITIES:
+        if kind in TRIMMING_ENTITIES and kind not in allowed:
             raise SurfaceError(
-                f"{path}: D{pointer} is a {TRIMMING_ENTITIES[kind]} (entity {kind}); SEM parts are whole NURBS "
-                "surfaces: untrim or split the model in the modeller, or export its surfaces untrimmed"
+                f"{path}: D{pointer} is a {TRIMMING_ENTITIES[kind]} (entity {kind}); {whom}: untrim or split the "
+                "model in the modeller, or export its surfaces untrimmed"
             )
+
+
+def _iges_parts(entities, path: Path) -> list[tuple[int, NurbsSurface]]:
+    """Every rational B-spline surface (128) of the file: its directory pointer and the part."""
     parts = []
     for pointer, (kind, transform, _status, fields, label) in entities.items():
         if kind != 128:
@@ -180,7 +188,63 @@ def _read_iges(path: Path) -> list[NurbsSurface]:
         if label:  # the part's entity label (8 characters at most), with its entry: unique
             surface = surface.with_name(f"{label} (D{pointer})")
         rotation, translation = _transform(entities, transform, path)
-        parts.append(surface.with_control(surface.control @ rotation.T + translation))
+        parts.append((pointer, surface.with_control(surface.control @ rotation.T + translation)))
+    return parts
+
+
+def _read_iges(path: Path) -> list[NurbsSurface]:
+    entities = _iges_entities(path)
+    _refuse_trimming(entities, path, (), "SEM parts are whole NURBS surfaces")
+    return [part for _, part in _iges_parts(entities, path)]
+
+
+@dataclass(frozen=True)
+class ShellPart:
+    """A part of a surface model as a shell takes it: a NURBS surface and its trim.
+
+    Attributes:
+        surface: the part's surface (whole).
+        loops: closed polygons ``(n_k, 2)`` in its parameters bounding what is kept (the first
+            point repeated at the end), or None: all of it.
+    """
+
+    surface: NurbsSurface
+    loops: tuple[np.ndarray, ...] | None = None
+
+
+def read_shell_parts(path: str | Path) -> list[ShellPart]:
+    """The parts of an IGES or .3dm file as shells take them: IGES trimmed surfaces (144) with their
+    trim loops (:mod:`bhem_hpc.io.iges_trim`), other surfaces whole; Rhino files as
+    :func:`read_parts` reads them (trimmed faces refused).
+
+    Raises:
+        SurfaceError: as :func:`read_parts`; also a surface trimmed twice, or trim curves without
+            parameter-space curves (naming the file and the entity).
+    """
+    from bhem_hpc.io.iges_trim import trimmed_surfaces
+
+    path = Path(path)
+    if path.suffix.lower() not in IGES_SUFFIXES:
+        return [ShellPart(part) for part in read_parts(path)]
+    if not path.is_file():
+        raise SurfaceError(f"{path}: no such file")
+    entities = _iges_entities(path)
+    _refuse_trimming(entities, path, (144,), "a shell takes whole or trimmed surfaces (entity 128, 144)")
+    trims: dict[int, tuple] = {}
+    for pointer, (surface, outer, holes) in trimmed_surfaces(entities, path).items():
+        if surface in trims:
+            raise SurfaceError(f"{path}: surface D{surface} is trimmed twice (D{trims[surface][0]} and D{pointer})")
+        trims[surface] = (pointer, outer, holes)
+    parts = []
+    for pointer, surface in _iges_parts(entities, path):
+        _, outer, holes = trims.get(pointer, (0, None, []))
+        if outer is None and holes:  # holes in the whole surface: its boundary is the outer loop
+            (a, b), (c, d) = surface.u.domain, surface.v.domain
+            outer = np.array([(a, c), (b, c), (b, d), (a, d), (a, c)])
+        loops = None if outer is None else (outer, *holes)
+        parts.append(ShellPart(surface, loops))
+    if not parts:
+        raise SurfaceError(f"{path}: the file holds no NURBS surface")
     return parts
 
 
@@ -201,7 +265,51 @@ def _records(fields: Sequence[str], width: int, delimiter: str = ",", end: str =
     return [*lines, current]
 
 
-def _iges_text(parts: Sequence[NurbsSurface], file_name: str) -> str:
+def _surface_fields(part: NurbsSurface) -> list[str]:
+    """Entity 128's parameters of ``part``."""
+    (n, m), (p, q) = part.control.shape[:2], part.degrees
+    polynomial = int(np.all(part.weights == part.weights.flat[0]))
+    fields = ["128", str(n - 1), str(m - 1), str(p), str(q), "0", "0", str(polynomial), "0", "0"]
+    fields += [repr(float(k)) for k in part.u.knots] + [repr(float(k)) for k in part.v.knots]
+    fields += [repr(float(w)) for w in part.weights.T.ravel()]
+    fields += [repr(float(c)) for c in part.control.transpose(1, 0, 2).reshape(-1)]
+    return fields + [repr(float(x)) for x in (*part.u.domain, *part.v.domain)]
+
+
+def _polyline_fields(loop: np.ndarray) -> list[str]:
+    """Entity 126's parameters of a closed polygon in a surface's parameters: a degree-1 B-spline
+    curve through its points (z = 0), parametrized by point index."""
+    count = len(loop)
+    knots = np.concatenate([[0.0], np.arange(count, dtype=float), [count - 1.0]])
+    fields = ["126", str(count - 1), "1", "1", "1", "1", "0"]
+    fields += [repr(float(k)) for k in knots] + ["1.0"] * count
+    fields += [repr(float(c)) for point in loop for c in (point[0], point[1], 0.0)]
+    return fields + ["0.0", repr(float(count - 1)), "0.0", "0.0", "1.0"]
+
+
+def _iges_text(parts: Sequence[NurbsSurface | ShellPart], file_name: str) -> str:
+    """An IGES file of ``parts``: one rational B-spline surface (128) per part and, for a trimmed
+    :class:`ShellPart`, its loops as curves on the surface (126 in its parameters, 142) and the
+    trimmed surface (144) of them."""
+    entities: list[tuple[list[str], str]] = []  # (fields, label); entity k is directory entry 2 k + 1
+    for index, item in enumerate(parts):
+        part = item.surface if isinstance(item, ShellPart) else item
+        label = re.sub(r"[^A-Za-z0-9]", "", part.name)[:8] or f"PART{index}"
+        entities.append((_surface_fields(part), label))
+        surface = 2 * len(entities) - 1
+        loops = item.loops if isinstance(item, ShellPart) else None
+        if loops is None:
+            continue
+        curves = []
+        for loop in loops:
+            entities.append((_polyline_fields(np.asarray(loop, dtype=float)), "TRIMPC"))
+            entities.append((["142", "1", str(surface), str(2 * len(entities) - 1), "0", "1"], "TRIMCOS"))
+            curves.append(str(2 * len(entities) - 1))
+        entities.append((["144", str(surface), "1", str(len(curves) - 1), *curves], label))
+    return _iges_document(entities, file_name)
+
+
+def _iges_document(entities: Sequence[tuple[list[str], str]], file_name: str) -> str:
     start = ["NURBS model written by bhem-hpc: one rational B-spline surface per part"]
     global_fields = [
         _hollerith(","), _hollerith(";"), _hollerith("bhem-hpc"), _hollerith(file_name), _hollerith("bhem-hpc"),
@@ -209,21 +317,14 @@ def _iges_text(parts: Sequence[NurbsSurface], file_name: str) -> str:
         "1", "1.0", _hollerith("20000101.000000"), "1.0E-9", "1.0E3", "", "", "11", "0",
     ]  # fmt: skip
     directory, parameter = [], []
-    for index, part in enumerate(parts):
-        (n, m), (p, q) = part.control.shape[:2], part.degrees
-        polynomial = int(np.all(part.weights == part.weights.flat[0]))
-        fields = ["128", str(n - 1), str(m - 1), str(p), str(q), "0", "0", str(polynomial), "0", "0"]
-        fields += [repr(float(k)) for k in part.u.knots] + [repr(float(k)) for k in part.v.knots]
-        fields += [repr(float(w)) for w in part.weights.T.ravel()]
-        fields += [repr(float(c)) for c in part.control.transpose(1, 0, 2).reshape(-1)]
-        fields += [repr(float(x)) for x in (*part.u.domain, *part.v.domain)]
+    for index, (fields, label) in enumerate(entities):
+        kind = int(fields[0])
         lines = _records(fields, 64)
         sequence = 2 * index + 1
         first_line = len(parameter) + 1
         parameter += [f"{line:<64}{sequence:>8}" for line in lines]
-        label = re.sub(r"[^A-Za-z0-9]", "", part.name)[:8] or f"PART{index}"
-        directory.append(f"{128:>8}{first_line:>8}{0:>8}{0:>8}{0:>8}{0:>8}{0:>8}{0:>8}{'00000000':>8}")
-        directory.append(f"{128:>8}{0:>8}{0:>8}{len(lines):>8}{0:>8}{'':>8}{'':>8}{label:>8}{index:>8}")
+        directory.append(f"{kind:>8}{first_line:>8}{0:>8}{0:>8}{0:>8}{0:>8}{0:>8}{0:>8}{'00000000':>8}")
+        directory.append(f"{kind:>8}{0:>8}{0:>8}{len(lines):>8}{0:>8}{'':>8}{'':>8}{label:>8}{index:>8}")
     out = []
     for code, lines in (("S", start), ("G", _records(global_fields, 72)), ("D", directory), ("P", parameter)):
         out += [f"{line:<72}{code}{number:>7}" for number, line in enumerate(lines, start=1)]

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from bhem_hpc.geometry.interfaces import FoundJoint, find_joints
+from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, find_joints
 from bhem_hpc.scene.bodies import BODY_TYPES, DEFAULT_BODY_TYPE
 from bhem_hpc.scene.interfaces import DEFAULT_TOLERANCE, InterfaceRecord, parse_penalty
 from bhem_hpc.scene.records import Scene
@@ -47,6 +47,8 @@ class CadShell:
     Attributes:
         bodies: each part's scene of one body (part order).
         joints: the joints found (part indices); free_edges: ``(part, edge)`` joined to nothing.
+        trimmed_edges: ``(part, edge)`` that a part's trim cuts (not joined; a trimmed part's trim
+            curves are joined to nothing either).
         penalty: the joints' penalty factor; fit_error: the largest distance [m] of a patch from its part.
         file: the model file.
     """
@@ -57,6 +59,7 @@ class CadShell:
     penalty: float
     fit_error: float
     file: Path
+    trimmed_edges: tuple[tuple[int, str], ...] = ()
 
     def interfaces(self, name: str, first: int) -> tuple[InterfaceRecord, ...]:
         """The joints as the scene's interfaces, the parts being bodies ``first``, ``first + 1``, ...
@@ -71,7 +74,10 @@ class CadShell:
         return {"body": name, "file": str(self.file), "parts": len(self.bodies), "fit_error_m": self.fit_error,
                 "joints": [[f"{name}_{j.first}", j.first_edge, f"{name}_{j.second}", j.second_edge,
                             j.quadrature.gap, "partial" if j.partial else "whole"] for j in self.joints],
-                "free_edges": [f"{name}_{part} {edge}" for part, edge in self.free_edges]}  # fmt: skip
+                "free_edges": [f"{name}_{part} {edge}" for part, edge in self.free_edges],
+                "trimmed_edges": [f"{name}_{part} {edge}" for part, edge in self.trimmed_edges],
+                "trimmed_parts_not_joined_along_their_trims": [f"{name}_{k}" for k, body in enumerate(self.bodies)
+                                                               if body.trim is not None]}  # fmt: skip
 
 
 def _part_constraints(t: Table, parts: int) -> list[list[dict]]:
@@ -116,13 +122,20 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
     parse_shell: Callable[..., Scene] = BODY_TYPES[DEFAULT_BODY_TYPE]
     shared = {k: v for k, v in tables.items() if k in ("time", "solver", "output", "colliders", "material", "effects")}
     bodies = []
-    for k in range(len(parts)):
+    for k, part in enumerate(parts):
         surface = {"kind": "cad_part", "file": file, "part": k, "patches": patches, "discretization": discretization}
+        trim = {} if part.loops is None else {"trim": {"loops": [loop.tolist() for loop in part.loops]}}
         try:
-            bodies.append(parse_shell(path, shared | {"surface": surface, "constraints": constraints[k]},
+            bodies.append(parse_shell(path, shared | {"surface": surface, "constraints": constraints[k]} | trim,
                                       other_bodies_in_contact))  # fmt: skip
         except SceneError as exc:
-            raise SceneError(f"{path}: part {k} ({parts[k].name}): {str(exc).removeprefix(f'{path}: ')}") from None
+            raise SceneError(f"{path}: part {k} ({part.surface.name}): "
+                             f"{str(exc).removeprefix(f'{path}: ')}") from None  # fmt: skip
     joints, free = find_joints([body.surface for body in bodies], tolerance)
-    fit = max(shell_fit_error(part, body.surface) for part, body in zip(parts, bodies, strict=True))
-    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target)
+    # an edge a trim cuts is no edge of the shell: its joints go, and it is listed as trimmed
+    trimmed = {(k, edge) for k, body in enumerate(bodies) if body.trim is not None
+               for edge in EDGES if not body.trim.keeps_edge(body.surface.grid, edge)}  # fmt: skip
+    joints = [j for j in joints if (j.first, j.first_edge) not in trimmed and (j.second, j.second_edge) not in trimmed]
+    free = [edge for edge in free if edge not in trimmed]
+    fit = max(shell_fit_error(part.surface, body.surface) for part, body in zip(parts, bodies, strict=True))
+    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)))

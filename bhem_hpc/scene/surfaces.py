@@ -203,14 +203,15 @@ def _mapped(t: Table, path: Path, discretization: str) -> Shape:
 
 @functools.lru_cache(maxsize=8)
 def _read_model(resolved: str, modified_ns: int, size: int) -> tuple:
-    from bhem_hpc.io.cad import read_parts  # the CAD code loads for CAD models only
+    from bhem_hpc.io.cad import read_shell_parts  # the CAD code loads for CAD models only
 
-    return tuple(read_parts(resolved))
+    return tuple(read_shell_parts(resolved))
 
 
 def model_parts(file: Path) -> list:
-    """The NURBS parts of a CAD model file (:func:`~bhem_hpc.io.cad.read_parts`), read once while the
-    file is unchanged (a ``cad_shell`` body's parts each name the file)."""
+    """The parts of a CAD model file as shells take them (:func:`~bhem_hpc.io.cad.read_shell_parts`:
+    each a NURBS surface and its trim loops or None), read once while the file is unchanged (a
+    ``cad_shell`` body's parts each name the file)."""
     stat = file.stat()
     return list(_read_model(str(file.resolve()), stat.st_mtime_ns, stat.st_size))
 
@@ -228,4 +229,4 @@ def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
     index = t.get("part", "an integer", check=lambda v: 0 <= v < len(parts),
                   expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
     patches, _, _ = _patches(t, discretization)
-    return shell_surface(parts[index], tuple(patches), discretization)
+    return shell_surface(parts[index].surface, tuple(patches), discretization)

@@ -60,8 +60,8 @@ def test_a_models_file_is_read_once_while_it_is_unchanged(comm, shared_tmp_path,
     import bhem_hpc.io.cad as cad
 
     reads = []
-    read_parts = cad.read_parts
-    monkeypatch.setattr(cad, "read_parts", lambda path: reads.append(path) or read_parts(path))
+    read_parts = cad.read_shell_parts
+    monkeypatch.setattr(cad, "read_shell_parts", lambda path: reads.append(path) or read_parts(path))
     path = _scene(comm, shared_tmp_path, "hood.igs", _hood_parts())
     load_any_scene(path)
     assert len(reads) == 1
@@ -101,6 +101,38 @@ def test_a_hood_of_four_parts_is_one_shell_joined_where_its_parts_meet(comm, sha
         on_a = (np.ones(7), along) if edge_a == "xi1_max" else (along, np.ones(7))
         on_b = (np.zeros(7), along) if edge_a == "xi1_max" else (along, np.zeros(7))
         assert np.abs(a.evaluate(*on_a).x - b.evaluate(*on_b).x).max() < 1e-5 * sag  # measured 3e-6: the penalty's
+
+
+def test_a_hood_with_a_trimmed_corner_keeps_its_joints_and_drops_the_edges_its_trim_cuts(comm, shared_tmp_path):
+    """The hood written to IGES with its fourth part trimmed (entity 144): a quarter disk of radius
+    0.5 cut from its outer corner. The four seams stay joined; the two outer edges the trim cuts
+    are reported as trimmed (not free), and the part as not joined along its trim; pressed for 5
+    steps with the other three parts clamped, it runs without a dt halving and the trimmed part's
+    output holds 1 - pi / 16 of the whole part's quads."""
+    from bhem_hpc.io.cad import ShellPart
+
+    arc = np.linspace(0.0, np.pi / 2, 33)
+    corner = np.column_stack([1.0 - 0.5 * np.sin(arc), 1.0 - 0.5 * np.cos(arc)])  # from (1, 0.5) to (0.5, 1)
+    loop = np.concatenate([[(0.0, 0.0), (1.0, 0.0)], corner, [(0.0, 1.0), (0.0, 0.0)]])
+    parts = [*map(ShellPart, _hood_parts()[:3]), ShellPart(_hood_parts()[3], (loop,))]
+    clamped = CLAMPED.split("[[bodies.constraints]]")[1:4]
+    path = _scene(comm, shared_tmp_path, "hood.igs", parts, "".join("[[bodies.constraints]]" + c for c in clamped))
+    scene = load_any_scene(path)
+    report = scene.cad_models[0]
+    assert len(report["joints"]) == 4
+    assert report["trimmed_edges"] == ["hood_3 xi1_max", "hood_3 xi2_max"]
+    assert report["free_edges"] == HOOD_FREE_EDGES[:6]
+    assert report["trimmed_parts_not_joined_along_their_trims"] == ["hood_3"]
+    summary = run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
+    assert sum(s["dt_halvings"] for s in summary["steps"]) == 0 and len(summary["steps"]) == 5
+    if comm.rank == 0:
+        import h5py
+
+        counts = []
+        for name in ("hood_0", "hood_3"):
+            with h5py.File(shared_tmp_path / "out" / name / "surface.h5", "r") as f:
+                counts.append(f["topology"].shape[0])
+        assert counts[1] / counts[0] == pytest.approx(1 - np.pi / 16, rel=0.03)
 
 
 def test_an_open_box_is_joined_along_its_folds_in_either_orientation(comm, shared_tmp_path):

@@ -111,3 +111,56 @@ def test_trimmed_and_bad_files_are_refused(tmp_path, rng):
     model3dm.Write(str(tmp_path / "point.3dm"), 7)
     with pytest.raises(SurfaceError, match=r"point.3dm: the file holds no NURBS surface"):
         read_parts(tmp_path / "point.3dm")
+
+
+def square_with_disk_and_hole():
+    """A flat bicubic part over [0, 2] x [0, 1] (nurbs.box_faces' first face's parameters) with an
+    outer loop (a disk) and a hole (a small square) in its parameters."""
+    part = nurbs.box_faces([0, 0, 0], [2, 1, 1], degree=3, spans=(2, 2))[0]
+    (a, b), (c, d) = part.u.domain, part.v.domain
+    centre, radius = np.array([(a + b) / 2, (c + d) / 2]), 0.45 * min(b - a, d - c)
+    angles = np.linspace(0.0, 2 * np.pi, 65)
+    outer = centre + radius * np.column_stack([np.cos(angles), np.sin(angles)])
+    h = 0.1 * radius
+    hole = centre + np.array([(-h, -h), (-h, h), (h, h), (h, -h), (-h, -h)])
+    return part, (outer, hole)
+
+
+def test_trimmed_parts_round_trip_through_iges(tmp_path, rng):
+    """Written as a trimmed surface (144) with its loops as curves on the surface (142, 126 in the
+    parameters) and read back: the same surface, loops that bound the same region (the same area
+    and inside test), and a whole part beside it stays whole. SEM's reader refuses the file."""
+    from bhem_hpc.geometry.trim import check_loops, inside, legendre_moments
+    from bhem_hpc.io.cad import ShellPart, read_shell_parts
+
+    part, loops = square_with_disk_and_hole()
+    whole = nurbs.sphere(1.0)
+    path = tmp_path / "trimmed.igs"
+    write_parts(path, [ShellPart(part, loops), whole])
+    back = read_shell_parts(path)
+    assert [p.loops is None for p in back] == [False, True]
+    assert_same_surfaces([part, whole], [p.surface for p in back], rng)
+    domain = (part.u.domain, part.v.domain)
+    written, read = check_loops(loops, domain, 1e-9), check_loops(back[0].loops, domain, 1e-9)
+    assert legendre_moments(read, 0)[0, 0] == pytest.approx(legendre_moments(written, 0)[0, 0], rel=1e-12)
+    points = np.column_stack([2 * rng.random(500), rng.random(500)])
+    assert np.array_equal(inside(read, points), inside(written, points))
+    with pytest.raises(SurfaceError, match=r"trimmed.igs: D\d+ is a trimmed surface \(entity 144\)"):
+        read_parts(path)
+
+
+def test_trim_curves_without_parameter_curves_are_refused(tmp_path):
+    from bhem_hpc.io.cad import ShellPart, read_shell_parts
+
+    part, loops = square_with_disk_and_hole()
+    path = tmp_path / "model-space.igs"
+    write_parts(path, [ShellPart(part, loops[:1])])
+    # the curve on the surface (142) loses its parameter-space curve: BPTR = 0
+    text = path.read_text().replace("142,1,1,3,0,1;", "142,1,1,0,0,1;")
+    assert "142,1,1,0,0,1;" in text
+    path.write_text(text)
+    with pytest.raises(SurfaceError, match=r"model-space.igs: trimmed surface D7: the curve on the surface D5 has "
+                                           r"no curve in the surface's parameters"):  # fmt: skip
+        read_shell_parts(path)
+    with pytest.raises(SurfaceError, match="written as IGES"):
+        write_parts(tmp_path / "trimmed.3dm", [ShellPart(part, loops)])

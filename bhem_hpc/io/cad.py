@@ -4,8 +4,10 @@ IGES is read and written here (numpy only): a fixed-column format of 80-characte
 rational B-spline surfaces (entity 128) carry everything a part needs. pyiges 0.3.4 was tried
 and not used: it reads entity 128's parameter range from the wrong fields (``v1`` comes out as
 the entity type, 128) and drops entities it cannot parse with a printed warning, where a model
-must be refused with its file and entity named. Trimmed surfaces (entity 144) and B-rep solids
-(entity 186) are refused with a message: SEM needs whole NURBS parts. Rhino files go through
+must be refused with its file and entity named. :func:`read_parts` (solids) refuses trimmed
+surfaces (entity 144) and B-rep solids (entity 186) with a message: SEM needs whole NURBS parts;
+:func:`read_shell_parts` (shells) reads trimmed surfaces with their trim loops
+(:mod:`bhem_hpc.io.iges_trim`), and :func:`write_parts` writes them back so. Rhino files go through
 McNeel's ``rhino3dm`` (OpenNURBS): NURBS surfaces, untrimmed B-rep faces and surfaces that
 convert to NURBS are read; trimmed faces are refused. Written files hold one NURBS surface per
 part, in order, with the parts' names (the ``.3dm`` object names; IGES entity labels).

@@ -73,11 +73,16 @@ def check_chord_gaps(meshes: Sequence[BodyMesh], dhat: float) -> None:
 def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thickness: float,
                self_contact: bool = False, friction: Friction = FRICTIONLESS) -> BodyMesh:  # fmt: skip
     """A shell's collision lattice of ``cells_per_patch`` cells per patch side (aligned with the
-    patches, so each lattice triangle lies in one cell)."""
+    patches, so each lattice triangle lies in one cell); of a trimmed shell (``model.trim``), the
+    triangles whose centre it keeps (the mesh's edge follows the trim within a lattice cell)."""
     grid = model.rest_surface.grid
     per_side = (grid.n1 * cells_per_patch, grid.n2 * cells_per_patch)
     periodic = (grid.periodic1, grid.periodic2)
     parameters, triangles = collision_lattice(grid.xi1_range, grid.xi2_range, per_side, periodic)
+    if model.trim is not None:
+        triangles = triangles[model.trim.keeps(parameters[triangles].mean(axis=1))]
+        used, triangles = np.unique(triangles, return_inverse=True)
+        parameters, triangles = parameters[used], triangles.reshape(-1, 3)
     disc = model.discretization
     bases = [disc.point_basis(float(a), float(b)) for a, b in parameters]
     rest = model.rest_surface.evaluate(parameters[:, 0], parameters[:, 1]).x

@@ -35,9 +35,10 @@ def parse_trim(t: Table | None, surface, quadrature: int | str | None, effects, 
     path: Path = t.path
     loops = t.get("loops", "a list", check=_is_loops, expected=LOOPS)
     t.done()
-    if contact is not None:
-        raise SceneError(f"{path}: table 'trim' with effects.contact: contact on a trimmed surface is not "
-                         "available (its collision samples would cover the part trimmed away); remove one")  # fmt: skip
+    if contact is not None and contact.method != "ipc":
+        raise SceneError(f"{path}: table 'trim' with effects.contact by impulses: a trimmed surface meets others by "
+                         "IPC (contact = { method = \"ipc\" }), whose collision mesh keeps only what the trim "
+                         "keeps; impulses would sample the part trimmed away")  # fmt: skip
     if quadrature == "reduced":
         raise SceneError(f"{path}: table 'trim' with solver.quadrature = 'reduced': a trimmed surface integrates "
                          "with Gauss points (2, 3, 4 or 5)")  # fmt: skip

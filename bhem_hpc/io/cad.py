@@ -8,9 +8,10 @@ must be refused with its file and entity named. :func:`read_parts` (solids) refu
 surfaces (entity 144) and B-rep solids (entity 186) with a message: SEM needs whole NURBS parts;
 :func:`read_shell_parts` (shells) reads trimmed surfaces with their trim loops
 (:mod:`bhem_hpc.io.iges_trim`), and :func:`write_parts` writes them back so. Rhino files go through
-McNeel's ``rhino3dm`` (OpenNURBS): NURBS surfaces, untrimmed B-rep faces and surfaces that
-convert to NURBS are read; trimmed faces are refused. Written files hold one NURBS surface per
-part, in order, with the parts' names (the ``.3dm`` object names; IGES entity labels).
+McNeel's ``rhino3dm`` (OpenNURBS): NURBS surfaces, B-rep faces and surfaces that convert to NURBS
+are read; trimmed faces are refused for solids and read with their loops for shells. Written files
+hold one NURBS surface per part, in order, with the parts' names (the ``.3dm`` object names; IGES
+entity labels).
 """
 
 from __future__ import annotations
@@ -216,8 +217,8 @@ class ShellPart:
 
 def read_shell_parts(path: str | Path) -> list[ShellPart]:
     """The parts of an IGES or .3dm file as shells take them: IGES trimmed surfaces (144) with their
-    trim loops (:mod:`bhem_hpc.io.iges_trim`), other surfaces whole; Rhino files as
-    :func:`read_parts` reads them (trimmed faces refused).
+    trim loops (:mod:`bhem_hpc.io.iges_trim`), trimmed B-rep faces of .3dm files with loops from
+    their edges (:func:`_face_loops`), other surfaces whole.
 
     Raises:
         SurfaceError: as :func:`read_parts`; also a surface trimmed twice, or trim curves without
@@ -226,6 +227,11 @@ def read_shell_parts(path: str | Path) -> list[ShellPart]:
     from bhem_hpc.io.iges_trim import trimmed_surfaces
 
     path = Path(path)
+    if path.suffix.lower() in RHINO_SUFFIXES and path.is_file():
+        parts = _read_rhino(path, trimmed=True)
+        if not parts:
+            raise SurfaceError(f"{path}: the file holds no NURBS surface")
+        return parts
     if path.suffix.lower() not in IGES_SUFFIXES:
         return [ShellPart(part) for part in read_parts(path)]
     if not path.is_file():
@@ -364,7 +370,9 @@ def _from_rhino(surface, name: str, reversed_u: bool = False) -> NurbsSurface:
     return NurbsSurface((nurbs.OrderU - 1, nurbs.OrderV - 1), knots_u, knots_v, control, weights, name=name)
 
 
-def _read_rhino(path: Path) -> list[NurbsSurface]:
+def _read_rhino(path: Path, trimmed: bool = False) -> list:
+    """The parts of a .3dm file: NURBS surfaces; with ``trimmed``, :class:`ShellPart` s whose trimmed
+    B-rep faces carry loops (:func:`_face_loops`), else a trimmed face is refused."""
     import rhino3dm
 
     model = rhino3dm.File3dm.Read(str(path))
@@ -376,16 +384,57 @@ def _read_rhino(path: Path) -> list[NurbsSurface]:
         name = f"{path.name} object {index}" + (f" ({item.Attributes.Name})" if item.Attributes.Name else "")
         if isinstance(geometry, rhino3dm.Brep):
             for k, face in enumerate(geometry.Faces):
+                surface = _from_rhino(face.UnderlyingSurface(), f"{name} face {k}", face.OrientationIsReversed)
                 # a face alone is "a surface" when it is its whole underlying surface: untrimmed
-                if not face.DuplicateFace(False).IsSurface:
+                whole = face.DuplicateFace(False).IsSurface
+                if not whole and not trimmed:
                     raise SurfaceError(
                         f"{path}: {name} face {k} is trimmed; SEM parts are whole NURBS surfaces: untrim or split "
                         "it in the modeller"
                     )
-                parts.append(_from_rhino(face.UnderlyingSurface(), f"{name} face {k}", face.OrientationIsReversed))
+                if trimmed:
+                    surface = ShellPart(surface, None if whole else _face_loops(geometry, face, surface))
+                parts.append(surface)
         elif isinstance(geometry, rhino3dm.Surface):
-            parts.append(_from_rhino(geometry, name))
+            surface = _from_rhino(geometry, name)
+            parts.append(ShellPart(surface) if trimmed else surface)
     return parts
+
+
+#: Points sampled per trim of a .3dm face (along its 3D edge, which rhino3dm gives; it does not
+#: give the trims' curves in the surface's parameters).
+RHINO_TRIM_SAMPLES = 64
+#: How far [relative to the part's size] an edge's samples may lie from the face's surface.
+RHINO_TRIM_TOLERANCE = 1e-6
+
+
+def _face_loops(brep, face, surface: NurbsSurface) -> tuple[np.ndarray, ...]:
+    """A trimmed .3dm face's loops in ``surface``'s parameters: each trim's 3D edge sampled, the
+    pieces chained end to start (each turned where its far end meets the chain), and put on the
+    surface by closest points (:func:`~bhem_hpc.geometry.nurbs.closest_points`)."""
+    from bhem_hpc.geometry.nurbs import closest_points
+
+    size = float(np.ptp(surface.control.reshape(-1, 3), axis=0).max()) or 1.0
+    loops = []
+    for loop in face.Loops:
+        chain = None
+        for trim in loop.Trims:
+            edge = brep.Edges[trim.EdgeIndex]
+            t = np.linspace(edge.Domain.T0, edge.Domain.T1, RHINO_TRIM_SAMPLES + 1)
+            piece = np.array([[q.X, q.Y, q.Z] for q in (edge.PointAt(float(v)) for v in t)])
+            if chain is None:
+                chain = piece
+                continue
+            if np.linalg.norm(piece[-1] - chain[-1]) < np.linalg.norm(piece[0] - chain[-1]):
+                piece = piece[::-1]
+            chain = np.concatenate([chain, piece[1:]])
+        points = chain
+        parameters, _, distance = closest_points(surface, points)
+        if distance.max() > RHINO_TRIM_TOLERANCE * size:
+            raise SurfaceError(f"{surface.name}: a trim edge lies {distance.max():.3g} from the face's surface")
+        loops.append(np.concatenate([parameters, parameters[:1]]) if np.any(parameters[-1] != parameters[0])
+                     else parameters)  # fmt: skip
+    return tuple(loops)
 
 
 def _write_rhino(path: Path, parts: Sequence[NurbsSurface]) -> None:

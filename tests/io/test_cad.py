@@ -164,3 +164,27 @@ def test_trim_curves_without_parameter_curves_are_refused(tmp_path):
         read_shell_parts(path)
     with pytest.raises(SurfaceError, match="written as IGES"):
         write_parts(tmp_path / "trimmed.3dm", [ShellPart(part, loops)])
+
+
+def test_trimmed_rhino_faces_become_trimmed_parts(tmp_path):
+    """A plane trimmed by a circle of radius 2 (OpenNURBS, rhino3dm): the shell reader gives the
+    plane's surface and one loop in its parameters whose points lie on the circle and whose area is
+    an inscribed 64-gon's (rhino3dm gives trims' 3D edges only: they are put on the surface by
+    closest points); SEM's reader still refuses the face (the test above)."""
+    from bhem_hpc.geometry.trim import check_loops, legendre_moments
+    from bhem_hpc.io.cad import RHINO_TRIM_SAMPLES, read_shell_parts
+
+    model3dm = rhino3dm.File3dm()
+    model3dm.Objects.AddBrep(rhino3dm.Brep.CreateTrimmedPlane(rhino3dm.Plane.WorldXY(),
+                                                              rhino3dm.Circle(2.0).ToNurbsCurve()))  # fmt: skip
+    model3dm.Write(str(tmp_path / "disc.3dm"), 7)
+    parts = read_shell_parts(tmp_path / "disc.3dm")
+    assert len(parts) == 1 and len(parts[0].loops) == 1
+    part = parts[0]
+    loop = part.loops[0]
+    on_surface = part.surface.evaluate(loop[:, 0], loop[:, 1])[0]
+    np.testing.assert_allclose(np.linalg.norm(on_surface[:, :2], axis=1), 2.0, rtol=1e-9)
+    checked = check_loops(part.loops, (part.surface.u.domain, part.surface.v.domain), 1e-9)
+    polygon = 0.5 * RHINO_TRIM_SAMPLES * 4.0 * np.sin(2 * np.pi / RHINO_TRIM_SAMPLES)
+    # the circle's rational parametrization spaces the samples a little unevenly: not quite regular
+    assert legendre_moments(checked, 0)[0, 0] == pytest.approx(polygon, rel=1e-4)

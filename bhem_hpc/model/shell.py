@@ -95,7 +95,7 @@ class ShellModel:
             B-splines: the B-spline paper's reduced rule for membrane and bending, see
             :mod:`bhem_hpc.model.quadrature`; mass and loads keep 3 x 3 Gauss); default: the
             surface's :data:`DEFAULT_QUADRATURE` (4 x 4 for bicubic Hermite and cubic B-splines, the
-            BHEM paper's rule; 3 x 3 for quadratic B-splines); or a :class:`~bhem_hpc.model.trimmed.Trim`:
+            BHEM paper's rule; 3 x 3 for quadratic B-splines); or a :class:`~bhem_hpc.geometry.trim.Trim`:
             its cut-cell rule on its Gauss points, and only the part of the surface it keeps simulated.
         comm: MPI communicator.
         initial: initial state (default: the rest surface).

@@ -136,6 +136,9 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
     trimmed = {(k, edge) for k, body in enumerate(bodies) if body.trim is not None
                for edge in EDGES if not body.trim.keeps_edge(body.surface.grid, edge)}  # fmt: skip
     joints = [j for j in joints if (j.first, j.first_edge) not in trimmed and (j.second, j.second_edge) not in trimmed]
-    free = [edge for edge in free if edge not in trimmed]
+    if trimmed:  # free: the edges left in no joint (a dropped joint's partner among them)
+        joined = {edge for j in joints for edge in ((j.first, j.first_edge), (j.second, j.second_edge))}
+        free = sorted({(k, e) for k in range(len(bodies)) for e in EDGES} - joined - trimmed,
+                      key=lambda item: (item[0], EDGES.index(item[1])))  # fmt: skip
     fit = max(shell_fit_error(part.surface, body.surface) for part, body in zip(parts, bodies, strict=True))
     return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)))

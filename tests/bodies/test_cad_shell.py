@@ -177,3 +177,21 @@ def test_a_missing_model_file_is_refused_naming_the_key(comm, shared_tmp_path):
     comm.Barrier()
     with pytest.raises(SceneError, match=r"body 'hood' \(bodies\[0\]\): key 'file' must be an existing regular file"):
         load_any_scene(path)
+
+
+def test_a_trim_that_cuts_a_seam_drops_its_joint_and_frees_the_partner_edge(comm, shared_tmp_path):
+    """The hood's fourth part with a quarter disk cut at its inner corner, which both its seams
+    reach: both joints go, its two inner edges are reported trimmed, and their partners (hood_1's
+    and hood_2's seam edges) are free edges now."""
+    from bhem_hpc.io.cad import ShellPart
+
+    arc = np.linspace(0.0, np.pi / 2, 33)
+    corner = np.column_stack([0.5 * np.sin(arc), 0.5 * np.cos(arc)])  # from (0, 0.5) to (0.5, 0)
+    loop = np.concatenate([corner, [(1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.5)]])
+    parts = [*map(ShellPart, _hood_parts()[:3]), ShellPart(_hood_parts()[3], (loop,))]
+    report = load_any_scene(_scene(comm, shared_tmp_path, "hood.igs", parts)).cad_models[0]
+    assert [joint[:4] for joint in report["joints"]] == [["hood_0", "xi2_max", "hood_1", "xi2_min"],
+                                                         ["hood_0", "xi1_max", "hood_2", "xi1_min"]]  # fmt: skip
+    assert report["trimmed_edges"] == ["hood_3 xi1_min", "hood_3 xi2_min"]
+    assert "hood_1 xi1_max" in report["free_edges"] and "hood_2 xi2_max" in report["free_edges"]
+    assert "hood_3 xi1_max" in report["free_edges"] and len(report["free_edges"]) == 10

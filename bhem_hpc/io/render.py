@@ -55,14 +55,22 @@ Drawable = Union[HermiteSurface, TrimmedSurface, NurbsParts]  # noqa: UP007 (a r
 MAX_TRIM_PASSES = 8
 #: How far beyond such a hit [relative to its distance] the ray starts again.
 TRIM_PASS_OFFSET = 1e-9
+#: Samples per parameter direction that frame a trimmed shell's picture (with its loops).
+FRAMING_SAMPLES = 33
 
 
 def _corner_points(body: Drawable) -> np.ndarray:
     """``(n, 3)`` points whose bounding box holds the body (nodes or control points)."""
     if isinstance(body, NurbsParts):
         return np.concatenate([part.control.reshape(-1, 3) for part in body.parts])
-    if isinstance(body, TrimmedSurface):
-        body = body.surface
+    if isinstance(body, TrimmedSurface):  # the kept region's points: its loops and a lattice inside
+        grid = body.surface.grid
+        along1, along2 = np.linspace(*grid.xi1_range, FRAMING_SAMPLES), np.linspace(*grid.xi2_range, FRAMING_SAMPLES)
+        lattice = np.stack(np.meshgrid(along1, along2, indexing="ij"), axis=-1).reshape(-1, 2)
+        xi = np.concatenate([*body.loops, lattice[inside(body.loops, lattice)]])
+        lo, hi = np.array([grid.xi1_range[0], grid.xi2_range[0]]), np.array([grid.xi1_range[1], grid.xi2_range[1]])
+        xi = np.clip(xi, lo, hi)
+        return body.surface.evaluate(xi[:, 0], xi[:, 1]).x.reshape(-1, 3)
     return body.nodal[..., 0, :].reshape(-1, 3)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import write_scene
 
-from bhem_hpc.io.render import TrimmedSurface, render
+from bhem_hpc.io.render import TrimmedSurface, _trace, camera_rays, render
 from bhem_hpc.io.xdmf import read_frame, read_trim_loops
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.scene import SceneError, load_scene
@@ -38,9 +38,12 @@ def test_the_trimmed_flag_runs_and_shows_only_its_half_disk(comm, shared_tmp_pat
     scene = load_scene(FLAG)
     assert len(loops) == 1 and np.allclose(loops[0], scene.trim.loops[0])
     surface, _ = read_frame(out / "surface.h5")
-    _, trimmed = render(TrimmedSurface(surface, tuple(loops)), 120, 90)
-    _, full = render(surface, 120, 90)
-    assert 0 < trimmed.sum() < 0.6 * full.sum()
+    eye, directions = camera_rays(surface, 120, 90)  # one camera for both: the whole sheet's
+    trimmed = np.isfinite(_trace(TrimmedSurface(surface, tuple(loops)), eye, directions)[0]).sum()
+    full = np.isfinite(_trace(surface, eye, directions)[0]).sum()
+    assert 0.3 * full < trimmed < 0.6 * full
+    _, framed = render(TrimmedSurface(surface, tuple(loops)), 120, 90)  # framed on the half disk: larger
+    assert framed.sum() > trimmed
     assert (out / "last.png").stat().st_size > 0 and params > 0
 
 

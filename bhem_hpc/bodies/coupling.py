@@ -113,30 +113,42 @@ class _Frames:
     n_b2: np.ndarray
 
     @staticmethod
-    def of(frames: np.ndarray, along: int) -> _Frames:
+    def of(frames: np.ndarray, along: int | np.ndarray) -> _Frames:
         n_a, n_a1, n_a2 = _normal(frames[:, 1], frames[:, 2])
         n_b, n_b1, n_b2 = _normal(frames[:, 4], frames[:, 5])
-        t, t_e = _unit(frames[:, 1 + along])
+        c = _directions(along, len(frames))
+        t, t_e = _unit(c[:, :1] * frames[:, 1] + c[:, 1:] * frames[:, 2])
         return _Frames(n_a, n_a1, n_a2, t, t_e, np.cross(t, n_a), n_b, n_b1, n_b2)
 
 
-def rest_angles(frames: np.ndarray, along: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _directions(along: int | np.ndarray, count: int) -> np.ndarray:
+    """The interface's direction in patch A's parameters at each point ``(k, 2)``: ``along`` 0 or 1
+    (an edge: a1 or a2), or the directions themselves (a curve, :attr:`EdgeQuadrature.directions`)."""
+    if isinstance(along, int | np.integer):
+        return np.tile(np.eye(2)[int(along)], (count, 1))
+    return np.asarray(along, dtype=float).reshape(count, 2)
+
+
+def rest_angles(frames: np.ndarray, along: int | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(cos f0, sin f0, r_0)`` ``(k,), (k,), (k, 3)`` of rest frames ``(k, 6, 3)`` (``along``: which
-    tangent of patch A runs along its edge, 0: a1, 1: a2)."""
+    tangent of patch A runs along its edge, 0: a1, 1: a2; or each point's direction ``(k, 2)`` in
+    A's parameters, the interface's tangent ``t ~ c1 a1 + c2 a2``)."""
     f = _Frames.of(frames, along)
     cos0, sin0 = np.einsum("kc,kc->k", f.n_a, f.n_b), np.einsum("kc,kc->k", f.m_a, f.n_b)
     return cos0, sin0, f.n_b - cos0[:, None] * f.n_a - sin0[:, None] * f.m_a
 
 
-def angle_residual(frames: np.ndarray, along: int,
+def angle_residual(frames: np.ndarray, along: int | np.ndarray,
                    rest: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The rotation term's residual ``r (k, 3)`` at frames ``(k, 6, 3)`` and its derivatives
-    ``J (k, 4, 3, 3)`` by the tangent slots (:data:`TANGENT_SLOTS`); ``rest`` from :func:`rest_angles`."""
+    ``J (k, 4, 3, 3)`` by the tangent slots (:data:`TANGENT_SLOTS`); ``along`` as for
+    :func:`rest_angles`, ``rest`` from it."""
     f = _Frames.of(frames, along)
+    c = _directions(along, len(frames))
     cos0, sin0, r0 = rest
-    # m_A = t x n_A: dm_A = -[n_A]x dt + [t]x dn_A, dt nonzero for the edge's own tangent only
-    m_a1 = _skew(f.t) @ f.n_a1 - (_skew(f.n_a) @ f.t_e if along == 0 else 0.0)
-    m_a2 = _skew(f.t) @ f.n_a2 - (_skew(f.n_a) @ f.t_e if along == 1 else 0.0)
+    # m_A = t x n_A with t ~ c1 a1 + c2 a2: dm_A = -[n_A]x dt + [t]x dn_A, dt = t_e c_i da_i
+    m_a1 = _skew(f.t) @ f.n_a1 - c[:, 0, None, None] * (_skew(f.n_a) @ f.t_e)
+    m_a2 = _skew(f.t) @ f.n_a2 - c[:, 1, None, None] * (_skew(f.n_a) @ f.t_e)
     c, s = cos0[:, None, None], sin0[:, None, None]
     residual = f.n_b - cos0[:, None] * f.n_a - sin0[:, None] * f.m_a - r0
     return residual, np.stack([-c * f.n_a1 - s * m_a1, -c * f.n_a2 - s * m_a2, f.n_b1, f.n_b2], axis=1)
@@ -181,7 +193,8 @@ class InterfaceCoupling:
         #: starts, 0 once sewn; a joint: 1)
         self.stitch_scale = 1.0
         self.comm = blocks.comm
-        self.along = quadrature.along
+        #: the interface's direction in the first patch's parameters (an edge: its index; a curve: per point)
+        self.along = quadrature.along if quadrature.directions is None else quadrature.directions
         self.weights = np.asarray(quadrature.weights, dtype=float)
         self.displacement_stiffness, self.rotation_stiffness = (float(v) for v in stiffness)
         frames = np.asarray(frames, dtype=float)

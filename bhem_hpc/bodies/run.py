@@ -127,11 +127,11 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     models = [body.model for body in bodies]
     for model in scene.cad_models:
         if comm.rank == 0:
-            log.info("%s: %d parts, %d joints, free edges: %s; edges trimmed away: %s; trimmed parts (not joined "
-                     "along their trims): %s; patches within %.3g m of their parts", model["body"], model["parts"],
-                     len(model["joints"]), ", ".join(model["free_edges"]) or "none",
+            log.info("%s: %d parts, %d joints, free edges: %s; edges trimmed away: %s; trimmed parts joined to "
+                     "nothing along their trims: %s; patches within %.3g m of their parts", model["body"],
+                     model["parts"], len(model["joints"]), ", ".join(model["free_edges"]) or "none",
                      ", ".join(model["trimmed_edges"]) or "none",
-                     ", ".join(model["trimmed_parts_not_joined_along_their_trims"]) or "none",
+                     ", ".join(model["trimmed_parts_joined_to_nothing_along_their_trims"]) or "none",
                      model["fit_error_m"])  # fmt: skip
     blocks = StackedBlocks(models)  # where the barrier and the couplings see every body's blocks
     barrier = bodies_barrier(bodies, blocks, scene, options.scene)
@@ -199,12 +199,12 @@ def interface_couplings(scene: BodiesScene, bodies: list[Body], blocks: StackedB
     if not scene.interfaces:
         return []
     from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames
-    from bhem_hpc.geometry.interfaces import element_across
+    from bhem_hpc.geometry.interfaces import element_size
 
     couplings = []
     for record in scene.interfaces:
         sides = [scene.bodies[k] for k in record.bodies]
-        element = min(element_across(side.surface, edge) for side, edge in zip(sides, record.edges, strict=True))
+        element = min(element_size(side.surface, edge) for side, edge in zip(sides, record.edges, strict=True))
         stiffness = np.max([penalty_stiffness(side.material.young, side.material.poisson, side.material.thickness,
                                               element, record.penalty) for side in sides], axis=0)  # fmt: skip
         if not record.keep_angle:

@@ -51,6 +51,8 @@ class EdgeQuadrature:
         weights: rest arc length ``(k,)`` [m] each point stands for (their sum: the edge's length).
         along: which parameter runs along the first edge (0: xi1, 1: xi2).
         gap: the largest rest distance [m] between a point and its partner.
+        directions: along a curve (a trim curve), each point's direction in the first surface's
+            parameters ``(k, 2)``; None: along the edge ``along``.
     """
 
     first: np.ndarray
@@ -58,6 +60,7 @@ class EdgeQuadrature:
     weights: np.ndarray
     along: int
     gap: float
+    directions: np.ndarray | None = None
 
 
 def edge_line(grid: ParameterGrid, edge: str) -> tuple[int, float, tuple[float, float], np.ndarray]:
@@ -243,6 +246,21 @@ def element_across(surface: Patch, edge: str) -> float:
     across = point.a1 if along == 1 else point.a2
     width = surface.grid.h1 if along == 1 else surface.grid.h2
     return float(width * np.linalg.norm(across, axis=-1).mean())
+
+
+def element_size(surface: Patch, edge: str) -> float:
+    """The penalty rule's element size [m] across a side of an interface: across ``edge``
+    (:func:`element_across`), or, along a curve (a trim curve, any other name), the smaller rest
+    width of the knot spans, averaged over their centres."""
+    if edge in EDGES:
+        return element_across(surface, edge)
+    grid = surface.grid
+    centre1 = grid.xi1_range[0] + (np.arange(grid.n1) + 0.5) * grid.h1
+    centre2 = grid.xi2_range[0] + (np.arange(grid.n2) + 0.5) * grid.h2
+    a, b = (v.ravel() for v in np.meshgrid(centre1, centre2, indexing="ij"))
+    point = surface.evaluate(a, b)
+    widths = np.minimum(grid.h1 * np.linalg.norm(point.a1, axis=-1), grid.h2 * np.linalg.norm(point.a2, axis=-1))
+    return float(widths.mean())
 
 
 @dataclass(frozen=True)

@@ -47,8 +47,9 @@ class CadShell:
     Attributes:
         bodies: each part's scene of one body (part order).
         joints: the joints found (part indices); free_edges: ``(part, edge)`` joined to nothing.
-        trimmed_edges: ``(part, edge)`` that a part's trim cuts (not joined; a trimmed part's trim
-            curves are joined to nothing either).
+        trimmed_edges: ``(part, edge)`` that a part's trim cuts (not joined as edges; a trimmed
+            part's trim curves are joined where they run along another part,
+            :mod:`bhem_hpc.geometry.trim_joints`).
         penalty: the joints' penalty factor; fit_error: the largest distance [m] of a patch from its part.
         file: the model file.
     """
@@ -76,8 +77,10 @@ class CadShell:
                             j.quadrature.gap, "partial" if j.partial else "whole"] for j in self.joints],
                 "free_edges": [f"{name}_{part} {edge}" for part, edge in self.free_edges],
                 "trimmed_edges": [f"{name}_{part} {edge}" for part, edge in self.trimmed_edges],
-                "trimmed_parts_not_joined_along_their_trims": [f"{name}_{k}" for k, body in enumerate(self.bodies)
-                                                               if body.trim is not None]}  # fmt: skip
+                "trimmed_parts_joined_to_nothing_along_their_trims": [
+                    f"{name}_{k}" for k, body in enumerate(self.bodies) if body.trim is not None
+                    and not any(j.first == k and j.first_edge == "trim curve" or j.second == k
+                                and j.second_edge == "trim curve" for j in self.joints)]}  # fmt: skip
 
 
 def _part_constraints(t: Table, parts: int) -> list[list[dict]]:
@@ -140,5 +143,14 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
         joined = {edge for j in joints for edge in ((j.first, j.first_edge), (j.second, j.second_edge))}
         free = sorted({(k, e) for k in range(len(bodies)) for e in EDGES} - joined - trimmed,
                       key=lambda item: (item[0], EDGES.index(item[1])))  # fmt: skip
+    if any(part.loops is not None for part in parts):  # trimmed parts meet others along their trim curves
+        from bhem_hpc.geometry.trim_joints import edges_joined, find_trim_joints
+
+        shells = [body.surface for body in bodies]
+        curves = find_trim_joints([part.surface for part in parts], shells,
+                                  [body.trim.loops if body.trim is not None else None for body in bodies],
+                                  tolerance, joints)  # fmt: skip
+        along = set().union(*(edges_joined(j, shells) for j in curves)) if curves else set()
+        joints, free = joints + curves, [edge for edge in free if edge not in along]
     fit = max(shell_fit_error(part.surface, body.surface) for part, body in zip(parts, bodies, strict=True))
     return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)))

@@ -78,11 +78,15 @@ class _Slots:
                                 self.stitch_scale)  # fmt: skip
 
 
-@pytest.mark.parametrize(("seed", "along", "stitch_scale"), [(0, 0, None), (1, 1, None), (2, 0, 0.5), (3, 1, 0.0)])
+@pytest.mark.parametrize(("seed", "along", "stitch_scale"),
+                         [(0, 0, None), (1, 1, None), (2, 0, 0.5), (3, 1, 0.0), (4, "curve", None)])  # fmt: skip
 def test_the_couplings_gradient_and_angle_jacobian_are_the_slopes_of_its_energy_and_residual(seed, along,
                                                                                             stitch_scale):  # fmt: skip
-    """A joint and a seam (stitches at half their rest length, and sewn)."""
+    """A joint and a seam (stitches at half their rest length, and sewn); a joint along a curve
+    (a trim curve: each point's own direction in the first patch's parameters)."""
     rng = np.random.default_rng(seed)
+    if along == "curve":
+        along = rng.normal(size=(4, 2))
     rest = _frames(rng)
     slots = _Slots(rest, along, stitch_scale=stitch_scale)
     frames = rest + 0.2 * rng.normal(size=rest.shape)

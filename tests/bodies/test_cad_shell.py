@@ -27,23 +27,30 @@ def _hood_parts() -> list[nurbs.NurbsSurface]:
                              (2, 2))  # fmt: skip
 
 
-def _scene(comm, folder: Path, model: str, parts, body: str = "", discretization: str = "bspline3") -> Path:
+def _scene(comm, folder: Path, model: str, parts, body: str = "", discretization: str = "bspline3",
+           name: str = "hood", patches: str = "[4, 4]", clock: tuple[float, int] = (0.002, 5),
+           plate: tuple[float, float, float] = (1.0e-3, -3.0e3, 50.0)) -> Path:  # fmt: skip
+    """A cad_shell scene of ``parts`` (written to ``model``): a steel sheet of thickness ``plate[0]``
+    pressed by ``plate[1]`` Pa, mass damping ``plate[2]`` 1/s, ``clock``: dt [s] and steps."""
+    thickness, pressure, damping = plate
+    dt, steps = clock
     if comm.rank == 0:
+        folder.mkdir(exist_ok=True)
         write_parts(folder / model, parts)
         (folder / "scene.toml").write_text(f"""
 [time]
-dt = 0.002
-steps = 5
+dt = {dt}
+steps = {steps}
 [output]
-every = 5
+every = {steps}
 [[bodies]]
-name = "hood"
+name = "{name}"
 type = "cad_shell"
 file = "{model}"
-patches = [4, 4]
+patches = {patches}
 discretization = "{discretization}"
-material = {{ young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }}
-effects = {{ area_loads = [{{ force = [0.0, 0.0, -3.0e3] }}], damping = {{ mass = 50.0 }} }}
+material = {{ young = 2.0e11, poisson = 0.3, thickness = {thickness}, density = 7850.0 }}
+effects = {{ area_loads = [{{ force = [0.0, 0.0, {pressure}] }}], damping = {{ mass = {damping} }} }}
 {body}
 """)
     comm.Barrier()
@@ -234,29 +241,9 @@ def test_two_parts_trimmed_along_a_wavy_cut_bend_as_one_plate(comm, shared_tmp_p
                                                ShellPart(_flat_part(0.4, 1.6, 0.5), loops[1:])], "[6, 3]"),
                                   ("one.igs", [_flat_part(0.0, 1.6, 0.5)], "[8, 3]")):  # fmt: skip
         folder = shared_tmp_path / model.removesuffix(".igs")
-        if comm.rank == 0:
-            folder.mkdir()
-            write_parts(folder / model, parts)
-            (folder / "scene.toml").write_text(f"""
-[time]
-dt = 0.01
-steps = 6
-[output]
-every = 6
-[[bodies]]
-name = "plate"
-type = "cad_shell"
-file = "{model}"
-patches = {patches}
-discretization = "bspline3"
-material = {{ young = 2.0e11, poisson = 0.3, thickness = 5.0e-3, density = 7850.0 }}
-effects = {{ area_loads = [{{ force = [0.0, 0.0, -2.0e2] }}], damping = {{ mass = 100.0 }} }}
-[[bodies.constraints]]
-part = 0
-type = "clamp"
-edge = "xi1_min"
-""")
-        comm.Barrier()
+        clamp = '[[bodies.constraints]]\npart = 0\ntype = "clamp"\nedge = "xi1_min"\n'
+        _scene(comm, folder, model, parts, clamp, name="plate", patches=patches, clock=(0.01, 6),
+               plate=(5.0e-3, -2.0e2, 100.0))  # fmt: skip
         summary = run_scene(RunOptions(folder / "scene.toml", folder / "out", progress=False), comm)
         free_end = read_frame(folder / "out" / f"plate_{len(parts) - 1}" / "surface.h5")[0]
         tips.append(free_end.evaluate(np.ones(3), np.array([0.0, 0.5, 1.0])).x[:, 2])

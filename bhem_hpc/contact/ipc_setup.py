@@ -80,7 +80,7 @@ def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thicknes
     periodic = (grid.periodic1, grid.periodic2)
     parameters, triangles = collision_lattice(grid.xi1_range, grid.xi2_range, per_side, periodic)
     if model.trim is not None:
-        triangles = triangles[model.trim.keeps(parameters[triangles].mean(axis=1))]
+        triangles = model.trim.kept_elements(parameters, triangles)
         used, triangles = np.unique(triangles, return_inverse=True)
         parameters, triangles = parameters[used], triangles.reshape(-1, 3)
     disc = model.discretization

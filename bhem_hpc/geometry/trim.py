@@ -85,8 +85,9 @@ def _crossing_segments(loops: Sequence[np.ndarray]) -> tuple[int, int] | None:
         same = owner[later] == owner[i]
         gap = np.abs(local[later] - local[i])
         later = later[~(same & ((gap == 1) | (gap == sizes[i] - 1)))]
-        if len(later) and np.any(_segments_meet(starts[i], ends[i], starts[later], ends[later])):
-            return int(i), int(later[_segments_meet(starts[i], ends[i], starts[later], ends[later])][0])
+        meets = later[_segments_meet(starts[i], ends[i], starts[later], ends[later])] if len(later) else later
+        if len(meets):
+            return int(i), int(meets[0])
     return None
 
 
@@ -110,6 +111,12 @@ def _segments_meet(p: np.ndarray, q: np.ndarray, starts: np.ndarray, ends: np.nd
     other_lo = np.minimum(starts[:, axis], ends[:, axis])
     other_hi = np.maximum(starts[:, axis], ends[:, axis])
     return np.where(collinear, (other_lo <= hi) & (other_hi >= lo), proper)
+
+
+def close_loop(points: np.ndarray) -> np.ndarray:
+    """A polygon ``(n, 2)`` as a loop is written: its first point repeated at its end (once)."""
+    points = np.asarray(points, dtype=float)
+    return points if np.array_equal(points[-1], points[0]) else np.concatenate([points, points[:1]])
 
 
 def inside(loops: Sequence[np.ndarray], points: np.ndarray) -> np.ndarray:
@@ -373,6 +380,11 @@ class Trim:
     def keeps(self, xi: np.ndarray) -> np.ndarray:
         """Whether each parameter point ``(k, 2)`` lies in the kept region."""
         return inside(self.loops, np.asarray(xi, dtype=float).reshape(-1, 2))
+
+    def kept_elements(self, parameters: np.ndarray, elements: np.ndarray) -> np.ndarray:
+        """The ``elements`` ``(e, k)`` (vertex indices into ``parameters (v, 2)``) whose centre it keeps:
+        a tessellation or collision mesh of the kept region, its edge within an element of the trim."""
+        return elements[self.keeps(parameters[elements].mean(axis=1))]
 
     @property
     def kept_spans(self) -> np.ndarray:

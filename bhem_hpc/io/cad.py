@@ -77,6 +77,11 @@ def _iges_number(text: str) -> float:
     return float(text.strip().replace("D", "E").replace("d", "e"))
 
 
+def iges_numbers(fields: list[str]) -> np.ndarray:
+    """An entity's parameters after its type (``fields[0]``) as numbers, empty fields left out."""
+    return np.array([_iges_number(f) for f in fields[1:] if f.strip()])
+
+
 def _iges_sections(path: Path) -> dict[str, list[str]]:
     sections: dict[str, list[str]] = {"S": [], "G": [], "D": [], "P": [], "T": []}
     for number, line in enumerate(path.read_text(errors="replace").splitlines(), start=1):
@@ -142,7 +147,7 @@ def _transform(entities, pointer: int, path: Path) -> tuple[np.ndarray, np.ndarr
 
 def _iges_surface(fields: list[str], label: str, path: Path) -> NurbsSurface:
     try:
-        values = np.array([_iges_number(f) for f in fields[1:] if f.strip()])
+        values = iges_numbers(fields)
         k1, k2, m1, m2 = (int(v) for v in values[:4])
         at = 9
         knots_u = values[at : at + k1 + m1 + 2]
@@ -224,18 +229,20 @@ def read_shell_parts(path: str | Path) -> list[ShellPart]:
         SurfaceError: as :func:`read_parts`; also a surface trimmed twice, or trim curves without
             parameter-space curves (naming the file and the entity).
     """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (*IGES_SUFFIXES, *RHINO_SUFFIXES) or not path.is_file():
+        return [ShellPart(part) for part in read_parts(path)]  # which refuses the file, naming why
+    parts = _read_rhino(path, trimmed=True) if suffix in RHINO_SUFFIXES else _read_iges_shells(path)
+    if not parts:
+        raise SurfaceError(f"{path}: the file holds no NURBS surface")
+    return parts
+
+
+def _read_iges_shells(path: Path) -> list[ShellPart]:
+    """:func:`read_shell_parts` of an IGES file."""
     from bhem_hpc.io.iges_trim import trimmed_surfaces
 
-    path = Path(path)
-    if path.suffix.lower() in RHINO_SUFFIXES and path.is_file():
-        parts = _read_rhino(path, trimmed=True)
-        if not parts:
-            raise SurfaceError(f"{path}: the file holds no NURBS surface")
-        return parts
-    if path.suffix.lower() not in IGES_SUFFIXES:
-        return [ShellPart(part) for part in read_parts(path)]
-    if not path.is_file():
-        raise SurfaceError(f"{path}: no such file")
     entities = _iges_entities(path)
     _refuse_trimming(entities, path, (144,), "a shell takes whole or trimmed surfaces (entity 128, 144)")
     trims: dict[int, tuple] = {}
@@ -251,8 +258,6 @@ def read_shell_parts(path: str | Path) -> list[ShellPart]:
             outer = np.array([(a, c), (b, c), (b, d), (a, d), (a, c)])
         loops = None if outer is None else (outer, *holes)
         parts.append(ShellPart(surface, loops))
-    if not parts:
-        raise SurfaceError(f"{path}: the file holds no NURBS surface")
     return parts
 
 
@@ -413,6 +418,7 @@ def _face_loops(brep, face, surface: NurbsSurface) -> tuple[np.ndarray, ...]:
     pieces chained end to start (each turned where its far end meets the chain), and put on the
     surface by closest points (:func:`~bhem_hpc.geometry.nurbs.closest_points`)."""
     from bhem_hpc.geometry.nurbs import closest_points
+    from bhem_hpc.geometry.trim import close_loop
 
     size = float(np.ptp(surface.control.reshape(-1, 3), axis=0).max()) or 1.0
     loops = []
@@ -428,12 +434,10 @@ def _face_loops(brep, face, surface: NurbsSurface) -> tuple[np.ndarray, ...]:
             if np.linalg.norm(piece[-1] - chain[-1]) < np.linalg.norm(piece[0] - chain[-1]):
                 piece = piece[::-1]
             chain = np.concatenate([chain, piece[1:]])
-        points = chain
-        parameters, _, distance = closest_points(surface, points)
+        parameters, _, distance = closest_points(surface, chain)
         if distance.max() > RHINO_TRIM_TOLERANCE * size:
             raise SurfaceError(f"{surface.name}: a trim edge lies {distance.max():.3g} from the face's surface")
-        loops.append(np.concatenate([parameters, parameters[:1]]) if np.any(parameters[-1] != parameters[0])
-                     else parameters)  # fmt: skip
+        loops.append(close_loop(parameters))
     return tuple(loops)
 
 

@@ -18,16 +18,14 @@ import numpy as np
 
 from bhem_hpc.geometry.nurbs import KnotDirection
 from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.geometry.trim import close_loop
+from bhem_hpc.io.cad import iges_numbers
 
 #: Points sampled on each knot span of a parameter-space B-spline curve (a trimmed shell's loops
 #: follow the curve within its chords' sagitta).
 SAMPLES_PER_SPAN = 24
 #: Curves a composite curve may chain (bounds the walk through pointers).
 MAX_COMPOSITE = 10_000
-
-
-def _numbers(fields: list[str]) -> np.ndarray:
-    return np.array([float(f.strip().replace("D", "E").replace("d", "e")) for f in fields[1:] if f.strip()])
 
 
 def _bspline_curve(values: np.ndarray, where: str) -> np.ndarray:
@@ -62,12 +60,12 @@ def _curve(entities, pointer: int, where: str, depth: int = 0) -> np.ndarray:
     kind, _, _, fields, _ = entities[pointer]
     at = f"{where}: D{pointer}"
     if kind == 126:
-        return _bspline_curve(_numbers(fields), at)
+        return _bspline_curve(iges_numbers(fields), at)
     if kind == 110:
-        values = _numbers(fields)
+        values = iges_numbers(fields)
         return np.array([values[0:2], values[3:5]])
     if kind == 102 and depth == 0:
-        values = _numbers(fields)
+        values = iges_numbers(fields)
         count = int(values[0])
         if not 1 <= count <= MAX_COMPOSITE or len(values) < count + 1:
             raise SurfaceError(f"{at}: a composite curve (102) of {count} curves, with {len(values) - 1} pointers")
@@ -83,13 +81,12 @@ def _loop(entities, pointer: int, where: str) -> np.ndarray:
     kind, _, _, fields, _ = entities.get(pointer, (None, 0, "", [], ""))
     if kind != 142:
         raise SurfaceError(f"{where}: D{pointer} is not a curve on a surface (entity 142), got {kind}")
-    values = _numbers(fields)
+    values = iges_numbers(fields)
     parameter_curve = int(values[2]) if len(values) > 2 else 0
     if not parameter_curve:
         raise SurfaceError(f"{where}: the curve on the surface D{pointer} has no curve in the surface's parameters "
                            "(only its model-space curve); export trims with their parameter-space curves")  # fmt: skip
-    points = _curve(entities, parameter_curve, f"{where}: D{pointer}")
-    return np.concatenate([points, points[:1]]) if np.any(points[-1] != points[0]) else points
+    return close_loop(_curve(entities, parameter_curve, f"{where}: D{pointer}"))
 
 
 def trimmed_surfaces(entities, path: Path) -> dict[int, tuple[int, np.ndarray | None, list[np.ndarray]]]:
@@ -101,7 +98,7 @@ def trimmed_surfaces(entities, path: Path) -> dict[int, tuple[int, np.ndarray | 
         if kind != 144:
             continue
         where = f"{path}: trimmed surface D{pointer}"
-        values = _numbers(fields)
+        values = iges_numbers(fields)
         try:
             surface, outer_given, holes, outer = int(values[0]), int(values[1]), int(values[2]), int(values[3])
             inner = [int(v) for v in values[4 : 4 + holes]]

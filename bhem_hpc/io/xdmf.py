@@ -175,7 +175,7 @@ class SurfaceTimeSeries:
         self.density = density
         _, self.quads, self.params = rest.tessellate(density)
         if trim is not None:
-            self.quads = self.quads[trim.keeps(self.params[self.quads].mean(axis=1))]
+            self.quads = trim.kept_elements(self.params, self.quads)
         self.rest_point = rest.evaluate(self.params[:, 0], self.params[:, 1])
         self.times: list[float] = []
         self._failed = False

@@ -29,6 +29,7 @@ import scipy.sparse.linalg
 
 from bhem_hpc.contact.ipc import IpcError, closest_distance
 from bhem_hpc.contact.ipc_friction import LaggedFriction
+from bhem_hpc.contact.ipc_round import RoundCollider, RoundObstacles
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
 log = logging.getLogger(__name__)
@@ -91,6 +92,8 @@ class Obstacles:
         planes: ``(unit normal, point)``; plane_colliders: each plane's collider index.
         mesh_velocities, plane_velocities: each mesh's and plane's translation velocity ``(3,)``
             [m/s] (empty: all at rest).
+        round: static round colliders met through their signed distance, with their collider
+            indices (:mod:`~bhem_hpc.contact.ipc_round`).
     """
 
     meshes: list[tuple[np.ndarray, np.ndarray, Callable[[float], np.ndarray], int]]
@@ -98,6 +101,7 @@ class Obstacles:
     plane_colliders: list[int]
     mesh_velocities: list[np.ndarray] = field(default_factory=list)
     plane_velocities: list[np.ndarray] = field(default_factory=list)
+    round: list[tuple[RoundCollider, int]] = field(default_factory=list)
 
     @property
     def moving(self) -> bool:
@@ -128,7 +132,8 @@ class IpcBarrier:
         rest: the mesh's vertices at rest ``(points, 3)`` [m]: ipc-toolkit's edge-edge mollifier
             is scaled by the rest edges' lengths (a mesh at rest in one point makes the barrier's
             gradient disagree with its energy where edges cross).
-        obstacles: the static colliders' triangle meshes and planes (the barrier distance to the plane).
+        obstacles: the colliders' triangle meshes, planes (the barrier distance to the plane) and
+            round colliders (the barrier distance to their exact shape).
         dhat: the barrier's activation distance [m]; stiffness: ``kappa`` [N/m].
         comm: the shell's communicator (``rank``, ``allreduce``, ``allgather``: an mpi4py one).
         groups: each mesh vertex's group ``(points,)``: elements whose vertices are all of one group
@@ -194,6 +199,10 @@ class IpcBarrier:
         self._coordinate_map = scipy.sparse.kron(self.global_map, scipy.sparse.identity(3), format="csr")
         self._coordinate_map_transposed = self._coordinate_map.T.tocsr()
         self._pattern = self._triangle_pattern(np.asarray(triangles, dtype=np.int64))
+        self.round = RoundObstacles([c for c, _ in obstacles.round], [i for _, i in obstacles.round],
+                                    np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), self.dhat)
+        # ipc-toolkit finds pairs only across vertex groups, or with obstacle meshes and planes
+        self._toolkit_pairs = bool(obstacles.meshes or obstacles.planes or len(np.unique(groups)) > 1)
         self.mesh = self._collision_mesh(np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), obstacles,
                                          groups)  # fmt: skip
         self.barrier = ipctk.BarrierPotential(self.dhat, self.stiffness)
@@ -283,10 +292,13 @@ class IpcBarrier:
         the energy (its line search's accepted trial), the gradient and the Hessian; each build
         takes tens of milliseconds on a mesh that meets itself (the needles job: 57 ms)."""
         last_vertices, collisions = self._last_collisions
+        if collisions is not None and not self._toolkit_pairs:
+            return collisions
         if collisions is not None and last_vertices.shape == vertices.shape and np.array_equal(last_vertices, vertices):
             return collisions
         collisions = self._ipctk.NormalCollisions()
-        collisions.build(self.mesh, vertices, self.dhat)
+        if self._toolkit_pairs:
+            collisions.build(self.mesh, vertices, self.dhat)
         if self.mesh.planes:
             collisions.pv_collisions = self._plane_collisions(vertices)
         self._last_collisions = (np.array(vertices), collisions)
@@ -360,7 +372,8 @@ class IpcBarrier:
         return {"method": "ipc", "dhat_m": self.dhat, "barrier_stiffness": self.stiffness,
                 "barrier_stiffness_start": self._start_stiffness, "barrier_stiffness_limit": self.stiffness_limit,
                 "stiffness_doublings": self.stiffness_doublings, "barrier_s": self.seconds,
-                "collision_vertices": self.num_points, "friction": friction is not None,
+                "collision_vertices": self.num_points, "round_colliders": len(self.round),
+                "round_offsets_m": self.round.offsets.tolist(), "friction": friction is not None,
                 "eps_v_m_s": friction.eps_v if friction is not None else None,
                 "velocity_tolerance_m_s": self.velocity_tolerance}  # fmt: skip
 
@@ -381,6 +394,8 @@ class IpcBarrier:
     def energy(self, state: ContributionState) -> float:
         vertices = self._vertices(state.positions)
         energy = float(self.barrier(self._collisions(vertices), self.mesh, vertices))
+        if len(self.round):
+            energy += self.round.energy(vertices[: self.num_points], self.stiffness)
         if self.friction is not None:
             energy += self.friction.energy(self.mesh, vertices)
         return energy if self.rank == 0 else 0.0
@@ -391,6 +406,8 @@ class IpcBarrier:
         full = np.asarray(self.barrier.gradient(self._collisions(vertices), self.mesh, vertices)).reshape(-1, 3)
         if self.friction is not None:
             full = full + self.friction.gradient(self.mesh, vertices)
+        if len(self.round):
+            full[: self.num_points] += self.round.gradient(vertices[: self.num_points], self.stiffness)
         gradient += self.local_map.T @ full[: self.num_points]
 
     @_timed
@@ -408,6 +425,10 @@ class IpcBarrier:
             hessian = hessian + self.friction.hessian(self.mesh, vertices)
         size = 3 * self.num_points
         shell = hessian[:size, :size]
+        if len(self.round):
+            blocks = self.round.hessian(vertices[: self.num_points], self.stiffness)
+            count = np.arange(self.num_points + 1)
+            shell = shell + scipy.sparse.bsr_matrix((blocks, count[:-1], count), shape=(size, size)).tocsr()
         blocks = (self._coordinate_map_transposed @ shell @ self._coordinate_map).tobsr(blocksize=(3, 3))
         return self._split(blocks)
 
@@ -445,7 +466,12 @@ class IpcBarrier:
     def _collision_free_fraction(self, start: np.ndarray, end: np.ndarray) -> float:
         """The largest fraction of the straight motion of the mesh's vertices ``start -> end``
         ``(vertices, 3)`` that no pair crosses (ipc-toolkit's additive CCD)."""
-        return float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+        bound = 1.0
+        if self._toolkit_pairs:
+            bound = float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
+        if len(self.round):
+            bound = min(bound, self.round.step_bound(start[: self.num_points], end[: self.num_points]))
+        return bound
 
     @property
     def diagonal(self) -> float:
@@ -563,7 +589,8 @@ class IpcBarrier:
         """Collective: the smallest distance [m] between the mesh and the obstacles within ``dhat``
         (``inf`` if none is)."""
         vertices = self._vertices(positions)
-        return closest_distance(self._collisions(vertices), self.mesh, vertices)
+        distance = closest_distance(self._collisions(vertices), self.mesh, vertices)
+        return min(distance, self.round.min_distance(vertices[: self.num_points])) if len(self.round) else distance
 
     def starting_problem(self, positions: np.ndarray) -> str | None:
         """Collective: why the mesh at ``positions`` cannot start a barrier solve (it intersects an
@@ -578,7 +605,14 @@ class IpcBarrier:
                 name = self.collider_names[index] if self.collider_names else f"collider {index}"
                 return (f"{name} (a plane) has {len(behind)} collision vertices on or behind it, "
                         f"e.g. {shell[behind[0]]}")
-        if self._ipctk.has_intersections(self.mesh, vertices):
+        behind = self.round.behind(shell) if len(self.round) else None
+        if behind is not None:
+            index, vertex, gap = behind
+            name = self.collider_names[index] if self.collider_names else f"collider {index}"
+            return (f"{name} has collision vertices within {self.round.offsets[self.round.indices.index(index)]:.3g} m "
+                    f"of it (the offset that keeps the mesh's triangles out of it), e.g. {shell[vertex]} "
+                    f"({gap:.3g} m from there)")
+        if self._toolkit_pairs and self._ipctk.has_intersections(self.mesh, vertices):
             within = ", or within a body that meets itself" if self.self_contact else ""
             return f"the collision mesh intersects (between bodies, or with a collider mesh{within})"
         return None

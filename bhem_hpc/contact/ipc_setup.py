@@ -28,6 +28,7 @@ from bhem_hpc.contact.ipc_friction import (
     pair_table,
     surface_friction,
 )
+from bhem_hpc.contact.ipc_round import STRETCH_ALLOWANCE, RoundCollider, circumradii, round_offset
 from bhem_hpc.errors import RunError
 from bhem_hpc.solver.contributions import PointBasis
 from bhem_hpc.solver.step_test import auto_velocity_tolerance
@@ -178,10 +179,12 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     for _ in joined:  # each pass joins one more link of a chain of joined meshes
         for first, second in joined:
             groups[first][:] = groups[second][:] = min(groups[first][0], groups[second][0])
-    obstacles = _obstacles(colliders, dhat, np.stack([rest.min(axis=0), rest.max(axis=0)]))
     frictions = [FRICTIONLESS] * len(colliders) if collider_friction is None else list(collider_friction)
     if len(frictions) != len(colliders):
         raise ValueError(f"{len(colliders)} colliders need as many friction coefficients, got {len(frictions)}")
+    circumradius = STRETCH_ALLOWANCE * float(circumradii(rest, np.concatenate(triangles)).max(initial=0.0))
+    obstacles = _obstacles(colliders, dhat, np.stack([rest.min(axis=0), rest.max(axis=0)]),
+                           [not f.any for f in frictions], circumradius)  # fmt: skip
     friction = None
     if any(f.any for f in [mesh.friction for mesh in meshes] + frictions):
         friction = _lagged_friction(meshes, obstacles, frictions, eps_v)
@@ -239,18 +242,27 @@ def shell_barrier(model: ShellModel, colliders: Sequence[Any], dhat: float | Non
     return bodies_barrier([mesh], [0], model.global_open_blocks, model.comm, colliders, dhat, stiffness)
 
 
-def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obstacles:
-    """Colliders as the barrier's triangle meshes and planes: curved ones tessellated within
-    :data:`COLLIDER_SAGITTA` dhat (an infinite cylinder over the part of its axis the bodies' box
-    ``cover (2, 3)`` spans and a diagonal of it beyond; a sphere's vertices moving at its surface velocity)."""
+def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray, frictionless: Sequence[bool],
+               circumradius: float) -> Obstacles:  # fmt: skip
+    """Colliders as the barrier's planes, round colliders and triangle meshes. A sphere, capsule or
+    cylinder that does not move, has no friction (``frictionless``, per collider) and whose offset
+    for the mesh's triangles (``circumradius`` [m], :func:`~bhem_hpc.contact.ipc_round.round_offset`)
+    is within dhat, the distance the barrier keeps contacts at anyway, is met through its exact
+    signed distance; the other curved ones are tessellated within :data:`COLLIDER_SAGITTA` dhat (an
+    infinite cylinder over the part of its axis the bodies' box ``cover (2, 3)`` spans and a
+    diagonal of it beyond; a sphere's vertices moving at its surface velocity)."""
     from bhem_hpc.collision.colliders import ColliderError, Plane
 
-    meshes, planes, plane_colliders, mesh_velocities, plane_velocities = [], [], [], [], []
+    meshes, planes, plane_colliders, mesh_velocities, plane_velocities, round_colliders = [], [], [], [], [], []
     for index, c in enumerate(colliders):
         if isinstance(c, Plane):
             planes.append((c.normal / np.linalg.norm(c.normal), c.point))
             plane_colliders.append(index)
             plane_velocities.append(np.asarray(c.velocity, dtype=float))
+            continue
+        if (isinstance(c, RoundCollider) and frictionless[index] and not np.any(c.velocity)
+                and round_offset(float(c.radius), circumradius) <= dhat):  # fmt: skip
+            round_colliders.append((c, index))
             continue
         try:
             points, faces = c.tessellation(COLLIDER_SAGITTA * dhat, cover)
@@ -260,7 +272,7 @@ def _obstacles(colliders: Sequence[Any], dhat: float, cover: np.ndarray) -> Obst
         points = np.asarray(points, dtype=float).reshape(-1, 3)
         meshes.append((points, faces, _surface_velocity(c, points), index))
         mesh_velocities.append(np.asarray(c.velocity, dtype=float))
-    return Obstacles(meshes, planes, plane_colliders, mesh_velocities, plane_velocities)
+    return Obstacles(meshes, planes, plane_colliders, mesh_velocities, plane_velocities, round_colliders)
 
 
 def _surface_velocity(collider: Any, points: np.ndarray) -> Callable[[float], np.ndarray]:

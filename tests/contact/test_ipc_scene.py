@@ -176,28 +176,32 @@ def test_two_ranks_drop_the_sheet_as_one_rank_does(comm, shared_tmp_path):
     comm.Barrier()
 
 
-@pytest.mark.parametrize("radius", [0.05, 40.0])
-def test_a_sheet_dropped_across_a_cylinder_drapes_over_it_and_never_enters_it(comm, shared_tmp_path, radius):
-    """A cylinder along y under the sheet's middle, its top at z = 0 (a thin one the sheet folds
-    over; one of radius 40 m, almost a floor, whose mesh needs many vertices around): every output
-    point of every frame stays outside the exact cylinder, but for the sagitta its triangles lie
-    inside it (dhat / 4), and the sheet ends resting on it."""
+@pytest.mark.parametrize("radius, exact", [(0.05, False), (40.0, True)])
+def test_a_sheet_dropped_across_a_cylinder_drapes_over_it_and_never_enters_it(comm, shared_tmp_path, radius, exact):
+    """A cylinder along y under the sheet's middle, its top at z = 0, and the sheet ends resting
+    on it. One of radius 40 m, almost a floor, is met through its exact distance: every output
+    point of every frame stays outside it. A thin one the sheet folds over would need an offset
+    beyond dhat for the sheet's triangles (1.2 mm): it is met as triangles within dhat / 4 inside
+    it, and the sheet stays outside it but for that."""
     colliders = (f'[[colliders]]\ntype = "cylinder"\npoint = [0.1, 0.0, {-radius}]\naxis = [0.0, 1.0, 0.0]\n'
                  f'radius = {radius}\n')  # fmt: skip
     out = shared_tmp_path / f"cylinder-{radius}"
     summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, f"cylinder-{radius}", colliders=colliders), out,
                                    progress=False), comm)  # fmt: skip
-    assert sum(s["recoveries"] for s in summary["steps"]) == 0
+    assert sum(s["recoveries"] for s in summary["steps"]) == 0 and summary["contact"]["round_colliders"] == exact
     if comm.rank == 0:
         with h5py.File(out / "surface.h5", "r") as f:
             frames = [f[f"frames/{k}/geometry"][:] for k in range(len(f["frames"]))]
         axis_point = np.array([0.1, 0.0, -radius])
         gaps = [np.linalg.norm((x - axis_point)[:, [0, 2]], axis=1).min() - radius for x in frames]
-        assert min(gaps) > -0.25e-3 and gaps[-1] < 1e-3
+        assert min(gaps) > (0.0 if exact else -0.25e-3) and gaps[-1] < 1e-3
 
 
 def test_a_cylinder_too_wide_for_its_triangles_is_refused_by_key_before_any_output(comm, shared_tmp_path):
-    colliders = '[[colliders]]\ntype = "cylinder"\npoint = [0.1, 0.0, -1e5]\naxis = [0.0, 1.0, 0.0]\nradius = 1e5\n'
+    """With friction the cylinder is met as triangles (friction acts on ipc-toolkit's pairs), too
+    many of them around."""
+    colliders = ('[[colliders]]\ntype = "cylinder"\npoint = [0.1, 0.0, -1e5]\naxis = [0.0, 1.0, 0.0]\nradius = 1e5\n'
+                 'friction = 0.3\n')  # fmt: skip
     path = _scene(comm, shared_tmp_path, "wide", colliders=colliders)
     with pytest.raises(RunError, match=r"wide.toml: key 'colliders\[0\]': a cylinder of radius 100000 "
                                        r"needs more than 1024 vertices around .* a larger 'effects.contact.dhat'"):
@@ -235,18 +239,19 @@ def test_a_sheet_dropped_on_a_mesh_or_patch_floor_stays_above_it(comm, shared_tm
 
 
 def test_a_sheet_dropped_on_a_sphere_stays_outside_it(comm, shared_tmp_path):
-    """The sphere meets the barrier as an icosphere within dhat / 4 inside it: the sheet draping its
-    top stays outside the exact sphere but for that (measured: never inside, 0.9 µm at the closest)."""
+    """The sphere meets the barrier through its exact distance: the sheet draping its top stays
+    outside it, and within dhat of it once landed."""
     colliders = '[[colliders]]\ntype = "sphere"\ncenter = [0.1, 0.1, -0.1]\nradius = 0.1\n'
     out = shared_tmp_path / "on-sphere"
     summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "sphere", colliders=colliders), out, steps=12,
                                    progress=False), comm)  # fmt: skip
     assert summary["status"] == "completed" and len(summary["steps"]) == 12
+    assert summary["contact"]["round_colliders"] == 1
     if comm.rank == 0:
         with h5py.File(out / "surface.h5", "r") as f:
             gaps = [np.linalg.norm(f[f"frames/{k}/geometry"][...] - [0.1, 0.1, -0.1], axis=1).min() - 0.1
                     for k in range(len(f["frames"]))]  # fmt: skip
-        assert min(gaps) >= -0.25e-3 and min(gaps[8:]) <= 1e-3  # within dhat of it once landed
+        assert min(gaps) > 0.0 and min(gaps[8:]) <= 1e-3  # within dhat of it once landed
 
 
 def test_a_floor_under_the_sphere_does_not_change_the_sheets_landing_on_it(comm, shared_tmp_path):
@@ -271,9 +276,10 @@ def test_a_floor_under_the_sphere_does_not_change_the_sheets_landing_on_it(comm,
 
 
 def test_a_sheet_dropped_across_a_capsule_stays_outside_it(comm, shared_tmp_path):
-    """A capsule (a needle lying along y under the sheet's middle) meets the barrier as rings of
-    triangles within dhat / 4 inside it: the sheet folding over it stays outside the exact capsule
-    but for that, and rests on it within dhat."""
+    """A capsule (a needle lying along y under the sheet's middle) too thin for an offset within
+    dhat (4.9 mm for the sheet's triangles) meets the barrier as rings of triangles within dhat / 4
+    inside it: the sheet folding over it stays outside the exact capsule but for that, and rests on
+    it within dhat."""
     from bhem_hpc.collision.colliders import Capsule
 
     colliders = '[[colliders]]\ntype = "capsule"\na = [0.1, -0.05, -0.01]\nb = [0.1, 0.25, -0.01]\nradius = 0.01\n'
@@ -281,6 +287,7 @@ def test_a_sheet_dropped_across_a_capsule_stays_outside_it(comm, shared_tmp_path
     summary = run_scene(RunOptions(_scene(comm, shared_tmp_path, "capsule", colliders=colliders), out, steps=12,
                                    progress=False), comm)  # fmt: skip
     assert summary["status"] == "completed" and sum(s["recoveries"] for s in summary["steps"]) == 0
+    assert summary["contact"]["round_colliders"] == 0
     if comm.rank == 0:
         capsule = Capsule(np.array([0.1, -0.05, -0.01]), np.array([0.1, 0.25, -0.01]), 0.01)
         with h5py.File(out / "surface.h5", "r") as f:
@@ -339,6 +346,18 @@ def test_a_sheet_starting_below_the_plane_is_refused_before_the_first_step(comm,
     with pytest.raises(RunError, match=r"starts in contact with its colliders .*colliders\[0\] \(a plane\) has \d+ "
                                        r"collision vertices"):
         run_scene(RunOptions(path, shared_tmp_path / "below", progress=False), comm)
+
+
+def test_a_sheet_starting_within_a_spheres_offset_is_refused_before_the_first_step(comm, shared_tmp_path):
+    """A sphere of radius 0.1 m met through its exact distance, its top 0.3 mm under the sheet's
+    wave crest above it: the sheet is outside it, but within the offset (0.6 mm) its triangles need."""
+    colliders = '[[colliders]]\ntype = "sphere"\ncenter = [0.1, 0.1, -0.0935]\nradius = 0.1\n'
+    path = _scene(comm, shared_tmp_path, "within-offset", colliders=colliders)
+    with pytest.raises(RunError, match=r"starts in contact with its colliders .*colliders\[0\] has collision "
+                                       r"vertices within 0.000\d+ m of it \(the offset that keeps the mesh's "
+                                       r"triangles out of it\)"):
+        run_scene(RunOptions(path, shared_tmp_path / "within-offset", progress=False), comm)
+    assert not (shared_tmp_path / "within-offset").exists()
 
 
 def test_self_contact_by_ipc_needs_no_collider_and_sets_the_barriers_solve(comm, shared_tmp_path):

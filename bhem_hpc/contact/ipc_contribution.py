@@ -29,7 +29,7 @@ import scipy.sparse.linalg
 
 from bhem_hpc.contact.ipc import IpcError, closest_distance
 from bhem_hpc.contact.ipc_friction import LaggedFriction
-from bhem_hpc.contact.ipc_round import RoundCollider, RoundObstacles
+from bhem_hpc.contact.ipc_round import RoundCollider, RoundObstacles, allowed_circumradius
 from bhem_hpc.solver.contributions import ContributionState, PointBasis, no_blocks
 
 log = logging.getLogger(__name__)
@@ -200,7 +200,7 @@ class IpcBarrier:
         self._coordinate_map_transposed = self._coordinate_map.T.tocsr()
         self._pattern = self._triangle_pattern(np.asarray(triangles, dtype=np.int64))
         self.round = RoundObstacles([c for c, _ in obstacles.round], [i for _, i in obstacles.round],
-                                    np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), self.dhat)
+                                    allowed_circumradius(rest, triangles), self.dhat)  # fmt: skip
         # ipc-toolkit finds pairs only across vertex groups, or with obstacle meshes and planes
         self._toolkit_pairs = bool(obstacles.meshes or obstacles.planes or len(np.unique(groups)) > 1)
         self.mesh = self._collision_mesh(np.asarray(triangles), np.asarray(rest, dtype=float).reshape(-1, 3), obstacles,
@@ -426,9 +426,9 @@ class IpcBarrier:
         size = 3 * self.num_points
         shell = hessian[:size, :size]
         if len(self.round):
-            blocks = self.round.hessian(vertices[: self.num_points], self.stiffness)
+            diagonal = self.round.hessian(vertices[: self.num_points], self.stiffness)  # (points, 3, 3)
             count = np.arange(self.num_points + 1)
-            shell = shell + scipy.sparse.bsr_matrix((blocks, count[:-1], count), shape=(size, size)).tocsr()
+            shell = shell + scipy.sparse.bsr_matrix((diagonal, count[:-1], count), shape=(size, size)).tocsr()
         blocks = (self._coordinate_map_transposed @ shell @ self._coordinate_map).tobsr(blocksize=(3, 3))
         return self._split(blocks)
 

@@ -74,6 +74,13 @@ def circumradii(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
         return np.where(twice_area > 0, ab * bc * ca / (2.0 * np.maximum(twice_area, 1e-300)), np.inf)
 
 
+def allowed_circumradius(vertices: np.ndarray, triangles: np.ndarray) -> float:
+    """``rho`` [m]: :data:`STRETCH_ALLOWANCE` times the largest circumradius of a mesh's triangles
+    ``(T, 3)`` at rest (vertices ``(V, 3)``; 0 without triangles)."""
+    radii = circumradii(np.asarray(vertices, dtype=float).reshape(-1, 3), np.asarray(triangles).reshape(-1, 3))
+    return STRETCH_ALLOWANCE * float(radii.max(initial=0.0))
+
+
 def round_offset(radius: float, circumradius: float) -> float:
     """The gap ``sqrt(R^2 + rho^2) - R`` [m] that keeps a triangle of circumradius ``rho`` whose
     vertices are that far outside a round shape of radius ``R`` out of it."""
@@ -86,19 +93,17 @@ class RoundObstacles:
     Args:
         colliders: the round colliders, each at rest (no translation).
         indices: each one's collider index in the scene.
-        triangles: the collision mesh's triangles ``(T, 3)``; rest: its vertices at rest ``(V, 3)`` [m].
+        circumradius: ``rho`` [m], :func:`allowed_circumradius` of the collision mesh.
         dhat: the barrier's activation distance [m].
     """
 
-    def __init__(self, colliders: Sequence[RoundCollider], indices: Sequence[int], triangles: np.ndarray,
-                 rest: np.ndarray, dhat: float):  # fmt: skip
+    def __init__(self, colliders: Sequence[RoundCollider], indices: Sequence[int], circumradius: float,
+                 dhat: float):  # fmt: skip
         self.colliders = list(colliders)
         self.indices = [int(i) for i in indices]
         self.dhat = float(dhat)
-        radii = circumradii(np.asarray(rest, dtype=float), np.asarray(triangles))
-        rho = STRETCH_ALLOWANCE * float(radii.max(initial=0.0))
         #: each collider's offset ``delta`` [m] (see the module)
-        self.offsets = np.array([round_offset(float(c.radius), rho) for c in self.colliders])
+        self.offsets = np.array([round_offset(float(c.radius), circumradius) for c in self.colliders])
 
     def __len__(self) -> int:
         return len(self.colliders)

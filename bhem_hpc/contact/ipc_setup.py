@@ -28,7 +28,7 @@ from bhem_hpc.contact.ipc_friction import (
     pair_table,
     surface_friction,
 )
-from bhem_hpc.contact.ipc_round import STRETCH_ALLOWANCE, RoundCollider, circumradii, round_offset
+from bhem_hpc.contact.ipc_round import RoundCollider, allowed_circumradius, round_offset
 from bhem_hpc.errors import RunError
 from bhem_hpc.solver.contributions import PointBasis
 from bhem_hpc.solver.step_test import auto_velocity_tolerance
@@ -150,7 +150,8 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
                    joined: Sequence[tuple[int, int]] = ()) -> IpcBarrier:  # fmt: skip
     """The barrier between bodies' collision ``meshes`` (each body's open blocks at rows
     ``open_offsets[b]:`` of the contributions' state, their global blocks ``global_open_blocks``),
-    and between them and colliders (planes exactly, the others as triangle meshes, :func:`_obstacles`);
+    and between them and colliders (planes exactly, round ones at rest without friction by their signed
+    distance, the others as triangle meshes, :func:`_obstacles`);
     ``dhat`` by default 1e-3 of the bodies' rest bounding-box diagonal. ``kappa`` by default starts at
     the top of ipc-toolkit's adaptive range for that ``dhat`` and the bodies' mean mass per vertex and
     grows up to :data:`STIFFNESS_GROWTH_LIMIT` times that (:meth:`IpcBarrier.adapt`); a given one
@@ -182,9 +183,9 @@ def bodies_barrier(meshes: Sequence[BodyMesh], open_offsets: Sequence[int], glob
     frictions = [FRICTIONLESS] * len(colliders) if collider_friction is None else list(collider_friction)
     if len(frictions) != len(colliders):
         raise ValueError(f"{len(colliders)} colliders need as many friction coefficients, got {len(frictions)}")
-    circumradius = STRETCH_ALLOWANCE * float(circumradii(rest, np.concatenate(triangles)).max(initial=0.0))
-    obstacles = _obstacles(colliders, dhat, np.stack([rest.min(axis=0), rest.max(axis=0)]),
-                           [not f.any for f in frictions], circumradius)  # fmt: skip
+    cover = np.stack([rest.min(axis=0), rest.max(axis=0)])
+    circumradius = allowed_circumradius(rest, np.concatenate(triangles))
+    obstacles = _obstacles(colliders, dhat, cover, [not f.any for f in frictions], circumradius)
     friction = None
     if any(f.any for f in [mesh.friction for mesh in meshes] + frictions):
         friction = _lagged_friction(meshes, obstacles, frictions, eps_v)

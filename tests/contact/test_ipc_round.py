@@ -16,6 +16,7 @@ from bhem_hpc.contact.ipc_round import (
     GAP_KEPT,
     STRETCH_ALLOWANCE,
     RoundObstacles,
+    allowed_circumradius,
     circumradii,
     clamped_log_barrier,
     round_offset,
@@ -29,7 +30,7 @@ TRIANGLE = (np.array([[0, 1, 2]]), np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], 
 
 def _obstacles(colliders, dhat=1e-3) -> RoundObstacles:
     triangles, rest = TRIANGLE
-    return RoundObstacles(colliders, list(range(len(colliders))), triangles, rest, dhat)
+    return RoundObstacles(colliders, list(range(len(colliders))), allowed_circumradius(rest, triangles), dhat)
 
 
 def test_the_barrier_and_its_derivatives_are_ipc_toolkits():

@@ -607,9 +607,9 @@ class IpcBarrier:
                         f"e.g. {shell[behind[0]]}")
         behind = self.round.behind(shell) if len(self.round) else None
         if behind is not None:
-            index, vertex, gap = behind
+            index, vertex, gap, offset = behind
             name = self.collider_names[index] if self.collider_names else f"collider {index}"
-            return (f"{name} has collision vertices within {self.round.offsets[self.round.indices.index(index)]:.3g} m "
+            return (f"{name} has collision vertices within {offset:.3g} m "
                     f"of it (the offset that keeps the mesh's triangles out of it), e.g. {shell[vertex]} "
                     f"({gap:.3g} m from there)")
         if self._toolkit_pairs and self._ipctk.has_intersections(self.mesh, vertices):

@@ -159,13 +159,15 @@ class RoundObstacles:
         _, gaps, _ = self._near(vertices)
         return float(gaps.min(initial=math.inf))
 
-    def behind(self, vertices: np.ndarray) -> tuple[int, int, float] | None:
-        """The first pair whose gap is not positive: ``(collider index in the scene, vertex, gap)``, or None."""
+    def behind(self, vertices: np.ndarray) -> tuple[int, int, float, float] | None:
+        """The first pair whose gap is not positive: ``(collider index in the scene, vertex, gap,
+        the collider's offset)``, or None."""
         gaps, _ = self.gaps(vertices)
         collider, vertex = np.nonzero(gaps <= 0.0)
         if not len(collider):
             return None
-        return self.indices[int(collider[0])], int(vertex[0]), float(gaps[collider[0], vertex[0]])
+        k = int(collider[0])
+        return self.indices[k], int(vertex[0]), float(gaps[k, vertex[0]]), float(self.offsets[k])
 
     def step_bound(self, start: np.ndarray, end: np.ndarray) -> float:
         """The largest fraction ``t`` in [0, 1] of the straight motion ``start -> end`` ``(V, 3)`` of

@@ -103,3 +103,15 @@ def test_the_smallest_gap_of_a_run_of_several_bodies_is_over_every_bodys_series(
     assert gaps["frames"] == 2 and gaps["self_intersecting_frames"] == 0
     assert gaps["min_signed_gap_m"] == pytest.approx(-0.03, abs=1e-12)
     assert gaps["min_self_distance_m"] == pytest.approx(0.2, abs=1e-12)  # the sheets 0.2 m apart in the first frame
+
+
+def test_the_page_lists_the_windows_it_timed_and_a_method_only_where_its_window_names_it():
+    from bhem_hpc.benchmarks.contact_page import contact_markdown
+
+    can = [w for w in CONTACT_WINDOWS if w.job == "crushed-can"]
+    assert [w.methods for w in can] == [("impulse", "ipc"), ("impulse",)]
+    rows = [{"job": "crushed-can", "method": "impulse", "window": [can[1].start + 1, can[1].start + can[1].steps],
+             "status": "failed: stopped", "steps": 0}]  # fmt: skip
+    page = contact_markdown(rows, "bhem-hpc contact-page", "a test")
+    assert f"- crushed-can: steps {can[1].start + 1}–{can[1].start + can[1].steps}, {can[1].phase}." in page
+    assert f"steps {can[0].start + 1}–" not in page

@@ -291,7 +291,9 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "impulse run where it buckles. "
         "Each run is a `bhem-hpc run` in a process of its own: the steps before the window without frames, then the "
         "window, continued from that checkpoint, with a frame at every step. "
-        "s/step and Newton/step are means over the window's steps; contact share: the impulse step's "
+        "s/step and Newton/step are means over the window's steps; a step counts the Newton iterations of "
+        "the solve that converged, and a step that recovered (recoveries) spent more in the attempts that "
+        "failed before it (a trust region that failed ran to its iteration limit). Contact share: the impulse step's "
         "collision detection and response, or the IPC barrier's energy, gradient, Hessian, step bounds and "
         "stiffness updates, as a share of the step's wall time. Smallest gap: the output meshes' vertices "
         "against the exact colliders (negative: inside one) or, for mesh colliders, the distance between "
@@ -336,13 +338,14 @@ def _time_table(rows: list[dict]) -> list[str]:
              "IPC with the barrier's gradient and Hessian, which its contact share counts as well); "
              "factorization: the LDLᵀ factorizations (factorizations/step of them; a kept one serves chord "
              "steps); solves: the triangular and Krylov solves.", "",
-             "| job | method | s/step | factorizations/step | assembly | factorization | solves | contact |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
+             "| job | method | window (steps) | s/step | factorizations/step | assembly | factorization | solves | "
+             "contact |",
+             "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for r in rows:
         if r["steps"]:
             shares = " | ".join(f"{100 * r[f'{part}_share']:.0f} %" for part in (*TIMED_PARTS, "contact"))
-            lines.append(f"| {r['job']} | {r['method']} | {r['step_s']:.3g} | {r['factorizations_per_step']:.1f} | "
-                         f"{shares} |")  # fmt: skip
+            lines.append(f"| {r['job']} | {r['method']} | {r['window'][0]}–{r['window'][1]} | {r['step_s']:.3g} | "
+                         f"{r['factorizations_per_step']:.1f} | {shares} |")  # fmt: skip
     return lines
 
 

@@ -59,8 +59,9 @@ CONTACT_WINDOWS = (
     ContactWindow("mesh-obstacle", 110, 10, "the cloth lies on the mesh obstacle"),
     # by IPC the rim buckles under the barrier's push in steps 21-30 (line-search Newton crawled along
     # the buckling mode, 100 iterations and 20 recoveries; the trust region follows it in 3 to 10) and
-    # the wall at step 38, where both take 35 and then 99 iterations; by impulses the wall stays
-    # straight until step 117 and then takes 58 to 131 a step (measured)
+    # the wall at step 38, where the trust region fails twice and line search takes 35 and then 99
+    # iterations; by impulses the wall stays straight until step 117 and then takes 12 to 156 a step
+    # (measured)
     ContactWindow("crushed-can", 20, 25, "the plank presses the rim down; by IPC the wall buckles",
                   ipc_hessian="trust_region"),
     ContactWindow("crushed-can", 115, 20, "by impulses the wall buckles", methods=("impulse",)),

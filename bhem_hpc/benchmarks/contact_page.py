@@ -60,11 +60,13 @@ CONTACT_WINDOWS = (
     # by IPC the rim buckles under the barrier's push in steps 21-30 (line-search Newton crawled along
     # the buckling mode, 100 iterations and 20 recoveries; the trust region follows it in 3 to 10) and
     # the wall at step 38, where the trust region fails twice and line search takes 35 and then 99
-    # iterations; by impulses the wall stays straight until step 117 and then takes 12 to 156 a step
-    # (measured)
+    # iterations; by impulses the wall buckles between steps 90 and 100 (its radius varies by 2.5 mm
+    # at a height, then by 26 mm; 13 to 17 iterations a step) and its folds, crushed further, take
+    # 12 to 156 a step in steps 116-135 (measured)
     ContactWindow("crushed-can", 20, 25, "the plank presses the rim down; by IPC the wall buckles",
                   ipc_hessian="trust_region"),
-    ContactWindow("crushed-can", 115, 20, "by impulses the wall buckles", methods=("impulse",)),
+    ContactWindow("crushed-can", 115, 20, "by impulses the buckled wall's folds are crushed further",
+                  methods=("impulse",)),
     ContactWindow("mandrel", 150, 20, "the buckling wall lands on the mandrel"),
     # the job's trust region takes 20 to 72 iterations a step here by IPC, the line search about 25
     ContactWindow("cloth-pile", 20, 10, "four cloths land on each other and on the held one",
@@ -288,8 +290,9 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "trust region, which does not take the step test, the cloth pile's line search; fresh factorizations "
         "unless the job keeps them, as the ball does); a job that ships "
         "with IPC (linked-bands, cloth-on-sphere) runs by impulses with the contact table its window names. "
-        "The crushed can's wall buckles at different steps by the two methods: a second window times the "
-        "impulse run where it buckles. "
+        "The crushed can's wall buckles at different steps by the two methods (by IPC at step 38, by impulses "
+        "between steps 90 and 100): a second window times the impulse run where its folds are crushed "
+        "further and its Newton iterations peak. "
         "Each run is a `bhem-hpc run` in a process of its own: the steps before the window without frames, then the "
         "window, continued from that checkpoint, with a frame at every step. "
         "s/step and Newton/step are means over the window's steps; a step counts the Newton iterations of "

@@ -355,7 +355,7 @@ def _time_table(rows: list[dict]) -> list[str]:
 
 def write_contact_page(docs: Path, runs: Path, windows: tuple[ContactWindow, ...], timeout: float, command: str,
                        machine: str) -> Path:  # fmt: skip
-    """Run every window by both methods and write ``docs/contact-comparison.md`` and ``.json``."""
+    """Run every window by the methods it names and write ``docs/contact-comparison.md`` and ``.json``."""
     runs.mkdir(parents=True, exist_ok=True)
     rows = [run_window(window, method, runs, timeout) for window in windows for method in window.methods]
     docs.mkdir(parents=True, exist_ok=True)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from bhem_hpc.bodies.shared_dofs import SharedDofs
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import SurfaceTimeSeries, render_surface_png, write_checkpoint
@@ -288,10 +289,11 @@ def _run_locked(options: RunOptions, scene: Scene, checkpoint: RestartPoint | No
 
 
 def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: Path,
-                contributions: list | None = None) -> ShellSolver:  # fmt: skip
+                contributions: list | None = None, shared_dofs: SharedDofs | None = None) -> ShellSolver:  # fmt: skip
     """The run's solver of ``model`` (or several bodies' models) with the scene's ``[solver]``
-    settings (a scene of several bodies: any body's, they share them), and the energy
-    ``contributions`` (by default, of one shell, the barrier of its contact by ``ipc``)."""
+    settings (a scene of several bodies: any body's, they share them), the energy
+    ``contributions`` (by default, of one shell, the barrier of its contact by ``ipc``) and the
+    DOFs the bodies share."""
     if contributions is None:
         barrier = ipc_barrier(scene, model, scene_file)
         contributions = [barrier] if barrier is not None else []
@@ -302,7 +304,7 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
     try:
         solver = ShellSolver(model, prefix=SOLVER_PREFIX, options=scene.petsc_options,
                              factorization=scene.factorization, linear=scene.linear, contributions=contributions,
-                             acceleration_tolerance=scene.acceleration_tolerance)  # fmt: skip
+                             acceleration_tolerance=scene.acceleration_tolerance, shared_dofs=shared_dofs)  # fmt: skip
     except LinearSolverError as exc:
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
     if velocity is not None:  # the line search and the energy trust region both take it

@@ -16,7 +16,7 @@ PETSC_MODULES = {"solids/petsc.py", "solver/newton.py", "solver/path.py", "solve
                  "solver/linear_strategy.py", "solver/load_steps.py", "solver/acceleration.py",
                  "solver/trust_region.py", "solver/energy_trust_region.py", "solver/form_terms.py",
                  "solver/hessian_action.py",
-                 "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py",
+                 "contact/petsc.py", "contact/bodies_petsc.py", "bodies/petsc.py", "bodies/shared_petsc.py",
                  "studies/petsc.py"}
 
 

@@ -33,10 +33,13 @@ from petsc4py import PETSc
 
 from bhem_hpc.bodies.coupling_product import CouplingProduct, PatternKeys, contribution_blocks
 from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.bodies.shared_dofs import SharedDofs
+from bhem_hpc.bodies.shared_petsc import SharedDofProblem
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solids.model import SolidModel
 from bhem_hpc.solids.petsc import SolidProblem
+from bhem_hpc.solver.acceleration import BodiesAccelerationResidual
 from bhem_hpc.solver.contributions import (
     Contribution,
     ContributionState,
@@ -522,6 +525,12 @@ class StackedProblem(PetscOwner):
         displacement[shared] = moved[shared]
         return reached | shared, displacement
 
+    def acceleration_residual(self, prefix: str, direct: bool) -> BodiesAccelerationResidual:
+        """``a_rms`` of stacked residuals: each body's mass solve under ``<prefix><body>_``."""
+        return BodiesAccelerationResidual(
+            [body.acceleration_residual(f"{prefix}{k}_", direct) for k, body in enumerate(self.problems)],
+            [self.closed.local_slice(k) for k in range(len(self.problems))])  # fmt: skip
+
     def matrix_nonzeros(self) -> int:
         """Nonzeros of the stacked Jacobian."""
         return stored_entries(self.jacobian)
@@ -555,13 +564,19 @@ def _body_problem(model: BodyModel, matrix_format: str, report: SolveReport, kin
 
 
 def make_problem(
-    models: Sequence[BodyModel], matrix_format: str, report: SolveReport, contributions: Sequence[Contribution] = ()
-) -> ShellProblem | SolidProblem | StackedProblem:
+    models: Sequence[BodyModel], matrix_format: str, report: SolveReport, contributions: Sequence[Contribution] = (),
+    shared: SharedDofs | None = None,
+) -> ShellProblem | SolidProblem | StackedProblem | SharedDofProblem:
     """The problem a Newton driver solves: one model's (a shell's :class:`ShellProblem` with its
     Jacobian in ``matrix_format``, ``contributions`` on its open blocks; a solid's
     :class:`SolidProblem`), or several models' problems stacked (AIJ; ``contributions`` couple the
-    bodies)."""
+    bodies), on the unknowns that remain where bodies ``shared`` DOFs (:class:`SharedDofProblem`).
+
+    Raises:
+        ValueError: shared DOFs in a solve of one body."""
     kinds = _solid_kinds(models)
+    if len(models) == 1 and shared is not None and len(shared):
+        raise ValueError("shared DOFs join several bodies; the solve has one")
     if len(models) == 1:
         return _body_problem(models[0], matrix_format, report, kinds, contributions)
     if matrix_format != "aij":
@@ -570,8 +585,15 @@ def make_problem(
     try:
         for model in models:
             problems.append(_body_problem(model, "aij", report, kinds))
-        return StackedProblem(problems, contributions)
+        stacked = StackedProblem(problems, contributions)
     except Exception:
         for problem in problems:
             problem.close()
+        raise
+    if shared is None or not len(shared):
+        return stacked
+    try:
+        return SharedDofProblem(stacked, shared)
+    except Exception:
+        stacked.close()
         raise

@@ -24,6 +24,7 @@ from mpi4py import MPI
 from bhem_hpc.bodies.body import Body, ShellBody
 from bhem_hpc.bodies.layout import body_array_name
 from bhem_hpc.bodies.petsc import StackedBlocks
+from bhem_hpc.bodies.shared_dofs import SharedDofs
 from bhem_hpc.bodies.solid import SolidBody, build_solid_model
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
@@ -136,10 +137,12 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     blocks = StackedBlocks(models)  # where the barrier and the couplings see every body's blocks
     barrier = bodies_barrier(bodies, blocks, scene, options.scene)
     couplings = interface_couplings(scene, bodies, blocks)
-    solver = make_solver(models, first, options.scene, ([barrier] if barrier is not None else []) + couplings)
+    shared = [record.shared for record in scene.interfaces if record.shared is not None]
+    solver = make_solver(models, first, options.scene, ([barrier] if barrier is not None else []) + couplings,
+                         SharedDofs.join(shared) if shared else None)  # fmt: skip
     summary = RunSummary(
         scene=str(options.scene), physics_hash=physics_hash(scene), solution_method=solution_method(first),
-        dofs=solver.bodies.closed_sizes[1], nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
+        dofs=solver.x.getSize(), nonzeros=solver.problem.matrix_nonzeros(), ranks=comm.size,
         versions=library_versions(), static=False, linear_solver=solver.linear.as_dict(),
         factorization=first.factorization,
         bodies=[{"name": body.name, "dofs": body.dofs, "mass_kg": body.mass(), "discretization": body.kind}
@@ -195,7 +198,8 @@ def _probe_rows(output: BodiesOutput | None, probes: list, stepper: TimeStepper,
 def interface_couplings(scene: BodiesScene, bodies: list[Body], blocks: StackedBlocks) -> list:
     """Collective: the penalty couplings of the scene's interfaces (joints and seams between its
     shell bodies; :mod:`bhem_hpc.bodies.coupling`): the stiffer side's stiffness over the narrower
-    side's element, the angle term for joints and for seams that keep their angle."""
+    side's element, the angle term for joints and for seams that keep their angle, the displacement
+    term where the patches do not share their edge's control points."""
     if not scene.interfaces:
         return []
     from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames
@@ -209,6 +213,8 @@ def interface_couplings(scene: BodiesScene, bodies: list[Body], blocks: StackedB
                                               element, record.penalty) for side in sides], axis=0)  # fmt: skip
         if not record.keep_angle:
             stiffness[1] = 0.0
+        if record.shared is not None:  # the shared control points keep the edges one curve
+            stiffness[0] = 0.0
         frames = rest_frames(sides[0].surface, sides[1].surface, record.quadrature)
         name = f"{record.where} ({record.kind} of {record.names[0]} and {record.names[1]})"
         couplings.append(InterfaceCoupling(blocks, record.bodies, record.quadrature, frames, tuple(stiffness), name,

@@ -9,6 +9,9 @@ registers itself in :data:`INTERFACE_TYPES`::
     penalty = 1e3                   # alpha of the penalty rule (bhem_hpc.bodies.coupling)
     tolerance = 1e-6                # [m] how far apart the edges may be at rest
     partial = false                 # join only the part the edges share (a T-junction)
+    dofs = "coupled"                # "shared": B-spline patches whose edges conform (one degree,
+                                    # matching knots, the same control points at rest) share those
+                                    # control points; only the angle is left to the penalty
 
     [[interfaces]]
     type = "seam"                   # edges apart at rest, sewn together: the stitches shorten
@@ -30,6 +33,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from bhem_hpc.bodies.shared_dofs import SharedDofs, conforming_edge_dofs
 from bhem_hpc.geometry.interfaces import EDGES, EdgeQuadrature, InterfaceError, Patch, pair_edges, pair_seam
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.table import Registry, SceneError, Table
@@ -56,6 +60,7 @@ class InterfaceRecord:
         quadrature: the interface's points on both sides.
         sewing_time: a seam's [s] (None: a joint).
         keep_angle: whether the angle across it is kept (always for a joint).
+        shared: the control points a joint's patches share (``dofs = "shared"``), or None.
     """
 
     kind: str
@@ -67,13 +72,15 @@ class InterfaceRecord:
     quadrature: EdgeQuadrature
     sewing_time: float | None
     keep_angle: bool
+    shared: SharedDofs | None = None
 
     def summary(self) -> dict:
         """What a run's summary.json says of it."""
         return {"type": self.kind, "bodies": list(self.names), "edges": list(self.edges), "penalty": self.penalty,
                 "points": len(self.quadrature.weights), "length_m": float(self.quadrature.weights.sum()),
                 "rest_gap_m": self.quadrature.gap,
-                "sewing_time_s": self.sewing_time, "keeps_angle": self.keep_angle}  # fmt: skip
+                "sewing_time_s": self.sewing_time, "keeps_angle": self.keep_angle,
+                "shared_dofs": 0 if self.shared is None else len(self.shared)}  # fmt: skip
 
 
 def _pair(t: Table, names: Sequence[str], bodies: Sequence) -> tuple[tuple[int, int], tuple[str, str]]:
@@ -114,13 +121,24 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
                       "a length > 0 [m]")  # fmt: skip
     partial = t.get("partial", "a boolean", False)
+    dofs = t.get("dofs", "a string", "coupled", lambda v: v in ("coupled", "shared"), '"coupled" or "shared"')
+    if dofs == "shared" and partial:
+        t.fail("dofs", '"coupled" for a partial joint (only whole edges that conform share control points)', dofs)
     t.done()
 
     def joint(first: Patch, second: Patch) -> EdgeQuadrature:
         return pair_edges(first, edges[0], second, edges[1], tolerance, partial=partial)
 
     pair, quadrature = _paired(t, names, bodies, places, joint)
-    return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True)
+    shared = None
+    if dofs == "shared":
+        try:
+            shared = conforming_edge_dofs((bodies[places[0]].surface, bodies[places[1]].surface), places, edges,
+                                          tolerance)  # fmt: skip
+        except InterfaceError as exc:
+            raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": bodies '{pair[0]}' and '{pair[1]}' do "
+                             f"not conform along {edges[0]} and {edges[1]}: {exc}") from None  # fmt: skip
+    return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True, shared)
 
 
 @INTERFACE_TYPES.register("seam")

@@ -258,14 +258,7 @@ def attach_acceleration_test(solver: ShellSolver, tolerance: float) -> Accelerat
     ``<solver prefix>mass_``); the energy trust region takes the test from ``solver.acceleration``."""
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"acceleration_tolerance must be a number > 0 [m/s^2], got {tolerance!r}")
-    problem, direct = solver.problem, solver.linear.kind == "direct"
-    if len(solver.bodies) == 1:
-        residual = problem.acceleration_residual(solver.prefix + "mass_", direct)
-    else:  # each body's mass solve under its own prefix
-        residual = BodiesAccelerationResidual(
-            [body.acceleration_residual(f"{solver.prefix}mass_{k}_", direct)
-             for k, body in enumerate(problem.problems)],
-            [problem.closed.local_slice(k) for k in range(len(problem.problems))],
-        )  # fmt: skip
+    # several bodies: each body's mass solve under its own prefix, <prefix>mass_<body>_
+    residual = solver.problem.acceleration_residual(solver.prefix + "mass_", solver.linear.kind == "direct")
     solver.snes.setConvergenceTest(snes_acceleration_test, kargs={"residual": residual, "tolerance": tolerance})
     return AccelerationTest(residual, tolerance)

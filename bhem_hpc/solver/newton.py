@@ -19,6 +19,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.petsc import make_problem
+from bhem_hpc.bodies.shared_dofs import SharedDofs
 from bhem_hpc.model.hessian import COMPOSED_HESSIANS, HessianLadder
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver.acceleration import AccelerationTest, attach_acceleration_test
@@ -119,6 +120,7 @@ class ShellSolver(PetscOwner):
             stacked problem's open blocks.
         acceleration_tolerance: time steps converge once the residual's root-mean-square
             acceleration is at most this [m/s^2] (:mod:`.acceleration`), instead of at ``rtol``.
+        shared_dofs: closed DOFs that bodies share as one unknown (:mod:`~bhem_hpc.bodies.shared_dofs`).
 
     Raises:
         LinearSolverError: an unknown ``linear`` or a direct solver that would not fit in memory.
@@ -135,7 +137,7 @@ class ShellSolver(PetscOwner):
         self, model: ShellModel | Sequence[ShellModel], prefix: str = "bhem_static_",
         options: Mapping[str, object] | None = None, factorization: str = "reuse", linear: str = "auto",
         contributions: Sequence[Contribution] = (), acceleration_tolerance: float | None = None,
-    ):  # fmt: skip
+        shared_dofs: SharedDofs | None = None):  # fmt: skip
         if factorization not in FACTORIZATION_POLICIES:
             raise ValueError(f"factorization must be one of {FACTORIZATION_POLICIES}, got {factorization!r}")
         #: the bodies solved together; :attr:`model` is the first (the only one of a single body)
@@ -161,8 +163,6 @@ class ShellSolver(PetscOwner):
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
         #: straight from the initial values to the targets.
         self.prescribed, comm = None, self.bodies.comm
-        self.x = PETSc.Vec().createMPI(self.bodies.closed_sizes, comm=comm)
-        self.f = self.x.duplicate()
         self.factored_state = FactoredState(self.bodies.models)
         opts = PETSc.Options()
         # the caller's options stay in the database for the solver's life (some are read only at
@@ -182,8 +182,10 @@ class ShellSolver(PetscOwner):
             blocked = opts.getString(prefix + "pc_type", "") in ("bjacobi", "asm") and one
             self.matrix_format = "sbaij" if serial_sbaij else "baij" if blocked else "aij"
             self.report = SolveReport()
-            self.problem = make_problem(self.bodies.models, self.matrix_format, self.report, contributions)
+            self.problem = make_problem(self.bodies.models, self.matrix_format, self.report, contributions, shared_dofs)
             self.jacobian, self.bc_rows = self.problem.jacobian, self.problem.bc_rows
+            self.x = PETSc.Vec().createMPI(self.jacobian.getSizes()[1], comm=comm)  # the unknowns' layout
+            self.f = self.x.duplicate()
             # a pattern grown by contributions' blocks (problem.py): MUMPS analyses the matrix anew
             self.problem.on_pattern_growth = lambda: self.snes.getKSP().getPC().reset()
             self._choose_hessian()

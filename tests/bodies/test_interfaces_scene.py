@@ -26,7 +26,7 @@ def test_the_folded_bracket_keeps_its_fold_while_its_wall_is_pushed_over(comm, s
     assert interface.pop("length_m") == pytest.approx(0.1, rel=1e-12)  # the fold: the plate's width
     assert interface == {"type": "joint", "bodies": ["plate", "wall"], "edges": ["xi1_max", "xi1_min"],
                          "penalty": 1000.0, "points": 8, "rest_gap_m": 0.0, "sewing_time_s": None,
-                         "keeps_angle": True}  # fmt: skip
+                         "keeps_angle": True, "shared_dofs": 0}  # fmt: skip
     plate, _ = read_frame(shared_tmp_path / "fold" / "plate" / "surface.h5")
     wall, time = read_frame(shared_tmp_path / "fold" / "wall" / "surface.h5")
     rest, _ = read_frame(shared_tmp_path / "fold" / "wall" / "surface.h5", 0)
@@ -38,6 +38,54 @@ def test_the_folded_bracket_keeps_its_fold_while_its_wall_is_pushed_over(comm, s
         upright_side = wall.evaluate(np.array(0.0), np.array(y))
         assert np.linalg.norm(flat_side.x - upright_side.x) < 1e-6
         assert abs(np.arccos(np.dot(flat_side.normal, upright_side.normal)) - 90 * DEG) < 0.05 * DEG
+
+
+def _cubic_bracket(dofs: str) -> str:
+    """jobs/folded-plate.toml in cubic B-splines, its joint's ``dofs`` as given."""
+    text = (REPO / "jobs" / "folded-plate.toml").read_text()
+    text = text.replace("patches = [8, 2] }", 'patches = [8, 2], discretization = "bspline3" }')
+    text = text.replace("patches = [6, 2]\n", 'patches = [6, 2]\ndiscretization = "bspline3"\n')
+    return text + f'dofs = "{dofs}"\n'
+
+
+def test_a_bracket_whose_patches_share_the_folds_control_points_bends_as_the_penalty_joint_lets_it(
+        comm, shared_tmp_path):  # fmt: skip
+    """The folded bracket in cubic B-splines, 20 steps, its joint by shared control points (the fold's
+    5, so 15 unknowns fewer) and by the displacement penalty: the wall's top within 1e-6 m of each
+    other's, no gap along the shared fold (round-off), the angle there kept."""
+    tops, frames = [], {}
+    for dofs in ("shared", "coupled"):
+        path = write_scene(comm, shared_tmp_path / f"{dofs}.toml", _cubic_bracket(dofs))
+        summary = run_scene(RunOptions(path, shared_tmp_path / dofs, steps=20, progress=False), comm)
+        assert summary["status"] == "completed"
+        assert summary["interfaces"][0]["shared_dofs"] == (15 if dofs == "shared" else 0)
+        frames[dofs] = summary["dofs"]
+        plate, _ = read_frame(shared_tmp_path / dofs / "plate" / "surface.h5")
+        wall, _ = read_frame(shared_tmp_path / dofs / "wall" / "surface.h5")
+        tops.append(wall.evaluate(np.array(0.3), np.array(0.05)).x)
+        for y in (0.0, 0.05, 0.1):
+            flat_side = plate.evaluate(np.array(0.5), np.array(y))
+            upright_side = wall.evaluate(np.array(0.0), np.array(y))
+            assert np.linalg.norm(flat_side.x - upright_side.x) < (1e-14 if dofs == "shared" else 1e-6)
+            assert abs(np.arccos(np.dot(flat_side.normal, upright_side.normal)) - 90 * DEG) < 0.05 * DEG
+    assert frames["coupled"] - frames["shared"] == 15
+    assert np.linalg.norm(tops[0] - tops[1]) < 1e-6, tops
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda s: s + 'dofs = "shared"\n',
+     r"key 'interfaces\[0\].dofs' = \"shared\": bodies 'plate' and 'wall' do not conform along xi1_max and xi1_min: "
+     r"edge xi1_max: only B-spline patches share control points \(a HermiteSurface is joined by the coupling energy\)"),
+    (lambda s: _cubic_bracket("shared").replace("patches = [6, 2]", "patches = [6, 3]"),
+     r"key 'interfaces\[0\].dofs' = \"shared\": .* have 5 and 6 control points \(their knots do not match\)"),
+    (lambda s: s + 'dofs = "merged"\n', r"key 'interfaces\[0\].dofs' must be \"coupled\" or \"shared\", got 'merged'"),
+    (lambda s: s + 'dofs = "shared"\npartial = true\n',
+     r"key 'interfaces\[0\].dofs' must be \"coupled\" for a partial joint"),
+])  # fmt: skip
+def test_a_joint_that_cannot_share_its_control_points_is_refused_saying_why(comm, shared_tmp_path, edit, message):
+    path = write_scene(comm, shared_tmp_path / "bad.toml", edit((REPO / "jobs" / "folded-plate.toml").read_text()))
+    with pytest.raises(SceneError, match=message):
+        load_any_scene(path)
 
 
 RUBBER = "material = { young = 5.0e6, poisson = 0.49, thickness = 2.0e-3, density = 1100.0 }"

@@ -1,0 +1,216 @@
+"""Conforming interfaces whose patches share their edge control points: the shared DOFs are found
+(in either order, with refusals that say why an interface does not conform), groups meet at corners,
+and the reduced solve keeps the patches together exactly: no gap, no consistency error in the patch
+test, the one patch's cantilever and roof, and no failure at penalty factors where the displacement
+penalty fails. The same on 2 ranks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames
+from bhem_hpc.bodies.petsc import StackedBlocks
+from bhem_hpc.bodies.shared_dofs import SharedDofs, conforming_edge_dofs, shared_groups
+from bhem_hpc.geometry import bspline as B
+from bhem_hpc.geometry import surface as S
+from bhem_hpc.geometry.grid import ParameterGrid
+from bhem_hpc.geometry.interfaces import InterfaceError, element_across, pair_edges
+from bhem_hpc.model import bcs
+from bhem_hpc.model.loads import AreaLoad, Dynamics, LineLoad, Loads
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import ShellModel
+from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.dynamics import TimeStepper
+
+DEG = np.pi / 180
+STEEL = Material(2.0e11, 0.3, 0.01, 7800.0)
+
+
+def _plane(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return np.stack([u, v, 0 * u], -1)
+
+
+def _strip(x0: float, x1: float, spans: tuple[int, int], width: float, degree: int = 3) -> B.BSplineSurface:
+    return B.from_callable(_plane, ParameterGrid(*spans, (x0, x1), (0.0, width), False, False), degree=degree)
+
+
+def _joint(models, rests, pair, edges, material: Material, shared: bool, factor: float = 1e3) -> InterfaceCoupling:
+    """The interface coupling of ``pair``: with shared DOFs only its angle term (the edges are one curve)."""
+    quadrature = pair_edges(rests[pair[0]], edges[0], rests[pair[1]], edges[1], 1e-8)
+    element = min(element_across(rests[pair[0]], edges[0]), element_across(rests[pair[1]], edges[1]))
+    a_d, a_r = penalty_stiffness(material.young, material.poisson, material.thickness, element, factor)
+    return InterfaceCoupling(StackedBlocks(models), pair, quadrature,
+                             rest_frames(rests[pair[0]], rests[pair[1]], quadrature), (0.0 if shared else a_d, a_r))
+
+
+def test_conforming_edges_share_their_control_points_in_either_order():
+    first, second = _strip(0.0, 0.5, (3, 2), 0.2), _strip(0.5, 1.0, (4, 2), 0.2)
+    shared = conforming_edge_dofs((first, second), (0, 1), ("xi1_max", "xi1_min"), 1e-9)
+    c1 = first.node_shape[0]
+    assert len(shared) == 3 * 5  # the edge rows' 5 control points, x y z
+    xyz = np.tile(range(3), 5)
+    np.testing.assert_array_equal(shared.first[:, 1], 3 * np.repeat((c1 - 1) * 5 + np.arange(5), 3) + xyz)
+    np.testing.assert_array_equal(shared.second[:, 1], 3 * np.repeat(np.arange(5), 3) + xyz)
+    assert set(shared.first[:, 0]) == {0} and set(shared.second[:, 0]) == {1}
+    # the second patch turned about: its xi2 runs the other way along the edge
+    turned = B.from_callable(lambda u, v: np.stack([u, 0.2 - v, 0 * u], -1),
+                             ParameterGrid(4, 2, (0.5, 1.0), (0.0, 0.2), False, False), degree=3)  # fmt: skip
+    reversed_ = conforming_edge_dofs((first, turned), (0, 1), ("xi1_max", "xi1_min"), 1e-9)
+    np.testing.assert_array_equal(reversed_.second[::3, 1] // 3, np.arange(5)[::-1])
+
+
+@pytest.mark.parametrize(("second", "edge", "message"), [
+    (lambda: _strip(0.5, 1.0, (4, 3), 0.2), "xi1_min", "6 control points"),
+    (lambda: _strip(0.5, 1.0, (4, 2), 0.2, degree=2), "xi1_min", "degrees differ"),
+    (lambda: _strip(0.6, 1.0, (4, 2), 0.2), "xi1_min", "0.1 m apart"),
+    (lambda: S.from_callable(_plane, ParameterGrid(4, 2, (0.5, 1.0), (0.0, 0.2), False, False)), "xi1_min",
+     "only B-spline patches"),
+])  # fmt: skip
+def test_interfaces_that_do_not_conform_are_refused_saying_why(second, edge, message):
+    with pytest.raises(InterfaceError, match=message):
+        conforming_edge_dofs((_strip(0.0, 0.5, (3, 2), 0.2), second()), (0, 1), ("xi1_max", edge), 1e-9)
+
+
+def test_dofs_joined_through_others_are_one_unknown_represented_by_a_held_one():
+    """Four patches at a corner: four pairs around it make one group of four; its representative
+    is the held member (it carries the constraint), else the smallest."""
+    members, representatives = shared_groups(np.array([10, 20, 30, 40, 7]), np.array([20, 30, 40, 10, 8]),
+                                             preferred=np.array([30]))  # fmt: skip
+    assert dict(zip(members.tolist(), representatives.tolist(), strict=True)) == {10: 30, 20: 30, 40: 30, 8: 7}
+
+
+def _cantilever_tips(comm, shared: bool, factors) -> tuple[list[float], list[float], int]:
+    """The steel strip clamped at x = 0 and cut in two cubic B-spline halves (4 x 2 spans each):
+    its end load's tip deflection and the largest gap across the cut, per penalty factor."""
+    length, width = 1.0, 0.2
+    load = Loads(line_loads=(LineLoad("xi1_max", (0.0, 0.0, -5.0)),))
+    tips, gaps, unknowns = [], [], 0
+    for factor in factors:
+        rests = [_strip(0.0, length / 2, (4, 2), width), _strip(length / 2, length, (4, 2), width)]
+        models = [ShellModel(rests[0], STEEL, Loads(), [bcs.clamp_edge(rests[0], "xi1_min")], comm=comm),
+                  ShellModel(rests[1], STEEL, load, [], comm=comm)]  # fmt: skip
+        edges = ("xi1_max", "xi1_min")
+        dofs = conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9) if shared else None
+        coupling = _joint(models, rests, (0, 1), edges, STEEL, shared, factor)
+        with ShellSolver(models, contributions=[coupling], shared_dofs=dofs) as solver:
+            solver.solve()
+            unknowns = solver.x.getSize()
+        at = np.linspace(0.0, width, 7)
+        cut = [m.state_surface().evaluate(np.full(7, length / 2), at).x for m in models]
+        gaps.append(float(np.abs(cut[0] - cut[1]).max()))
+        tips.append(float(models[1].state_surface().evaluate(np.array(length), np.array(width / 2)).x[2]))
+    return tips, gaps, unknowns
+
+
+def test_a_cantilever_of_two_patches_sharing_their_edge_has_no_gap_and_solves_at_any_penalty(comm):
+    """Shared control points: the cut has no gap at all (round-off; the displacement penalty leaves
+    1.8e-12 m at alpha 1e3), the unknowns are 15 fewer (5 control points), the tip deflection is the
+    penalty joint's but for that joint's displacement compliance (1.0e-6 of it at alpha 10, 1.0e-8 at
+    1e3: it falls as 1/alpha), and the angle term alone solves up to alpha 1e6, where the
+    displacement penalty's Newton fails."""
+    factors = (1e1, 1e3, 1e6)
+    shared, shared_gaps, reduced = _cantilever_tips(comm, True, factors)
+    penalty, penalty_gaps, unknowns = _cantilever_tips(comm, False, factors[:2])
+    assert unknowns - reduced == 15
+    assert max(shared_gaps) < 1e-15 and min(penalty_gaps) > 1e-13, (shared_gaps, penalty_gaps)
+    differences = [abs(a / b - 1) for a, b in zip(shared, penalty, strict=False)]
+    assert differences[0] < 2e-6 and differences[1] < 2e-8, differences  # the displacement penalty's 1/alpha
+    # the angle term's compliance falls towards the one C2 patch's deflection: no locking
+    assert abs(shared[0]) > abs(shared[1]) > abs(shared[2]) > 0.99 * abs(shared[1])
+
+
+def test_the_patch_test_across_a_shared_edge_has_no_consistency_error(comm):
+    """A steel strip of two cubic B-spline halves pulled by a uniform traction T (held along the pull
+    at x = 0, one corner across it): both halves move as one uniform stretch, the far one not shifted
+    (within 1e-5 of the stretch; the penalty joint shifts it by its compliance T / a_d, 1.1e-4 of it)."""
+    length, width, traction = 1.0, 0.2, 2.0e3
+    rests = [_strip(0.0, length / 2, (3, 2), width), _strip(length / 2, length, (3, 2), width)]
+    c2 = rests[0].node_shape[1]
+    held = np.stack([np.zeros(c2, np.int64), np.arange(c2)], axis=1)
+    supports = [bcs.NodalConstraint(held, (0,), (0, 2)), bcs.NodalConstraint(held[:1], (0,), (1,))]
+    pull = Loads(line_loads=(LineLoad("xi1_max", (traction, 0.0, 0.0)),))
+    models = [ShellModel(rests[0], STEEL, Loads(), supports, comm=comm),
+              ShellModel(rests[1], STEEL, pull, [], comm=comm)]
+    edges = ("xi1_max", "xi1_min")
+    coupling = _joint(models, rests, (0, 1), edges, STEEL, shared=True)
+    with ShellSolver(models, contributions=[coupling],
+                     shared_dofs=conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9)) as solver:  # fmt: skip
+        solver.solve()
+    strain = traction / (STEEL.young * STEEL.thickness)
+    for model, rest in zip(models, rests, strict=True):
+        x1, x2 = np.meshgrid(np.linspace(*rest.grid.xi1_range, 5), np.linspace(0.0, width, 4), indexing="ij")
+        moved = model.state_surface().evaluate(x1, x2).x - rest.evaluate(x1, x2).x
+        expected = np.stack([strain * x1, -STEEL.poisson * strain * x2, 0 * x1], -1)
+        assert np.abs(moved - expected).max() < 1e-5 * strain * length  # measured 1.5e-6: the finite strain
+
+
+@pytest.mark.parametrize("splits", [(1, 2), (2, 2)])
+def test_the_scordelis_lo_roof_of_patches_sharing_their_edges_gives_the_one_patch_value(comm, splits):
+    """The roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per area) in cubic
+    B-spline patches of 12 x 12 spans in all, sharing their edges (2 x 2: four patches at one point,
+    a group of four control points): the midside deflection is the one patch's within 3e-4 and the
+    reference's (0.3006) within 5e-3."""
+    radius, load, spans = 25.0, 0.09, 12
+    material = Material(4.32e8, 0.0, 0.25, 1.0)
+
+    def roof(z, angle):
+        return np.stack([radius * np.cos(angle), radius * np.sin(angle), z], -1)
+
+    def deflection(split: tuple[int, int]) -> float:
+        b1, b2 = np.linspace(0.0, 50.0, split[0] + 1), np.linspace(50 * DEG, 130 * DEG, split[1] + 1)
+        keys = [(i, j) for i in range(split[0]) for j in range(split[1])]
+        rests = [B.from_callable(roof, ParameterGrid(spans // split[0], spans // split[1], (b1[i], b1[i + 1]),
+                                                     (b2[j], b2[j + 1]), False, False), degree=3) for i, j in keys]
+        weight = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
+
+        def supports(i: int, rest) -> list:
+            ends = [edge for edge, end in (("xi1_min", 0), ("xi1_max", split[0] - 1)) if i == end]
+            return [bcs.diaphragm_edge(rest, edge, "z") for edge in ends]
+
+        models = [ShellModel(rest, material, weight, supports(i, rest), comm=comm)
+                  for (i, _), rest in zip(keys, rests, strict=True)]  # fmt: skip
+        joints = [(keys.index((i, j)), keys.index((i + 1, j)), ("xi1_max", "xi1_min"))
+                  for i, j in keys if i + 1 < split[0]]  # fmt: skip
+        joints += [(keys.index((i, j)), keys.index((i, j + 1)), ("xi2_max", "xi2_min"))
+                   for i, j in keys if j + 1 < split[1]]  # fmt: skip
+        couplings = [_joint(models, rests, (a, b), edges, material, shared=True) for a, b, edges in joints]
+        dofs = SharedDofs.join([conforming_edge_dofs((rests[a], rests[b]), (a, b), edges, 1e-9)
+                                for a, b, edges in joints])  # fmt: skip
+        with ShellSolver(models, contributions=couplings, shared_dofs=dofs if joints else None) as solver:
+            solver.solve()
+        k = keys.index((split[0] // 2, 0))  # the patch holding the midside point
+        at = (np.array(25.0), np.array(50 * DEG))
+        return float(models[k].state_surface().evaluate(*at).x[1] - rests[k].evaluate(*at).x[1]) * 90.0 / load
+
+    one, joined = deflection((1, 1)), deflection(splits)
+    assert abs(joined / one - 1) < 3e-4, (joined, one)
+    assert abs(-joined / 0.3006 - 1) < 5e-3, joined
+
+
+def test_patches_sharing_an_edge_hang_under_gravity_as_the_penalty_joint_lets_them(comm):
+    """Time-stepped: two cotton-like rubber halves held along x = 0 fall under gravity for 4 steps
+    with the acceleration stopping test (its mass solve on the shared unknowns): positions within
+    1e-6 m of the penalty-joined pair's, and no gap at the cut."""
+    rubber = Material(2.0e6, 0.45, 0.002, 1100.0)
+    positions = []
+    for shared in (True, False):
+        rests = [_strip(0.0, 0.2, (3, 3), 0.2), _strip(0.2, 0.4, (3, 3), 0.2)]
+        models = [ShellModel(rest, rubber, Loads(gravity=(0.0, 0.0, -9.81)), constraints, comm=comm,
+                             dynamics=Dynamics(time_step=5e-3))
+                  for rest, constraints in zip(rests, ([bcs.clamp_edge(rests[0], "xi1_min")], []), strict=True)]
+        edges = ("xi1_max", "xi1_min")
+        coupling = _joint(models, rests, (0, 1), edges, rubber, shared)
+        dofs = conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9) if shared else None
+        with ShellSolver(models, prefix="bhem_shared_", contributions=[coupling], shared_dofs=dofs,
+                         acceleration_tolerance=1e-3) as solver:  # fmt: skip
+            stepper = TimeStepper(models, solver)
+            for _ in range(4):
+                stepper.advance()
+        at = np.linspace(0.0, 0.2, 5)
+        cut = [m.state_surface().evaluate(np.full(5, 0.2), at).x for m in models]
+        if shared:
+            assert np.abs(cut[0] - cut[1]).max() < 1e-15
+        positions.append(np.concatenate([m.state_surface().evaluate(np.array([0.4]), at).x for m in models[1:]]))
+    assert positions[0][:, 2].max() < -1e-3  # it fell
+    np.testing.assert_allclose(positions[0], positions[1], atol=1e-6)

@@ -22,9 +22,9 @@ import numpy as np
 from petsc4py import PETSc
 
 from bhem_hpc.bodies.shared_dofs import SharedDofs, shared_groups
-from bhem_hpc.solver.acceleration import DIRECT_MASS_OPTIONS, ITERATIVE_MASS_OPTIONS, AccelerationResidual
+from bhem_hpc.solver.acceleration import AccelerationResidual
 from bhem_hpc.solver.contributions import Contribution, ContributionState, PointBasis
-from bhem_hpc.solver.petsc import PetscOwner, push_options
+from bhem_hpc.solver.petsc import PetscOwner
 from bhem_hpc.solver.problem import add_diagonal_regularization, stored_entries
 
 if TYPE_CHECKING:  # (the stacked problem's module makes this one's problems)
@@ -271,7 +271,7 @@ class SharedDofProblem(PetscOwner):
         self.stacked.close()
 
 
-class SharedAccelerationResidual(PetscOwner):
+class SharedAccelerationResidual(AccelerationResidual):
     """``a_rms = sqrt(r_R^T M_R^-1 r_R / m)`` of a :class:`SharedDofProblem`'s residuals, with
     ``M_R = R^T M R`` of the bodies' block-diagonal mass ``M`` (a shared unknown carries the mass of
     every body it moves) and ``m`` the bodies' total mass.
@@ -297,28 +297,8 @@ class SharedAccelerationResidual(PetscOwner):
             self.matrix = full.PtAP(problem.reduction)
         finally:
             full.destroy()
-        self.largest_eigenvalue_bound = self.matrix.norm(PETSc.NormType.INFINITY)
-        self.matrix.zeroRowsColumns(problem.bc_rows, diag=1.0)
-        self.matrix.setOption(PETSc.Mat.Option.SPD, True)
         self.constrained_local = problem.bc_local
-        self.ksp = PETSc.KSP().create(problem.comm)
-        self.ksp.setOptionsPrefix(prefix)
-        self.ksp.setOperators(self.matrix)
-        pushed = push_options(prefix, DIRECT_MASS_OPTIONS if direct else ITERATIVE_MASS_OPTIONS, {})
-        try:
-            self.ksp.setFromOptions()
-        finally:
-            for name in pushed:
-                PETSc.Options().delValue(name)
-        self.force, self.acceleration = self.matrix.createVecLeft(), self.matrix.createVecRight()
-        self.last = float("nan")
-
-    # the measure itself is the one body's (AccelerationResidual's), on the reduced matrix
-    rms = AccelerationResidual.rms
-    mass_norm_squared = AccelerationResidual.mass_norm_squared
-    lower_bound_squared = AccelerationResidual.lower_bound_squared
-    _load_free_force = AccelerationResidual._load_free_force
-    close = AccelerationResidual.close
+        self._solve_with_matrix(problem.bc_rows, problem.comm, direct)
 
 
 def _block_diagonal(stacked: StackedProblem, matrices: list[PETSc.Mat]) -> PETSc.Mat:

@@ -90,15 +90,20 @@ class AccelerationResidual(PetscOwner):
         else:
             self.matrix = open_mass.PtAP(prolongation)
             open_mass.destroy()
+        self._solve_with_matrix(constrained_rows, model.comm, direct)
+
+    def _solve_with_matrix(self, constrained_rows: np.ndarray, comm, direct: bool) -> None:
+        """The mass solve of :attr:`matrix` (``M`` on the closed DOFs; its held rows and columns
+        become the identity's) under :attr:`prefix`."""
         # the largest absolute row sum, before the held rows become the identity: at least the
         # largest eigenvalue of M restricted to the free DOFs (symmetric), which r^T M^-1 r sees
         self.largest_eigenvalue_bound = self.matrix.norm(PETSc.NormType.INFINITY)
         self.matrix.zeroRowsColumns(np.asarray(constrained_rows, dtype=PETSc.IntType), diag=1.0)
         self.matrix.setOption(PETSc.Mat.Option.SPD, True)
-        self.ksp = PETSc.KSP().create(model.comm)
-        self.ksp.setOptionsPrefix(prefix)
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOptionsPrefix(self.prefix)
         self.ksp.setOperators(self.matrix)
-        pushed = push_options(prefix, DIRECT_MASS_OPTIONS if direct else ITERATIVE_MASS_OPTIONS, {})
+        pushed = push_options(self.prefix, DIRECT_MASS_OPTIONS if direct else ITERATIVE_MASS_OPTIONS, {})
         try:
             self.ksp.setFromOptions()
         finally:

@@ -47,7 +47,7 @@ DEFAULT_BODY_TYPE = "shell"
 #: The tables a body lists (a scene of one body's tables for its shell; a solid's ``file`` and ``sem``).
 BODY_KEYS = ("name", "type", "surface", "trim", "material", "effects", "constraints", "point_constraints", "probes",
              "initial", "file", "sem", "materials", "offset", "patches", "discretization", "tolerance",
-             "penalty")  # fmt: skip
+             "penalty", "dofs")  # fmt: skip
 #: The tables every body shares, at the top of the file.
 SHARED_KEYS = ("time", "solver", "output")
 #: The scene's colliders, at the top: every body with contact effects meets them.

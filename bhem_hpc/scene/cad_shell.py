@@ -11,6 +11,8 @@ readers): every NURBS part of the file becomes a patch of the shell, a body of i
     discretization = "bspline3"    # hermite (default), bspline2, bspline3
     tolerance = 1e-5               # [m]: edges that meet within this are joined (default 1e-6)
     penalty = 1e3                  # the joints' penalty factor
+    dofs = "auto"                  # whole joints that conform share their control points (as a
+                                   # joint's dofs: "auto", "shared" or "coupled")
     material = { ... }             # and effects: as a shell body's, for every patch
     [[bodies.constraints]]
     part = 0                       # the part (its index in the file) the constraint holds
@@ -29,15 +31,17 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, find_joints
+from bhem_hpc.bodies.shared_dofs import SharedDofs, conforming_edge_dofs
+from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, InterfaceError, find_joints
 from bhem_hpc.scene.bodies import BODY_TYPES, DEFAULT_BODY_TYPE
-from bhem_hpc.scene.interfaces import DEFAULT_TOLERANCE, InterfaceRecord, parse_penalty
+from bhem_hpc.scene.interfaces import DEFAULT_TOLERANCE, DOF_CHOICES, InterfaceRecord, parse_penalty
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.surfaces import model_parts
 from bhem_hpc.scene.table import SceneError, Table, regular_file
 
 #: The tables and keys of a ``cad_shell`` body.
-CAD_SHELL_KEYS = ("file", "patches", "discretization", "tolerance", "penalty", "material", "effects", "constraints")
+CAD_SHELL_KEYS = ("file", "patches", "discretization", "tolerance", "penalty", "dofs", "material", "effects",
+                  "constraints")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -52,6 +56,8 @@ class CadShell:
             :mod:`bhem_hpc.geometry.trim_joints`).
         penalty: the joints' penalty factor; fit_error: the largest distance [m] of a patch from its part.
         file: the model file.
+        shared: each joint's shared control points (:func:`conforming_edge_dofs`, between the parts'
+            indices), or None where the joint does not share them.
     """
 
     bodies: tuple[Scene, ...]
@@ -61,14 +67,18 @@ class CadShell:
     fit_error: float
     file: Path
     trimmed_edges: tuple[tuple[int, str], ...] = ()
+    shared: tuple[SharedDofs | None, ...] = ()
 
     def interfaces(self, name: str, first: int) -> tuple[InterfaceRecord, ...]:
         """The joints as the scene's interfaces, the parts being bodies ``first``, ``first + 1``, ...
         named ``<name>_<part>``."""
+        shared = self.shared or (None,) * len(self.joints)
         return tuple(InterfaceRecord("joint", f"{name} joint {k}", (first + j.first, first + j.second),
                                      (f"{name}_{j.first}", f"{name}_{j.second}"), (j.first_edge, j.second_edge),
-                                     self.penalty, j.quadrature, None, True)
-                     for k, j in enumerate(self.joints))  # fmt: skip
+                                     self.penalty, j.quadrature, None, True,
+                                     None if dofs is None else SharedDofs(dofs.first + [first, 0],
+                                                                          dofs.second + [first, 0]))
+                     for k, (j, dofs) in enumerate(zip(self.joints, shared, strict=True)))  # fmt: skip
 
     def report(self, name: str) -> dict:
         """What a run's summary says of the model: its parts, joints and free edges."""
@@ -121,6 +131,7 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
     tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
                       "a length > 0 [m]")  # fmt: skip
     penalty = parse_penalty(t)
+    dofs = t.get("dofs", "a string", "auto", lambda v: v in DOF_CHOICES, ", ".join(f'"{v}"' for v in DOF_CHOICES))
     constraints = _part_constraints(t, len(parts))
     parse_shell: Callable[..., Scene] = BODY_TYPES[DEFAULT_BODY_TYPE]
     shared = {k: v for k, v in tables.items() if k in ("time", "solver", "output", "colliders", "material", "effects")}
@@ -153,4 +164,23 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
         along = set().union(*(edges_joined(j, shells) for j in curves)) if curves else set()
         joints, free = joints + curves, [edge for edge in free if edge not in along]
     fit = max(shell_fit_error(part.surface, body.surface) for part, body in zip(parts, bodies, strict=True))
-    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)))
+    shared = tuple(_joint_dofs(t, dofs, joint, bodies, tolerance) for joint in joints)
+    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)), shared)
+
+
+def _joint_dofs(t: Table, dofs: str, joint: FoundJoint, bodies: list[Scene], tolerance: float) -> SharedDofs | None:
+    """The control points a found joint's parts share (``dofs``: "auto" where it conforms, "shared"
+    refused where not, "coupled" never); partial and trim-curve joints share none."""
+    whole = not joint.partial and "trim curve" not in (joint.first_edge, joint.second_edge)
+    if dofs == "coupled" or (dofs == "auto" and not whole):
+        return None
+    where = f"parts {joint.first} ({joint.first_edge}) and {joint.second} ({joint.second_edge})"
+    if not whole:
+        t.fail("dofs", f'"auto" or "coupled": {where} are joined along a part of an edge or a trim curve', dofs)
+    try:
+        return conforming_edge_dofs((bodies[joint.first].surface, bodies[joint.second].surface),
+                                    (joint.first, joint.second), (joint.first_edge, joint.second_edge), tolerance)
+    except InterfaceError as exc:
+        if dofs == "shared":
+            raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": {where} do not conform: {exc}") from None
+        return None

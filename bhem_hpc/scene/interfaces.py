@@ -9,9 +9,10 @@ registers itself in :data:`INTERFACE_TYPES`::
     penalty = 1e3                   # alpha of the penalty rule (bhem_hpc.bodies.coupling)
     tolerance = 1e-6                # [m] how far apart the edges may be at rest
     partial = false                 # join only the part the edges share (a T-junction)
-    dofs = "coupled"                # "shared": B-spline patches whose edges conform (one degree,
-                                    # matching knots, the same control points at rest) share those
-                                    # control points; only the angle is left to the penalty
+    dofs = "auto"                   # B-spline patches whose edges conform (one degree, matching
+                                    # knots, the same control points at rest) share those control
+                                    # points, the penalty keeping only the angle ("auto": where they
+                                    # conform; "shared": refused where not; "coupled": never)
 
     [[interfaces]]
     type = "seam"                   # edges apart at rest, sewn together: the stitches shorten
@@ -45,6 +46,9 @@ DEFAULT_INTERFACE_TYPE = "joint"
 #: The penalty factors a scene may give (below, the coupling is soft; above, the Newton systems
 #: lose their digits to it: a folded steel plate failed to converge at 1e7).
 PENALTY_RANGE = (1.0, 1.0e6)
+#: A joint's ``dofs``: share the edge's control points where the patches conform, always (refused
+#: where they do not), or never (the penalty couples them).
+DOF_CHOICES = ("auto", "shared", "coupled")
 #: The default largest rest distance between a joint's edges [m].
 DEFAULT_TOLERANCE = 1e-6
 
@@ -121,9 +125,10 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
     tolerance = t.get("tolerance", "a number", DEFAULT_TOLERANCE, lambda v: 0 < v and math.isfinite(v),
                       "a length > 0 [m]")  # fmt: skip
     partial = t.get("partial", "a boolean", False)
-    dofs = t.get("dofs", "a string", "coupled", lambda v: v in ("coupled", "shared"), '"coupled" or "shared"')
+    dofs = t.get("dofs", "a string", "auto", lambda v: v in DOF_CHOICES, ", ".join(f'"{v}"' for v in DOF_CHOICES))
     if dofs == "shared" and partial:
-        t.fail("dofs", '"coupled" for a partial joint (only whole edges that conform share control points)', dofs)
+        t.fail("dofs", '"auto" or "coupled" for a partial joint (only whole edges that conform share control '
+               'points)', dofs)  # fmt: skip
     t.done()
 
     def joint(first: Patch, second: Patch) -> EdgeQuadrature:
@@ -131,13 +136,14 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
 
     pair, quadrature = _paired(t, names, bodies, places, joint)
     shared = None
-    if dofs == "shared":
+    if dofs != "coupled" and not partial:
         try:
             shared = conforming_edge_dofs((bodies[places[0]].surface, bodies[places[1]].surface), places, edges,
                                           tolerance)  # fmt: skip
         except InterfaceError as exc:
-            raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": bodies '{pair[0]}' and '{pair[1]}' do "
-                             f"not conform along {edges[0]} and {edges[1]}: {exc}") from None  # fmt: skip
+            if dofs == "shared":
+                raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": bodies '{pair[0]}' and '{pair[1]}' "
+                                 f"do not conform along {edges[0]} and {edges[1]}: {exc}") from None  # fmt: skip
     return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True, shared)
 
 

@@ -155,6 +155,35 @@ def test_an_open_box_is_joined_along_its_folds_in_either_orientation(comm, share
     assert len(report["joints"]) == 8 and len(report["free_edges"]) == 4 and report["fit_error_m"] < 1e-12
 
 
+def test_the_hoods_conforming_seams_share_their_control_points(comm, shared_tmp_path):
+    """The hood's bicubic parts meet with matching knots: by default ("auto") each seam's 7 control
+    points are shared (21 DOFs a joint, 81 unknowns fewer: the cross point is one of four), the
+    seams have no gap (the penalty's leaves 1e-4 of the crown's sag), and the crown's sag is the
+    penalty-coupled hood's ("coupled") within 3e-4 of it (what the displacement penalty gives); a
+    Hermite hood's seams do not conform, and "shared" is refused saying so."""
+    sags, dofs = {}, {}
+    for choice in ("auto", "coupled"):
+        folder = shared_tmp_path / choice
+        path = _scene(comm, folder, "hood.3dm", _hood_parts(), f'dofs = "{choice}"\n' + CLAMPED)
+        summary = run_scene(RunOptions(path, folder / "out", progress=False), comm)
+        assert [i["shared_dofs"] for i in summary["interfaces"]] == [21 if choice == "auto" else 0] * 4
+        dofs[choice] = summary["dofs"]
+        frames = [read_frame(folder / "out" / f"hood_{k}" / "surface.h5")[0] for k in range(4)]
+        along = np.linspace(0.0, 1.0, 7)
+        gap = max(np.abs(frames[a].evaluate(*first).x - frames[b].evaluate(*second).x).max()
+                  for a, b, first, second in ((0, 1, (along, np.ones(7)), (along, np.zeros(7))),
+                                              (0, 2, (np.ones(7), along), (np.zeros(7), along))))  # fmt: skip
+        sags[choice] = frames[0].evaluate(np.array(1.0), np.array(1.0)).x[2] - 0.06
+        assert gap < 1e-15 if choice == "auto" else gap > 1e-5 * abs(sags[choice])  # the penalty's compliance
+    assert dofs["coupled"] - dofs["auto"] == 81
+    assert abs(sags["auto"] / sags["coupled"] - 1) < 3e-4, sags  # measured 1.4e-4
+    path = _scene(comm, shared_tmp_path / "hermite", "hood.3dm", _hood_parts(), 'dofs = "shared"\n',
+                  discretization="hermite")  # fmt: skip
+    with pytest.raises(SceneError, match=r"key 'dofs' = \"shared\": parts 0 \(xi2_max\) and 1 \(xi2_min\) do not "
+                                         r"conform: edge xi2_max: only B-spline patches share control points"):
+        load_any_scene(path)
+
+
 @pytest.mark.parametrize(
     ("body", "message"),
     [
@@ -167,6 +196,7 @@ def test_an_open_box_is_joined_along_its_folds_in_either_orientation(comm, share
          r"body 'hood' \(bodies\[0\]\): part 1 \(.*\): key 'constraints\[0\].edge'"),
         ("sem = {}\n", r"body 'hood' \(bodies\[0\]\): key 'sem' must be absent \(a cad_shell body lists file, patches"),
         ("tolerance = -1.0\n", r"key 'tolerance' must be a length > 0 \[m\], got -1.0"),
+        ('dofs = "merged"\n', r"key 'dofs' must be \"auto\", \"shared\", \"coupled\", got 'merged'"),
         ('[[bodies]]\nname = "hood_2"\nsurface = { kind = "rectangle", size = [0.1, 0.1], patches = [2, 2] }\n'
          'material = { young = 1e6, poisson = 0.3, thickness = 1e-3, density = 100.0 }\n',
          r"body 'hood' \(bodies\[0\]\): its parts are bodies named hood_0, ... and another body has one of these"),

@@ -78,9 +78,10 @@ def test_a_bracket_whose_patches_share_the_folds_control_points_bends_as_the_pen
      r"edge xi1_max: only B-spline patches share control points \(a HermiteSurface is joined by the coupling energy\)"),
     (lambda s: _cubic_bracket("shared").replace("patches = [6, 2]", "patches = [6, 3]"),
      r"key 'interfaces\[0\].dofs' = \"shared\": .* have 5 and 6 control points \(their knots do not match\)"),
-    (lambda s: s + 'dofs = "merged"\n', r"key 'interfaces\[0\].dofs' must be \"coupled\" or \"shared\", got 'merged'"),
+    (lambda s: s + 'dofs = "merged"\n',
+     r"key 'interfaces\[0\].dofs' must be \"auto\", \"shared\", \"coupled\", got 'merged'"),
     (lambda s: s + 'dofs = "shared"\npartial = true\n',
-     r"key 'interfaces\[0\].dofs' must be \"coupled\" for a partial joint"),
+     r"key 'interfaces\[0\].dofs' must be \"auto\" or \"coupled\" for a partial joint"),
 ])  # fmt: skip
 def test_a_joint_that_cannot_share_its_control_points_is_refused_saying_why(comm, shared_tmp_path, edit, message):
     path = write_scene(comm, shared_tmp_path / "bad.toml", edit((REPO / "jobs" / "folded-plate.toml").read_text()))

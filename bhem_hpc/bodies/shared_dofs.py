@@ -1,16 +1,24 @@
 """Unknowns that patches share along conforming interfaces (numpy only).
 
-Two B-spline patches of one degree whose edges have the same number of knot spans and the same
-control points at rest (in either order) meet along the same curve for every position of those
-control points: an edge of an open, uniform B-spline surface is the B-spline curve of its edge row
-of control points. Making those control points one unknown keeps the shell continuous (C0) across
-the interface exactly, with no penalty and no consistency error; only the angle between the
-patches is left to a coupling energy (:class:`~bhem_hpc.bodies.coupling.InterfaceCoupling`
-without its displacement term).
+Two patches of one discretization whose edges have as many knot spans and the same edge data at
+rest meet along the same curve for every state of those data, so the data can be one unknown:
+the shell is continuous (C0) across the interface exactly, with no penalty and no consistency
+error; only the angle between the patches is left to a coupling energy
+(:class:`~bhem_hpc.bodies.coupling.InterfaceCoupling` without its displacement term).
 
-:func:`conforming_edge_dofs` finds the shared control points of one interface;
-:class:`SharedDofs` collects them for a solve (the reduction that makes them one unknown is
-:class:`~bhem_hpc.bodies.shared_petsc.SharedDofProblem`).
+- B-splines (one degree, open uniform knots): an edge of the surface is the B-spline curve of its
+  edge row of control points; those control points are shared.
+- Hermite patches: an edge is the cubic Hermite curve of its nodes' positions and their
+  derivatives along the edge; both are shared, the derivative scaled by the ratio of the two
+  edges' parameter lengths (and its sign by their directions), ``dx/dxi_B = s dx/dxi_A``. The
+  derivatives across the edge and the cross derivatives are each patch's own.
+
+Shared data are named by *entries*, a discretization's rows of its surface data (a B-spline's
+control point ``i1 * c2 + i2``; a Hermite node's datum ``(i1 * m2 + i2) * 4 + kind``), which the
+discretization maps to its closed DOFs (``entry_closed_blocks``). :func:`conforming_edge_dofs`
+finds the shared entries of one interface; :func:`shared_groups` makes groups of DOFs joined
+through several interfaces (a corner where patches meet); the reduction that makes each group one
+unknown is :class:`~bhem_hpc.bodies.shared_petsc.SharedDofProblem`.
 """
 
 from __future__ import annotations
@@ -21,122 +29,175 @@ from dataclasses import dataclass
 import numpy as np
 
 from bhem_hpc.geometry.bspline import BSplineSurface
-from bhem_hpc.geometry.interfaces import EDGES, InterfaceError
+from bhem_hpc.geometry.interfaces import EDGES, InterfaceError, edge_line
+from bhem_hpc.geometry.surface import HermiteSurface
+
+#: How far two coefficients of one shared DOF may differ (relative) where interfaces meet in a loop.
+COEFFICIENT_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
 class SharedDofs:
-    """Closed DOFs of different bodies that are one unknown.
+    """Surface data of different bodies that are one unknown.
 
     Attributes:
-        first, second: ``(k, 2)`` pairs ``(body, body-global closed DOF)``; row ``i`` of ``first``
-            and row ``i`` of ``second`` are one unknown. The same on every rank.
+        first, second: ``(k, 2)`` pairs ``(body, entry)``; row ``i`` of ``second`` is ``scale[i]``
+            times row ``i`` of ``first`` (every component). The same on every rank.
+        scale: ``(k,)`` the coefficients.
     """
 
     first: np.ndarray
     second: np.ndarray
+    scale: np.ndarray
 
     @staticmethod
     def join(parts: Sequence[SharedDofs]) -> SharedDofs:
         """Every pair of ``parts``."""
         empty = np.zeros((0, 2), dtype=np.int64)
         return SharedDofs(np.concatenate([empty, *(p.first for p in parts)]),
-                          np.concatenate([empty, *(p.second for p in parts)]))  # fmt: skip
+                          np.concatenate([empty, *(p.second for p in parts)]),
+                          np.concatenate([np.zeros(0), *(p.scale for p in parts)]))  # fmt: skip
+
+    def moved(self, offset: int) -> SharedDofs:
+        """The same pairs with every body index moved by ``offset`` (the patches' place in a scene)."""
+        return SharedDofs(self.first + [offset, 0], self.second + [offset, 0], self.scale)
 
     def __len__(self) -> int:
         return len(self.first)
 
 
-def _edge_rows(surface: BSplineSurface, edge: str) -> np.ndarray:
-    """The control-point entries (``i1 * c2 + i2``) of ``edge``'s row, in the order along it, ``(c,)``."""
-    c1, c2 = surface.node_shape
-    entries = np.arange(c1 * c2).reshape(c1, c2)
-    return {"xi1_min": entries[0, :], "xi1_max": entries[-1, :], "xi2_min": entries[:, 0],
-            "xi2_max": entries[:, -1]}[edge]  # fmt: skip
+def _edge_nodes(shape: tuple[int, int], edge: str) -> np.ndarray:
+    """The flat node indices ``i1 * m2 + i2`` of ``edge``'s row on a ``shape`` node grid, in the order along it."""
+    nodes = np.arange(shape[0] * shape[1]).reshape(shape)
+    return {"xi1_min": nodes[0, :], "xi1_max": nodes[-1, :], "xi2_min": nodes[:, 0], "xi2_max": nodes[:, -1]}[edge]
+
+
+def _edge_data(surface: BSplineSurface | HermiteSurface, edge: str) -> tuple[list[np.ndarray], np.ndarray, float]:
+    """What the edge curve is made of: per kind of shared entry, the entries along the edge
+    ``[(c,), ...]``; their rest values ``(kinds, c, 3)``; the edge's parameter length."""
+    along, _, (low, high), _ = edge_line(surface.grid, edge)
+    nodes = _edge_nodes(surface.node_shape, edge)
+    if isinstance(surface, BSplineSurface):
+        return [nodes], surface.control.reshape(-1, 3)[nodes][None], high - low
+    kinds = (0, 1 + along)  # the position and its derivative along the edge
+    entries = [4 * nodes + kind for kind in kinds]
+    return entries, np.stack([surface.nodal.reshape(-1, 3)[e] for e in entries]), high - low
+
+
+def _check_kind(surfaces: tuple[object, object], edges: tuple[str, str]) -> None:
+    for surface, edge in zip(surfaces, edges, strict=True):
+        if not isinstance(surface, BSplineSurface | HermiteSurface):
+            raise InterfaceError(f"edge {edge}: a {type(surface).__name__} shares no data with another patch")
+        if edge not in EDGES:
+            raise InterfaceError(f"edge {edge!r} does not exist; expected one of {EDGES}")
+        if surface.grid.periodic2 if edge.startswith("xi1") else surface.grid.periodic1:
+            raise InterfaceError(f"edge {edge} is a closed curve: sharing its data is not offered")
+    first, second = surfaces
+    if type(first) is not type(second):
+        raise InterfaceError(f"a {type(first).__name__} and a {type(second).__name__} share no data")
+    if isinstance(first, BSplineSurface) and first.degree != second.degree:
+        raise InterfaceError(f"the patches' degrees differ ({first.degree} and {second.degree})")
 
 
 def conforming_edge_dofs(surfaces: tuple[object, object], bodies: tuple[int, int], edges: tuple[str, str],
                          tolerance: float) -> SharedDofs:  # fmt: skip
-    """The closed DOFs that two patches' edges share when the interface conforms.
+    """The entries that two patches' edges share when the interface conforms (see the module).
 
     Args:
-        surfaces: the two patches' rest surfaces.
+        surfaces: the two patches' rest surfaces (B-spline or Hermite, both of one kind).
         bodies: their bodies' indices in the solve.
         edges: the edge of each (:data:`~bhem_hpc.geometry.interfaces.EDGES`).
-        tolerance: [m] how far corresponding control points may lie apart at rest.
-
-    Returns:
-        Three pairs (x, y, z) per control point of the edge row.
+        tolerance: [m] how far corresponding positions may lie apart at rest (derivatives: this
+            over the edge's parameter length).
 
     Raises:
-        InterfaceError: saying why the interface does not conform: a patch that is not a B-spline,
-            two degrees, a periodic edge direction, edge rows of different lengths, or control points
-            apart by more than ``tolerance`` (the largest distance, in either order).
+        InterfaceError: saying why the interface does not conform: another kind of patch, two
+            kinds or degrees, a periodic edge direction, edges of different numbers of spans, or
+            edge data apart by more than ``tolerance`` (the largest distance, in either order).
     """
-    for surface, edge in zip(surfaces, edges, strict=True):
-        if not isinstance(surface, BSplineSurface):
-            raise InterfaceError(f"edge {edge}: only B-spline patches share control points (a "
-                                 f"{type(surface).__name__} is joined by the coupling energy)")  # fmt: skip
-        if edge not in EDGES:
-            raise InterfaceError(f"edge {edge!r} does not exist; expected one of {EDGES}")
-        if (surface.grid.periodic2 if edge.startswith("xi1") else surface.grid.periodic1):
-            raise InterfaceError(f"edge {edge} is a closed curve: sharing its control points is not offered")
-    first, second = surfaces
-    if first.degree != second.degree:
-        raise InterfaceError(f"the patches' degrees differ ({first.degree} and {second.degree})")
-    rows = [_edge_rows(s, e) for s, e in zip(surfaces, edges, strict=True)]
-    if len(rows[0]) != len(rows[1]):
-        raise InterfaceError(f"edges {edges[0]} and {edges[1]} have {len(rows[0])} and {len(rows[1])} control points "
-                             "(their knots do not match)")  # fmt: skip
-    a, b = first.control.reshape(-1, 3)[rows[0]], second.control.reshape(-1, 3)[rows[1]]
-    gaps = [np.linalg.norm(a - b, axis=1).max(), np.linalg.norm(a - b[::-1], axis=1).max()]
-    if min(gaps) > tolerance:
-        raise InterfaceError(f"edges {edges[0]} and {edges[1]}: their control points lie {min(gaps):.3g} m apart "
-                             f"(tolerance {tolerance:.3g} m)")  # fmt: skip
-    partner = rows[1] if gaps[0] <= gaps[1] else rows[1][::-1]
-    components = np.arange(3)
-    dofs = [(3 * np.asarray(r, dtype=np.int64)[:, None] + components).ravel() for r in (rows[0], partner)]
-    return SharedDofs(np.stack([np.full(len(dofs[0]), bodies[0]), dofs[0]], axis=1),
-                      np.stack([np.full(len(dofs[1]), bodies[1]), dofs[1]], axis=1))  # fmt: skip
+    _check_kind(surfaces, edges)
+    (entries_a, values_a, length_a), (entries_b, values_b, length_b) = (
+        _edge_data(s, e) for s, e in zip(surfaces, edges, strict=True))  # fmt: skip
+    data = "control points" if len(entries_a) == 1 else "nodes"
+    if values_a.shape != values_b.shape:
+        raise InterfaceError(f"edges {edges[0]} and {edges[1]} have {values_a.shape[1]} and {values_b.shape[1]} "
+                             f"{data} (their knots do not match)")  # fmt: skip
+    gaps = []
+    for order in (1, -1):  # the same direction along the edge, or the opposite one
+        scales = np.array([1.0] + [order * length_a / length_b] * (len(entries_a) - 1))
+        expected = scales[:, None, None] * values_a
+        gap = np.linalg.norm(expected - values_b[:, ::order], axis=2)  # (kinds, c): derivatives in m per parameter
+        gap[1:] *= length_b / max(values_b.shape[1] - 1, 1)  # as a distance over a span
+        gaps.append((float(gap.max()), order, scales))
+    gap, order, scales = min(gaps, key=lambda g: g[0])
+    if gap > tolerance:
+        raise InterfaceError(f"edges {edges[0]} and {edges[1]}: their {data} lie {gap:.3g} m apart (tolerance "
+                             f"{tolerance:.3g} m)")  # fmt: skip
+    first = np.concatenate(entries_a)
+    second = np.concatenate([e[::order] for e in entries_b])
+    scale = np.repeat(scales, [len(e) for e in entries_a])
+    return SharedDofs(np.stack([np.full(len(first), bodies[0]), first], axis=1),
+                      np.stack([np.full(len(second), bodies[1]), second], axis=1), scale)  # fmt: skip
 
 
-def shared_groups(stacked_first: np.ndarray, stacked_second: np.ndarray,
-                  preferred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The unknown each shared stacked DOF becomes: pairs joined directly or through others (a
-    corner where several patches meet) form one group, represented by its smallest ``preferred``
-    member if it has one, else by its smallest.
+def shared_groups(first: np.ndarray, second: np.ndarray, scale: np.ndarray,
+                  preferred: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The unknown each shared DOF becomes: pairs joined directly or through others (a corner where
+    several patches meet) form one group, represented by its smallest ``preferred`` member if it
+    has one, else by its smallest.
 
     Args:
-        stacked_first, stacked_second: ``(k,)`` stacked global DOFs that are one unknown, pairwise.
-        preferred: stacked global DOFs a group's representative should be (held ones: the
-            representative carries the group's constraint).
+        first, second: ``(k,)`` DOFs (any integer ids) with ``x[second] = scale x[first]``, pairwise.
+        scale: ``(k,)`` the pairs' coefficients (nonzero).
+        preferred: DOFs a group's representative should be (held ones: the representative carries
+            the group's constraint).
 
     Returns:
-        ``(members, representatives)``: every non-representative member of a group and its
-        group's representative, ``(m,)`` each, sorted by member.
+        ``(members, representatives, coefficients)``: every non-representative member of a group,
+        its group's representative and ``c`` with ``x[member] = c x[representative]``, ``(m,)``
+        each, sorted by member.
+
+    Raises:
+        ValueError: pairs around a loop whose coefficients disagree (the interfaces contradict
+            each other), naming the DOF.
     """
-    parent: dict[int, int] = {}
+    parent: dict[int, tuple[int, float]] = {}  # k -> (p, w): x[k] = w x[p]
 
-    def find(k: int) -> int:
-        root = k
-        while parent.setdefault(root, root) != root:
-            root = parent[root]
-        while parent[k] != root:  # path compression: later finds are short
-            parent[k], k = root, parent[k]
-        return root
+    def find(k: int) -> tuple[int, float]:
+        path, node = [], k
+        while parent.setdefault(node, (node, 1.0))[0] != node:
+            path.append(node)
+            node = parent[node][0]
+        weight = 1.0
+        for step in reversed(path):  # path compression: each node straight to the root
+            weight *= parent[step][1]
+            parent[step] = (node, weight)
+        return node, parent[k][1]
 
-    for a, b in zip(np.asarray(stacked_first).tolist(), np.asarray(stacked_second).tolist(), strict=True):
-        ra, rb = find(a), find(b)
-        if ra != rb:
-            parent[max(ra, rb)] = min(ra, rb)
+    pairs = zip(np.asarray(first).tolist(), np.asarray(second).tolist(), np.asarray(scale).tolist(), strict=True)
+    for a, b, c in pairs:
+        (ra, wa), (rb, wb) = find(a), find(b)  # x[a] = wa x[ra], x[b] = wb x[rb], x[b] = c x[a]
+        if ra == rb:
+            if abs(wb - c * wa) > COEFFICIENT_TOLERANCE * max(abs(wb), abs(c * wa)):
+                raise ValueError(f"DOF {b}: the interfaces give it {wb:.6g} and {c * wa:.6g} times DOF {ra}")
+        elif rb > ra:
+            parent[rb] = (ra, c * wa / wb)
+        else:
+            parent[ra] = (rb, wb / (c * wa))
     held = set(np.asarray(preferred).tolist())
-    groups: dict[int, list[int]] = {}
+    groups: dict[int, list[tuple[int, float]]] = {}
     for k in list(parent):
-        groups.setdefault(find(k), []).append(k)
-    members, representatives = [], []
+        root, weight = find(k)
+        groups.setdefault(root, []).append((k, weight))
+    members, representatives, coefficients = [], [], []
     for group in groups.values():
-        root = min((k for k in group if k in held), default=min(group))
-        members += [k for k in group if k != root]
-        representatives += [root] * (len(group) - 1)
+        weights = dict(group)
+        chosen = min((k for k in weights if k in held), default=min(weights))
+        for k, weight in group:
+            if k != chosen:
+                members.append(k)
+                representatives.append(chosen)
+                coefficients.append(weight / weights[chosen])
     order = np.argsort(members)
-    return (np.asarray(members, dtype=np.int64)[order], np.asarray(representatives, dtype=np.int64)[order])
+    return (np.asarray(members, dtype=np.int64)[order], np.asarray(representatives, dtype=np.int64)[order],
+            np.asarray(coefficients, dtype=float)[order])  # fmt: skip

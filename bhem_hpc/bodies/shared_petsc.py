@@ -4,8 +4,9 @@ closed DOFs that conforming interfaces share (:mod:`.shared_dofs`).
 :class:`SharedDofProblem` wraps a :class:`~bhem_hpc.bodies.petsc.StackedProblem`. Its vector holds
 the stacked closed DOFs less every shared DOF that is not its group's representative, each rank
 the ones it owns in the stacked layout (the representatives keep their owners, so the reduced
-layout is the stacked one with rows left out). ``R`` (stacked rows, reduced columns, one 1 per row)
-takes the reduced unknowns to the stacked DOFs: ``x = R x_R``, ``F_R = R^T F``, ``J_R = R^T J R``
+layout is the stacked one with rows left out). ``R`` (stacked rows, reduced columns, one entry per
+row: 1 for a representative, the member's coefficient for the others) takes the reduced unknowns
+to the stacked DOFs: ``x = R x_R``, ``F_R = R^T F``, ``J_R = R^T J R``
 (PETSc ``PtAP``), so the shared DOFs move as one and the forces on them add up. A group whose
 member is held by a constraint is represented by a held member; its row holds ``x - x_bc``.
 
@@ -46,28 +47,23 @@ class SharedDofProblem(PetscOwner):
         self.stacked, self.comm = stacked, stacked.comm
         self._closed = False
         layout = stacked.closed
-        for pairs in (shared.first, shared.second):
-            bodies = pairs[:, 0]
-            if len(pairs) and (bodies.min() < 0 or bodies.max() >= layout.bodies):
-                raise ValueError(f"shared DOFs name bodies {sorted(set(bodies.tolist()))}; the solve has "
-                                 f"{layout.bodies}")  # fmt: skip
-        stacked_pairs = [np.array([layout.to_stacked(int(b), np.array([d]))[0] for b, d in pairs], dtype=np.int64)
-                         for pairs in (shared.first, shared.second)]  # fmt: skip
+        first, second, coefficients = _stacked_pairs(stacked, shared)
         held = np.concatenate(self.comm.allgather(np.asarray(stacked.bc_rows, dtype=np.int64)))
-        members, representatives = shared_groups(*stacked_pairs, held)
+        members, representatives, member_coefficients = shared_groups(first, second, coefficients, held)
         keep = np.ones(layout.size_global, dtype=bool)
         keep[members] = False
-        #: each stacked DOF's reduced unknown, ``(stacked DOFs,)`` (every rank)
-        reduced_of = np.cumsum(keep) - 1
+        #: each stacked DOF's reduced unknown and coefficient, ``(stacked DOFs,)`` each (every rank)
+        reduced_of, coefficient = np.cumsum(keep) - 1, np.ones(layout.size_global)
         reduced_of[members] = reduced_of[representatives]
-        first, last = int(layout.rank_start[self.comm.rank]), int(layout.rank_start[self.comm.rank + 1])
-        self._kept_local = np.flatnonzero(keep[first:last])  # this rank's kept rows in the stacked vector
+        coefficient[members] = member_coefficients
+        begin, end = int(layout.rank_start[self.comm.rank]), int(layout.rank_start[self.comm.rank + 1])
+        self._kept_local = np.flatnonzero(keep[begin:end])  # this rank's kept rows in the stacked vector
         self.size_local, self.size_global = len(self._kept_local), int(keep.sum())
         self.shared_dofs = len(members)
-        rows = np.arange(last - first + 1, dtype=PETSc.IntType)
-        sizes = ((last - first, layout.size_global), (self.size_local, self.size_global))
-        self.reduction = PETSc.Mat().createAIJ(sizes, csr=(rows, reduced_of[first:last].astype(PETSc.IntType),
-                                                           np.ones(last - first)), comm=self.comm)  # fmt: skip
+        rows = np.arange(end - begin + 1, dtype=PETSc.IntType)
+        sizes = ((end - begin, layout.size_global), (self.size_local, self.size_global))
+        self.reduction = PETSc.Mat().createAIJ(sizes, csr=(rows, reduced_of[begin:end].astype(PETSc.IntType),
+                                                           coefficient[begin:end]), comm=self.comm)  # fmt: skip
         self.reduction.assemble()
         # the held rows that stay: each held group's representative (its members' rows go)
         kept_held = keep[np.asarray(stacked.bc_rows, dtype=np.int64)]
@@ -299,6 +295,29 @@ class SharedAccelerationResidual(AccelerationResidual):
             full.destroy()
         self.constrained_local = problem.bc_local
         self._solve_with_matrix(problem.bc_rows, problem.comm, direct)
+
+
+def _stacked_pairs(stacked: StackedProblem, shared: SharedDofs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The shared entries as stacked closed DOFs ``x[second] = coefficient x[first]``, ``(3 k,)`` each:
+    each entry's closed block and scale from its body's discretization (a closed DOF holds the
+    entry's value times that scale)."""
+    layout = stacked.closed
+    for pairs in (shared.first, shared.second):
+        bodies = pairs[:, 0]
+        if len(pairs) and (bodies.min() < 0 or bodies.max() >= layout.bodies):
+            raise ValueError(f"shared DOFs name bodies {sorted(set(bodies.tolist()))}; the solve has {layout.bodies}")
+    dofs, scales = [], []
+    for pairs in (shared.first, shared.second):
+        side_dofs, side_scales = np.zeros((len(pairs), 3), np.int64), np.zeros(len(pairs))
+        for body in np.unique(pairs[:, 0]):
+            rows = np.flatnonzero(pairs[:, 0] == body)
+            blocks, entry_scales = stacked.problems[body].model.discretization.entry_closed_blocks()
+            entries = pairs[rows, 1]
+            side_dofs[rows] = layout.to_stacked(int(body), 3 * blocks[entries][:, None] + np.arange(3))
+            side_scales[rows] = entry_scales[entries]
+        dofs.append(side_dofs.ravel())
+        scales.append(np.repeat(side_scales, 3))
+    return dofs[0], dofs[1], np.repeat(shared.scale, 3) * scales[1] / scales[0]
 
 
 def _block_diagonal(stacked: StackedProblem, matrices: list[PETSc.Mat]) -> PETSc.Mat:

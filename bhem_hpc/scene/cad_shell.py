@@ -76,8 +76,7 @@ class CadShell:
         return tuple(InterfaceRecord("joint", f"{name} joint {k}", (first + j.first, first + j.second),
                                      (f"{name}_{j.first}", f"{name}_{j.second}"), (j.first_edge, j.second_edge),
                                      self.penalty, j.quadrature, None, True,
-                                     None if dofs is None else SharedDofs(dofs.first + [first, 0],
-                                                                          dofs.second + [first, 0]))
+                                     None if dofs is None else dofs.moved(first))
                      for k, (j, dofs) in enumerate(zip(self.joints, shared, strict=True)))  # fmt: skip
 
     def report(self, name: str) -> dict:

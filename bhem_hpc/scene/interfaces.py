@@ -9,10 +9,11 @@ registers itself in :data:`INTERFACE_TYPES`::
     penalty = 1e3                   # alpha of the penalty rule (bhem_hpc.bodies.coupling)
     tolerance = 1e-6                # [m] how far apart the edges may be at rest
     partial = false                 # join only the part the edges share (a T-junction)
-    dofs = "auto"                   # B-spline patches whose edges conform (one degree, matching
-                                    # knots, the same control points at rest) share those control
-                                    # points, the penalty keeping only the angle ("auto": where they
-                                    # conform; "shared": refused where not; "coupled": never)
+    dofs = "auto"                   # patches whose edges conform (one discretization, as many spans,
+                                    # the same edge data at rest) share that data (B-spline control
+                                    # points; Hermite positions and slopes along the edge), the
+                                    # penalty keeping only the angle ("auto": where they conform;
+                                    # "shared": refused where not; "coupled": never)
 
     [[interfaces]]
     type = "seam"                   # edges apart at rest, sewn together: the stitches shorten
@@ -84,7 +85,7 @@ class InterfaceRecord:
                 "points": len(self.quadrature.weights), "length_m": float(self.quadrature.weights.sum()),
                 "rest_gap_m": self.quadrature.gap,
                 "sewing_time_s": self.sewing_time, "keeps_angle": self.keep_angle,
-                "shared_dofs": 0 if self.shared is None else len(self.shared)}  # fmt: skip
+                "shared_dofs": 0 if self.shared is None else 3 * len(self.shared)}  # fmt: skip
 
 
 def _pair(t: Table, names: Sequence[str], bodies: Sequence) -> tuple[tuple[int, int], tuple[str, str]]:

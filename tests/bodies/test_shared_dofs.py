@@ -48,24 +48,43 @@ def test_conforming_edges_share_their_control_points_in_either_order():
     first, second = _strip(0.0, 0.5, (3, 2), 0.2), _strip(0.5, 1.0, (4, 2), 0.2)
     shared = conforming_edge_dofs((first, second), (0, 1), ("xi1_max", "xi1_min"), 1e-9)
     c1 = first.node_shape[0]
-    assert len(shared) == 3 * 5  # the edge rows' 5 control points, x y z
-    xyz = np.tile(range(3), 5)
-    np.testing.assert_array_equal(shared.first[:, 1], 3 * np.repeat((c1 - 1) * 5 + np.arange(5), 3) + xyz)
-    np.testing.assert_array_equal(shared.second[:, 1], 3 * np.repeat(np.arange(5), 3) + xyz)
-    assert set(shared.first[:, 0]) == {0} and set(shared.second[:, 0]) == {1}
+    np.testing.assert_array_equal(shared.first, np.stack([np.zeros(5), (c1 - 1) * 5 + np.arange(5)], axis=1))
+    np.testing.assert_array_equal(shared.second, np.stack([np.ones(5), np.arange(5)], axis=1))
+    np.testing.assert_array_equal(shared.scale, np.ones(5))
     # the second patch turned about: its xi2 runs the other way along the edge
     turned = B.from_callable(lambda u, v: np.stack([u, 0.2 - v, 0 * u], -1),
                              ParameterGrid(4, 2, (0.5, 1.0), (0.0, 0.2), False, False), degree=3)  # fmt: skip
     reversed_ = conforming_edge_dofs((first, turned), (0, 1), ("xi1_max", "xi1_min"), 1e-9)
-    np.testing.assert_array_equal(reversed_.second[::3, 1] // 3, np.arange(5)[::-1])
+    np.testing.assert_array_equal(reversed_.second[:, 1], np.arange(5)[::-1])
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_conforming_hermite_edges_share_positions_and_slopes_along_the_edge_scaled_by_their_parameters(direction):
+    """Hermite nodes share their positions and their derivatives along the edge: the second patch's
+    parameter along it runs over 2.0 where the first's runs over 0.2 (and the other way round for
+    direction -1), so its derivative is 0.1 (-0.1) times the first's; the derivatives across the edge
+    and the cross derivatives are not shared."""
+    first = S.from_callable(_plane, ParameterGrid(3, 2, (0.0, 0.5), (0.0, 0.2), False, False))
+
+    def second_position(u, v):
+        return np.stack([u, 0.1 + direction * (0.1 * v - 0.1), 0 * u], -1)
+
+    second = S.from_callable(second_position, ParameterGrid(4, 2, (0.5, 1.0), (0.0, 2.0), False, False))
+    shared = conforming_edge_dofs((first, second), (0, 1), ("xi1_max", "xi1_min"), 1e-9)
+    nodes_a, nodes_b = 3 * 3 + np.arange(3), np.arange(3)[::int(direction)]
+    np.testing.assert_array_equal(shared.first[:, 1], np.concatenate([4 * nodes_a, 4 * nodes_a + 2]))
+    np.testing.assert_array_equal(shared.second[:, 1], np.concatenate([4 * nodes_b, 4 * nodes_b + 2]))
+    np.testing.assert_allclose(shared.scale, [1.0] * 3 + [0.1 * direction] * 3, rtol=1e-14)
+    for a, b, c in zip(shared.first[:, 1], shared.second[:, 1], shared.scale, strict=True):
+        np.testing.assert_allclose(second.nodal.reshape(-1, 3)[b], c * first.nodal.reshape(-1, 3)[a], atol=1e-15)
 
 
 @pytest.mark.parametrize(("second", "edge", "message"), [
-    (lambda: _strip(0.5, 1.0, (4, 3), 0.2), "xi1_min", "6 control points"),
+    (lambda: _strip(0.5, 1.0, (4, 3), 0.2), "xi1_min", "have 5 and 6 control points"),
     (lambda: _strip(0.5, 1.0, (4, 2), 0.2, degree=2), "xi1_min", "degrees differ"),
-    (lambda: _strip(0.6, 1.0, (4, 2), 0.2), "xi1_min", "0.1 m apart"),
+    (lambda: _strip(0.6, 1.0, (4, 2), 0.2), "xi1_min", "control points lie 0.1 m apart"),
     (lambda: S.from_callable(_plane, ParameterGrid(4, 2, (0.5, 1.0), (0.0, 0.2), False, False)), "xi1_min",
-     "only B-spline patches"),
+     "a BSplineSurface and a HermiteSurface share no data"),
 ])  # fmt: skip
 def test_interfaces_that_do_not_conform_are_refused_saying_why(second, edge, message):
     with pytest.raises(InterfaceError, match=message):
@@ -73,21 +92,33 @@ def test_interfaces_that_do_not_conform_are_refused_saying_why(second, edge, mes
 
 
 def test_dofs_joined_through_others_are_one_unknown_represented_by_a_held_one():
-    """Four patches at a corner: four pairs around it make one group of four; its representative
-    is the held member (it carries the constraint), else the smallest."""
-    members, representatives = shared_groups(np.array([10, 20, 30, 40, 7]), np.array([20, 30, 40, 10, 8]),
-                                             preferred=np.array([30]))  # fmt: skip
+    """Four patches at a corner: four pairs around it make one group of four, each a multiple of
+    the held member that represents it (it carries the constraint); a loop whose coefficients
+    contradict each other is refused."""
+    members, representatives, coefficients = shared_groups(
+        np.array([10, 20, 30, 40, 7]), np.array([20, 30, 40, 10, 8]), np.array([2.0, -1.0, 0.25, -2.0, 3.0]),
+        preferred=np.array([30]))  # fmt: skip
+    # x20 = 2 x10, x30 = -x20, x40 = x30 / 4, x10 = -2 x40 (the loop closes); x8 = 3 x7
     assert dict(zip(members.tolist(), representatives.tolist(), strict=True)) == {10: 30, 20: 30, 40: 30, 8: 7}
+    np.testing.assert_allclose(coefficients, [3.0, -0.5, -1.0, 0.25])  # members 8, 10, 20, 40
+    with pytest.raises(ValueError, match="DOF 10: the interfaces give it"):
+        shared_groups(np.array([10, 20, 30]), np.array([20, 30, 10]), np.array([2.0, 1.0, 1.0]), np.array([]))
 
 
-def _cantilever_tips(comm, shared: bool, factors) -> tuple[list[float], list[float], int]:
-    """The steel strip clamped at x = 0 and cut in two cubic B-spline halves (4 x 2 spans each):
-    its end load's tip deflection and the largest gap across the cut, per penalty factor."""
+def _half(discretization: str, x0: float, x1: float, width: float):
+    if discretization == "hermite":
+        return S.from_callable(_plane, ParameterGrid(4, 2, (x0, x1), (0.0, width), False, False))
+    return _strip(x0, x1, (4, 2), width)
+
+
+def _cantilever_tips(comm, discretization: str, shared: bool, factors) -> tuple[list[float], list[float], int]:
+    """The steel strip clamped at x = 0 and cut in two halves (4 x 2 spans each): its end load's
+    tip deflection and the largest gap across the cut, per penalty factor."""
     length, width = 1.0, 0.2
     load = Loads(line_loads=(LineLoad("xi1_max", (0.0, 0.0, -5.0)),))
     tips, gaps, unknowns = [], [], 0
     for factor in factors:
-        rests = [_strip(0.0, length / 2, (4, 2), width), _strip(length / 2, length, (4, 2), width)]
+        rests = [_half(discretization, 0.0, length / 2, width), _half(discretization, length / 2, length, width)]
         models = [ShellModel(rests[0], STEEL, Loads(), [bcs.clamp_edge(rests[0], "xi1_min")], comm=comm),
                   ShellModel(rests[1], STEEL, load, [], comm=comm)]  # fmt: skip
         edges = ("xi1_max", "xi1_min")
@@ -103,20 +134,23 @@ def _cantilever_tips(comm, shared: bool, factors) -> tuple[list[float], list[flo
     return tips, gaps, unknowns
 
 
-def test_a_cantilever_of_two_patches_sharing_their_edge_has_no_gap_and_solves_at_any_penalty(comm):
-    """Shared control points: the cut has no gap at all (round-off; the displacement penalty leaves
-    1.8e-12 m at alpha 1e3), the unknowns are 15 fewer (5 control points), the tip deflection is the
-    penalty joint's but for that joint's displacement compliance (1.0e-6 of it at alpha 10, 1.0e-8 at
-    1e3: it falls as 1/alpha), and the angle term alone solves up to alpha 1e6, where the
-    displacement penalty's Newton fails."""
+@pytest.mark.parametrize(("discretization", "fewer"), [("bspline3", 15), ("hermite", 18)])
+def test_a_cantilever_of_two_patches_sharing_their_edge_has_no_gap_and_solves_at_any_penalty(comm, discretization,
+                                                                                           fewer):  # fmt: skip
+    """Shared edge data: the cut has no gap at all (round-off; the displacement penalty leaves
+    1.8e-12 m at alpha 1e3), the unknowns are fewer (cubic B-splines: 5 control points, 15; Hermite:
+    3 nodes' positions and slopes along the cut, 18), the tip deflection is the penalty joint's but
+    for that joint's displacement compliance (1.0e-6 of it at alpha 10, 1.0e-8 at 1e3: it falls as
+    1/alpha), and the angle term alone solves up to alpha 1e6 (where the displacement penalty's
+    Newton failed on the cubic B-spline strip)."""
     factors = (1e1, 1e3, 1e6)
-    shared, shared_gaps, reduced = _cantilever_tips(comm, True, factors)
-    penalty, penalty_gaps, unknowns = _cantilever_tips(comm, False, factors[:2])
-    assert unknowns - reduced == 15
+    shared, shared_gaps, reduced = _cantilever_tips(comm, discretization, True, factors)
+    penalty, penalty_gaps, unknowns = _cantilever_tips(comm, discretization, False, factors[:2])
+    assert unknowns - reduced == fewer
     assert max(shared_gaps) < 1e-15 and min(penalty_gaps) > 1e-13, (shared_gaps, penalty_gaps)
     differences = [abs(a / b - 1) for a, b in zip(shared, penalty, strict=False)]
     assert differences[0] < 2e-6 and differences[1] < 2e-8, differences  # the displacement penalty's 1/alpha
-    # the angle term's compliance falls towards the one C2 patch's deflection: no locking
+    # the angle term's compliance falls towards the one patch's deflection: no locking
     assert abs(shared[0]) > abs(shared[1]) > abs(shared[2]) > 0.99 * abs(shared[1])
 
 
@@ -146,10 +180,11 @@ def test_the_patch_test_across_a_shared_edge_has_no_consistency_error(comm):
 
 
 @pytest.mark.parametrize("splits", [(1, 2), (2, 2)])
-def test_the_scordelis_lo_roof_of_patches_sharing_their_edges_gives_the_one_patch_value(comm, splits):
+@pytest.mark.parametrize("discretization", ["bspline3", "hermite"])
+def test_the_scordelis_lo_roof_of_patches_sharing_their_edges_gives_the_one_patch_value(comm, splits, discretization):
     """The roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per area) in cubic
-    B-spline patches of 12 x 12 spans in all, sharing their edges (2 x 2: four patches at one point,
-    a group of four control points): the midside deflection is the one patch's within 3e-4 and the
+    B-spline or Hermite patches of 12 x 12 spans in all, sharing their edges (2 x 2: four patches at
+    one point, groups of four): the midside deflection is the one patch's within 3e-4 and the
     reference's (0.3006) within 5e-3."""
     radius, load, spans = 25.0, 0.09, 12
     material = Material(4.32e8, 0.0, 0.25, 1.0)
@@ -160,8 +195,10 @@ def test_the_scordelis_lo_roof_of_patches_sharing_their_edges_gives_the_one_patc
     def deflection(split: tuple[int, int]) -> float:
         b1, b2 = np.linspace(0.0, 50.0, split[0] + 1), np.linspace(50 * DEG, 130 * DEG, split[1] + 1)
         keys = [(i, j) for i in range(split[0]) for j in range(split[1])]
-        rests = [B.from_callable(roof, ParameterGrid(spans // split[0], spans // split[1], (b1[i], b1[i + 1]),
-                                                     (b2[j], b2[j + 1]), False, False), degree=3) for i, j in keys]
+        grids = [ParameterGrid(spans // split[0], spans // split[1], (b1[i], b1[i + 1]), (b2[j], b2[j + 1]), False,
+                               False) for i, j in keys]  # fmt: skip
+        rests = [S.from_callable(roof, grid) if discretization == "hermite" else B.from_callable(roof, grid, degree=3)
+                 for grid in grids]  # fmt: skip
         weight = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
 
         def supports(i: int, rest) -> list:

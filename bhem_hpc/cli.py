@@ -51,6 +51,22 @@ def _add_solids(sub) -> None:
     solids.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/solids.md, .json, .png")
 
 
+def _add_paths(sub) -> None:
+    """``bhem-hpc paths``: the path-following page."""
+    paths = sub.add_parser("paths", help="run the static path-following jobs against their references")
+    paths.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/path-following.md and its PNGs")
+    paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
+
+
+def _add_interfaces(sub) -> None:
+    """``bhem-hpc interfaces``: joined patches by the penalty against shared edge data."""
+    page = sub.add_parser("interfaces", help="patches joined by the penalty coupling against patches sharing their "
+                          "edge data: static cases against one patch over the penalty factor, the patch test, the "
+                          "hood job")  # fmt: skip
+    page.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/interfaces.md, .json, .png")
+    page.add_argument("--out", type=Path, default=Path("out/interfaces"), help="the hood runs' output directories")
+
+
 def _add_contact_page(sub) -> None:
     """``bhem-hpc contact-page``: the contact jobs by impulses and by IPC, head to head."""
     page = sub.add_parser("contact-page", help="the contact jobs by impulses and by IPC over windows where contact "
@@ -107,11 +123,10 @@ def _parser() -> argparse.ArgumentParser:
     study.add_argument("name", nargs="?", help="study name (plate, cantilever)")
     study.add_argument("--out", type=Path, help="output directory (must not exist or be empty)")
     study.add_argument("--docs", type=Path, help="run every study and write DOCS/accuracy-cost.md")
-    paths = sub.add_parser("paths", help="run the static path-following jobs against their references")
-    paths.add_argument("--docs", type=Path, default=Path("docs"), help="write DOCS/path-following.md and its PNGs")
-    paths.add_argument("--out", type=Path, default=Path("out/paths"), help="the runs' output directories")
+    _add_paths(sub)
     _add_cloth(sub)
     _add_solids(sub)
+    _add_interfaces(sub)
     _add_states(sub)
     _add_contact_page(sub)
     _add_intersections(sub)
@@ -395,6 +410,15 @@ def _solids(args: argparse.Namespace, comm) -> None:
     print(f"wrote {page}")
 
 
+def _interfaces(args: argparse.Namespace, comm) -> None:
+    from bhem_hpc.studies.interfaces_page import write_interfaces_page
+
+    if comm.size > 1:
+        raise InputError("bhem-hpc interfaces runs serially (its times are one core's); run it without mpirun")
+    page = write_interfaces_page(args.docs, args.out, f"bhem-hpc interfaces --docs {args.docs}")
+    print(f"wrote {page}")
+
+
 def _paths(args: argparse.Namespace, comm) -> None:
     from bhem_hpc.studies.path_page import write_path_following
 
@@ -443,6 +467,7 @@ HANDLERS = {
     "paths": _paths,
     "cloth": _cloth,
     "solids": _solids,
+    "interfaces": _interfaces,
     "contact-page": _contact_page,
     "states": _states,
     "intersections": _intersections,

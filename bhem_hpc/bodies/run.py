@@ -199,7 +199,7 @@ def interface_couplings(scene: BodiesScene, bodies: list[Body], blocks: StackedB
     """Collective: the penalty couplings of the scene's interfaces (joints and seams between its
     shell bodies; :mod:`bhem_hpc.bodies.coupling`): the stiffer side's stiffness over the narrower
     side's element, the angle term for joints and for seams that keep their angle, the displacement
-    term where the patches do not share their edge's control points."""
+    term where the patches do not share their edge's data."""
     if not scene.interfaces:
         return []
     from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames

@@ -11,6 +11,7 @@ Serial: every solve runs on ``COMM_SELF``.
 from __future__ import annotations
 
 import json
+import re
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -96,8 +97,12 @@ def solve_joined(models: list[ShellModel], rests: list, joints: list[Joint], mat
         try:
             report = solver.solve()
             result.newton = int(sum(report.newton_iterations))
-        except SolverError as exc:
-            result.failure = str(exc).split(":")[1].strip() if ":" in str(exc) else str(exc)
+        except SolverError as exc:  # where the load stepping gave up, and the term that dominated there
+            text = str(exc)
+            where = re.search(r"failed at load factor ([0-9.e+-]+)", text)
+            term = re.search(r"the (\w+) term dominates", text)
+            result.failure = (f"at load factor {where.group(1)}" if where else text[:60]) + (
+                f", the {term.group(1)} term dominating" if term else "")
     result.seconds = time.perf_counter() - start
     return result
 
@@ -267,8 +272,8 @@ def _static_table(rows: list[dict], case: str) -> list[str]:
              "largest gap [m] |", "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]  # fmt: skip
     for r in (r for r in rows if r["case"] == case):
         if r["failure"]:
-            lines.append(f"| {r['discretization']} | {r['method']} | {r['factor']:.0e} | {r['unknowns']} | failed: "
-                         f"{r['failure'][:60]} | {r['seconds']:.2f} | | |")  # fmt: skip
+            lines.append(f"| {r['discretization']} | {r['method']} | {r['factor']:.0e} | {r['unknowns']} | failed "
+                         f"{r['failure']} | {r['seconds']:.2f} | | |")  # fmt: skip
         else:
             lines.append(f"| {r['discretization']} | {r['method']} | {r['factor']:.0e} | {r['unknowns']} | "
                          f"{r['newton']} | {r['seconds']:.2f} | {r['difference']:.2e} | "
@@ -290,6 +295,8 @@ def write_interfaces_page(docs: Path, out: Path, command: str, factors=FACTORS, 
     (docs / "interfaces.json").write_text(json.dumps({"static": rows, "patch_test": patches, "hood": hood}, indent=1))
     _plot(docs / "interfaces.png", rows)
     ones = {(r["case"], r["discretization"]): r["one_patch"] for r in rows}
+    at_default = max((abs(r["difference"]) for r in rows if r["factor"] == DEFAULT_PENALTY and not r["failure"]),
+                     default=float("nan"))  # fmt: skip
     lines = [
         "# Joined patches: the penalty coupling against shared edge data",
         "",
@@ -307,6 +314,15 @@ def write_interfaces_page(docs: Path, out: Path, command: str, factors=FACTORS, 
         "difference falls to the two spaces' difference, not to zero). A red cross marks a failed solve.",
         "",
         "![difference from one patch against alpha](interfaces.png)",
+        "",
+        "What decides between them: a shared edge has no gap and no consistency error at any alpha (the",
+        "patch test's departure is the one patch's) and fewer unknowns, so scenes share the data of every",
+        "joint that conforms (`dofs = \"auto\"`); the penalty joins the rest (non-matching edges, partial",
+        "and trim-curve joints, seams). What is left of a joint's error is the angle term's compliance,",
+        "falling as 1/alpha to the difference between the joined and the one patch's spaces; it does not",
+        "grow again as alpha does (no locking), and the default alpha = 1e3 puts it within "
+        f"{at_default:.1e} of one patch here.",
+        "Above about 1e5 the Newton systems lose their digits to the penalty (failed rows).",
         "",
         "## A steel cantilever cut at midspan",
         "",

@@ -5,7 +5,8 @@ Every case is solved once per joining method and penalty factor alpha: ``coupled
 on the displacement jump and on the angle, :mod:`bhem_hpc.bodies.coupling`) and ``shared`` (the
 edge's data one unknown, :mod:`bhem_hpc.bodies.shared_dofs`, the penalty on the angle only). The
 statics compare with the same structure as one patch; the hood job is time-stepped by each method.
-Serial: every solve runs on ``COMM_SELF``.
+The page is serial: every solve runs on ``COMM_SELF``; the cases take a communicator (tests run
+them on 2 ranks too).
 """
 
 from __future__ import annotations
@@ -114,7 +115,8 @@ def _gap(first, second, on_first, on_second) -> float:
 STEEL = Material(2.0e11, 0.3, 0.01, 7800.0)
 
 
-def cantilever(discretization: str, method: str | None, factor: float) -> tuple[float, float, Solve]:
+def cantilever(discretization: str, method: str | None, factor: float,
+               comm: MPI.Comm = MPI.COMM_SELF) -> tuple[float, float, Solve]:  # fmt: skip
     """A steel strip 1 m x 0.2 m x 1 cm clamped at x = 0 under an end load of 5 N/m (``method``
     None: one patch of 8 x 2 spans; else cut at midspan into two of 4 x 2): the tip deflection [m],
     the largest gap across the cut [m] and the solve."""
@@ -124,7 +126,7 @@ def cantilever(discretization: str, method: str | None, factor: float) -> tuple[
     rests, _, joints = patch_grid(lambda u, v: np.stack([u, v, 0 * u], -1), ((0.0, length), (0.0, width)), splits,
                                   (8, 2), discretization)  # fmt: skip
     models = [ShellModel(r, STEEL, load if k == len(rests) - 1 else Loads(),
-                         [bcs.clamp_edge(r, "xi1_min")] if k == 0 else [], comm=MPI.COMM_SELF)
+                         [bcs.clamp_edge(r, "xi1_min")] if k == 0 else [], comm=comm)
               for k, r in enumerate(rests)]  # fmt: skip
     solve = solve_joined(models, rests, joints, STEEL, method or "coupled", factor)
     states = [m.state_surface() for m in models]
@@ -137,13 +139,14 @@ def cantilever(discretization: str, method: str | None, factor: float) -> tuple[
 ROOF_MATERIAL = Material(4.32e8, 0.0, 0.25, 1.0)
 
 
-def roof(discretization: str, method: str | None, factor: float) -> tuple[float, float, Solve]:
+def roof(discretization: str, method: str | None, factor: float, splits: tuple[int, int] = (2, 2),
+         comm: MPI.Comm = MPI.COMM_SELF) -> tuple[float, float, Solve]:  # fmt: skip
     """The Scordelis-Lo roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per
-    area, diaphragms at its ends) of 12 x 12 spans, as one patch (``method`` None) or 2 x 2 patches
-    meeting at one point: the free edge's midside deflection scaled to the load 90, the largest gap
-    across the joints [m] and the solve."""
+    area, diaphragms at its ends) of 12 x 12 spans, as one patch (``method`` None) or ``splits``
+    patches (2 x 2: four meeting at one point): the free edge's midside deflection scaled to the
+    load 90, the largest gap across the joints [m] and the solve."""
     radius, load = 25.0, 0.09
-    splits = (1, 1) if method is None else (2, 2)
+    splits = (1, 1) if method is None else splits
 
     def position(z, angle):
         return np.stack([radius * np.cos(angle), radius * np.sin(angle), z], -1)
@@ -155,7 +158,7 @@ def roof(discretization: str, method: str | None, factor: float) -> tuple[float,
         ends = [edge for edge, end in (("xi1_min", 0), ("xi1_max", splits[0] - 1)) if i == end]
         return [bcs.diaphragm_edge(rest, edge, "z") for edge in ends]
 
-    models = [ShellModel(rest, ROOF_MATERIAL, weight, supports(i, rest), comm=MPI.COMM_SELF)
+    models = [ShellModel(rest, ROOF_MATERIAL, weight, supports(i, rest), comm=comm)
               for (i, _), rest in zip(keys, rests, strict=True)]  # fmt: skip
     solve = solve_joined(models, rests, joints, ROOF_MATERIAL, method or "coupled", factor)
     states = [m.state_surface() for m in models]
@@ -179,7 +182,7 @@ def _line(surface, edge: str):
     return edge_line(surface.grid, edge)
 
 
-def patch_test(discretization: str, method: str | None) -> tuple[float, Solve]:
+def patch_test(discretization: str, method: str | None, comm: MPI.Comm = MPI.COMM_SELF) -> tuple[float, Solve]:
     """A steel strip of two halves (3 x 2 spans each; ``method`` None: one patch of 6 x 2) pulled
     by a uniform traction of 2 kN/m at x = 1 m, held along the pull at x = 0: the largest departure
     of either half from the uniform stretch, over the stretch at the end."""
@@ -192,7 +195,7 @@ def patch_test(discretization: str, method: str | None) -> tuple[float, Solve]:
     supports = [bcs.NodalConstraint(edge_nodes, kinds, (0, 2)), bcs.NodalConstraint(edge_nodes[:1], (0,), (1,))]
     pull = Loads(line_loads=(LineLoad("xi1_max", (traction, 0.0, 0.0)),))
     models = [ShellModel(r, STEEL, pull if k == len(rests) - 1 else Loads(), supports if k == 0 else [],
-                         comm=MPI.COMM_SELF) for k, r in enumerate(rests)]  # fmt: skip
+                         comm=comm) for k, r in enumerate(rests)]  # fmt: skip
     solve = solve_joined(models, rests, joints, STEEL, method or "coupled", DEFAULT_PENALTY)
     strain = traction / (STEEL.young * STEEL.thickness)
     worst = 0.0

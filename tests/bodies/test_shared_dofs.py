@@ -11,17 +11,18 @@ import pytest
 
 from bhem_hpc.bodies.coupling import InterfaceCoupling, penalty_stiffness, rest_frames
 from bhem_hpc.bodies.petsc import StackedBlocks
-from bhem_hpc.bodies.shared_dofs import SharedDofs, conforming_edge_dofs, shared_groups
+from bhem_hpc.bodies.shared_dofs import conforming_edge_dofs, shared_groups
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.interfaces import InterfaceError, element_across, pair_edges
 from bhem_hpc.model import bcs
-from bhem_hpc.model.loads import AreaLoad, Dynamics, LineLoad, Loads
+from bhem_hpc.model.loads import Dynamics, Loads
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver import ShellSolver
 from bhem_hpc.solver.dynamics import TimeStepper
+from bhem_hpc.studies.interfaces_page import cantilever, patch_test, roof
 
 DEG = np.pi / 180
 STEEL = Material(2.0e11, 0.3, 0.01, 7800.0)
@@ -105,78 +106,37 @@ def test_dofs_joined_through_others_are_one_unknown_represented_by_a_held_one():
         shared_groups(np.array([10, 20, 30]), np.array([20, 30, 10]), np.array([2.0, 1.0, 1.0]), np.array([]))
 
 
-def _half(discretization: str, x0: float, x1: float, width: float):
-    if discretization == "hermite":
-        return S.from_callable(_plane, ParameterGrid(4, 2, (x0, x1), (0.0, width), False, False))
-    return _strip(x0, x1, (4, 2), width)
-
-
-def _cantilever_tips(comm, discretization: str, shared: bool, factors) -> tuple[list[float], list[float], int]:
-    """The steel strip clamped at x = 0 and cut in two halves (4 x 2 spans each): its end load's
-    tip deflection and the largest gap across the cut, per penalty factor."""
-    length, width = 1.0, 0.2
-    load = Loads(line_loads=(LineLoad("xi1_max", (0.0, 0.0, -5.0)),))
-    tips, gaps, unknowns = [], [], 0
-    for factor in factors:
-        rests = [_half(discretization, 0.0, length / 2, width), _half(discretization, length / 2, length, width)]
-        models = [ShellModel(rests[0], STEEL, Loads(), [bcs.clamp_edge(rests[0], "xi1_min")], comm=comm),
-                  ShellModel(rests[1], STEEL, load, [], comm=comm)]  # fmt: skip
-        edges = ("xi1_max", "xi1_min")
-        dofs = conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9) if shared else None
-        coupling = _joint(models, rests, (0, 1), edges, STEEL, shared, factor)
-        with ShellSolver(models, contributions=[coupling], shared_dofs=dofs) as solver:
-            solver.solve()
-            unknowns = solver.x.getSize()
-        at = np.linspace(0.0, width, 7)
-        cut = [m.state_surface().evaluate(np.full(7, length / 2), at).x for m in models]
-        gaps.append(float(np.abs(cut[0] - cut[1]).max()))
-        tips.append(float(models[1].state_surface().evaluate(np.array(length), np.array(width / 2)).x[2]))
-    return tips, gaps, unknowns
-
-
 @pytest.mark.parametrize(("discretization", "fewer"), [("bspline3", 15), ("hermite", 18)])
 def test_a_cantilever_of_two_patches_sharing_their_edge_has_no_gap_and_solves_at_any_penalty(comm, discretization,
                                                                                            fewer):  # fmt: skip
-    """Shared edge data: the cut has no gap at all (round-off; the displacement penalty leaves
-    1.8e-12 m at alpha 1e3), the unknowns are fewer (cubic B-splines: 5 control points, 15; Hermite:
-    3 nodes' positions and slopes along the cut, 18), the tip deflection is the penalty joint's but
-    for that joint's displacement compliance (1.0e-6 of it at alpha 10, 1.0e-8 at 1e3: it falls as
-    1/alpha), and the angle term alone solves up to alpha 1e6 (where the displacement penalty's
-    Newton failed on the cubic B-spline strip)."""
-    factors = (1e1, 1e3, 1e6)
-    shared, shared_gaps, reduced = _cantilever_tips(comm, discretization, True, factors)
-    penalty, penalty_gaps, unknowns = _cantilever_tips(comm, discretization, False, factors[:2])
-    assert unknowns - reduced == fewer
-    assert max(shared_gaps) < 1e-15 and min(penalty_gaps) > 1e-13, (shared_gaps, penalty_gaps)
-    differences = [abs(a / b - 1) for a, b in zip(shared, penalty, strict=False)]
+    """The steel strip cut at midspan (the interfaces page's): shared edge data leave no gap at
+    the cut at all (round-off; the displacement penalty leaves 1.8e-12 m at alpha 1e3), the unknowns
+    are fewer (cubic B-splines: 5 control points, 15; Hermite: 3 nodes' positions and slopes along
+    the cut, 18), the tip deflection is the penalty joint's but for that joint's displacement
+    compliance (1.0e-6 of it at alpha 10, 1.0e-8 at 1e3: it falls as 1/alpha), and the angle term
+    alone solves up to alpha 1e6 (where the displacement penalty's Newton fails)."""
+    shared = [cantilever(discretization, "shared", factor, comm) for factor in (1e1, 1e3, 1e6)]
+    coupled = [cantilever(discretization, "coupled", factor, comm) for factor in (1e1, 1e3)]
+    assert coupled[0][2].unknowns - shared[0][2].unknowns == fewer
+    assert max(gap for _, gap, _ in shared) < 1e-15 and min(gap for _, gap, _ in coupled) > 1e-13
+    assert not any(solve.failure for _, _, solve in shared + coupled)
+    differences = [abs(a[0] / b[0] - 1) for a, b in zip(shared, coupled, strict=False)]
     assert differences[0] < 2e-6 and differences[1] < 2e-8, differences  # the displacement penalty's 1/alpha
     # the angle term's compliance falls towards the one patch's deflection: no locking
-    assert abs(shared[0]) > abs(shared[1]) > abs(shared[2]) > 0.99 * abs(shared[1])
+    tips = [abs(tip) for tip, _, _ in shared]
+    assert tips[0] > tips[1] > tips[2] > 0.99 * tips[1]
 
 
-def test_the_patch_test_across_a_shared_edge_has_no_consistency_error(comm):
-    """A steel strip of two cubic B-spline halves pulled by a uniform traction T (held along the pull
-    at x = 0, one corner across it): both halves move as one uniform stretch, the far one not shifted
-    (within 1e-5 of the stretch; the penalty joint shifts it by its compliance T / a_d, 1.1e-4 of it)."""
-    length, width, traction = 1.0, 0.2, 2.0e3
-    rests = [_strip(0.0, length / 2, (3, 2), width), _strip(length / 2, length, (3, 2), width)]
-    c2 = rests[0].node_shape[1]
-    held = np.stack([np.zeros(c2, np.int64), np.arange(c2)], axis=1)
-    supports = [bcs.NodalConstraint(held, (0,), (0, 2)), bcs.NodalConstraint(held[:1], (0,), (1,))]
-    pull = Loads(line_loads=(LineLoad("xi1_max", (traction, 0.0, 0.0)),))
-    models = [ShellModel(rests[0], STEEL, Loads(), supports, comm=comm),
-              ShellModel(rests[1], STEEL, pull, [], comm=comm)]
-    edges = ("xi1_max", "xi1_min")
-    coupling = _joint(models, rests, (0, 1), edges, STEEL, shared=True)
-    with ShellSolver(models, contributions=[coupling],
-                     shared_dofs=conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9)) as solver:  # fmt: skip
-        solver.solve()
-    strain = traction / (STEEL.young * STEEL.thickness)
-    for model, rest in zip(models, rests, strict=True):
-        x1, x2 = np.meshgrid(np.linspace(*rest.grid.xi1_range, 5), np.linspace(0.0, width, 4), indexing="ij")
-        moved = model.state_surface().evaluate(x1, x2).x - rest.evaluate(x1, x2).x
-        expected = np.stack([strain * x1, -STEEL.poisson * strain * x2, 0 * x1], -1)
-        assert np.abs(moved - expected).max() < 1e-5 * strain * length  # measured 1.5e-6: the finite strain
+@pytest.mark.parametrize("discretization", ["bspline3", "hermite"])
+def test_the_patch_test_across_a_shared_edge_has_no_consistency_error(comm, discretization):
+    """A steel strip of two halves pulled by a uniform traction (the interfaces page's): both halves
+    move as one uniform stretch, as far from it as one patch (1.5e-6 of the stretch: the finite
+    strain), where the penalty joint shifts the far half by its compliance (1.5e-4 of it)."""
+    shared, _ = patch_test(discretization, "shared", comm)
+    one, _ = patch_test(discretization, None, comm)
+    coupled, _ = patch_test(discretization, "coupled", comm)
+    assert shared == pytest.approx(one, rel=1e-3) and shared < 1e-5
+    assert coupled > 50 * shared
 
 
 @pytest.mark.parametrize("splits", [(1, 2), (2, 2)])
@@ -185,42 +145,10 @@ def test_the_scordelis_lo_roof_of_patches_sharing_their_edges_gives_the_one_patc
     """The roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per area) in cubic
     B-spline or Hermite patches of 12 x 12 spans in all, sharing their edges (2 x 2: four patches at
     one point, groups of four): the midside deflection is the one patch's within 3e-4 and the
-    reference's (0.3006) within 5e-3."""
-    radius, load, spans = 25.0, 0.09, 12
-    material = Material(4.32e8, 0.0, 0.25, 1.0)
-
-    def roof(z, angle):
-        return np.stack([radius * np.cos(angle), radius * np.sin(angle), z], -1)
-
-    def deflection(split: tuple[int, int]) -> float:
-        b1, b2 = np.linspace(0.0, 50.0, split[0] + 1), np.linspace(50 * DEG, 130 * DEG, split[1] + 1)
-        keys = [(i, j) for i in range(split[0]) for j in range(split[1])]
-        grids = [ParameterGrid(spans // split[0], spans // split[1], (b1[i], b1[i + 1]), (b2[j], b2[j + 1]), False,
-                               False) for i, j in keys]  # fmt: skip
-        rests = [S.from_callable(roof, grid) if discretization == "hermite" else B.from_callable(roof, grid, degree=3)
-                 for grid in grids]  # fmt: skip
-        weight = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
-
-        def supports(i: int, rest) -> list:
-            ends = [edge for edge, end in (("xi1_min", 0), ("xi1_max", split[0] - 1)) if i == end]
-            return [bcs.diaphragm_edge(rest, edge, "z") for edge in ends]
-
-        models = [ShellModel(rest, material, weight, supports(i, rest), comm=comm)
-                  for (i, _), rest in zip(keys, rests, strict=True)]  # fmt: skip
-        joints = [(keys.index((i, j)), keys.index((i + 1, j)), ("xi1_max", "xi1_min"))
-                  for i, j in keys if i + 1 < split[0]]  # fmt: skip
-        joints += [(keys.index((i, j)), keys.index((i, j + 1)), ("xi2_max", "xi2_min"))
-                   for i, j in keys if j + 1 < split[1]]  # fmt: skip
-        couplings = [_joint(models, rests, (a, b), edges, material, shared=True) for a, b, edges in joints]
-        dofs = SharedDofs.join([conforming_edge_dofs((rests[a], rests[b]), (a, b), edges, 1e-9)
-                                for a, b, edges in joints])  # fmt: skip
-        with ShellSolver(models, contributions=couplings, shared_dofs=dofs if joints else None) as solver:
-            solver.solve()
-        k = keys.index((split[0] // 2, 0))  # the patch holding the midside point
-        at = (np.array(25.0), np.array(50 * DEG))
-        return float(models[k].state_surface().evaluate(*at).x[1] - rests[k].evaluate(*at).x[1]) * 90.0 / load
-
-    one, joined = deflection((1, 1)), deflection(splits)
+    reference's (0.3006) within 5e-3, with no gap."""
+    one, _, _ = roof(discretization, None, 1e3, comm=comm)
+    joined, gap, solve = roof(discretization, "shared", 1e3, splits, comm)
+    assert not solve.failure and gap < 1e-13
     assert abs(joined / one - 1) < 3e-4, (joined, one)
     assert abs(-joined / 0.3006 - 1) < 5e-3, joined
 

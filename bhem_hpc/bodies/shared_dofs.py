@@ -84,15 +84,31 @@ def _edge_data(surface: BSplineSurface | HermiteSurface, edge: str) -> tuple[lis
     return entries, np.stack([surface.nodal.reshape(-1, 3)[e] for e in entries]), high - low
 
 
+def _closed(surface: BSplineSurface | HermiteSurface, edge: str) -> bool:
+    """Whether ``edge`` runs along a periodic direction (a closed curve)."""
+    return surface.grid.periodic2 if edge.startswith("xi1") else surface.grid.periodic1
+
+
+def _orders(count: int, closed: bool) -> list[tuple[np.ndarray, float]]:
+    """How the second edge's ``count`` data may follow the first's: ``(index of the second's datum
+    at each of the first's, direction)``: the same way or the opposite one, and on a closed edge
+    from any start."""
+    index = np.arange(count)
+    starts = range(count) if closed else [0]
+    return ([(np.roll(index, -k), 1.0) for k in starts]
+            + [(np.roll(index[::-1], k + 1) if closed else index[::-1], -1.0) for k in starts])  # fmt: skip
+
+
 def _check_kind(surfaces: tuple[object, object], edges: tuple[str, str]) -> None:
     for surface, edge in zip(surfaces, edges, strict=True):
         if not isinstance(surface, BSplineSurface | HermiteSurface):
             raise InterfaceError(f"edge {edge}: a {type(surface).__name__} shares no data with another patch")
         if edge not in EDGES:
             raise InterfaceError(f"edge {edge!r} does not exist; expected one of {EDGES}")
-        if surface.grid.periodic2 if edge.startswith("xi1") else surface.grid.periodic1:
-            raise InterfaceError(f"edge {edge} is a closed curve: sharing its data is not offered")
     first, second = surfaces
+    if _closed(first, edges[0]) != _closed(second, edges[1]):
+        raise InterfaceError(f"edge {edges[0] if _closed(first, edges[0]) else edges[1]} is a closed curve, the "
+                             "other edge is not")  # fmt: skip
     if type(first) is not type(second):
         raise InterfaceError(f"a {type(first).__name__} and a {type(second).__name__} share no data")
     if isinstance(first, BSplineSurface) and first.degree != second.degree:
@@ -112,8 +128,9 @@ def conforming_edge_dofs(surfaces: tuple[object, object], bodies: tuple[int, int
 
     Raises:
         InterfaceError: saying why the interface does not conform: another kind of patch, two
-            kinds or degrees, a periodic edge direction, edges of different numbers of spans, or
-            edge data apart by more than ``tolerance`` (the largest distance, in either order).
+            kinds or degrees, a closed edge against an open one, edges of different numbers of
+            spans, or edge data apart by more than ``tolerance`` (the largest distance, in either
+            order; on closed edges, from any start).
     """
     _check_kind(surfaces, edges)
     (entries_a, values_a, length_a), (entries_b, values_b, length_b) = (
@@ -122,19 +139,20 @@ def conforming_edge_dofs(surfaces: tuple[object, object], bodies: tuple[int, int
     if values_a.shape != values_b.shape:
         raise InterfaceError(f"edges {edges[0]} and {edges[1]} have {values_a.shape[1]} and {values_b.shape[1]} "
                              f"{data} (their knots do not match)")  # fmt: skip
+    closed, count = _closed(surfaces[0], edges[0]), values_a.shape[1]
     gaps = []
-    for order in (1, -1):  # the same direction along the edge, or the opposite one
-        scales = np.array([1.0] + [order * length_a / length_b] * (len(entries_a) - 1))
+    for index, direction in _orders(count, closed):
+        scales = np.array([1.0] + [direction * length_a / length_b] * (len(entries_a) - 1))
         expected = scales[:, None, None] * values_a
-        gap = np.linalg.norm(expected - values_b[:, ::order], axis=2)  # (kinds, c): derivatives in m per parameter
-        gap[1:] *= length_b / max(values_b.shape[1] - 1, 1)  # as a distance over a span
-        gaps.append((float(gap.max()), order, scales))
-    gap, order, scales = min(gaps, key=lambda g: g[0])
+        gap = np.linalg.norm(expected - values_b[:, index], axis=2)  # (kinds, c): derivatives in m per parameter
+        gap[1:] *= length_b / (count if closed else max(count - 1, 1))  # as a distance over a span
+        gaps.append((float(gap.max()), index, scales))
+    gap, index, scales = min(gaps, key=lambda g: g[0])
     if gap > tolerance:
         raise InterfaceError(f"edges {edges[0]} and {edges[1]}: their {data} lie {gap:.3g} m apart (tolerance "
                              f"{tolerance:.3g} m)")  # fmt: skip
     first = np.concatenate(entries_a)
-    second = np.concatenate([e[::order] for e in entries_b])
+    second = np.concatenate([e[index] for e in entries_b])
     scale = np.repeat(scales, [len(e) for e in entries_a])
     return SharedDofs(np.stack([np.full(len(first), bodies[0]), first], axis=1),
                       np.stack([np.full(len(second), bodies[1]), second], axis=1), scale)  # fmt: skip

@@ -17,7 +17,7 @@ from bhem_hpc.geometry import surface as S
 from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.interfaces import InterfaceError, element_across, pair_edges
 from bhem_hpc.model import bcs
-from bhem_hpc.model.loads import Dynamics, Loads
+from bhem_hpc.model.loads import Dynamics, LineLoad, Loads
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver import ShellSolver
@@ -179,3 +179,56 @@ def test_patches_sharing_an_edge_hang_under_gravity_as_the_penalty_joint_lets_th
         positions.append(np.concatenate([m.state_surface().evaluate(np.array([0.4]), at).x for m in models[1:]]))
     assert positions[0][:, 2].max() < -1e-3  # it fell
     np.testing.assert_allclose(positions[0], positions[1], atol=1e-6)
+
+
+def _tube(discretization: str, z0: float, z1: float, start: float, spans: int = 2):
+    """A tube of radius 0.1 m from z0 to z1 (``spans`` along it), closed in xi2 (8 spans around,
+    from angle ``start``)."""
+
+    def position(z, angle):
+        return np.stack([0.1 * np.cos(angle + start), 0.1 * np.sin(angle + start), z], -1)
+
+    grid = ParameterGrid(spans, 8, (z0, z1), (0.0, 2 * np.pi), False, True)
+    return S.from_callable(position, grid) if discretization == "hermite" else B.from_callable(position, grid, degree=3)
+
+
+@pytest.mark.parametrize(("discretization", "fewer"), [("bspline3", 24), ("hermite", 48)])
+def test_tubes_stacked_along_a_closed_edge_share_it_from_any_start_and_stretch_as_one_tube(comm, discretization,
+                                                                                         fewer):  # fmt: skip
+    """Two rubber tubes stacked end to end, the upper one's angle starting a quarter turn on: their
+    closed edges conform with the data shifted by two spans (8 control points or nodes shared, 24 or
+    48 DOFs); clamped at the bottom and pulled along the axis at the top, the pair has no gap at the
+    seam, stretches as the penalty-joined pair but for that joint's compliance ``T / a_d`` (within 5 %
+    of it: 2e-4 of the stretch) and as the one tube of both their spans within 5e-3 (the C0 seam
+    against a smooth tube on 2 + 2 spans)."""
+    rubber = Material(2.0e6, 0.45, 0.002, 1100.0)
+    pull = Loads(line_loads=(LineLoad("xi1_max", (0.0, 0.0, 50.0)),))
+    whole = _tube(discretization, 0.0, 0.2, 0.0, spans=4)
+    one = ShellModel(whole, rubber, pull, [bcs.clamp_edge(whole, "xi1_min")], comm=comm)
+    with ShellSolver(one) as solver:
+        solver.solve()
+    at = (np.array(0.2), np.array(0.3))
+    expected = one.state_surface().evaluate(*at).x - whole.evaluate(*at).x
+    edges, tops, compliance = ("xi1_max", "xi1_min"), {}, 0.0
+    for method in ("shared", "coupled"):
+        rests = [_tube(discretization, 0.0, 0.1, 0.0), _tube(discretization, 0.1, 0.2, np.pi / 2)]
+        shared = conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9) if method == "shared" else None
+        models = [ShellModel(rests[0], rubber, Loads(), [bcs.clamp_edge(rests[0], "xi1_min")], comm=comm),
+                  ShellModel(rests[1], rubber, pull, [], comm=comm)]  # fmt: skip
+        coupling = _joint(models, rests, (0, 1), edges, rubber, method == "shared")
+        with ShellSolver(models, contributions=[coupling], shared_dofs=shared) as solver:
+            solver.solve()
+        if shared is None:
+            compliance = 50.0 / coupling.displacement_stiffness
+        else:
+            assert 3 * len(shared) == fewer
+            around = np.linspace(0.0, 2 * np.pi, 13)
+            seam = [m.state_surface().evaluate(np.full(13, 0.1), around + offset).x
+                    for m, offset in zip(models, (0.0, -np.pi / 2), strict=True)]  # fmt: skip
+            assert np.abs(seam[0] - seam[1]).max() < 1e-14
+        shifted = (at[0], at[1] - np.pi / 2)  # the same material point on the upper tube
+        tops[method] = models[1].state_surface().evaluate(*shifted).x - rests[1].evaluate(*shifted).x
+    scale = np.abs(expected).max()
+    assert expected[2] > 1e-3 and abs((tops["coupled"] - tops["shared"])[2] / compliance - 1) < 0.05, tops
+    assert np.abs(tops["coupled"] - tops["shared"])[:2].max() < 1e-9 * scale
+    assert np.abs(tops["shared"] - expected).max() < 5e-3 * scale, (tops, expected)

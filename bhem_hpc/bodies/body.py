@@ -20,6 +20,7 @@ from dolfinx import fem
 from bhem_hpc import forms
 from bhem_hpc.bodies.layout import StackedLayout
 from bhem_hpc.io import SurfaceTimeSeries
+from bhem_hpc.model.jit import default_jit_params
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.scene.records import Scene
 
@@ -106,7 +107,7 @@ class ShellBody:
 
     def mass(self) -> float:
         m = self.model
-        form = fem.form(forms.total_mass(m.x_rest, m.density, m.thickness, m.dx))
+        form = fem.form(forms.total_mass(m.x_rest, m.density, m.thickness, m.dx), jit_params=default_jit_params())
         return float(m.comm.allreduce(fem.assemble_scalar(form)))
 
     def entries(self, open_array: np.ndarray) -> np.ndarray:

@@ -32,14 +32,56 @@ def _cpu_specific_cache() -> str:
     return os.path.join(os.path.expanduser("~/.cache/bhem-hpc"), f"jit-{tag}")
 
 
+#: Seconds a process waits for another's compile of the same form (under MPI all ranks wait for one).
+JIT_TIMEOUT = 600
+#: The cache folders this process has cleared of abandoned compiles.
+_checked_caches: set[str] = set()
+
+
 def default_jit_params() -> dict:
     """JIT settings: a generous timeout, since under MPI all ranks wait for one compile;
-    ``BHEM_JIT_CFLAGS`` replaces the compiler flags, ``BHEM_JIT_CACHE`` the cache folder."""
+    ``BHEM_JIT_CFLAGS`` replaces the compiler flags, ``BHEM_JIT_CACHE`` the cache folder. The
+    folder is cleared of abandoned compiles once per process (:func:`remove_abandoned_compiles`)."""
+    cache_dir = os.environ.get("BHEM_JIT_CACHE") or _cpu_specific_cache()
+    if cache_dir not in _checked_caches:
+        _checked_caches.add(cache_dir)
+        remove_abandoned_compiles(cache_dir, JIT_TIMEOUT)
     return {
-        "timeout": 600,
-        "cache_dir": os.environ.get("BHEM_JIT_CACHE") or _cpu_specific_cache(),
+        "timeout": JIT_TIMEOUT,
+        "cache_dir": cache_dir,
         "cffi_extra_compile_args": os.environ.get("BHEM_JIT_CFLAGS", JIT_CFLAGS).split(),
     }
+
+
+def remove_abandoned_compiles(cache_dir: str, age: float) -> list[str]:
+    """Remove the compiles a killed process left in ``cache_dir``: ffcx marks a compile under way by
+    its ``<module>.c`` and a finished one by ``<module>.c.cached``; a ``.c`` without its mark that is
+    older than ``age`` seconds (a waiting process gives up then) would make every later process wait
+    ``age`` seconds for it and fail. Its files (``<module>.*``) go, with a warning; returns the
+    modules removed."""
+    try:
+        names = os.listdir(cache_dir)
+    except OSError:
+        return []
+    present, now, removed = set(names), time.time(), []
+    for name in names:
+        if not name.endswith(".c") or name + ".cached" in present:
+            continue
+        try:
+            if now - os.path.getmtime(os.path.join(cache_dir, name)) <= age:
+                continue  # another process may be compiling it
+        except OSError:
+            continue
+        module = name.removesuffix(".c")
+        for other in names:
+            if other.startswith(module + "."):
+                with contextlib.suppress(OSError):  # another rank may have removed it first
+                    os.remove(os.path.join(cache_dir, other))
+        removed.append(module)
+    if removed:
+        log.warning("removed %d abandoned JIT compiles from %s (a process was stopped while compiling): %s",
+                    len(removed), cache_dir, ", ".join(removed))  # fmt: skip
+    return removed
 
 
 log = logging.getLogger("bhem_hpc.jit")

@@ -51,6 +51,11 @@ class ContactWindow:
     ipc_hessian: str | None = None
     methods: tuple[str, ...] = METHODS
 
+    @property
+    def timed_steps(self) -> tuple[int, int]:
+        """The first and the last step timed."""
+        return self.start + 1, self.start + self.steps
+
 
 #: The windows of the shipped contact jobs.
 CONTACT_WINDOWS = (
@@ -239,12 +244,12 @@ def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -
     started = time.perf_counter()
     status = _run(warm_scene, warm, window.start, timeout)
     warm_s = time.perf_counter() - started
-    row = {"job": window.job, "method": method, "window": [window.start + 1, window.start + window.steps],
+    row = {"job": window.job, "method": method, "window": list(window.timed_steps),
            "phase": window.phase, "warm_up": status, "warm_up_s": warm_s}  # fmt: skip
     if status != "completed":
         return row | {"status": f"warm-up {status}", "steps": 0}
     row["status"] = _run(window_scene, out, window.steps, timeout, restart=warm)
-    records = [r for r in _records(out, window.start) if r["step"] <= window.start + window.steps]
+    records = [r for r in _records(out, window.start) if r["step"] <= window.timed_steps[1]]
     row["steps"] = len(records)
     if not records:
         return row
@@ -331,8 +336,8 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         )
     lines += _time_table(rows)
     timed = {(r["job"], r["window"][0]) for r in rows}
-    lines += ["", "Windows:", ""] + [f"- {w.job}: steps {w.start + 1}–{w.start + w.steps}, {w.phase}."
-                                     for w in CONTACT_WINDOWS if (w.job, w.start + 1) in timed]  # fmt: skip
+    lines += ["", "Windows:", ""] + [f"- {w.job}: steps {w.timed_steps[0]}–{w.timed_steps[1]}, {w.phase}."
+                                     for w in CONTACT_WINDOWS if (w.job, w.timed_steps[0]) in timed]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

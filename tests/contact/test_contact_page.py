@@ -110,11 +110,12 @@ def test_the_page_lists_the_windows_it_timed_and_a_method_only_where_its_window_
 
     can = [w for w in CONTACT_WINDOWS if w.job == "crushed-can"]
     assert [w.methods for w in can] == [("impulse", "ipc"), ("impulse",)]
-    rows = [{"job": "crushed-can", "method": "impulse", "window": [can[1].start + 1, can[1].start + can[1].steps],
-             "status": "failed: stopped", "steps": 0}]  # fmt: skip
+    assert can[1].timed_steps == (can[1].start + 1, can[1].start + can[1].steps)
+    rows = [{"job": "crushed-can", "method": "impulse", "window": list(can[1].timed_steps), "status": "failed: stopped",
+             "steps": 0}]  # fmt: skip
     page = contact_markdown(rows, "bhem-hpc contact-page", "a test")
-    assert f"- crushed-can: steps {can[1].start + 1}–{can[1].start + can[1].steps}, {can[1].phase}." in page
-    assert f"steps {can[0].start + 1}–" not in page
+    assert f"- crushed-can: steps {can[1].timed_steps[0]}–{can[1].timed_steps[1]}, {can[1].phase}." in page
+    assert f"steps {can[0].timed_steps[0]}–" not in page
 
 
 def test_the_page_runs_each_window_by_the_methods_it_names_and_writes_their_rows(tmp_path, monkeypatch):
@@ -123,15 +124,15 @@ def test_the_page_runs_each_window_by_the_methods_it_names_and_writes_their_rows
     from bhem_hpc.benchmarks import contact_page
 
     def fake_run(window, method, runs, timeout):
-        return {"job": window.job, "method": method, "window": [window.start + 1, window.start + window.steps],
-                "status": "completed", "steps": 0, "gap": float("inf")}  # fmt: skip
+        return {"job": window.job, "method": method, "window": list(window.timed_steps), "status": "completed",
+                "steps": 0, "gap": float("inf")}  # fmt: skip
 
     monkeypatch.setattr(contact_page, "run_window", fake_run)
     can = tuple(w for w in CONTACT_WINDOWS if w.job == "crushed-can")
     page = contact_page.write_contact_page(tmp_path / "docs", tmp_path / "runs", can, 1.0, "bhem-hpc contact-page",
                                            "a test")  # fmt: skip
     rows = json.loads((tmp_path / "docs" / "contact-comparison.json").read_text())
-    first, second = can[0].start + 1, can[1].start + 1
+    first, second = can[0].timed_steps[0], can[1].timed_steps[0]
     assert [(r["method"], r["window"][0]) for r in rows] == [("impulse", first), ("ipc", first), ("impulse", second)]
     assert rows[0]["gap"] is None  # not-a-number figures are written as null
     assert page.read_text().count("- crushed-can: steps") == 2

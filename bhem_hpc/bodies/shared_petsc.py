@@ -57,14 +57,23 @@ class SharedDofProblem(PetscOwner):
         reduced_of[members] = reduced_of[representatives]
         coefficient[members] = member_coefficients
         begin, end = int(layout.rank_start[self.comm.rank]), int(layout.rank_start[self.comm.rank + 1])
-        self._kept_local = np.flatnonzero(keep[begin:end])  # this rank's kept rows in the stacked vector
-        self.size_local, self.size_global = len(self._kept_local), int(keep.sum())
+        self.size_local, self.size_global = int(keep[begin:end].sum()), int(keep.sum())  # the kept rows
         self.shared_dofs = len(members)
         rows = np.arange(end - begin + 1, dtype=PETSc.IntType)
         sizes = ((end - begin, layout.size_global), (self.size_local, self.size_global))
         self.reduction = PETSc.Mat().createAIJ(sizes, csr=(rows, reduced_of[begin:end].astype(PETSc.IntType),
                                                            coefficient[begin:end]), comm=self.comm)  # fmt: skip
         self.reduction.assemble()
+        # diag(R^T R): what a group's least-squares value is divided by (state_to_vector)
+        squares = PETSc.Mat().createAIJ(sizes, csr=(rows, reduced_of[begin:end].astype(PETSc.IntType),
+                                                    coefficient[begin:end] ** 2), comm=self.comm)  # fmt: skip
+        squares.assemble()
+        self._normal = squares.createVecRight()
+        ones = squares.createVecLeft()
+        ones.set(1.0)
+        squares.multTranspose(ones, self._normal)
+        for obj in (squares, ones):
+            obj.destroy()
         # the held rows that stay: each held group's representative (its members' rows go)
         kept_held = keep[np.asarray(stacked.bc_rows, dtype=np.int64)]
         self._bc_kept = np.flatnonzero(kept_held)
@@ -209,9 +218,12 @@ class SharedDofProblem(PetscOwner):
         self.stacked.update_state(self._expand(x))
 
     def state_to_vector(self, x: PETSc.Vec) -> None:
-        """The reduced unknowns of the bodies' positions (each group's representative's value)."""
+        """The reduced unknowns of the bodies' positions: each group's least-squares value
+        ``(R^T R)^-1 R^T x`` over its members (their common value where they agree; the mean of
+        what each body holds where a body's state was changed alone, as an impulse response does)."""
         self.stacked.state_to_vector(self._x)
-        x.array[:] = self._x.array_r[self._kept_local]
+        self.reduction.multTranspose(self._x, x)
+        x.pointwiseDivide(x, self._normal)
 
     def assemble_residual(self, x: PETSc.Vec, f: PETSc.Vec) -> None:
         """``R^T F(R x)``, the held rows ``x - x_bc``."""
@@ -261,7 +273,7 @@ class SharedDofProblem(PetscOwner):
         if self._closed:
             return
         self._closed = True
-        for obj in (self.reduction, self._x, self._f, self.jacobian, self._product):
+        for obj in (self.reduction, self._normal, self._x, self._f, self.jacobian, self._product):
             if obj is not None:
                 obj.destroy()
         self.stacked.close()

@@ -232,3 +232,24 @@ def test_tubes_stacked_along_a_closed_edge_share_it_from_any_start_and_stretch_a
     assert expected[2] > 1e-3 and abs((tops["coupled"] - tops["shared"])[2] / compliance - 1) < 0.05, tops
     assert np.abs(tops["coupled"] - tops["shared"])[:2].max() < 1e-9 * scale
     assert np.abs(tops["shared"] - expected).max() < 5e-3 * scale, (tops, expected)
+
+
+def test_a_shared_point_one_body_moved_alone_is_the_mean_of_what_the_bodies_hold(comm):
+    """The reduced unknowns of the bodies' states (``state_to_vector``) are each group's
+    least-squares value: where one body's copy of a shared control point was moved alone (as an
+    impulse response moves it), the unknown is the mean of the two copies, not one body's."""
+    rests = [_strip(0.0, 0.5, (3, 2), 0.2), _strip(0.5, 1.0, (3, 2), 0.2)]
+    models = [ShellModel(rest, STEEL, Loads(), [], comm=comm) for rest in rests]
+    edges = ("xi1_max", "xi1_min")
+    shared = conforming_edge_dofs(tuple(rests), (0, 1), edges, 1e-9)
+    moved = rests[1].control.copy()
+    moved[0, 2] += [0.0, 0.0, 0.01]  # the right strip's copy of the cut's third control point, lifted 1 cm
+    models[1].set_state(B.BSplineSurface(rests[1].grid, 3, moved))
+    with ShellSolver(models, contributions=[_joint(models, rests, (0, 1), edges, STEEL, True)],
+                     shared_dofs=shared) as solver:  # fmt: skip
+        solver.problem.state_to_vector(solver.x)
+        solver.problem.update_state(solver.x)
+    for model in models:
+        np.testing.assert_allclose(model.state_surface().control[:, :, 2].max(), 0.005, rtol=1e-12)
+    left, right = (m.state_surface().control for m in models)
+    np.testing.assert_allclose(left[-1], right[0], atol=1e-15)

@@ -58,7 +58,6 @@ class SharedDofProblem(PetscOwner):
         coefficient[members] = member_coefficients
         begin, end = int(layout.rank_start[self.comm.rank]), int(layout.rank_start[self.comm.rank + 1])
         self.size_local, self.size_global = int(keep[begin:end].sum()), int(keep.sum())  # the kept rows
-        self.shared_dofs = len(members)
         rows = np.arange(end - begin + 1, dtype=PETSc.IntType)
         sizes = ((end - begin, layout.size_global), (self.size_local, self.size_global))
         self.reduction = PETSc.Mat().createAIJ(sizes, csr=(rows, reduced_of[begin:end].astype(PETSc.IntType),
@@ -84,7 +83,6 @@ class SharedDofProblem(PetscOwner):
         self._grew = False
         self.on_pattern_growth: Callable[[], None] | None = None
         stacked.on_pattern_growth = self._inner_grew
-        self._product: PETSc.Mat | None = None
         self.jacobian = self._create_jacobian()
 
     def _inner_grew(self) -> None:
@@ -92,8 +90,6 @@ class SharedDofProblem(PetscOwner):
 
     def _create_jacobian(self) -> PETSc.Mat:
         """``R^T J R`` of the stacked Jacobian's pattern (its values as they stand)."""
-        if self._product is not None:
-            self._product.destroy()
         self._product = self.stacked.jacobian.PtAP(self.reduction)
         jacobian = self._product.duplicate(copy=True)
         jacobian.setOption(PETSc.Mat.Option.SYMMETRIC, all(p.model.symmetric for p in self.stacked.problems))

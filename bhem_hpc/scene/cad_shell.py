@@ -31,10 +31,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from bhem_hpc.bodies.shared_dofs import SharedDofs, conforming_edge_dofs
-from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, InterfaceError, find_joints
+from bhem_hpc.bodies.shared_dofs import SharedDofs
+from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, find_joints
 from bhem_hpc.scene.bodies import BODY_TYPES, DEFAULT_BODY_TYPE
-from bhem_hpc.scene.interfaces import DEFAULT_TOLERANCE, DOF_CHOICES, InterfaceRecord, parse_penalty
+from bhem_hpc.scene.interfaces import (
+    DEFAULT_TOLERANCE,
+    DOF_CHOICES,
+    InterfaceRecord,
+    parse_penalty,
+    shared_edge_data,
+)
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.surfaces import model_parts
 from bhem_hpc.scene.table import SceneError, Table, regular_file
@@ -176,10 +182,6 @@ def _joint_dofs(t: Table, dofs: str, joint: FoundJoint, bodies: list[Scene], tol
     where = f"parts {joint.first} ({joint.first_edge}) and {joint.second} ({joint.second_edge})"
     if not whole:
         t.fail("dofs", f'"auto" or "coupled": {where} are joined along a part of an edge or a trim curve', dofs)
-    try:
-        return conforming_edge_dofs((bodies[joint.first].surface, bodies[joint.second].surface),
-                                    (joint.first, joint.second), (joint.first_edge, joint.second_edge), tolerance)
-    except InterfaceError as exc:
-        if dofs == "shared":
-            raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": {where} do not conform: {exc}") from None
-        return None
+    return shared_edge_data(t, dofs, (bodies[joint.first].surface, bodies[joint.second].surface),
+                            (joint.first, joint.second), (joint.first_edge, joint.second_edge), tolerance,
+                            f"{where} do not conform")  # fmt: skip

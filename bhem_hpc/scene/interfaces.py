@@ -106,6 +106,24 @@ def parse_penalty(t: Table) -> float:
     return float(t.get("penalty", "a number", 1.0e3, lambda v: low <= v <= high, f"a number in [{low:g}, {high:g}]"))
 
 
+def shared_edge_data(t: Table, dofs: str, surfaces: tuple[Patch, Patch], places: tuple[int, int],
+                     edges: tuple[str, str], tolerance: float, unmatched: str) -> SharedDofs | None:  # fmt: skip
+    """What a whole joint's patches share by its ``dofs`` (:data:`DOF_CHOICES`): the edge data where
+    they conform ("auto", "shared"), None where they do not ("auto") or for "coupled".
+
+    Raises:
+        SceneError: "shared" where they do not conform, saying ``unmatched`` and why.
+    """
+    if dofs == "coupled":
+        return None
+    try:
+        return conforming_edge_dofs(surfaces, places, edges, tolerance)
+    except InterfaceError as exc:
+        if dofs == "shared":
+            raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": {unmatched}: {exc}") from None
+        return None
+
+
 def _paired(t: Table, names: Sequence[str], bodies: Sequence, places: tuple[int, int],
             pair: Callable[[Patch, Patch], EdgeQuadrature]) -> tuple[tuple[str, str], EdgeQuadrature]:  # fmt: skip
     """The two bodies' names and the quadrature ``pair`` finds between their rest surfaces; its
@@ -136,15 +154,9 @@ def _joint(t: Table, names: Sequence[str], bodies: Sequence) -> InterfaceRecord:
         return pair_edges(first, edges[0], second, edges[1], tolerance, partial=partial)
 
     pair, quadrature = _paired(t, names, bodies, places, joint)
-    shared = None
-    if dofs != "coupled" and not partial:
-        try:
-            shared = conforming_edge_dofs((bodies[places[0]].surface, bodies[places[1]].surface), places, edges,
-                                          tolerance)  # fmt: skip
-        except InterfaceError as exc:
-            if dofs == "shared":
-                raise SceneError(f"{t.path}: key '{t.key('dofs')}' = \"shared\": bodies '{pair[0]}' and '{pair[1]}' "
-                                 f"do not conform along {edges[0]} and {edges[1]}: {exc}") from None  # fmt: skip
+    shared = None if partial else shared_edge_data(
+        t, dofs, (bodies[places[0]].surface, bodies[places[1]].surface), places, edges, tolerance,
+        f"bodies '{pair[0]}' and '{pair[1]}' do not conform along {edges[0]} and {edges[1]}")  # fmt: skip
     return InterfaceRecord("joint", t.name, places, pair, edges, penalty, quadrature, None, True, shared)
 
 

@@ -27,7 +27,7 @@ from bhem_hpc.bodies.shared_dofs import SharedDofs, conforming_edge_dofs
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.geometry.grid import ParameterGrid
-from bhem_hpc.geometry.interfaces import element_across, pair_edges
+from bhem_hpc.geometry.interfaces import edge_line, element_across, pair_edges
 from bhem_hpc.model import bcs
 from bhem_hpc.model.loads import AreaLoad, LineLoad, Loads
 from bhem_hpc.model.material import Material
@@ -167,19 +167,13 @@ def roof(discretization: str, method: str | None, factor: float, splits: tuple[i
     deflection = float(states[k].evaluate(*at).x[1] - rests[k].evaluate(*at).x[1]) * 90.0 / load
     gap = 0.0
     for a, b, edges in joints:
-        along, value_a, (low, high), _ = _line(rests[a], edges[0])
+        along, value_a, (low, high), _ = edge_line(rests[a].grid, edges[0])
         t = np.linspace(low, high, 9)
         on_a = (np.full(9, value_a), t) if along == 1 else (t, np.full(9, value_a))
-        _, value_b, _, _ = _line(rests[b], edges[1])
+        _, value_b, _, _ = edge_line(rests[b].grid, edges[1])
         on_b = (np.full(9, value_b), t) if along == 1 else (t, np.full(9, value_b))
         gap = max(gap, _gap(states[a], states[b], on_a, on_b))
     return deflection, gap, solve
-
-
-def _line(surface, edge: str):
-    from bhem_hpc.geometry.interfaces import edge_line
-
-    return edge_line(surface.grid, edge)
 
 
 def patch_test(discretization: str, method: str | None, comm: MPI.Comm = MPI.COMM_SELF) -> tuple[float, Solve]:

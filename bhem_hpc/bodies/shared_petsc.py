@@ -301,6 +301,9 @@ class SharedAccelerationResidual(AccelerationResidual):
             self.matrix = full.PtAP(problem.reduction)
         finally:
             full.destroy()
+        # each body's matrix holds identity rows where it is held: cleared, so that the bound on the
+        # largest eigenvalue taken next sees the free DOFs' masses only, as one body's does
+        self.matrix.zeroRowsColumns(problem.bc_rows, diag=0.0)
         self.constrained_local = problem.bc_local
         self._solve_with_matrix(problem.bc_rows, problem.comm, direct)
 

@@ -107,7 +107,8 @@ class ShellBody:
 
     def mass(self) -> float:
         m = self.model
-        form = fem.form(forms.total_mass(m.x_rest, m.density, m.thickness, m.dx), jit_params=default_jit_params())
+        form = fem.form(m.in_unknowns(forms.total_mass(m.x_rest, m.density, m.thickness, m.dx)),
+                        jit_params=default_jit_params())  # fmt: skip
         return float(m.comm.allreduce(fem.assemble_scalar(form)))
 
     def entries(self, open_array: np.ndarray) -> np.ndarray:

@@ -30,10 +30,14 @@ import numpy as np
 
 from bhem_hpc.geometry.bspline import BSplineSurface
 from bhem_hpc.geometry.interfaces import EDGES, InterfaceError, edge_line
+from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.geometry.surface import HermiteSurface
 
 #: How far two coefficients of one shared DOF may differ (relative) where interfaces meet in a loop.
 COEFFICIENT_TOLERANCE = 1e-9
+
+#: Relative spread of the weight ratios along two rational edges that still makes them one curve.
+WEIGHT_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -151,6 +155,11 @@ def conforming_edge_dofs(surfaces: tuple[object, object], bodies: tuple[int, int
     if gap > tolerance:
         raise InterfaceError(f"edges {edges[0]} and {edges[1]}: their {data} lie {gap:.3g} m apart (tolerance "
                              f"{tolerance:.3g} m)")  # fmt: skip
+    if isinstance(surfaces[0], RationalBSplineSurface):  # one curve only where the weights are proportional
+        ratio = surfaces[1].weights.ravel()[entries_b[0][index]] / surfaces[0].weights.ravel()[entries_a[0]]
+        if np.ptp(ratio) > WEIGHT_TOLERANCE * ratio.max():
+            raise InterfaceError(f"edges {edges[0]} and {edges[1]}: their control points' weights differ (ratios "
+                                 f"{ratio.min():.6g} to {ratio.max():.6g}): the edge curves are not one")  # fmt: skip
     first = np.concatenate(entries_a)
     second = np.concatenate([e[index] for e in entries_b])
     scale = np.repeat(scales, [len(e) for e in entries_a])

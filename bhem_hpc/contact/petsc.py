@@ -112,11 +112,11 @@ class ContactProjector(PetscOwner):
         def assemble(mass_weight: float, smoothing_weight: float) -> PETSc.Mat:
             jit = default_jit_params()
             with compilation_report("the contact metric", jit["cache_dir"]):
-                form = fem.form(
+                form = fem.form(model.in_unknowns(
                     forms.impulse_metric(
                         ufl.TrialFunction(space), ufl.TestFunction(space), model.x_rest, model.density, model.thickness,
                         (grid.h1, grid.h2), (mass_weight, smoothing_weight), model.dx,
-                    ),
+                    )),
                     jit_params=jit,
                 )  # fmt: skip
             matrix = fem_petsc.assemble_matrix(form)

@@ -116,6 +116,10 @@ class BSplineDiscretization:
     def is_periodic(self) -> bool:
         return self.grid.periodic1 or self.grid.periodic2
 
+    def position_map(self) -> None:
+        """The open values are positions."""
+        return None
+
     @property
     def closed_is_open(self) -> bool:
         """Never: the open layout holds Lagrange DOFs, the closed one control points."""

@@ -199,6 +199,10 @@ class HermiteDiscretization:
         """The owned closed array ``(3 * num_owned_closed,)`` of an open-layout array."""
         return np.asarray(open_array).reshape(-1, 3)[self.owned_closed_open_block].ravel()
 
+    def position_map(self) -> None:
+        """The open values are positions."""
+        return None
+
     @property
     def closed_is_open(self) -> bool:
         """Without seams the closed layout is the open one (no prolongation)."""

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
 import dolfinx.fem
 import dolfinx.mesh
 import numpy as np
+import ufl
 from mpi4py import MPI
 
 from bhem_hpc.errors import UserError
@@ -121,6 +123,12 @@ class Discretization(Protocol):
     @property
     def closed_is_open(self) -> bool:
         """Whether the closed layout is the open one (no prolongation)."""
+        ...
+
+    def position_map(self) -> Callable[[ufl.core.expr.Expr], ufl.core.expr.Expr] | None:
+        """What the forms take for a Function of :attr:`function_space` (and its variations) as the
+        position: None where the open values are positions (Hermite, B-splines); ``Y -> Y / W`` for
+        the homogeneous values of rational B-splines."""
         ...
 
     def prolongation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

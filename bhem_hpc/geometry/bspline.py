@@ -445,15 +445,20 @@ def torus(major_radius: float, minor_radius: float, n_major: int, n_minor: int, 
 DISCRETIZATIONS = ("hermite", "bspline2", "bspline3")
 #: Gauss points per direction by discretization: the BHEM paper's 4 x 4 for bicubic patches, and the
 #: standard p + 1 points of a degree-p spline (3 x 3 for quadratic B-splines, as the B-spline paper).
-DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4}
+DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4, "nurbs2": 3, "nurbs3": 4}
 
 
-def surface_from_nodal(discretization: str, grid: ParameterGrid, nodal: np.ndarray):
-    """The surface of nodal data ``(m1, m2, kinds, 3)`` (``surface.nodal``) for a discretization name."""
+def surface_from_nodal(discretization: str, grid: ParameterGrid, nodal: np.ndarray,
+                       weights: np.ndarray | None = None):  # fmt: skip
+    """The surface of nodal data ``(m1, m2, kinds, 3)`` (``surface.nodal``) for a discretization name
+    (``nurbs2``, ``nurbs3``: with the control points' ``weights``)."""
+    from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
     from bhem_hpc.geometry.surface import HermiteSurface
 
     if discretization == "hermite":
         return HermiteSurface(grid, nodal)
+    if discretization in ("nurbs2", "nurbs3") and weights is not None:
+        return RationalBSplineSurface(grid, int(discretization[-1]), np.asarray(nodal)[:, :, 0], weights)
     if discretization in DISCRETIZATIONS:
         return BSplineSurface(grid, int(discretization[-1]), np.asarray(nodal)[:, :, 0])
     raise SurfaceError(f"discretization {discretization!r} does not exist; expected one of {DISCRETIZATIONS}")

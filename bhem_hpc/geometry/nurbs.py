@@ -295,6 +295,25 @@ def torus(major_radius: float, minor_radius: float) -> NurbsSurface:
     return revolve(profile, weights, _CIRCLE_KNOTS, 2, "torus")
 
 
+def cylinder_panel(radius: float, z_range: tuple[float, float], angle_range: tuple[float, float],
+                   name: str = "cylinder panel") -> NurbsSurface:
+    """The exact panel ``(R cos a, R sin a, z)`` of a cylinder about the z axis, ``u = z`` over
+    ``z_range`` (degree 1) and ``v in [0, 1]`` along the arc over ``angle_range`` (one rational
+    quadratic segment, less than pi: its middle control point at ``R / cos(h)``, weight ``cos(h)``,
+    ``h`` half the arc's angle)."""
+    (a0, a1), (z0, z1) = angle_range, z_range
+    half = 0.5 * (a1 - a0)
+    if not 0.0 < half < 0.5 * math.pi:
+        raise SurfaceError(f"{name}: a one-segment arc spans more than 0 and less than pi, got {angle_range}")
+    angles = np.array([a0, a0 + half, a1])
+    radii = radius * np.array([1.0, 1.0 / math.cos(half), 1.0])
+    control = np.empty((2, 3, 3))
+    control[..., 0], control[..., 1] = radii * np.cos(angles), radii * np.sin(angles)
+    control[..., 2] = np.array([z0, z1])[:, None]
+    weights = np.tile([1.0, math.cos(half), 1.0], (2, 1))
+    return NurbsSurface((1, 2), [z0, z0, z1, z1], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], control, weights, name)
+
+
 def beam_faces(lo, hi, sections: int, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[NurbsSurface]:
     """An axis-aligned box cut into ``sections`` along x: its four long sides as ``sections`` parts
     each, and its two ends (``4 sections + 2`` parts, unconnected, outward normals), each part of

@@ -21,6 +21,7 @@ from bhem_hpc.collision import PatchBVH, trace_rays
 from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.geometry import rational_bezier
 from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
+from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.geometry.trim import inside
 
@@ -31,6 +32,13 @@ VIEW = np.array([1.0, -1.6, 1.1])
 @runtime_checkable
 class NurbsParts(Protocol):
     """A body drawn by its NURBS parts (a solid's frame, :class:`~bhem_hpc.solids.model.SolidFrame`)."""
+
+    parts: list[NurbsSurface]
+
+
+@dataclass(frozen=True)
+class ShellParts:
+    """A rational shell's surface as the NURBS part the ray tracer intersects exactly."""
 
     parts: list[NurbsSurface]
 
@@ -108,6 +116,8 @@ def _trace_shell(body: HermiteSurface | TrimmedSurface, eye: np.ndarray, directi
 def _trace(body: Drawable, eye: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each ray's distance to its first hit on the body ``(R,)`` (inf: none) and the unit normal there ``(R, 3)``."""
     tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
+    if isinstance(body, RationalBSplineSurface):  # a rational shell: its rational Bezier patches
+        body = ShellParts([body.nurbs()])
     if not isinstance(body, NurbsParts):  # a shell's surface (Hermite or B-spline): bicubic nets
         tau, normal = _trace_shell(body, eye, directions)
     else:

@@ -20,6 +20,7 @@ import h5py
 import numpy as np
 
 from bhem_hpc.errors import InputError
+from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.geometry.trim import Trim
 from bhem_hpc.io.run_directory import write_replacing
@@ -192,6 +193,8 @@ class SurfaceTimeSeries:
         self.file.attrs["xi2_range"] = grid.xi2_range
         self.file.attrs["periodic"] = [grid.periodic1, grid.periodic2]
         self.file.attrs["discretization"] = rest.discretization
+        if isinstance(rest, RationalBSplineSurface):  # the weights complete the exact surface
+            self.file["weights"] = rest.weights
         if trim is not None:
             self.file["trim_loops"] = np.concatenate(trim.loops)
             self.file["trim_loop_sizes"] = np.array([len(loop) for loop in trim.loops], dtype=np.int64)
@@ -329,7 +332,8 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
             bool(a["periodic"][1]),
         )
         discretization = str(a.get("discretization", "hermite"))
-        return surface_from_nodal(discretization, grid, nodal), time
+        weights = f["weights"][()] if "weights" in f else None
+        return surface_from_nodal(discretization, grid, nodal, weights), time
 
 
 def read_trim_loops(h5_path: str | Path) -> list[np.ndarray] | None:

@@ -330,11 +330,26 @@ class ShellModel:
         kinds = COMPOSED_HESSIANS.get(self.hessian, (self.hessian,))
         jacobians = {kind: self._jacobian(kind, residual, potentials, works, test, trial) for kind in kinds}
         self.symmetric = all(w.conservative for w in works)
+        unknowns = self.in_unknowns
+        residual, jacobians = unknowns(residual), {kind: unknowns(j) for kind, j in jacobians.items()}
+        total, dead_line_work = unknowns(total), None if dead_line_work is None else unknowns(dead_line_work)
         self.ufl_residual = residual
-        reported = {t.name: t.form for t in self.terms if t.reported}
+        reported = {t.name: unknowns(t.form) for t in self.terms if t.reported}
         jit = default_jit_params()
         with compilation_report("the shell model", jit["cache_dir"]):
             self._compile(total, dead_line_work, residual, jacobians, reported, jit)
+
+    def in_unknowns(self, form: ufl.Form) -> ufl.Form:
+        """A form written in positions, as a form in the Functions the model holds: the identity,
+        except for rational B-splines, whose Functions hold the homogeneous ``Y`` and whose position
+        is ``Y / W`` (:meth:`Discretization.position_map`); the state, rest, predicted and previous
+        positions, the velocity and the form's arguments are all replaced, the map being linear."""
+        position = self.discretization.position_map()
+        if position is None:
+            return form
+        functions = [self.x, self.x_rest] + [getattr(self, name) for name in ("x_predicted", "x_previous", "velocity")
+                                             if name in vars(self)]  # fmt: skip
+        return ufl.replace(form, {f: position(f) for f in (*functions, *form.arguments())})
 
     def _jacobian(self, kind: str, residual, potentials: Sequence[Term], works: Sequence[Term], test, trial):
         """The UFL Jacobian of Hessian ``kind``: the exact one, or each term's replacement of that kind."""
@@ -377,7 +392,8 @@ class ShellModel:
                     forms_by_term[term.name] = -lf * ufl.replace(term.form, {term.form.arguments()[0]: test})
             jit = default_jit_params()
             with compilation_report("the per-term residuals", jit["cache_dir"]):
-                self._term_residual_forms = {name: fem.form(f, jit_params=jit) for name, f in forms_by_term.items()}
+                self._term_residual_forms = {name: fem.form(self.in_unknowns(f), jit_params=jit)
+                                             for name, f in forms_by_term.items()}  # fmt: skip
         return self._term_residual_forms
 
     def _build_point_data(self, loads: Loads, point_constraints: Sequence[PointConstraint]) -> None:

@@ -8,7 +8,7 @@ readers): every NURBS part of the file becomes a patch of the shell, a body of i
     type = "cad_shell"
     file = "models/hood.3dm"       # IGES (entity 128) or Rhino .3dm, relative to the scene
     patches = [6, 6]               # uniform knot spans of every part's shell surface
-    discretization = "bspline3"    # hermite (default), bspline2, bspline3
+    discretization = "bspline3"    # hermite (default), bspline2, bspline3, nurbs
     tolerance = 1e-5               # [m]: edges that meet within this are joined (default 1e-6)
     penalty = 1e3                  # the joints' penalty factor
     dofs = "auto"                  # whole joints that conform share their control points (as a
@@ -22,6 +22,9 @@ readers): every NURBS part of the file becomes a patch of the shell, a body of i
 Each part is interpolated on the chosen discretization over its own parameter domain
 (:func:`~bhem_hpc.geometry.nurbs.shell_surface`): exact for B-spline parts of that degree on
 uniform knots, otherwise an approximation whose largest distance from the part the scene reports.
+``"nurbs"`` keeps every part exactly, rational and of its own degree (2 or 3), on its knots refined
+to at least ``patches`` uniform spans
+(:func:`~bhem_hpc.geometry.rational_bspline.on_uniform_knots`, which says why a part cannot be so).
 """
 
 from __future__ import annotations

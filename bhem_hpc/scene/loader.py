@@ -168,6 +168,10 @@ def _scene(path: Path, raw: dict, other_bodies_in_contact: bool = False) -> Scen
     constraints = parse_constraints(top, surface, path)
     points = parse_point_constraints(top, surface, path)
     contact = _contact(top, path, static, other_bodies_in_contact)
+    if contact is not None and contact.method == "impulse" and surface.discretization.startswith("nurbs"):
+        raise SceneError(f"{path}: key 'effects.contact.method' = 'impulse': the impulse response's collision "
+                         "detection needs polynomial patches and this shell's are rational (surface "
+                         "discretization 'nurbs'): use method = 'ipc'")  # fmt: skip
     if contact is not None and contact.method == "ipc":
         factorization, acceleration_tolerance, options = ipc_newton_settings(factorization, acceleration_tolerance,
                                                                              options)  # fmt: skip

@@ -19,6 +19,8 @@ SURFACES = Registry("surface kind")
 MAX_PATCHES = 1_000_000  # patches (knot spans) of one surface: about 12 million Hermite DoFs
 ANGLE_RANGE = "2 numbers (min, max), at most 2 pi apart [rad]"
 Shape = S.HermiteSurface | B.BSplineSurface
+#: The shells' discretizations by name: ``"nurbs"`` is a CAD part's own rational B-splines (its degree).
+SHELL_DISCRETIZATIONS = (*B.DISCRETIZATIONS, "nurbs")
 
 
 def parse_surface(t: Table, path: Path) -> Shape:
@@ -26,8 +28,11 @@ def parse_surface(t: Table, path: Path) -> Shape:
     kinds = SURFACES.names
     kind = t.get("kind", "a string", check=lambda v: v in kinds, expected=f"one of {kinds}")
     discretization = t.get(
-        "discretization", "a string", "hermite", lambda v: v in B.DISCRETIZATIONS, f"one of {B.DISCRETIZATIONS}"
+        "discretization", "a string", "hermite", lambda v: v in SHELL_DISCRETIZATIONS, f"one of {SHELL_DISCRETIZATIONS}"
     )
+    if discretization == "nurbs" and kind != "cad_part":
+        t.fail("discretization", f'one of {B.DISCRETIZATIONS} for kind "{kind}" ("nurbs" keeps a CAD part\'s '
+               'exact rational patches: kind "cad_part" or a cad_shell body)', discretization)  # fmt: skip
     try:
         surface = SURFACES[kind](t, path, discretization)
     except S.SurfaceError as exc:
@@ -221,12 +226,16 @@ def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
     """``kind = "cad_part"``: part ``part`` (its index in the file) of a NURBS model (IGES or .3dm,
     ``file`` relative to the scene) on ``patches`` uniform knot spans
     (:func:`~bhem_hpc.geometry.nurbs.shell_surface`); a ``cad_shell`` body names every part of a
-    model so (:mod:`bhem_hpc.scene.cad_shell`)."""
+    model so (:mod:`bhem_hpc.scene.cad_shell`). With ``discretization = "nurbs"`` the part itself,
+    exactly (:func:`~bhem_hpc.geometry.rational_bspline.on_uniform_knots`: at least ``patches`` spans)."""
     from bhem_hpc.geometry.nurbs import shell_surface  # the CAD code loads for CAD models only
+    from bhem_hpc.geometry.rational_bspline import on_uniform_knots
 
     target = regular_file(t, "file", t.get("file", "a string"), path)
     parts = model_parts(target)
     index = t.get("part", "an integer", check=lambda v: 0 <= v < len(parts),
                   expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
     patches, _, _ = _patches(t, discretization)
+    if discretization == "nurbs":
+        return on_uniform_knots(parts[index].surface, tuple(patches))
     return shell_surface(parts[index].surface, tuple(patches), discretization)

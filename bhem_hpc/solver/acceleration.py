@@ -76,10 +76,9 @@ class AccelerationResidual(PetscOwner):
         jit = default_jit_params()
         with compilation_report("the mass matrix", jit["cache_dir"]):
             trial, test = ufl.TrialFunction(space), ufl.TestFunction(space)
-            mass_form = fem.form(forms.mass_matrix(trial, test, model.x_rest, model.density, model.thickness, model.dx),
-                                 jit_params=jit)  # fmt: skip
-            total_form = fem.form(forms.total_mass(model.x_rest, model.density, model.thickness, model.dx),
-                                  jit_params=jit)  # fmt: skip
+            mass = forms.mass_matrix(trial, test, model.x_rest, model.density, model.thickness, model.dx)
+            total = forms.total_mass(model.x_rest, model.density, model.thickness, model.dx)
+            mass_form, total_form = (fem.form(model.in_unknowns(f), jit_params=jit) for f in (mass, total))
         self.mass = float(model.comm.allreduce(fem.assemble_scalar(total_form)))
         if not self.mass > 0:
             raise ValueError(f"an acceleration residual needs a positive mass, got {self.mass!r} kg")

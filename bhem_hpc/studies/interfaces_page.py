@@ -28,6 +28,8 @@ from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry import surface as S
 from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.interfaces import edge_line, element_across, pair_edges
+from bhem_hpc.geometry.nurbs import cylinder_panel
+from bhem_hpc.geometry.rational_bspline import on_uniform_knots
 from bhem_hpc.model import bcs
 from bhem_hpc.model.loads import AreaLoad, LineLoad, Loads
 from bhem_hpc.model.material import Material
@@ -55,16 +57,22 @@ def patch_grid(position: Callable, ranges: Ranges, splits: tuple[int, int], span
     cubic B-spline or a Hermite surface: the rest surfaces, their ``(i, j)`` places and the joints
     between neighbours ``(a, b, (edge of a, edge of b))``."""
     b1, b2 = (np.linspace(*r, n + 1) for r, n in zip(ranges, splits, strict=True))
-    keys = [(i, j) for i in range(splits[0]) for j in range(splits[1])]
+    keys, joints = neighbours(splits)
     grids = [ParameterGrid(spans[0] // splits[0], spans[1] // splits[1], (b1[i], b1[i + 1]), (b2[j], b2[j + 1]),
                            False, False) for i, j in keys]  # fmt: skip
     rests = [S.from_callable(position, g) if discretization == "hermite" else B.from_callable(position, g, degree=3)
              for g in grids]  # fmt: skip
+    return rests, keys, joints
+
+
+def neighbours(splits: tuple[int, int]) -> tuple[list[tuple[int, int]], list[Joint]]:
+    """The ``(i, j)`` places of ``splits[0] x splits[1]`` patches and the joints between neighbours."""
+    keys = [(i, j) for i in range(splits[0]) for j in range(splits[1])]
     joints = [(keys.index((i, j)), keys.index((i + 1, j)), ("xi1_max", "xi1_min"))
               for i, j in keys if i + 1 < splits[0]]  # fmt: skip
     joints += [(keys.index((i, j)), keys.index((i, j + 1)), ("xi2_max", "xi2_min"))
                for i, j in keys if j + 1 < splits[1]]  # fmt: skip
-    return rests, keys, joints
+    return keys, joints
 
 
 @dataclass
@@ -144,14 +152,23 @@ def roof(discretization: str, method: str | None, factor: float, splits: tuple[i
     """The Scordelis-Lo roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per
     area, diaphragms at its ends) of 12 x 12 spans, as one patch (``method`` None) or ``splits``
     patches (2 x 2: four meeting at one point): the free edge's midside deflection scaled to the
-    load 90, the largest gap across the joints [m] and the solve."""
+    load 90, the largest gap across the joints [m] and the solve. ``discretization`` "nurbs2" or
+    "nurbs3": the exact cylinder in rational patches; else interpolated (cubic B-splines or Hermite)."""
     radius, load = 25.0, 0.09
     splits = (1, 1) if method is None else splits
 
     def position(z, angle):
         return np.stack([radius * np.cos(angle), radius * np.sin(angle), z], -1)
 
-    rests, keys, joints = patch_grid(position, ((0.0, 50.0), (50 * DEG, 130 * DEG)), splits, (12, 12), discretization)
+    if discretization.startswith("nurbs"):  # the exact cylinder: each patch a rational panel
+        keys, joints = neighbours(splits)
+        z, angle = np.linspace(0.0, 50.0, splits[0] + 1), np.linspace(50 * DEG, 130 * DEG, splits[1] + 1)
+        rests = [on_uniform_knots(cylinder_panel(radius, (z[i], z[i + 1]), (angle[j], angle[j + 1])),
+                                  (12 // splits[0], 12 // splits[1]), int(discretization[-1]))
+                 for i, j in keys]  # fmt: skip
+    else:
+        rests, keys, joints = patch_grid(position, ((0.0, 50.0), (50 * DEG, 130 * DEG)), splits, (12, 12),
+                                         discretization)  # fmt: skip
     weight = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
 
     def supports(i: int, rest) -> list:
@@ -163,7 +180,7 @@ def roof(discretization: str, method: str | None, factor: float, splits: tuple[i
     solve = solve_joined(models, rests, joints, ROOF_MATERIAL, method or "coupled", factor)
     states = [m.state_surface() for m in models]
     k = keys.index((splits[0] // 2, 0))
-    at = (np.array(25.0), np.array(50 * DEG))
+    at = (np.array(25.0), np.array(rests[k].grid.xi2_range[0]))  # the free edge's middle
     deflection = float(states[k].evaluate(*at).x[1] - rests[k].evaluate(*at).x[1]) * 90.0 / load
     gap = 0.0
     for a, b, edges in joints:

@@ -1,0 +1,84 @@
+"""The rational B-spline (NURBS) discretization: control points as the unknowns, the homogeneous
+field assembled in a Lagrange space.
+
+With fixed weights ``w`` the homogeneous field ``Y = sum_i N_i (w_i q_i)`` is a polynomial B-spline
+and lies exactly in the Lagrange space ``Q_p`` of the knot spans, as in
+:mod:`.bspline`: the open layout holds ``Y`` at the ``Q_p`` DOF points, the prolongation
+``E_w[b, i] = N_i(xi_b) w_i`` takes control points to it, and the position the forms see is
+``x = Y / W`` with the fixed weight field ``W = sum_i N_i w_i`` (:attr:`weight`, a Function of the
+same space whose three components all hold ``W``). The shell model rewrites its forms in ``Y``
+(:meth:`RationalBSplineDiscretization.position_map`): every energy of ``x`` is an energy of ``Y``,
+its derivatives follow by the chain rule through the linear map ``Y -> Y / W``.
+
+Point bases (loads, probes, joints, collision meshes) are rational, ``phi_b / W`` and its
+quotient-rule derivatives, so they act on the open ``Y`` values as the polynomial bases act on
+positions.
+"""
+
+from __future__ import annotations
+
+import dolfinx.fem
+import numpy as np
+from mpi4py import MPI
+
+from bhem_hpc.discretization.bspline import BSplineDiscretization
+from bhem_hpc.discretization.protocol import DiscretizationError
+from bhem_hpc.geometry.rational_bspline import RationalBSplinePatches, RationalBSplineSurface
+from bhem_hpc.geometry.surface import ParameterGrid
+
+
+class RationalBSplineDiscretization(BSplineDiscretization):
+    """Degree-``p`` rational B-splines (p = 2 or 3) with fixed ``weights (c1, c2)`` on ``grid``."""
+
+    def __init__(self, grid: ParameterGrid, degree: int, weights: np.ndarray, comm: MPI.Comm = MPI.COMM_WORLD):
+        super().__init__(grid, degree, comm)
+        self.weights = np.asarray(weights, dtype=float)
+        if self.weights.shape != self.control_shape:
+            raise DiscretizationError(f"weights must have shape {self.control_shape}, got {self.weights.shape}")
+        self.patches = RationalBSplinePatches(grid, self.degree, self.weights)
+        flat = self.weights.ravel()
+        # E_w: the B-spline basis at the DOF points times the weights (the homogeneous map)
+        self._weights = self._weights * flat[self._rows]
+        self._open_weight = self._weights.sum(axis=1)  # W at every open block (owned + ghost)
+        self.weight = dolfinx.fem.Function(self.function_space, name="weight")
+        self.weight.x.array[:] = np.repeat(self._open_weight, 3)
+
+    # -- surface <-> layouts ---------------------------------------------------------------------
+    def _check(self, surface: RationalBSplineSurface) -> None:
+        if (not isinstance(surface, RationalBSplineSurface) or surface.grid != self.grid
+                or surface.degree != self.degree or not np.array_equal(surface.weights, self.weights)):  # fmt: skip
+            raise DiscretizationError(f"the surface is not a degree-{self.degree} rational B-spline on {self.grid} "
+                                      f"with these weights (got {type(surface).__name__})")  # fmt: skip
+
+    def surface_of_entries(self, entries: np.ndarray) -> RationalBSplineSurface:
+        return RationalBSplineSurface(self.grid, self.degree, np.asarray(entries).reshape(*self.control_shape, 3),
+                                      self.weights)  # fmt: skip
+
+    def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the control points of the field whose homogeneous open values are given."""
+        return super().open_to_entries(open_array) / self.weights.reshape(-1, 1)
+
+    # -- the position the forms see ----------------------------------------------------------------
+    def position_map(self):
+        """``x = Y / W``: what the shell model's forms take for a homogeneous Function ``Y`` (and for
+        its variations, the map being linear)."""
+        weight = self.weight[0]
+        return lambda homogeneous: homogeneous / weight
+
+    # -- point data ----------------------------------------------------------------------------------
+    def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(open blocks, phi / W)``: the rational basis at a parameter point, on the rank owning it."""
+        blocks, values = self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2)
+        if not len(blocks):
+            return blocks, values
+        return blocks, values / (values @ self._open_weight[blocks])
+
+    def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(open blocks (n,), values (3, n))``: the rational basis and its xi1 and xi2 derivatives
+        (the quotient rule ``(phi_a - (phi / W) W_a) / W``) on the rank owning the point."""
+        blocks, values = self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2, derivatives=True)
+        if not len(blocks):
+            return blocks, values
+        weight = values @ self._open_weight[blocks]  # (3,): W, W_1, W_2
+        rational = values[0] / weight[0]
+        return blocks, np.stack([rational, *((values[a] - rational * weight[a]) / weight[0] for a in (1, 2))])

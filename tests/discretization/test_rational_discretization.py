@@ -1,0 +1,179 @@
+"""The rational B-spline discretization: layouts, rational point bases, exact geometry (areas and
+masses), gradient and Hessian on control points against differences, rigid motions, free fall,
+and the Scordelis-Lo roof in exact rational patches."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from dolfinx import fem
+from helpers import random_rotation
+from mpi4py import MPI
+
+from bhem_hpc import forms
+from bhem_hpc.discretization import RationalBSplineDiscretization, create_discretization
+from bhem_hpc.geometry import bspline as B
+from bhem_hpc.geometry.grid import ParameterGrid
+from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface, on_uniform_knots
+from bhem_hpc.model.material import Material
+from bhem_hpc.model.shell import Dynamics, Loads, ShellModel
+from bhem_hpc.solver import ShellSolver
+from bhem_hpc.solver.dynamics import TimeStepper
+
+MATERIAL = Material(young=1e3, poisson=0.3, thickness=0.05, density=2.0)
+MAJOR, MINOR = 1.0, 0.4
+TUBE, AROUND = (-0.5, 0.7), (0.2, 1.4)  # the torus patch's angles [rad]: about the tube, about the axis
+
+
+def _arc(angles: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos, sin)`` control points ``(3, 2)`` and weights of a one-segment unit arc."""
+    half = 0.5 * (angles[1] - angles[0])
+    middle = np.array([angles[0], angles[0] + half, angles[1]])
+    radii = np.array([1.0, 1.0 / math.cos(half), 1.0])
+    return np.stack([radii * np.cos(middle), radii * np.sin(middle)], 1), np.array([1.0, math.cos(half), 1.0])
+
+
+def torus_patch() -> NurbsSurface:
+    """A patch of the torus (major radius 1, minor 0.4), the tensor product of two rational arcs:
+    ``u`` about the tube over TUBE, ``v`` about the z axis over AROUND."""
+    (tube, tube_w), (around, around_w) = _arc(TUBE), _arc(AROUND)
+    radius = MAJOR + MINOR * tube[:, 0]  # distance from the axis at each tube control point
+    control = np.empty((3, 3, 3))
+    control[..., 0] = radius[:, None] * around[None, :, 0]
+    control[..., 1] = radius[:, None] * around[None, :, 1]
+    control[..., 2] = MINOR * tube[:, 1][:, None]
+    weights = tube_w[:, None] * around_w[None, :]
+    return NurbsSurface((2, 2), [0, 0, 0, 1, 1, 1], [0, 0, 0, 1, 1, 1], control, weights, "torus patch")
+
+
+def torus_area() -> float:
+    """``int r (R + r cos(phi)) dphi dtheta`` over the patch."""
+    return MINOR * (MAJOR * (TUBE[1] - TUBE[0]) + MINOR * (math.sin(TUBE[1]) - math.sin(TUBE[0]))) * (
+        AROUND[1] - AROUND[0])
+
+
+@pytest.fixture(params=[2, 3])
+def rest(request) -> RationalBSplineSurface:
+    return on_uniform_knots(torus_patch(), (4, 3), request.param)
+
+
+def test_the_torus_patch_lies_on_the_torus(rest):
+    """The helper's surface and its exact conversion: every point at distance r from the tube's axis."""
+    u, v = np.meshgrid(np.linspace(0, 1, 13), np.linspace(0, 1, 11), indexing="ij")
+    x = rest.evaluate(u.ravel(), v.ravel()).x
+    from_axis = np.hypot(x[:, 0], x[:, 1]) - MAJOR
+    np.testing.assert_allclose(np.hypot(from_axis, x[:, 2]), MINOR, atol=1e-14)
+
+
+def test_layouts_round_trip_and_point_bases_are_rational(comm, rest, rng):
+    disc = create_discretization(rest, comm)
+    assert isinstance(disc, RationalBSplineDiscretization)
+    surface = rest.with_nodal(rest.nodal + 0.01 * rng.normal(size=rest.nodal.shape))
+    np.testing.assert_allclose(disc.open_to_surface(disc.surface_to_open(surface)).control, surface.control, atol=1e-13)
+    np.testing.assert_array_equal(disc.closed_to_surface(disc.surface_to_closed(surface)).control, surface.control)
+    open_values = disc.surface_to_open(surface).reshape(-1, 3)
+    for xi in ((0.13, 0.71), (0.5, 0.0), (1.0, 0.37)):
+        blocks, frame = disc.point_frame_basis(*xi)
+        point = surface.evaluate(np.array(xi[0]), np.array(xi[1]))
+        local = frame @ open_values[blocks] if len(blocks) else np.zeros((3, 3))
+        found = comm.allreduce(local)
+        np.testing.assert_allclose(found, [point.x, point.a1, point.a2], atol=1e-12)
+        blocks, values = disc.point_basis(*xi)
+        np.testing.assert_allclose(comm.allreduce(values @ open_values[blocks] if len(blocks) else np.zeros(3)),
+                                   point.x, atol=1e-13)  # fmt: skip
+
+
+def test_the_mass_is_the_exact_surfaces(comm, rest):
+    """rho t times the torus patch's area: to the quadrature's error only (rational integrands), far
+    below the interpolating polynomial B-spline of the same spans."""
+    exact = MATERIAL.density * MATERIAL.thickness * torus_area()
+    mass = total_mass(ShellModel(rest, MATERIAL, comm=comm))
+    part = torus_patch()
+    interpolated = B.from_callable(lambda u, v: part.evaluate(u.ravel(), v.ravel())[0].reshape(*u.shape, 3),
+                                   rest.grid, degree=rest.degree)  # fmt: skip
+    approximate = total_mass(ShellModel(interpolated, MATERIAL, comm=comm))
+    assert abs(mass / exact - 1) < 1e-7 and abs(approximate / exact - 1) > 10 * abs(mass / exact - 1)
+
+
+def total_mass(model: ShellModel) -> float:
+    form = forms.total_mass(model.x_rest, model.density, model.thickness, model.dx)
+    return model.comm.allreduce(fem.assemble_scalar(fem.form(model.in_unknowns(form))))
+
+
+def _energy_and_gradient(solver: ShellSolver, values: np.ndarray) -> tuple[float, np.ndarray]:
+    x, f = solver.x.duplicate(), solver.x.duplicate()
+    x.array[:] = values
+    solver.problem.update_state(x)
+    energy = solver.problem.potential_energy()
+    solver.problem.assemble_residual(x, f)
+    gradient = f.array.copy()
+    x.destroy()
+    f.destroy()
+    return energy, gradient
+
+
+def test_gradient_and_hessian_match_central_differences(comm, rest, rng):
+    """The forms rewritten in the homogeneous unknowns: ``E_w^T F`` and ``E_w^T J E_w`` against
+    differences of the potential and of the residual in control-point directions (a curved rest
+    shape, a random state, gravity)."""
+    state = rest.with_nodal(rest.nodal + 0.03 * rng.normal(size=rest.nodal.shape))
+    model = ShellModel(rest, MATERIAL, Loads(gravity=(0.0, 0.0, -9.81)), comm=comm, initial=state)
+    with ShellSolver(model, prefix=f"ratfd{rest.degree}_") as solver:
+        disc = model.discretization
+        x0 = disc.surface_to_closed(state)
+        _, gradient = _energy_and_gradient(solver, x0)
+        solver.x.array[:] = x0
+        solver.problem.update_state(solver.x)
+        solver.problem.assemble_jacobian(solver.jacobian)
+        eps = 1e-6
+        for _ in range(3):
+            direction = comm.bcast(rng.normal(size=3 * disc.num_closed) if comm.rank == 0 else None)
+            local = direction[3 * disc.closed_offset : 3 * (disc.closed_offset + disc.num_owned_closed)]
+            plus, g_plus = _energy_and_gradient(solver, x0 + eps * local)
+            minus, g_minus = _energy_and_gradient(solver, x0 - eps * local)
+            slope = comm.allreduce(float(gradient @ local))
+            assert abs((plus - minus) / (2 * eps) - slope) <= 1e-6 * max(abs(slope), 1e-3)
+            d, jd = solver.x.duplicate(), solver.x.duplicate()
+            d.array[:] = local
+            solver.jacobian.mult(d, jd)
+            scale = comm.allreduce(float(np.abs(jd.array).max()), op=MPI.MAX)
+            error = np.abs(jd.array - (g_plus - g_minus) / (2 * eps)).max()
+            assert comm.allreduce(float(error), op=MPI.MAX) <= 1e-5 * scale
+            d.destroy()
+            jd.destroy()
+
+
+def test_rigid_motions_have_no_energy(comm, rest, rng):
+    moved = rest.transformed(random_rotation(rng), rng.normal(size=3))
+    model = ShellModel(rest, MATERIAL, comm=comm, initial=moved)
+    energies = model.energies()
+    scale = MATERIAL.young * MATERIAL.thickness
+    assert abs(energies["membrane"]) < 1e-12 * scale and abs(energies["bending"]) < 1e-12 * scale
+    with ShellSolver(model, prefix="ratrigid_") as solver:
+        _, gradient = _energy_and_gradient(solver, model.discretization.surface_to_closed(moved))
+    assert comm.allreduce(float(np.abs(gradient).max(initial=0.0)), op=MPI.MAX) < 1e-9 * scale
+
+
+def test_a_free_rational_sheet_falls_exactly(comm, rest):
+    """Implicit Euler under gravity alone: the rational basis sums to one, so every control point
+    drops by ``g dt^2 N (N + 1) / 2`` (the mass rewritten in the unknowns, exactly)."""
+    model = ShellModel(rest, MATERIAL, Loads(gravity=(0.0, 0.0, -9.81)), comm=comm, dynamics=Dynamics(0.01))
+    with ShellSolver(model, prefix="ratfall_") as solver:
+        stepper = TimeStepper(model, solver)
+        for _ in range(4):
+            stepper.advance()
+    final = model.state_surface().control
+    np.testing.assert_allclose(final[..., 2] - rest.control[..., 2], -9.81 * 0.01**2 * 4 * 5 / 2, rtol=1e-8)
+    np.testing.assert_allclose(final[..., :2], rest.control[..., :2], atol=1e-10)
+
+
+def test_a_grid_of_another_shape_or_weights_is_refused(comm, rest):
+    disc = create_discretization(rest, comm)
+    other = RationalBSplineSurface(rest.grid, rest.degree, rest.control, rest.weights * 1.5)
+    with pytest.raises(ValueError, match="with these weights"):
+        disc.surface_to_open(other)
+    with pytest.raises(ValueError, match="weights must have shape"):
+        RationalBSplineDiscretization(ParameterGrid(2, 2, (0, 1), (0, 1)), rest.degree, np.ones((2, 2)), comm)

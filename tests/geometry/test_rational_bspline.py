@@ -1,0 +1,80 @@
+"""Rational B-spline shell surfaces: exact conversion of NURBS parts onto uniform knots (knot
+insertion, degree raising), rational point weights and derivatives, and the parts refused."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bhem_hpc.geometry.nurbs import NurbsSurface, cylinder_panel, sphere
+from bhem_hpc.geometry.rational_bspline import insert_knot, on_uniform_knots
+from bhem_hpc.geometry.surface import SurfaceError
+
+
+def _compare(part: NurbsSurface, shell, rng, tolerance: float = 1e-12) -> None:
+    """Points and first and second derivatives of the shell and the part at random parameters."""
+    (u0, u1), (v0, v1) = part.u.domain, part.v.domain
+    u, v = u0 + (u1 - u0) * rng.random(300), v0 + (v1 - v0) * rng.random(300)
+    point = shell.evaluate(u, v)
+    scale = np.abs(part.control).max()
+    for mine, theirs in zip((point.x, point.a1, point.a2, point.a11, point.a12, point.a22),
+                            part.second_derivatives(u, v), strict=True):  # fmt: skip
+        np.testing.assert_allclose(mine, theirs, atol=tolerance * scale * 100)
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_a_cylinder_panel_is_carried_over_exactly(degree, rng):
+    """A ruled rational part of degrees (1, 2) raised to one degree and refined to 5 x 4 spans."""
+    part = cylinder_panel(25.0, (0.0, 50.0), (50 * math.pi / 180, 130 * math.pi / 180))
+    shell = on_uniform_knots(part, (5, 4), degree)
+    assert (shell.grid.n1, shell.grid.n2, shell.degree) == (5, 4, degree)
+    assert shell.control.shape == (5 + degree, 4 + degree, 3)
+    _compare(part, shell, rng)
+    u, v = np.meshgrid(np.linspace(0, 50, 7), np.linspace(0, 1, 9), indexing="ij")
+    radius = np.hypot(*shell.evaluate(u, v).x[..., :2].transpose(2, 0, 1))
+    np.testing.assert_allclose(radius, 25.0, rtol=1e-14)
+    np.testing.assert_allclose(shell.nurbs().evaluate(u.ravel(), v.ravel())[0], shell.evaluate(u, v).x.reshape(-1, 3),
+                               atol=1e-12)  # fmt: skip
+
+
+def test_knots_on_a_lattice_are_filled_in_and_refined(rng):
+    """Interior knots 0.25 and 0.5 (lattice 4) and random weights: at least 6 spans asked, 8 given."""
+    knots = [0, 0, 0, 0, 0.25, 0.5, 1, 1, 1, 1]
+    control = rng.normal(size=(6, 4, 3))
+    weights = 0.5 + rng.random((6, 4))
+    part = NurbsSurface((3, 3), knots, [0, 0, 0, 0, 1, 1, 1, 1], control, weights, "lattice part")
+    shell = on_uniform_knots(part, (6, 2))
+    assert (shell.grid.n1, shell.grid.n2) == (8, 2)
+    _compare(part, shell, rng)
+
+
+def test_knot_insertion_keeps_the_curve(rng):
+    knots = np.array([0, 0, 0, 0.3, 1, 1, 1], float)
+    homogeneous = np.concatenate([rng.normal(size=(4, 3)), 0.5 + rng.random((4, 1))], axis=1)
+    new_knots, inserted = insert_knot(knots, 2, homogeneous, 0.6)
+    np.testing.assert_array_equal(new_knots, [0, 0, 0, 0.3, 0.6, 1, 1, 1])
+    before = NurbsSurface((2, 1), knots, [0, 0, 1, 1], np.repeat((homogeneous[:, :3] / homogeneous[:, 3:])[:, None],
+                          2, 1), np.repeat(homogeneous[:, 3:], 2, 1))  # fmt: skip
+    after = NurbsSurface((2, 1), new_knots, [0, 0, 1, 1], np.repeat((inserted[:, :3] / inserted[:, 3:])[:, None],
+                         2, 1), np.repeat(inserted[:, 3:], 2, 1))  # fmt: skip
+    t = rng.random(50)
+    np.testing.assert_allclose(after.evaluate(t, t)[0], before.evaluate(t, t)[0], atol=1e-13)
+
+
+@pytest.mark.parametrize(
+    ("part", "message"),
+    [
+        (sphere(1.0), r"the u knot 0.25 repeats 2 times.*split it at that knot"),
+        (NurbsSurface((2, 2), [0, 0, 0, 1 / math.pi, 1, 1, 1], [0, 0, 0, 1, 1, 1], np.zeros((4, 3, 3))),
+         r"u knots \[0.318.*\] lie on no uniform lattice of at most 512 spans"),
+        (NurbsSurface((4, 2), [0] * 5 + [1] * 5, [0, 0, 0, 1, 1, 1], np.zeros((5, 3, 3))), "degree 2 or 3"),
+        (NurbsSurface((1, 2), [0, 0, 0.5, 1, 1], [0, 0, 0, 1, 1, 1], np.zeros((3, 3, 3))),
+         "u direction has degree 1 and several spans"),
+        (NurbsSurface((2, 2), [0, 0, 0.2, 0.5, 1, 1], [0, 0, 0, 1, 1, 1], np.zeros((3, 3, 3))), "not clamped"),
+    ],
+)
+def test_parts_a_rational_patch_cannot_hold_are_refused_saying_why(part, message):
+    with pytest.raises(SurfaceError, match=message):
+        on_uniform_knots(part, (4, 4))

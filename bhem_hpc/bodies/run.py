@@ -128,9 +128,9 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
     models = [body.model for body in bodies]
     for model in scene.cad_models:
         if comm.rank == 0:
-            log.info("%s: %d parts, %d joints, free edges: %s; edges trimmed away: %s; trimmed parts joined to "
-                     "nothing along their trims: %s; patches within %.3g m of their parts", model["body"],
-                     model["parts"], len(model["joints"]), ", ".join(model["free_edges"]) or "none",
+            log.info("%s: %d parts in %d patches, %d joints, free edges: %s; edges trimmed away: %s; trimmed parts "
+                     "joined to nothing along their trims: %s; patches within %.3g m of their parts", model["body"],
+                     model["parts"], model["patches"], len(model["joints"]), ", ".join(model["free_edges"]) or "none",
                      ", ".join(model["trimmed_edges"]) or "none",
                      ", ".join(model["trimmed_parts_joined_to_nothing_along_their_trims"]) or "none",
                      model["fit_error_m"])  # fmt: skip

@@ -235,3 +235,38 @@ def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | N
     grid = ParameterGrid(n1, n2, range1, range2, False, False)
     weights = homogeneous[..., 3]
     return RationalBSplineSurface(grid, p, homogeneous[..., :3] / weights[..., None], weights)
+
+
+def _kinks(knots: np.ndarray, degree: int) -> list[int]:
+    """The last index of each interior knot repeated ``degree`` times (where the part is only C0)."""
+    values, first, counts = np.unique(knots[degree + 1 : -degree - 1], return_index=True, return_counts=True)
+    return [int(degree + 1 + f + c - 1) for f, c in zip(first, counts, strict=True) if c >= degree]
+
+
+def _split_direction(knots: np.ndarray, degree: int, homogeneous: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The pieces ``(knots, homogeneous)`` of one direction (the first axis) between its C0 knots: a
+    knot ``t`` repeated ``p`` times ending at index ``s`` ends a piece at control point ``s - p``
+    (the curve passes through it), which the next piece starts with; each piece's knots are clamped
+    by one more ``t``."""
+    pieces, prefix, first_knot, first_control = [], knots[:0], 0, 0
+    for s in _kinks(knots, degree):
+        t = knots[s]
+        pieces.append((np.r_[prefix, knots[first_knot : s + 1], t], homogeneous[first_control : s - degree + 1]))
+        prefix, first_knot, first_control = np.array([t]), s - degree + 1, s - degree
+    return [*pieces, (np.r_[prefix, knots[first_knot:]], homogeneous[first_control:])]
+
+
+def split_at_kinks(part: NurbsSurface) -> list[list[NurbsSurface]]:
+    """The part cut along its interior knots of multiplicity equal to the degree (where it is only
+    C0, as a circle's quarter points): pieces ``[i][j]`` along u and v, each the same surface over
+    its knot box, neighbours sharing their edge's control points and weights exactly."""
+    p, q = part.degrees
+    rows = _split_direction(part.u.knots, p, part.homogeneous)
+    pieces = []
+    for i, (knots_u, row) in enumerate(rows):
+        columns = _split_direction(part.v.knots, q, np.moveaxis(row, 1, 0))
+        pieces.append([NurbsSurface((p, q), knots_u, knots_v, np.moveaxis(block, 0, 1)[..., :3]
+                                    / np.moveaxis(block, 0, 1)[..., 3:], np.moveaxis(block, 0, 1)[..., 3],
+                                    f"{part.name} piece {i} {j}")
+                       for j, (knots_v, block) in enumerate(columns)])  # fmt: skip
+    return pieces

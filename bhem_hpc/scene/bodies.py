@@ -65,6 +65,10 @@ class SeveralPatches(Protocol):
 
     bodies: tuple[Scene, ...]
 
+    def label(self, body: int) -> str:
+        """What names patch ``body`` (the body ``<name>_<label>``)."""
+        ...
+
     def interfaces(self, name: str, first: int) -> tuple[InterfaceRecord, ...]:
         """The joints, the patches being bodies ``first``, ``first + 1``, ... named ``<name>_<part>``."""
         ...
@@ -168,7 +172,7 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
             names.append(name)
             continue
         models.append((name, len(bodies), parsed))  # several patches: the parts of a model
-        parts = [f"{name}_{part}" for part in range(len(parsed.bodies))]
+        parts = [f"{name}_{parsed.label(k)}" for k in range(len(parsed.bodies))]
         if set(parts) & set(names) or any(t.get("name") in parts for t in items[k + 1:]):
             raise SceneError(f"{path}: body '{name}' (bodies[{k}]): its parts are bodies named {name}_0, ... and "
                              "another body has one of these names")  # fmt: skip
@@ -180,9 +184,22 @@ def parse_bodies(path: Path, raw: dict[str, Any]) -> BodiesScene:
     interfaces += tuple(record for name, first, model in models for record in model.interfaces(name, first))
     reports = tuple(model.report(name) for name, _, model in models)
     scene = BodiesScene(path, tuple(names), tuple(bodies), raw, interfaces, reports)
+    _check_follower_loads(scene)
     _check_joined_contact(scene)
     _check_contact_between(scene)
     return scene
+
+
+def _check_follower_loads(scene: BodiesScene) -> None:
+    """Several bodies are solved on their total potential, which a follower pressure does not have."""
+    if len(scene.bodies) < 2:
+        return
+    for k, body in enumerate(scene.bodies):
+        if body.effects.pressure is not None:
+            raise SceneError(f"{scene.path}: body '{scene.names[k]}': key 'effects.pressure' = "
+                             f"{body.effects.pressure!r}: a follower pressure has no potential, and a scene of "
+                             f"{len(scene.bodies)} bodies (or patches) is solved on its total potential; use "
+                             "effects.area_loads (a dead load) or one body")  # fmt: skip
 
 
 def _in_contact(t: Table) -> bool:

@@ -33,6 +33,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bhem_hpc.bodies.shared_dofs import SharedDofs
 from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, find_joints
@@ -47,6 +48,9 @@ from bhem_hpc.scene.interfaces import (
 from bhem_hpc.scene.records import Scene
 from bhem_hpc.scene.surfaces import model_parts
 from bhem_hpc.scene.table import SceneError, Table, regular_file
+
+if TYPE_CHECKING:
+    from bhem_hpc.geometry.nurbs import NurbsSurface
 
 #: The tables and keys of a ``cad_shell`` body.
 CAD_SHELL_KEYS = ("file", "patches", "discretization", "tolerance", "penalty", "dofs", "material", "effects",
@@ -77,26 +81,36 @@ class CadShell:
     file: Path
     trimmed_edges: tuple[tuple[int, str], ...] = ()
     shared: tuple[SharedDofs | None, ...] = ()
+    labels: tuple[str, ...] = ()
+
+    def label(self, body: int) -> str:
+        """What names patch ``body``: its part's index, and for a part cut at its kinks
+        (``"nurbs"``) the piece's ``<part>_<i>_<j>``."""
+        return self.labels[body] if self.labels else str(body)
 
     def interfaces(self, name: str, first: int) -> tuple[InterfaceRecord, ...]:
         """The joints as the scene's interfaces, the parts being bodies ``first``, ``first + 1``, ...
         named ``<name>_<part>``."""
         shared = self.shared or (None,) * len(self.joints)
         return tuple(InterfaceRecord("joint", f"{name} joint {k}", (first + j.first, first + j.second),
-                                     (f"{name}_{j.first}", f"{name}_{j.second}"), (j.first_edge, j.second_edge),
+                                     (f"{name}_{self.label(j.first)}", f"{name}_{self.label(j.second)}"),
+                                     (j.first_edge, j.second_edge),
                                      self.penalty, j.quadrature, None, True,
                                      None if dofs is None else dofs.moved(first))
                      for k, (j, dofs) in enumerate(zip(self.joints, shared, strict=True)))  # fmt: skip
 
     def report(self, name: str) -> dict:
         """What a run's summary says of the model: its parts, joints and free edges."""
-        return {"body": name, "file": str(self.file), "parts": len(self.bodies), "fit_error_m": self.fit_error,
-                "joints": [[f"{name}_{j.first}", j.first_edge, f"{name}_{j.second}", j.second_edge,
+        label = self.label
+        parts = len({label(k).split("_")[0] for k in range(len(self.bodies))})
+        return {"body": name, "file": str(self.file), "parts": parts, "patches": len(self.bodies),
+                "fit_error_m": self.fit_error,
+                "joints": [[f"{name}_{label(j.first)}", j.first_edge, f"{name}_{label(j.second)}", j.second_edge,
                             j.quadrature.gap, "partial" if j.partial else "whole"] for j in self.joints],
-                "free_edges": [f"{name}_{part} {edge}" for part, edge in self.free_edges],
-                "trimmed_edges": [f"{name}_{part} {edge}" for part, edge in self.trimmed_edges],
+                "free_edges": [f"{name}_{label(part)} {edge}" for part, edge in self.free_edges],
+                "trimmed_edges": [f"{name}_{label(part)} {edge}" for part, edge in self.trimmed_edges],
                 "trimmed_parts_joined_to_nothing_along_their_trims": [
-                    f"{name}_{k}" for k, body in enumerate(self.bodies) if body.trim is not None
+                    f"{name}_{label(k)}" for k, body in enumerate(self.bodies) if body.trim is not None
                     and not any(j.first == k and j.first_edge == "trim curve" or j.second == k
                                 and j.second_edge == "trim curve" for j in self.joints)]}  # fmt: skip
 
@@ -143,16 +157,20 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
     constraints = _part_constraints(t, len(parts))
     parse_shell: Callable[..., Scene] = BODY_TYPES[DEFAULT_BODY_TYPE]
     shared = {k: v for k, v in tables.items() if k in ("time", "solver", "output", "colliders", "material", "effects")}
-    bodies = []
+    bodies, labels, surfaces = [], [], []
     for k, part in enumerate(parts):
-        surface = {"kind": "cad_part", "file": file, "part": k, "patches": patches, "discretization": discretization}
-        trim = {} if part.loops is None else {"trim": {"loops": [loop.tolist() for loop in part.loops]}}
-        try:
-            bodies.append(parse_shell(path, shared | {"surface": surface, "constraints": constraints[k]} | trim,
-                                      other_bodies_in_contact))  # fmt: skip
-        except SceneError as exc:
-            raise SceneError(f"{path}: part {k} ({part.surface.name}): "
-                             f"{str(exc).removeprefix(f'{path}: ')}") from None  # fmt: skip
+        for patch in _patches_of(t, k, part, patches, discretization, constraints[k]):
+            surface = {"kind": "cad_part", "file": file, "part": k, "patches": patch.patches,
+                       "discretization": discretization} | ({} if patch.piece is None else {"piece": patch.piece})
+            trim = {} if part.loops is None else {"trim": {"loops": [loop.tolist() for loop in part.loops]}}
+            try:
+                bodies.append(parse_shell(path, shared | {"surface": surface, "constraints": patch.constraints} | trim,
+                                          other_bodies_in_contact))  # fmt: skip
+            except SceneError as exc:
+                raise SceneError(f"{path}: part {k} ({part.surface.name}): "
+                                 f"{str(exc).removeprefix(f'{path}: ')}") from None  # fmt: skip
+            labels.append(patch.label)
+            surfaces.append(patch.surface)
     joints, free = find_joints([body.surface for body in bodies], tolerance)
     # an edge a trim cuts is no edge of the shell: its joints go, and it is listed as trimmed
     trimmed = {(k, edge) for k, body in enumerate(bodies) if body.trim is not None
@@ -166,14 +184,69 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
         from bhem_hpc.geometry.trim_joints import edges_joined, find_trim_joints
 
         shells = [body.surface for body in bodies]
-        curves = find_trim_joints([part.surface for part in parts], shells,
+        curves = find_trim_joints(surfaces, shells,
                                   [body.trim.loops if body.trim is not None else None for body in bodies],
                                   tolerance, joints)  # fmt: skip
         along = set().union(*(edges_joined(j, shells) for j in curves)) if curves else set()
         joints, free = joints + curves, [edge for edge in free if edge not in along]
-    fit = max(shell_fit_error(part.surface, body.surface) for part, body in zip(parts, bodies, strict=True))
+    fit = max(shell_fit_error(part, body.surface) for part, body in zip(surfaces, bodies, strict=True))
     shared = tuple(_joint_dofs(t, dofs, joint, bodies, tolerance) for joint in joints)
-    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)), shared)
+    return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)), shared,
+                    tuple(labels))
+
+
+@dataclass(frozen=True)
+class _Patch:
+    """One patch of a part: its label, its piece ``[i, j]`` (None: the whole part), its NURBS
+    surface, its knot spans and its constraint tables."""
+
+    label: str
+    piece: list[int] | None
+    surface: NurbsSurface
+    patches: list[int]
+    constraints: list[dict]
+
+
+def _patches_of(t: Table, k: int, part, patches: list[int], discretization: str,
+                constraints: list[dict]) -> list[_Patch]:  # fmt: skip
+    """The patches of part ``k``: the part itself, or with ``"nurbs"`` its pieces between the knots
+    where it is only C0 (:func:`~bhem_hpc.geometry.rational_bspline.split_at_kinks`), the part's
+    spans shared among them and its constraints on the pieces along their edges and at their corners."""
+    from bhem_hpc.geometry.rational_bspline import split_at_kinks
+
+    pieces = split_at_kinks(part.surface) if discretization == "nurbs" else [[part.surface]]
+    counts = (len(pieces), len(pieces[0]))
+    if counts == (1, 1):
+        return [_Patch(str(k), None, part.surface, patches, constraints)]
+    if part.loops is not None:
+        t.fail("discretization", f'"hermite", "bspline2" or "bspline3": part {k} ({part.surface.name}) is trimmed '
+               f"and only C0 along some knots ({counts[0]} x {counts[1]} pieces); its rational patches would cut its "
+               "trim", discretization)  # fmt: skip
+    spans = [math.ceil(n / c) for n, c in zip(patches, counts, strict=True)]
+    return [_Patch(f"{k}_{i}_{j}", [i, j], surface, spans, _piece_constraints(t, k, constraints, (i, j), counts))
+            for i, row in enumerate(pieces) for j, surface in enumerate(row)]  # fmt: skip
+
+
+def _piece_constraints(t: Table, k: int, constraints: list[dict], place: tuple[int, int],
+                       counts: tuple[int, int]) -> list[dict]:  # fmt: skip
+    """A part's constraints on its piece at ``place`` of ``counts``: an ``edge`` on the pieces along
+    it, ``corners`` on the pieces at them; ``nodes`` name no piece's and are refused."""
+    ends = {"xi1_min": place[0] == 0, "xi1_max": place[0] == counts[0] - 1,
+            "xi2_min": place[1] == 0, "xi2_max": place[1] == counts[1] - 1}  # fmt: skip
+    out = []
+    for n, item in enumerate(constraints):
+        if "nodes" in item:
+            t.fail(f"constraints[{n}].nodes", f"'edge' or 'corners': part {k} is cut at its C0 knots into "
+                   f"{counts[0]} x {counts[1]} pieces, whose nodes the part's indices do not name", item["nodes"])
+        if "edge" in item and ends.get(item["edge"], True):
+            out.append(item)
+        elif "corners" in item:
+            mine = [c for c in item["corners"] if isinstance(c, str) and "_" in c
+                    and ends.get(f"xi1_{c.split('_')[0]}", True) and ends.get(f"xi2_{c.split('_')[1]}", True)]
+            out += [item | {"corners": mine}] if mine else []
+        elif "edge" not in item:
+            out.append(item)
+    return out
 
 
 def _joint_dofs(t: Table, dofs: str, joint: FoundJoint, bodies: list[Scene], tolerance: float) -> SharedDofs | None:

@@ -71,7 +71,7 @@ def _patches(t: Table, discretization: str) -> tuple[list[int], dict[str, int], 
         "patches", "2 integers", check=lambda v: min(v) >= 1 and v[0] * v[1] <= MAX_PATCHES,
         expected=f"2 integers >= 1, at most {MAX_PATCHES} patches in all",
     )  # fmt: skip
-    spline = {} if discretization == "hermite" else {"degree": int(discretization[-1])}
+    spline = {} if discretization in ("hermite", "nurbs") else {"degree": int(discretization[-1])}
     return patches, spline, S if discretization == "hermite" else B
 
 
@@ -227,9 +227,11 @@ def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
     ``file`` relative to the scene) on ``patches`` uniform knot spans
     (:func:`~bhem_hpc.geometry.nurbs.shell_surface`); a ``cad_shell`` body names every part of a
     model so (:mod:`bhem_hpc.scene.cad_shell`). With ``discretization = "nurbs"`` the part itself,
-    exactly (:func:`~bhem_hpc.geometry.rational_bspline.on_uniform_knots`: at least ``patches`` spans)."""
+    exactly (:func:`~bhem_hpc.geometry.rational_bspline.on_uniform_knots`: at least ``patches`` spans),
+    or with ``piece = [i, j]`` its piece between the knots where it is only C0
+    (:func:`~bhem_hpc.geometry.rational_bspline.split_at_kinks`)."""
     from bhem_hpc.geometry.nurbs import shell_surface  # the CAD code loads for CAD models only
-    from bhem_hpc.geometry.rational_bspline import on_uniform_knots
+    from bhem_hpc.geometry.rational_bspline import on_uniform_knots, split_at_kinks
 
     target = regular_file(t, "file", t.get("file", "a string"), path)
     parts = model_parts(target)
@@ -237,5 +239,12 @@ def _cad_part(t: Table, path: Path, discretization: str) -> Shape:
                   expected=f"a part of the file, 0..{len(parts) - 1}")  # fmt: skip
     patches, _, _ = _patches(t, discretization)
     if discretization == "nurbs":
-        return on_uniform_knots(parts[index].surface, tuple(patches))
+        part = parts[index].surface
+        if "piece" in t.data:  # a piece of a part cut at its C0 knots
+            pieces = split_at_kinks(part)
+            rows, columns = len(pieces), len(pieces[0])
+            place = t.get("piece", "2 integers", check=lambda v: 0 <= v[0] < rows and 0 <= v[1] < columns,
+                          expected=f"a piece [i, j] of part {index}, i < {rows}, j < {columns}")  # fmt: skip
+            part = pieces[place[0]][place[1]]
+        return on_uniform_knots(part, tuple(patches))
     return shell_surface(parts[index].surface, tuple(patches), discretization)

@@ -301,17 +301,41 @@ def cylinder_panel(radius: float, z_range: tuple[float, float], angle_range: tup
     ``z_range`` (degree 1) and ``v in [0, 1]`` along the arc over ``angle_range`` (one rational
     quadratic segment, less than pi: its middle control point at ``R / cos(h)``, weight ``cos(h)``,
     ``h`` half the arc's angle)."""
-    (a0, a1), (z0, z1) = angle_range, z_range
-    half = 0.5 * (a1 - a0)
-    if not 0.0 < half < 0.5 * math.pi:
-        raise SurfaceError(f"{name}: a one-segment arc spans more than 0 and less than pi, got {angle_range}")
-    angles = np.array([a0, a0 + half, a1])
-    radii = radius * np.array([1.0, 1.0 / math.cos(half), 1.0])
+    arc, weights = _one_segment_arc(angle_range, name)
     control = np.empty((2, 3, 3))
-    control[..., 0], control[..., 1] = radii * np.cos(angles), radii * np.sin(angles)
-    control[..., 2] = np.array([z0, z1])[:, None]
-    weights = np.tile([1.0, math.cos(half), 1.0], (2, 1))
-    return NurbsSurface((1, 2), [z0, z0, z1, z1], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], control, weights, name)
+    control[..., :2] = radius * arc
+    control[..., 2] = np.array(z_range)[:, None]
+    knots = [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
+    return NurbsSurface((1, 2), [z_range[0], z_range[0], z_range[1], z_range[1]], knots, control,
+                        np.tile(weights, (2, 1)), name)  # fmt: skip
+
+
+def _one_segment_arc(angles: tuple[float, float], name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos, sin)`` control points ``(3, 2)`` and weights of the unit arc over ``angles`` (one
+    rational quadratic segment, less than pi)."""
+    half = 0.5 * (angles[1] - angles[0])
+    if not 0.0 < half < 0.5 * math.pi:
+        raise SurfaceError(f"{name}: a one-segment arc spans more than 0 and less than pi, got {angles}")
+    middle = np.array([angles[0], angles[0] + half, angles[1]])
+    radii = np.array([1.0, 1.0 / math.cos(half), 1.0])
+    return radii[:, None] * np.stack([np.cos(middle), np.sin(middle)], 1), np.array([1.0, math.cos(half), 1.0])
+
+
+def revolved_arc_panel(centre: tuple[float, float], radius: float, polar_range: tuple[float, float],
+                       azimuth_range: tuple[float, float], name: str = "revolved arc") -> NurbsSurface:
+    """The exact panel swept by the circular arc of ``radius`` about ``centre = (r, z)`` over polar
+    angles ``polar_range`` (from +z: the point ``(r + radius sin t, z + radius cos t)``) revolved
+    about the z axis over ``azimuth_range``: a sphere zone (centre (0, 0)) or a torus patch.
+    Degree 2 x 2, ``u`` along the arc, ``v`` about the axis, both over [0, 1]."""
+    (polar, polar_weights), (around, around_weights) = (_one_segment_arc(polar_range, name),
+                                                         _one_segment_arc(azimuth_range, name))  # fmt: skip
+    distance = centre[0] + radius * polar[:, 1]  # from the axis, at each arc control point
+    control = np.empty((3, 3, 3))
+    control[..., 0] = distance[:, None] * around[None, :, 0]
+    control[..., 1] = distance[:, None] * around[None, :, 1]
+    control[..., 2] = (centre[1] + radius * polar[:, 0])[:, None]
+    knots = [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
+    return NurbsSurface((2, 2), knots, knots, control, polar_weights[:, None] * around_weights[None, :], name)
 
 
 def beam_faces(lo, hi, sections: int, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[NurbsSurface]:

@@ -15,6 +15,8 @@ import numpy as np
 
 # Centre deflection of a clamped square plate, w D / (q a^4) (Taylor & Govindjee 2004).
 CLAMPED_SQUARE_PLATE = 0.00126532
+#: Scordelis-Lo roof, Kirchhoff-Love theory: midside deflection of the free edge (Kiendl et al. 2009).
+ROOF_DEFLECTION = 0.3006
 
 
 def simply_supported_square_plate(terms: int = 401) -> float:

@@ -27,6 +27,7 @@ from bhem_hpc.model.loads import AreaLoad, LineLoad, Loads, PointLoad
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.studies.references import ROOF_DEFLECTION
 
 DEG = np.pi / 180
 
@@ -313,7 +314,6 @@ def test_a_folded_plate_bends_as_a_rigid_jointed_frame_and_keeps_its_fold_angle(
 
 
 #: Scordelis-Lo roof, Kirchhoff-Love theory: midside deflection of the free edge (Kiendl et al. 2009).
-ROOF_DEFLECTION = 0.3006
 
 
 def _patch_grid(position, ranges, splits: tuple[int, int], spans: tuple[int, int]):

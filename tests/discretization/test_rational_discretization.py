@@ -16,7 +16,7 @@ from bhem_hpc import forms
 from bhem_hpc.discretization import RationalBSplineDiscretization, create_discretization
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry.grid import ParameterGrid
-from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.nurbs import NurbsSurface, revolved_arc_panel
 from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface, on_uniform_knots
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import Dynamics, Loads, ShellModel
@@ -25,33 +25,18 @@ from bhem_hpc.solver.dynamics import TimeStepper
 
 MATERIAL = Material(young=1e3, poisson=0.3, thickness=0.05, density=2.0)
 MAJOR, MINOR = 1.0, 0.4
-TUBE, AROUND = (-0.5, 0.7), (0.2, 1.4)  # the torus patch's angles [rad]: about the tube, about the axis
-
-
-def _arc(angles: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """``(cos, sin)`` control points ``(3, 2)`` and weights of a one-segment unit arc."""
-    half = 0.5 * (angles[1] - angles[0])
-    middle = np.array([angles[0], angles[0] + half, angles[1]])
-    radii = np.array([1.0, 1.0 / math.cos(half), 1.0])
-    return np.stack([radii * np.cos(middle), radii * np.sin(middle)], 1), np.array([1.0, math.cos(half), 1.0])
+TUBE, AROUND = (0.9, 2.1), (0.2, 1.4)  # the torus patch's angles [rad]: about the tube, about the axis
 
 
 def torus_patch() -> NurbsSurface:
-    """A patch of the torus (major radius 1, minor 0.4), the tensor product of two rational arcs:
-    ``u`` about the tube over TUBE, ``v`` about the z axis over AROUND."""
-    (tube, tube_w), (around, around_w) = _arc(TUBE), _arc(AROUND)
-    radius = MAJOR + MINOR * tube[:, 0]  # distance from the axis at each tube control point
-    control = np.empty((3, 3, 3))
-    control[..., 0] = radius[:, None] * around[None, :, 0]
-    control[..., 1] = radius[:, None] * around[None, :, 1]
-    control[..., 2] = MINOR * tube[:, 1][:, None]
-    weights = tube_w[:, None] * around_w[None, :]
-    return NurbsSurface((2, 2), [0, 0, 0, 1, 1, 1], [0, 0, 0, 1, 1, 1], control, weights, "torus patch")
+    """A patch of the torus (major radius 1, minor 0.4): polar angles TUBE about the tube's circle,
+    AROUND about the z axis."""
+    return revolved_arc_panel((MAJOR, 0.0), MINOR, TUBE, AROUND, "torus patch")
 
 
 def torus_area() -> float:
-    """``int r (R + r cos(phi)) dphi dtheta`` over the patch."""
-    return MINOR * (MAJOR * (TUBE[1] - TUBE[0]) + MINOR * (math.sin(TUBE[1]) - math.sin(TUBE[0]))) * (
+    """``int r (R + r sin(t)) dt dtheta`` over the patch."""
+    return MINOR * (MAJOR * (TUBE[1] - TUBE[0]) + MINOR * (math.cos(TUBE[0]) - math.cos(TUBE[1]))) * (
         AROUND[1] - AROUND[0])
 
 

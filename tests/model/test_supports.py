@@ -13,10 +13,9 @@ from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
 from bhem_hpc.model.shell import AreaLoad, Loads, ShellModel
 from bhem_hpc.solver import ShellSolver
+from bhem_hpc.studies.references import ROOF_DEFLECTION
 
 DEG = np.pi / 180
-#: Scordelis-Lo roof, Kirchhoff-Love theory: midside deflection of the free edge (Kiendl et al. 2009).
-ROOF_DEFLECTION = 0.3006
 
 
 def roof_deflection(comm, quarter: bool, load: float = 0.09, degree: int | None = None) -> float:

@@ -8,6 +8,8 @@ toy.igs: the castle scaled to a 0.2 m toy 2 cm above the x-y plane (jobs/toy-on-
 block.igs: a 0.2 m cube of six biquadratic faces (jobs/two-solids.toml).
 hood.3dm: a car-hood-like panel, 1.2 m x 1 m crowned 6 cm, as four bicubic parts meeting along
 x = 0 and y = 0 (jobs/hood.toml: one shell of four patches joined where the parts meet).
+elbow.igs: a 90-degree pipe bend (bend radius 0.3 m, pipe radius 5 cm) revolved as modellers do, one
+rational part only C0 at the tube circle's quarter points (jobs/pipe-elbow.toml).
 Run: .venv/bin/python jobs/make_models.py  (the generated files are committed).
 """
 
@@ -34,3 +36,5 @@ if __name__ == "__main__":
                               (-0.6, 0.6), (-0.5, 0.5), (2, 2))  # fmt: skip
     write_parts(MODELS / "hood.3dm", [part.with_name(f"hood {k}") for k, part in enumerate(crown)])
     print(f"wrote {MODELS / 'hood.3dm'}")
+    write_parts(MODELS / "elbow.igs", [nurbs.pipe_bend(0.3, 0.05, (0.0, 0.5 * np.pi)).with_name("elbow")])
+    print(f"wrote {MODELS / 'elbow.igs'}")

@@ -295,6 +295,15 @@ def torus(major_radius: float, minor_radius: float) -> NurbsSurface:
     return revolve(profile, weights, _CIRCLE_KNOTS, 2, "torus")
 
 
+def pipe_bend(bend_radius: float, pipe_radius: float, azimuth_range: tuple[float, float]) -> NurbsSurface:
+    """A pipe bend: the torus of ``bend_radius`` about the z axis and tube radius ``pipe_radius``
+    over ``azimuth_range`` (less than pi), as a modeller revolves it: ``u`` round the tube (a
+    rational circle of 9 control points, only C0 at its quarter points), ``v`` along the bend."""
+    circle, weights = _circle(9)
+    profile = np.stack([bend_radius + pipe_radius * circle[:, 0], pipe_radius * circle[:, 1]], axis=1)
+    return revolve_by(profile, weights, _CIRCLE_KNOTS, 2, azimuth_range, "pipe bend")
+
+
 def cylinder_panel(radius: float, z_range: tuple[float, float], angle_range: tuple[float, float],
                    name: str = "cylinder panel") -> NurbsSurface:
     """The exact panel ``(R cos a, R sin a, z)`` of a cylinder about the z axis, ``u = z`` over
@@ -327,15 +336,23 @@ def revolved_arc_panel(centre: tuple[float, float], radius: float, polar_range: 
     angles ``polar_range`` (from +z: the point ``(r + radius sin t, z + radius cos t)``) revolved
     about the z axis over ``azimuth_range``: a sphere zone (centre (0, 0)) or a torus patch.
     Degree 2 x 2, ``u`` along the arc, ``v`` about the axis, both over [0, 1]."""
-    (polar, polar_weights), (around, around_weights) = (_one_segment_arc(polar_range, name),
-                                                         _one_segment_arc(azimuth_range, name))  # fmt: skip
-    distance = centre[0] + radius * polar[:, 1]  # from the axis, at each arc control point
-    control = np.empty((3, 3, 3))
-    control[..., 0] = distance[:, None] * around[None, :, 0]
-    control[..., 1] = distance[:, None] * around[None, :, 1]
-    control[..., 2] = (centre[1] + radius * polar[:, 0])[:, None]
-    knots = [0.0, 0.0, 0.0, 1.0, 1.0, 1.0]
-    return NurbsSurface((2, 2), knots, knots, control, polar_weights[:, None] * around_weights[None, :], name)
+    polar, weights = _one_segment_arc(polar_range, name)
+    profile = np.stack([centre[0] + radius * polar[:, 1], centre[1] + radius * polar[:, 0]], axis=1)
+    return revolve_by(profile, weights, np.array([0.0, 0.0, 0.0, 1.0, 1.0, 1.0]), 2, azimuth_range, name)
+
+
+def revolve_by(profile: np.ndarray, profile_weights: np.ndarray, profile_knots: np.ndarray, profile_degree: int,
+               azimuth_range: tuple[float, float], name: str) -> NurbsSurface:
+    """The exact surface of revolution about the z axis of a rational profile ``(m, 2)`` of
+    ``(radius, z)`` points over ``azimuth_range`` (less than pi: one rational quadratic segment):
+    ``u`` along the profile, ``v`` about the axis over [0, 1]."""
+    around, around_weights = _one_segment_arc(azimuth_range, name)
+    control = np.empty((len(profile), 3, 3))
+    control[..., 0] = profile[:, None, 0] * around[None, :, 0]
+    control[..., 1] = profile[:, None, 0] * around[None, :, 1]
+    control[..., 2] = profile[:, None, 1]
+    weights = np.asarray(profile_weights)[:, None] * around_weights[None, :]
+    return NurbsSurface((profile_degree, 2), profile_knots, [0.0, 0.0, 0.0, 1.0, 1.0, 1.0], control, weights, name)
 
 
 def beam_faces(lo, hi, sections: int, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[NurbsSurface]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import REPO
 
 from bhem_hpc.geometry.nurbs import revolve, revolved_arc_panel
 from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface, on_uniform_knots
@@ -146,3 +147,51 @@ def test_what_rational_pieces_cannot_do_is_refused_naming_the_key(comm, shared_t
     path = _tube_scene(comm, shared_tmp_path, body, effects)
     with pytest.raises(SceneError, match=message):
         load_any_scene(path)
+
+
+def test_the_pipe_elbow_job_is_its_cad_model_exactly():
+    """jobs/pipe-elbow.toml: the revolved bend's one part in four exact pieces sharing their seams."""
+    scene = load_any_scene(REPO / "jobs" / "pipe-elbow.toml")
+    report = scene.cad_models[0]
+    assert report["parts"] == 1 and report["patches"] == 4 and report["fit_error_m"] < 1e-15
+    assert [len(record.shared) for record in scene.interfaces] == [10] * 4  # 8 spans along the bend, degree 2
+    assert all(isinstance(body.surface, RationalBSplineSurface) and body.surface.grid.n1 == 4 for body in scene.bodies)
+
+
+def test_a_rational_ring_dropped_by_ipc_rests_on_the_floor_without_crossing_it(comm, shared_tmp_path):
+    """A rubber ring (a CAD tube on its side, 2 cm above the floor) falls onto a plane collider by
+    incremental potential contact on its rational pieces: no output frame crosses the floor, and the
+    ring comes to lie on it."""
+    if comm.rank == 0:
+        tube = revolve(np.array([[0.05, -0.05], [0.05, 0.05]]), np.ones(2), np.array([0.0, 0.0, 1.0, 1.0]), 1, "ring")
+        lying = tube.control[..., [2, 1, 0]] + [0.0, 0.0, 0.07]  # the axis along x, the lowest line at z = 0.02
+        write_parts(shared_tmp_path / "ring.igs", [tube.with_control(lying)])
+        (shared_tmp_path / "scene.toml").write_text("""
+[time]
+dt = 0.005
+steps = 30
+[output]
+every = 5
+[[colliders]]
+type = "plane"
+point = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+friction = 0.3
+[[bodies]]
+name = "ring"
+type = "cad_shell"
+file = "ring.igs"
+patches = [8, 2]
+discretization = "nurbs"
+material = { young = 1.0e6, poisson = 0.45, thickness = 2.0e-3, density = 1100.0 }
+effects = { gravity = [0.0, 0.0, -9.81], contact = { method = "ipc", collision_cells = 8 } }
+""")
+    comm.Barrier()
+    summary = run_scene(RunOptions(shared_tmp_path / "scene.toml", shared_tmp_path / "out", progress=False), comm)
+    assert summary["status"] == "completed"
+    lowest = []
+    for frame in range(7):
+        surfaces = [read_frame(shared_tmp_path / "out" / f"ring_0_{k}_0" / "surface.h5", frame)[0] for k in range(4)]
+        lowest.append(min(float(s.tessellate(6)[0][:, 2].min()) for s in surfaces))
+    assert lowest[0] == pytest.approx(0.02, abs=1e-12)
+    assert min(lowest) >= 0.0 and lowest[-1] < 1e-3, lowest

@@ -148,9 +148,9 @@ ROOF_MATERIAL = Material(4.32e8, 0.0, 0.25, 1.0)
 
 
 def roof(discretization: str, method: str | None, factor: float, splits: tuple[int, int] = (2, 2),
-         comm: MPI.Comm = MPI.COMM_SELF) -> tuple[float, float, Solve]:  # fmt: skip
+         comm: MPI.Comm = MPI.COMM_SELF, spans: int = 12) -> tuple[float, float, Solve]:  # fmt: skip
     """The Scordelis-Lo roof (R 25, L 50, 80 degrees, h 0.25, E 4.32e8, nu 0, self-weight 90 per
-    area, diaphragms at its ends) of 12 x 12 spans, as one patch (``method`` None) or ``splits``
+    area, diaphragms at its ends) of ``spans`` x ``spans`` in all, as one patch (``method`` None) or ``splits``
     patches (2 x 2: four meeting at one point): the free edge's midside deflection scaled to the
     load 90, the largest gap across the joints [m] and the solve. ``discretization`` "nurbs2" or
     "nurbs3": the exact cylinder in rational patches; else interpolated (cubic B-splines or Hermite)."""
@@ -164,10 +164,10 @@ def roof(discretization: str, method: str | None, factor: float, splits: tuple[i
         keys, joints = neighbours(splits)
         z, angle = np.linspace(0.0, 50.0, splits[0] + 1), np.linspace(50 * DEG, 130 * DEG, splits[1] + 1)
         rests = [on_uniform_knots(cylinder_panel(radius, (z[i], z[i + 1]), (angle[j], angle[j + 1])),
-                                  (12 // splits[0], 12 // splits[1]), int(discretization[-1]))
+                                  (spans // splits[0], spans // splits[1]), int(discretization[-1]))
                  for i, j in keys]  # fmt: skip
     else:
-        rests, keys, joints = patch_grid(position, ((0.0, 50.0), (50 * DEG, 130 * DEG)), splits, (12, 12),
+        rests, keys, joints = patch_grid(position, ((0.0, 50.0), (50 * DEG, 130 * DEG)), splits, (spans, spans),
                                          discretization)  # fmt: skip
     weight = Loads(area_loads=(AreaLoad((0.0, -load, 0.0)),))
 
@@ -295,10 +295,15 @@ def _static_table(rows: list[dict], case: str) -> list[str]:
     return lines
 
 
-def write_interfaces_page(docs: Path, out: Path, command: str, factors=FACTORS, hood_steps: int | None = None) -> Path:
-    """Measure every case and write ``docs/interfaces.md``, ``.json`` and ``.png``; returns the page."""
+def write_interfaces_page(docs: Path, out: Path, command: str, factors=FACTORS, hood_steps: int | None = None,
+                          roof_spans: tuple[int, ...] | None = None) -> Path:  # fmt: skip
+    """Measure every case and write ``docs/interfaces.md``, ``.json`` and ``.png``; returns the page
+    (``roof_spans``: the rational section's convergence rows, default its own)."""
+    from bhem_hpc.studies.rational_cases import ROOF_SPANS, rational_rows, rational_section  # builds on this module
+
     docs.mkdir(parents=True, exist_ok=True)
     rows = static_rows(tuple(factors))
+    rational = rational_rows(roof_spans or ROOF_SPANS)
     patches = []
     for discretization in DISCRETIZATIONS:
         for method in (None, *METHODS):
@@ -306,7 +311,8 @@ def write_interfaces_page(docs: Path, out: Path, command: str, factors=FACTORS, 
             patches.append({"discretization": discretization, "method": method or "one patch",
                             "departure": departure, **asdict(solve)})  # fmt: skip
     hood = [hood_job(method, out, hood_steps) for method in METHODS]
-    (docs / "interfaces.json").write_text(json.dumps({"static": rows, "patch_test": patches, "hood": hood}, indent=1))
+    (docs / "interfaces.json").write_text(json.dumps({"static": rows, "patch_test": patches, "hood": hood,
+                                                      "rational": rational}, indent=1))  # fmt: skip
     _plot(docs / "interfaces.png", rows)
     ones = {(r["case"], r["discretization"]): r["one_patch"] for r in rows}
     at_default = max((abs(r["difference"]) for r in rows if r["factor"] == DEFAULT_PENALTY and not r["failure"]),
@@ -353,6 +359,7 @@ def write_interfaces_page(docs: Path, out: Path, command: str, factors=FACTORS, 
         "",
         *_static_table(rows, "roof"),
         "",
+        *rational_section(rational),
         "## Patch test across the joint",
         "",
         "A strip of two halves (3 x 2 spans each) pulled by a uniform traction, alpha = 1e3: the largest",

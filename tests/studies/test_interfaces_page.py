@@ -14,7 +14,8 @@ def test_the_interfaces_page_measures_both_methods_on_every_case(tmp_path):
     """At one penalty factor and 2 steps of the hood: shared edges have no gap and fewer unknowns,
     the patch test's departure by shared edges is the one patch's and the penalty's 100 times it,
     and every row is written."""
-    page = write_interfaces_page(tmp_path / "docs", tmp_path / "runs", "test", factors=(1e3,), hood_steps=2)
+    page = write_interfaces_page(tmp_path / "docs", tmp_path / "runs", "test", factors=(1e3,), hood_steps=2,
+                                 roof_spans=(6,))  # fmt: skip
     record = json.loads((tmp_path / "docs" / "interfaces.json").read_text())
     static = {(r["case"], r["discretization"], r["method"]): r for r in record["static"]}
     assert len(static) == 8 and not any(r["failure"] for r in static.values())
@@ -29,5 +30,11 @@ def test_the_interfaces_page_measures_both_methods_on_every_case(tmp_path):
                                                                        rel=1e-3)  # fmt: skip
         assert departures[(discretization, "coupled")] > 50 * departures[(discretization, "shared")]
     assert [h["status"] for h in record["hood"]] == ["completed", "completed"]
+    # exact rational patches: at 6 x 6 spans the exact and the interpolated cubic cylinder lie within
+    # 1e-2 of the reference (measured 9.2e-3 and 7.8e-3); joined rational patches give one patch's values
+    roof = {r["discretization"]: abs(r["error"]) for r in record["rational"]["roof_convergence"]}
+    assert roof["nurbs3"] < 1e-2 and roof["bspline3"] < 1e-2 and set(roof) == {"nurbs2", "nurbs3", "bspline3"}, roof
+    joined = record["rational"]["joined"]
+    assert len(joined) == 6 and all(not r["failure"] and abs(r["difference"]) < 1e-3 for r in joined), joined
     text = page.read_text()
     assert text.count("\n| bspline3 | shared | 1e+03 |") == 2 and (tmp_path / "docs" / "interfaces.png").exists()

@@ -37,13 +37,6 @@ class NurbsParts(Protocol):
 
 
 @dataclass(frozen=True)
-class ShellParts:
-    """A rational shell's surface as the NURBS part the ray tracer intersects exactly."""
-
-    parts: list[NurbsSurface]
-
-
-@dataclass(frozen=True)
 class TrimmedSurface:
     """A shell's surface drawn only where its trim loops keep it (:mod:`bhem_hpc.geometry.trim`).
 
@@ -82,30 +75,60 @@ def _corner_points(body: Drawable) -> np.ndarray:
     return body.nodal[..., 0, :].reshape(-1, 3)
 
 
+def _span_tracer(surface: HermiteSurface):
+    """``trace(origins, directions) -> (span, u, v, tau, normal)``: each ray's first hit on the
+    shell's spans (span -1: none), its local coordinates, its distance in units of the ray's
+    direction and the (unnormalized) normal there. Polynomial shells: their bicubic nets in a BVH;
+    rational ones: their rational Bezier patches, intersected exactly."""
+    if isinstance(surface, RationalBSplineSurface):
+        grid, width = surface.grid, surface.degree + 1
+        nets = surface.homogeneous_nets().reshape(grid.n1 * grid.n2, width, width, 4)
+
+        def trace_rational(origins: np.ndarray, directions: np.ndarray):
+            length = np.linalg.norm(directions, axis=1)
+            hits = rational_bezier.first_hits(nets, origins, directions / length[:, None], np.zeros(len(length)),
+                                              np.full(len(length), np.inf))  # fmt: skip
+            normal, hit = np.zeros((len(length), 3)), hits.patch >= 0
+            _, x_s, x_t = rational_bezier.evaluate(nets[hits.patch[hit]], hits.s[hit], hits.t[hit])
+            normal[hit] = np.cross(x_s, x_t)
+            return hits.patch, hits.s, hits.t, np.where(hit, hits.tau / length, np.inf), normal
+
+        return trace_rational
+    nets = surface.bezier_nets()
+    bvh = PatchBVH(nets)
+
+    def trace_polynomial(origins: np.ndarray, directions: np.ndarray):
+        hits = trace_rays(bvh, origins, directions)
+        normal, hit = np.zeros((len(directions), 3)), hits.patch >= 0
+        hit_nets, u, v = nets[hits.patch[hit]], hits.u[hit], hits.v[hit]
+        normal[hit] = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
+        return hits.patch, hits.u, hits.v, hits.tau, normal
+
+    return trace_polynomial
+
+
 def _trace_shell(body: HermiteSurface | TrimmedSurface, eye: np.ndarray, directions: np.ndarray):
-    """:func:`_trace` of a shell's bicubic nets; a trimmed shell's rays pass its trimmed-away hits."""
+    """:func:`_trace` of a shell's spans; a trimmed shell's rays pass its trimmed-away hits."""
     surface, loops = (body.surface, body.loops) if isinstance(body, TrimmedSurface) else (body, None)
     tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
-    nets, grid = surface.bezier_nets(), surface.grid
-    bvh = PatchBVH(nets)
+    grid, trace = surface.grid, _span_tracer(surface)
     origins = np.array(np.broadcast_to(eye, directions.shape), dtype=float)
     travelled = np.zeros(len(directions))  # along each ray's direction, to where it starts again
     pending = np.arange(len(directions))
     for _ in range(MAX_TRIM_PASSES if loops is not None else 1):
-        hits = trace_rays(bvh, origins[pending], directions[pending])
-        hit = hits.patch >= 0
+        span, u, v, hit_tau, hit_normal = trace(origins[pending], directions[pending])
+        hit = span >= 0
         kept = hit.copy()
         if loops is not None and np.any(hit):
-            p1, p2 = np.divmod(hits.patch[hit], grid.n2)
-            xi = np.column_stack([grid.xi1_range[0] + (p1 + hits.u[hit]) * grid.h1,
-                                  grid.xi2_range[0] + (p2 + hits.v[hit]) * grid.h2])  # fmt: skip
+            p1, p2 = np.divmod(span[hit], grid.n2)
+            xi = np.column_stack([grid.xi1_range[0] + (p1 + u[hit]) * grid.h1,
+                                  grid.xi2_range[0] + (p2 + v[hit]) * grid.h2])  # fmt: skip
             kept[hit] = inside(loops, xi)
         rays = pending[kept]
-        hit_nets, u, v = nets[hits.patch[kept]], hits.u[kept], hits.v[kept]
-        tau[rays] = (travelled[rays] + hits.tau[kept]) * np.linalg.norm(directions[rays], axis=1)
-        normal[rays] = np.cross(evaluate_many(hit_nets, u, v, du=1), evaluate_many(hit_nets, u, v, dv=1))
+        tau[rays] = (travelled[rays] + hit_tau[kept]) * np.linalg.norm(directions[rays], axis=1)
+        normal[rays] = hit_normal[kept]
         passing = hit & ~kept
-        pending, step = pending[passing], hits.tau[passing] * (1.0 + TRIM_PASS_OFFSET) + TRIM_PASS_OFFSET
+        pending, step = pending[passing], hit_tau[passing] * (1.0 + TRIM_PASS_OFFSET) + TRIM_PASS_OFFSET
         origins[pending] += step[:, None] * directions[pending]
         travelled[pending] += step
         if not len(pending):
@@ -116,8 +139,6 @@ def _trace_shell(body: HermiteSurface | TrimmedSurface, eye: np.ndarray, directi
 def _trace(body: Drawable, eye: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each ray's distance to its first hit on the body ``(R,)`` (inf: none) and the unit normal there ``(R, 3)``."""
     tau, normal = np.full(len(directions), np.inf), np.zeros((len(directions), 3))
-    if isinstance(body, RationalBSplineSurface):  # a rational shell: its rational Bezier patches
-        body = ShellParts([body.nurbs()])
     if not isinstance(body, NurbsParts):  # a shell's surface (Hermite or B-spline): bicubic nets
         tau, normal = _trace_shell(body, eye, directions)
     else:

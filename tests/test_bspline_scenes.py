@@ -53,7 +53,7 @@ def test_spline_scene_runs_writes_frames_and_restarts_exactly(comm, shared_tmp_p
     ("edit", "message"),
     [
         (lambda s: s.replace('discretization = "bspline2"', 'discretization = "bspline4"'),
-         r"key 'surface.discretization' must be one of \('hermite', 'bspline2', 'bspline3'\), got 'bspline4'"),
+         r"key 'surface.discretization' must be one of \('hermite', 'bspline2', 'bspline3', 'nurbs'\), got 'bspline4'"),
         (lambda s: s.replace('kinds = ["x"]', 'kinds = ["d1"]'),
          r"table 'constraints\[1\]': constraint kinds \(1,\) must be a non-empty subset of \('x',\)"),
         (lambda s: s.replace('corners = ["min_min"]', "nodes = [[1, 1]]"),

@@ -35,7 +35,7 @@ def create_discretization(surface: HermiteSurface | BSplineSurface, comm: MPI.Co
     """The discretization whose DOFs are the surface's data: Hermite nodal data or control points
     (with their weights for a rational surface)."""
     if isinstance(surface, RationalBSplineSurface):
-        return RationalBSplineDiscretization(surface.grid, surface.degree, surface.weights, comm)
+        return RationalBSplineDiscretization(surface.grid, surface.degree, surface.weights, comm, surface.knots)
     if isinstance(surface, BSplineSurface):
         return BSplineDiscretization(surface.grid, surface.degree, comm)
     if isinstance(surface, HermiteSurface):

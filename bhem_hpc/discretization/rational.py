@@ -13,29 +13,51 @@ its derivatives follow by the chain rule through the linear map ``Y -> Y / W``.
 Point bases (loads, probes, joints, collision meshes) are rational, ``phi_b / W`` and its
 quotient-rule derivatives, so they act on the open ``Y`` values as the polynomial bases act on
 positions.
+
+A part's own non-uniform knots need nothing else: on each of the grid's uniform spans the basis,
+as a function of the span's local coordinate, is still a polynomial of degree ``p`` (the part's
+Bezier extraction), so it lies in ``Q_p`` too; its Greville points need not be DOF points, so
+open values go back to control points by least squares over the DOF points (exact for the
+fields of the space).
 """
 
 from __future__ import annotations
 
 import dolfinx.fem
 import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
 from mpi4py import MPI
 
 from bhem_hpc.discretization.bspline import BSplineDiscretization
 from bhem_hpc.discretization.protocol import DiscretizationError
+from bhem_hpc.geometry.bspline import Knots, point_weights
 from bhem_hpc.geometry.rational_bspline import RationalBSplinePatches, RationalBSplineSurface
 from bhem_hpc.geometry.surface import ParameterGrid
+
+
+def _same_knots(first: Knots | None, second: Knots | None) -> bool:
+    """Whether two surfaces' non-uniform knots (None: uniform) are the same."""
+    first, second = first or (None, None), second or (None, None)
+    return all((a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+               for a, b in zip(first, second, strict=True))  # fmt: skip
 
 
 class RationalBSplineDiscretization(BSplineDiscretization):
     """Degree-``p`` rational B-splines (p = 2 or 3) with fixed ``weights (c1, c2)`` on ``grid``."""
 
-    def __init__(self, grid: ParameterGrid, degree: int, weights: np.ndarray, comm: MPI.Comm = MPI.COMM_WORLD):
+    def __init__(self, grid: ParameterGrid, degree: int, weights: np.ndarray, comm: MPI.Comm = MPI.COMM_WORLD,
+                 knots: Knots | None = None):  # fmt: skip
         super().__init__(grid, degree, comm)
         self.weights = np.asarray(weights, dtype=float)
         if self.weights.shape != self.control_shape:
             raise DiscretizationError(f"weights must have shape {self.control_shape}, got {self.weights.shape}")
-        self.patches = RationalBSplinePatches(grid, self.degree, self.weights)
+        self.knots = knots
+        self.patches = RationalBSplinePatches(grid, self.degree, self.weights, knots)
+        if knots is not None:  # the part's own basis on the grid's spans
+            p1, p2, t1, t2 = grid.locate(self.block_points[:, 0], self.block_points[:, 1])
+            self._rows, self._weights = point_weights(grid, self.degree, p1, p2, t1, t2, knots=knots)
+        self._normal_solve = None
         flat = self.weights.ravel()
         # E_w: the B-spline basis at the DOF points times the weights (the homogeneous map)
         self._weights = self._weights * flat[self._rows]
@@ -46,17 +68,34 @@ class RationalBSplineDiscretization(BSplineDiscretization):
     # -- surface <-> layouts ---------------------------------------------------------------------
     def _check(self, surface: RationalBSplineSurface) -> None:
         if (not isinstance(surface, RationalBSplineSurface) or surface.grid != self.grid
-                or surface.degree != self.degree or not np.array_equal(surface.weights, self.weights)):  # fmt: skip
+                or surface.degree != self.degree or not np.array_equal(surface.weights, self.weights)
+                or not _same_knots(surface.knots, self.knots)):  # fmt: skip
             raise DiscretizationError(f"the surface is not a degree-{self.degree} rational B-spline on {self.grid} "
-                                      f"with these weights (got {type(surface).__name__})")  # fmt: skip
+                                      f"with these weights and knots (got {type(surface).__name__})")  # fmt: skip
 
     def surface_of_entries(self, entries: np.ndarray) -> RationalBSplineSurface:
         return RationalBSplineSurface(self.grid, self.degree, np.asarray(entries).reshape(*self.control_shape, 3),
-                                      self.weights)  # fmt: skip
+                                      self.weights, self.knots)  # fmt: skip
 
     def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
-        """Collective: the control points of the field whose homogeneous open values are given."""
-        return super().open_to_entries(open_array) / self.weights.reshape(-1, 1)
+        """Collective: the control points of the field whose homogeneous open values are given:
+        interpolated at the Greville points on uniform knots; on a part's own knots (whose Greville
+        points need not be DOF points) the least-squares fit over every owned DOF point, exact for
+        the fields of the space."""
+        if self.knots is None:
+            return super().open_to_entries(open_array) / self.weights.reshape(-1, 1)
+        owned = self.num_owned_blocks
+        parts = self.comm.allgather((self._rows[:owned], self._weights[:owned],
+                                     np.asarray(open_array).reshape(-1, 3)[:owned]))  # fmt: skip
+        rows, values, data = (np.concatenate(column) for column in zip(*parts, strict=True))
+        if self._normal_solve is None:  # E_w^T E_w, factorized once (the same on every rank)
+            width = rows.shape[1]
+            matrix = scipy.sparse.csr_matrix((values.ravel(), rows.ravel(), np.arange(len(rows) + 1) * width),
+                                             shape=(len(rows), self.num_entries))  # fmt: skip
+            self._normal_solve = (matrix, scipy.sparse.linalg.factorized((matrix.T @ matrix).tocsc()))
+        matrix, solve = self._normal_solve  # E_w holds the weights: its solution is the control points
+        right = matrix.T @ data
+        return np.stack([solve(right[:, c]) for c in range(3)], axis=1)
 
     # -- the position the forms see ----------------------------------------------------------------
     def position_map(self):

@@ -137,10 +137,43 @@ def _local_controls(spans: int, degree: int, periodic: bool) -> np.ndarray:
     return np.mod(index, spans) if periodic else index
 
 
-def _direction(grid: ParameterGrid, degree: int, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
+@lru_cache(maxsize=64)
+def _knot_extraction(knots: tuple[float, ...], degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bezier extraction matrices ``(spans, p + 1, p + 1)`` and local control indices ``(spans,
+    p + 1)`` of a clamped knot vector whose interior knots appear once (its spans in order)."""
+    knots_array = np.asarray(knots)
+    samples = (np.arange(degree + 1) + 0.5) / (degree + 1)
+    inverse = np.linalg.inv(bernstein(samples, degree))
+    starts = np.arange(degree, len(knots) - degree - 1)
+    out = np.empty((len(starts), degree + 1, degree + 1))
+    for s, k in enumerate(starts):
+        a, b = knots_array[k], knots_array[k + 1]
+        out[s] = (inverse @ basis_functions(knots_array, degree, int(k), a + samples * (b - a))).T
+    return out, (starts - degree)[:, None] + np.arange(degree + 1)[None, :]
+
+
+#: Per direction the knot vector of a surface whose knot spans are not all of one length (None:
+#: uniform): its spans are still the grid's uniform ones in the surface's parameters, each mapped
+#: affinely onto its knot interval.
+Knots = tuple[np.ndarray | None, np.ndarray | None]
+
+
+def span_extraction(grid: ParameterGrid, degree: int, axis: int,
+               knots: Knots | None = None) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
     """Extraction matrices, local control indices and span width of one direction."""
     spans, periodic, h = (grid.n1, grid.periodic1, grid.h1) if axis == 0 else (grid.n2, grid.periodic2, grid.h2)
+    if knots is not None and knots[axis] is not None:
+        return (*_knot_extraction(tuple(float(k) for k in knots[axis]), degree), h)
     return _extraction(spans, degree, periodic), _local_controls(spans, degree, periodic), h
+
+
+def bezier_extraction(control: np.ndarray, first: tuple, second: tuple) -> np.ndarray:
+    """The Bezier nets ``(n1, n2, p + 1, p + 1, d)`` of every span of data ``control (c1, c2, d)``
+    per control point, given each direction's :func:`span_extraction` (extraction matrices, local
+    controls, ...): ``P[p1, p2] = C1[p1]^T control[local1[p1]][:, local2[p2]] C2[p2]``."""
+    (c1, local1, *_), (c2, local2, *_) = first, second
+    patches = control[local1[:, None, :, None], local2[None, :, None, :]]  # (n1, n2, p+1, p+1, d)
+    return np.einsum("aik,abijc,bjl->abklc", c1, patches, c2)
 
 
 def point_weights(
@@ -152,19 +185,21 @@ def point_weights(
     t2: np.ndarray,
     d1: int = 0,
     d2: int = 0,
+    knots: Knots | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Linear map from control points to points (or parametric derivatives ``d^(d1+d2) x /
     dxi1^d1 dxi2^d2``): ``x = sum_j weights[..., j] control.reshape(-1, 3)[index[..., j]]``.
 
     Args:
         p1, p2: span indices, shape ``S``; t1, t2: local coordinates in [0, 1], shape ``S``.
+        knots: non-uniform knot vectors (:data:`Knots`), or None.
 
     Returns:
         ``(index, weights)`` of shape ``S + ((p + 1)^2,)``, index ``i1 * c2 + i2``.
     """
     p1, p2, t1, t2 = np.broadcast_arrays(np.asarray(p1), np.asarray(p2), np.asarray(t1, float), np.asarray(t2, float))
-    c1, local1, h1 = _direction(grid, degree, 0)
-    c2, local2, h2 = _direction(grid, degree, 1)
+    c1, local1, h1 = span_extraction(grid, degree, 0, knots)
+    c2, local2, h2 = span_extraction(grid, degree, 1, knots)
     n1 = np.einsum("...ij,...j->...i", c1[p1], bernstein(t1, degree, d1)) / h1**d1  # S + (p + 1,)
     n2 = np.einsum("...ij,...j->...i", c2[p2], bernstein(t2, degree, d2)) / h2**d2
     columns = control_count(grid.n2, degree, grid.periodic2)
@@ -261,6 +296,10 @@ class BSplineSurface:
         """Raise :class:`SurfaceError` if ``|a1 x a2|`` vanishes at a Gauss point of any span."""
         check_regular(self, quadrature_points, name)
 
+    def model_parameters(self, xi1: np.ndarray, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The parameters of the model the surface was made from (the same: its knots are uniform)."""
+        return np.asarray(xi1, dtype=float), np.asarray(xi2, dtype=float)
+
     def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> BSplineSurface:
         """The surface moved rigidly: ``x -> R x + t`` (control points transform alike)."""
         rotation = np.asarray(rotation, float)
@@ -268,7 +307,7 @@ class BSplineSurface:
 
     # -- evaluation ---------------------------------------------------------------------------
     def _direction(self, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
-        return _direction(self.grid, self.degree, axis)
+        return span_extraction(self.grid, self.degree, axis)
 
     def point_weights(
         self, p1: np.ndarray, p2: np.ndarray, t1: np.ndarray, t2: np.ndarray, d1: int = 0, d2: int = 0
@@ -291,11 +330,7 @@ class BSplineSurface:
     def bezier_control_points(self) -> np.ndarray:
         """Exact Bezier control nets of every span, ``(n1, n2, p + 1, p + 1, 3)`` indexed
         ``[p1, p2, k1, k2, component]``; the span is ``sum_k1,k2 B_k1(t1) B_k2(t2) P[k1, k2]``."""
-        c1, local1, _ = self._direction(0)
-        c2, local2, _ = self._direction(1)
-        # P[p1, p2] = C1[p1]^T  control[local1[p1]][:, local2[p2]]  C2[p2]
-        patches = self.control[local1[:, None, :, None], local2[None, :, None, :]]  # (n1, n2, p+1, p+1, 3)
-        return np.einsum("aik,abijc,bjl->abklc", c1, patches, c2)
+        return bezier_extraction(self.control, self._direction(0), self._direction(1))
 
     def bezier_nets(self) -> np.ndarray:
         """Bicubic Bezier nets ``(n1 * n2, 4, 4, 3)`` (order ``p1 * n2 + p2``), degree-elevated
@@ -449,16 +484,16 @@ DEFAULT_QUADRATURE = {"hermite": 4, "bspline2": 3, "bspline3": 4, "nurbs2": 3, "
 
 
 def surface_from_nodal(discretization: str, grid: ParameterGrid, nodal: np.ndarray,
-                       weights: np.ndarray | None = None):  # fmt: skip
+                       weights: np.ndarray | None = None, knots: Knots | None = None):  # fmt: skip
     """The surface of nodal data ``(m1, m2, kinds, 3)`` (``surface.nodal``) for a discretization name
-    (``nurbs2``, ``nurbs3``: with the control points' ``weights``)."""
+    (``nurbs2``, ``nurbs3``: with the control points' ``weights`` and the part's own ``knots``)."""
     from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
     from bhem_hpc.geometry.surface import HermiteSurface
 
     if discretization == "hermite":
         return HermiteSurface(grid, nodal)
     if discretization in ("nurbs2", "nurbs3") and weights is not None:
-        return RationalBSplineSurface(grid, int(discretization[-1]), np.asarray(nodal)[:, :, 0], weights)
+        return RationalBSplineSurface(grid, int(discretization[-1]), np.asarray(nodal)[:, :, 0], weights, knots)
     if discretization in DISCRETIZATIONS:
         return BSplineSurface(grid, int(discretization[-1]), np.asarray(nodal)[:, :, 0])
     raise SurfaceError(f"discretization {discretization!r} does not exist; expected one of {DISCRETIZATIONS}")

@@ -498,7 +498,8 @@ def shell_fit_error(part: NurbsSurface, shell, samples: int = 4) -> float:
     u = np.linspace(*grid.xi1_range, grid.n1 * samples + 1)
     v = np.linspace(*grid.xi2_range, grid.n2 * samples + 1)
     uu, vv = (a.ravel() for a in np.meshgrid(u, v, indexing="ij"))
-    return float(np.linalg.norm(shell.evaluate(uu, vv).x - part.evaluate(uu, vv)[0], axis=1).max())
+    return float(np.linalg.norm(shell.evaluate(uu, vv).x - part.evaluate(*shell.model_parameters(uu, vv))[0],
+                                axis=1).max())  # fmt: skip
 
 
 def graph_parts(height, x_range: tuple[float, float], y_range: tuple[float, float], splits: tuple[int, int],

@@ -1,4 +1,4 @@
-"""Rational B-spline (NURBS) shell surfaces of degree 2 and 3 on uniform knots, numpy only.
+"""Rational B-spline (NURBS) shell surfaces of degree 2 and 3 on a uniform grid of spans, numpy only.
 
 ``x(xi) = sum_i w_i N_i(xi) q_i / W(xi)`` with ``W = sum_i w_i N_i``: the B-spline basis ``N`` of
 :mod:`.bspline` (uniform knot spans, clamped or periodic), control points ``q (c1, c2, 3)`` and
@@ -8,9 +8,10 @@ derivative of it, is still a *linear* map of the control points (the rational ba
 for polynomial B-splines; the homogeneous field ``Y = W x = sum_i N_i (w_i q_i)`` is a polynomial
 B-spline, what the shell discretization assembles (:mod:`bhem_hpc.discretization.rational`).
 
-CAD parts (:class:`~bhem_hpc.geometry.nurbs.NurbsSurface`) on knots that lie on a uniform lattice,
-each interior knot once, are carried over exactly by knot insertion (:func:`on_uniform_knots`):
-circular arcs, cylinders, spheres and tori from revolutions, and the uniform parts modellers write.
+CAD parts (:class:`~bhem_hpc.geometry.nurbs.NurbsSurface`), each interior knot once, are carried
+over exactly by knot insertion (:func:`on_uniform_knots`): onto the uniform lattice of their knots
+where they have one (circular arcs, cylinders, spheres and tori from revolutions, the uniform parts
+modellers write), else on their own knots, the shell's uniform spans mapped onto the knot intervals.
 """
 
 from __future__ import annotations
@@ -19,7 +20,14 @@ import math
 
 import numpy as np
 
-from bhem_hpc.geometry.bspline import BSplinePatches, BSplineSurface, point_weights
+from bhem_hpc.geometry.bspline import (
+    BSplinePatches,
+    BSplineSurface,
+    Knots,
+    bezier_extraction,
+    point_weights,
+    span_extraction,
+)
 from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
@@ -31,7 +39,7 @@ LATTICE_TOLERANCE = 1e-9
 
 
 def rational_point_weights(grid: ParameterGrid, degree: int, weights: np.ndarray, p1, p2, t1, t2, d1: int = 0,
-                           d2: int = 0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                           d2: int = 0, knots: Knots | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The rational counterpart of :func:`~bhem_hpc.geometry.bspline.point_weights`: ``(index,
     values)`` of shape ``S + ((p + 1)^2,)`` with ``d^(d1+d2) x / dxi1^d1 dxi2^d2 = sum_j values[..., j]
     control.reshape(-1, 3)[index[..., j]]`` for ``d1 + d2 <= 2``, ``weights (c1, c2)``.
@@ -44,7 +52,7 @@ def rational_point_weights(grid: ParameterGrid, degree: int, weights: np.ndarray
     flat_weights = np.asarray(weights, dtype=float).ravel()
 
     def homogeneous(a: int, b: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        index, values = point_weights(grid, degree, p1, p2, t1, t2, a, b)
+        index, values = point_weights(grid, degree, p1, p2, t1, t2, a, b, knots)
         weighted = values * flat_weights[index]
         return index, weighted, weighted.sum(axis=-1, keepdims=True)
 
@@ -75,13 +83,19 @@ class RationalBSplinePatches(BSplinePatches):
     (the impulse response's continuous collision detection) do not run on rational shells.
     """
 
-    def __init__(self, grid: ParameterGrid, degree: int, weights: np.ndarray):
+    def __init__(self, grid: ParameterGrid, degree: int, weights: np.ndarray, knots: Knots | None = None):
         super().__init__(grid, degree)
         self.weights = np.asarray(weights, dtype=float)
+        self.knots = knots
 
     def point_entries(self, p1, p2, t1, t2) -> tuple[np.ndarray, np.ndarray]:
         """``(index, values)``, shape ``S + ((p + 1)^2,)`` each: the rational basis at the points."""
-        return rational_point_weights(self.grid, self.degree, self.weights, p1, p2, t1, t2)
+        return rational_point_weights(self.grid, self.degree, self.weights, p1, p2, t1, t2, knots=self.knots)
+
+    def patch_entries(self) -> np.ndarray:
+        """``(n1 * n2, (p + 1)^2)`` the control points that determine each span."""
+        p1, p2 = (a.ravel() for a in np.meshgrid(np.arange(self.grid.n1), np.arange(self.grid.n2), indexing="ij"))
+        return point_weights(self.grid, self.degree, p1, p2, 0.5, 0.5, knots=self.knots)[0]
 
     def bezier_nets(self, entries: np.ndarray) -> np.ndarray:
         raise SurfaceError("a rational B-spline span has no polynomial Bezier net: contact between steps "
@@ -89,16 +103,25 @@ class RationalBSplinePatches(BSplinePatches):
 
 
 class RationalBSplineSurface(BSplineSurface):
-    """A rational tensor-product B-spline surface of degree 2 or 3 on a uniform knot grid.
+    """A rational tensor-product B-spline surface of degree 2 or 3 on a uniform grid of spans.
 
     Args:
         grid, degree, control: as :class:`~bhem_hpc.geometry.bspline.BSplineSurface`.
         weights: ``(c1, c2)`` positive, finite weights of the control points (fixed: they are
             geometry of the parametrization, not unknowns).
+        knots: per direction None (the grid's uniform knots) or the part's own clamped knot vector
+            ``(n + 2 p + 1,)`` over the grid's range, each interior knot once: the surface's
+            parameter ``s`` then runs over the grid's uniform spans, span ``k`` mapped affinely onto
+            knot interval ``k`` (:meth:`model_parameters`). Every energy is the same in either
+            parameter; the basis is the part's own.
     """
 
-    def __init__(self, grid: ParameterGrid, degree: int, control: np.ndarray, weights: np.ndarray):
+    def __init__(self, grid: ParameterGrid, degree: int, control: np.ndarray, weights: np.ndarray,
+                 knots: Knots | None = None):  # fmt: skip
         super().__init__(grid, degree, control)
+        self.knots: Knots | None = None if knots is None or (knots[0] is None and knots[1] is None) else (
+            *(None if k is None else _checked_knots(k, n, degree, r, axis) for axis, (k, n, r) in
+              enumerate(zip(knots, (grid.n1, grid.n2), (grid.xi1_range, grid.xi2_range), strict=True))),)  # fmt: skip
         weights = np.asarray(weights, dtype=float)
         if weights.shape != self.control.shape[:2]:
             raise SurfaceError(f"weights must have shape {self.control.shape[:2]}, got {weights.shape}")
@@ -115,37 +138,82 @@ class RationalBSplineSurface(BSplineSurface):
 
     def with_nodal(self, nodal: np.ndarray) -> RationalBSplineSurface:
         """The surface with other control points ``(c1, c2, 1, 3)`` and the same weights."""
-        return RationalBSplineSurface(self.grid, self.degree, np.asarray(nodal)[:, :, 0, :], self.weights)
+        return RationalBSplineSurface(self.grid, self.degree, np.asarray(nodal)[:, :, 0, :], self.weights, self.knots)
 
     def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> RationalBSplineSurface:
         """The surface moved rigidly (control points transform alike; the weights stay)."""
         moved = super().transformed(rotation, translation)
-        return RationalBSplineSurface(self.grid, self.degree, moved.control, self.weights)
+        return RationalBSplineSurface(self.grid, self.degree, moved.control, self.weights, self.knots)
+
+    def _direction(self, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
+        return span_extraction(self.grid, self.degree, axis, self.knots)
 
     def point_weights(self, p1, p2, t1, t2, d1: int = 0, d2: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """See :func:`rational_point_weights`."""
-        return rational_point_weights(self.grid, self.degree, self.weights, p1, p2, t1, t2, d1, d2)
-
-    def bezier_control_points(self) -> np.ndarray:
-        raise SurfaceError("a rational B-spline surface has no polynomial Bezier nets (see homogeneous_nets)")
+        return rational_point_weights(self.grid, self.degree, self.weights, p1, p2, t1, t2, d1, d2, self.knots)
 
     def homogeneous_nets(self) -> np.ndarray:
         """Exact rational Bezier nets ``(n1, n2, p + 1, p + 1, 4)`` of every span: ``(w x, w y, w z, w)``."""
-        homogeneous = BSplineSurface(self.grid, self.degree, self.control * self.weights[..., None])
-        weight = BSplineSurface(self.grid, self.degree, np.repeat(self.weights[..., None], 3, axis=2))
-        return np.concatenate([homogeneous.bezier_control_points(), weight.bezier_control_points()[..., :1]], axis=-1)
+        homogeneous = np.concatenate([self.control * self.weights[..., None], self.weights[..., None]], axis=-1)
+        return bezier_extraction(homogeneous, self._direction(0), self._direction(1))
+
+    def bezier_nets(self) -> np.ndarray:
+        raise SurfaceError("a rational B-spline surface has no polynomial Bezier nets (see homogeneous_nets)")
+
+    def model_parameters(self, xi1: np.ndarray, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The part's own parameters of the surface's parameters (the same where the knots are uniform)."""
+        return tuple(_to_knots(x, k, lo, h) for x, k, (lo, _), h in
+                     zip((xi1, xi2), self.knots or (None, None), (self.grid.xi1_range, self.grid.xi2_range),
+                         (self.grid.h1, self.grid.h2), strict=True))  # fmt: skip
+
+    def surface_parameters(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`model_parameters`: the surface's parameters of the part's own."""
+        return tuple(_from_knots(x, k, lo, h) for x, k, (lo, _), h in
+                     zip((u, v), self.knots or (None, None), (self.grid.xi1_range, self.grid.xi2_range),
+                         (self.grid.h1, self.grid.h2), strict=True))  # fmt: skip
 
     def nurbs(self, name: str = "shell") -> NurbsSurface:
-        """The same surface as a :class:`NurbsSurface` (clamped directions only): for the ray tracer
-        and for writing the model back."""
+        """The same surface as a :class:`NurbsSurface` over its own knots (clamped directions only):
+        for writing the model back."""
         if self.grid.periodic1 or self.grid.periodic2:
             raise SurfaceError("a periodic rational B-spline surface has no clamped NURBS form here")
-        knots = [_clamped_knots(n, self.degree, lo, hi) for n, (lo, hi) in
-                 ((self.grid.n1, self.grid.xi1_range), (self.grid.n2, self.grid.xi2_range))]  # fmt: skip
+        knots = [_clamped_knots(n, self.degree, lo, hi) if own is None else own for n, (lo, hi), own in
+                 zip((self.grid.n1, self.grid.n2), (self.grid.xi1_range, self.grid.xi2_range),
+                     self.knots or (None, None), strict=True)]  # fmt: skip
         return NurbsSurface((self.degree, self.degree), *knots, self.control, self.weights, name)
 
     def save(self, path) -> None:
         raise SurfaceError("rational B-spline surfaces are written as NURBS parts (IGES or .3dm), not as .npz")
+
+
+def _checked_knots(knots, spans: int, degree: int, domain: tuple[float, float], axis: int) -> np.ndarray:
+    """A clamped knot vector of ``spans`` nonempty spans over ``domain``, each interior knot once."""
+    knots = np.asarray(knots, dtype=float)
+    interior = knots[degree + 1 : -degree - 1] if len(knots) > 2 * degree + 2 else knots[:0]
+    ends = np.any(knots[: degree + 1] != domain[0]) or np.any(knots[-degree - 1 :] != domain[1])
+    if knots.shape != (spans + 2 * degree + 1,) or ends or np.any(np.diff(np.r_[domain[0], interior, domain[1]]) <= 0):
+        raise SurfaceError(f"knots of direction {axis + 1} must be {spans + 2 * degree + 1} clamped knots over "
+                           f"{domain}, each interior one once, got {knots.tolist()}")  # fmt: skip
+    return knots
+
+
+def _to_knots(x: np.ndarray, knots: np.ndarray | None, lo: float, h: float) -> np.ndarray:
+    """Parameters on uniform spans of width ``h`` from ``lo``, mapped onto the knot intervals."""
+    if knots is None:
+        return np.asarray(x, dtype=float)
+    breaks = np.unique(knots)
+    position = (np.asarray(x, dtype=float) - lo) / h
+    span = np.clip(np.floor(position).astype(np.int64), 0, len(breaks) - 2)
+    return breaks[span] + (position - span) * (breaks[span + 1] - breaks[span])
+
+
+def _from_knots(x: np.ndarray, knots: np.ndarray | None, lo: float, h: float) -> np.ndarray:
+    """The inverse of :func:`_to_knots`."""
+    if knots is None:
+        return np.asarray(x, dtype=float)
+    breaks = np.unique(knots)
+    span = np.clip(np.searchsorted(breaks, x, side="right") - 1, 0, len(breaks) - 2)
+    return lo + h * (span + (np.asarray(x, dtype=float) - breaks[span]) / (breaks[span + 1] - breaks[span]))
 
 
 def _clamped_knots(spans: int, degree: int, lo: float, hi: float) -> np.ndarray:
@@ -183,37 +251,64 @@ def _elevated(knots: np.ndarray, degree: int, homogeneous: np.ndarray, target: i
     return np.r_[np.full(target + 1, lo), np.full(target + 1, hi)], homogeneous
 
 
-def _lattice(knots: np.ndarray, degree: int, name: str, where: str) -> tuple[int, float, float]:
-    """``(spans, lo, hi)``: the coarsest uniform lattice holding every interior knot of a clamped
-    direction, each interior knot appearing once."""
+def _distinct_interior(knots: np.ndarray, degree: int, name: str, where: str) -> tuple[np.ndarray, float, float]:
+    """``(interior knots, lo, hi)`` of a clamped direction whose interior knots appear once."""
     lo, hi = float(knots[degree]), float(knots[-degree - 1])
     if np.any(knots[: degree + 1] != lo) or np.any(knots[-degree - 1 :] != hi):
         raise SurfaceError(f"{where}: the {name} knots are not clamped (degree + 1 equal end knots): "
                            f"{knots.tolist()}")  # fmt: skip
-    interior = knots[degree + 1 : -degree - 1]
-    values, counts = np.unique(interior, return_counts=True)
+    values, counts = np.unique(knots[degree + 1 : -degree - 1], return_counts=True)
     if np.any(counts > 1):
         raise SurfaceError(f"{where}: the {name} knot {values[counts > 1][0]!r} repeats {counts[counts > 1][0]} "
                            f"times; a shell patch needs each interior knot once (the part is not C{degree - 1} "
                            "there: split it at that knot into parts)")  # fmt: skip
+    return values, lo, hi
+
+
+def _lattice(values: np.ndarray, lo: float, hi: float) -> int | None:
+    """The coarsest uniform lattice (spans over [lo, hi], at most :data:`MAX_LATTICE`) holding every
+    interior knot, or None."""
     relative = (values - lo) / (hi - lo)
     for spans in range(1, MAX_LATTICE + 1):
         if np.all(np.abs(relative * spans - np.rint(relative * spans)) <= LATTICE_TOLERANCE * spans):
-            return spans, lo, hi
-    raise SurfaceError(f"{where}: the {name} knots {values.tolist()} lie on no uniform lattice of at most "
-                       f"{MAX_LATTICE} spans: rational shell patches need uniform knot spans")  # fmt: skip
+            return spans
+    return None
+
+
+def _refined(knots: np.ndarray, degree: int, homogeneous: np.ndarray, wanted: int, name: str,
+             where: str) -> tuple[np.ndarray | None, int, tuple[float, float], np.ndarray]:  # fmt: skip
+    """One direction refined by knot insertion to at least ``wanted`` spans: onto the uniform
+    lattice of its knots where that lattice is at most twice as fine as needed (then ``knots`` is
+    None: the uniform knots), else by cutting each of its spans into equal parts (its own knots)."""
+    values, lo, hi = _distinct_interior(knots, degree, name, where)
+    existing = len(values) + 1
+    lattice = _lattice(values, lo, hi)
+    if lattice is not None and lattice * math.ceil(wanted / lattice) <= 2 * max(wanted, existing):
+        count = lattice * math.ceil(wanted / lattice)
+        new = [v for v in lo + (hi - lo) * np.arange(1, count) / count
+               if not np.any(np.abs(knots - v) <= LATTICE_TOLERANCE * (hi - lo))]  # fmt: skip
+        uniform = True
+    else:
+        parts = math.ceil(wanted / existing)
+        breaks = np.r_[lo, values, hi]
+        new = [a + (b - a) * k / parts for a, b in zip(breaks[:-1], breaks[1:], strict=True) for k in range(1, parts)]
+        count, uniform = existing * parts, False
+    for value in new:
+        knots, homogeneous = insert_knot(knots, degree, homogeneous, value)
+    return None if uniform else knots, count, (lo, hi), homogeneous
 
 
 def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | None = None) -> RationalBSplineSurface:
-    """The part, exactly, as a rational B-spline of ``degree`` (default: its higher degree) on
-    uniform knot spans: the coarsest lattice holding its knots, refined uniformly (by knot
-    insertion) to at least ``spans`` per direction (a multiple of the lattice). A direction of a
-    lower degree is raised exactly where it is one span (a ruled part's straight direction, an arc).
+    """The part, exactly, as a rational B-spline of ``degree`` (default: its higher degree) on a
+    uniform grid of at least ``spans`` knot spans per direction (knot insertion): on the uniform
+    lattice of its knots where it has a fine enough one (circles, revolutions, most modellers'
+    uniform parts), else on its own knots, each span cut into equal parts, the grid's uniform spans
+    mapped onto them (:class:`RationalBSplineSurface`'s ``knots``). A direction of a lower degree is
+    raised exactly where it is one span (a ruled part's straight direction, an arc).
 
     Raises:
         SurfaceError: naming the part: a degree other than 2 or 3, a lower-degree direction of
-            several spans, knots that are not clamped, repeat inside the domain, or lie on no
-            uniform lattice.
+            several spans, knots that are not clamped or repeat inside the domain.
     """
     p = max(part.degrees) if degree is None else degree
     if p not in (2, 3) or p < max(part.degrees):
@@ -224,17 +319,13 @@ def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | N
     for axis, (direction, name, wanted) in enumerate(((part.u, "u", spans[0]), (part.v, "v", spans[1]))):
         moved = np.moveaxis(homogeneous, axis, 0)
         knots, moved = _elevated(direction.knots, direction.degree, moved, p, name, part.name)
-        lattice, lo, hi = _lattice(knots, p, name, part.name)
-        count = lattice * math.ceil(int(wanted) / lattice)
-        for value in lo + (hi - lo) * np.arange(1, count) / count:
-            if not np.any(np.abs(knots - value) <= LATTICE_TOLERANCE * (hi - lo)):
-                knots, moved = insert_knot(knots, p, moved, value)
+        own, count, domain, moved = _refined(knots, p, moved, int(wanted), name, part.name)
         homogeneous = np.moveaxis(moved, 0, axis)
-        directions.append((count, (lo, hi)))
-    (n1, range1), (n2, range2) = directions
+        directions.append((own, count, domain))
+    (knots1, n1, range1), (knots2, n2, range2) = directions
     grid = ParameterGrid(n1, n2, range1, range2, False, False)
     weights = homogeneous[..., 3]
-    return RationalBSplineSurface(grid, p, homogeneous[..., :3] / weights[..., None], weights)
+    return RationalBSplineSurface(grid, p, homogeneous[..., :3] / weights[..., None], weights, (knots1, knots2))
 
 
 def _kinks(knots: np.ndarray, degree: int) -> list[int]:

@@ -195,6 +195,10 @@ class HermiteSurface:
     #: The discretization whose DOFs are this surface's data.
     discretization = "hermite"
 
+    def model_parameters(self, xi1: np.ndarray, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The parameters of the model the surface was made from (the same)."""
+        return np.asarray(xi1, dtype=float), np.asarray(xi2, dtype=float)
+
     def bezier_nets(self) -> np.ndarray:
         """Exact bicubic Bezier nets ``(n1 * n2, 4, 4, 3)`` of every patch (order ``p1 * n2 + p2``)."""
         return self.bezier_control_points().reshape(-1, 4, 4, 3)

@@ -193,8 +193,11 @@ class SurfaceTimeSeries:
         self.file.attrs["xi2_range"] = grid.xi2_range
         self.file.attrs["periodic"] = [grid.periodic1, grid.periodic2]
         self.file.attrs["discretization"] = rest.discretization
-        if isinstance(rest, RationalBSplineSurface):  # the weights complete the exact surface
+        if isinstance(rest, RationalBSplineSurface):  # the weights (and own knots) complete the exact surface
             self.file["weights"] = rest.weights
+            for axis, knots in enumerate(rest.knots or (None, None)):
+                if knots is not None:
+                    self.file[f"knots{axis + 1}"] = knots
         if trim is not None:
             self.file["trim_loops"] = np.concatenate(trim.loops)
             self.file["trim_loop_sizes"] = np.array([len(loop) for loop in trim.loops], dtype=np.int64)
@@ -333,7 +336,8 @@ def read_frame(h5_path: str | Path, frame: int = -1) -> tuple[HermiteSurface, fl
         )
         discretization = str(a.get("discretization", "hermite"))
         weights = f["weights"][()] if "weights" in f else None
-        return surface_from_nodal(discretization, grid, nodal, weights), time
+        knots = tuple(f[name][()] if name in f else None for name in ("knots1", "knots2"))
+        return surface_from_nodal(discretization, grid, nodal, weights, knots), time
 
 
 def read_trim_loops(h5_path: str | Path) -> list[np.ndarray] | None:

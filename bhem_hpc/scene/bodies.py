@@ -195,7 +195,7 @@ def _check_follower_loads(scene: BodiesScene) -> None:
     if len(scene.bodies) < 2:
         return
     for k, body in enumerate(scene.bodies):
-        if body.effects.pressure is not None:
+        if isinstance(body, Scene) and body.effects.pressure is not None:  # a shell's (solids take none)
             raise SceneError(f"{scene.path}: body '{scene.names[k]}': key 'effects.pressure' = "
                              f"{body.effects.pressure!r}: a follower pressure has no potential, and a scene of "
                              f"{len(scene.bodies)} bodies (or patches) is solved on its total potential; use "

@@ -23,8 +23,8 @@ Each part is interpolated on the chosen discretization over its own parameter do
 (:func:`~bhem_hpc.geometry.nurbs.shell_surface`): exact for B-spline parts of that degree on
 uniform knots, otherwise an approximation whose largest distance from the part the scene reports.
 ``"nurbs"`` keeps every part exactly, rational and of its own degree (2 or 3), on its knots refined
-to at least ``patches`` uniform spans
-(:func:`~bhem_hpc.geometry.rational_bspline.on_uniform_knots`, which says why a part cannot be so).
+to at least ``patches`` spans (:func:`~bhem_hpc.geometry.rational_bspline.on_uniform_knots`, which
+says why a part cannot be so); a part only C0 at some knots is cut there into pieces.
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from bhem_hpc.bodies.shared_dofs import SharedDofs
 from bhem_hpc.geometry.interfaces import EDGES, FoundJoint, find_joints
@@ -162,7 +164,7 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
         for patch in _patches_of(t, k, part, patches, discretization, constraints[k]):
             surface = {"kind": "cad_part", "file": file, "part": k, "patches": patch.patches,
                        "discretization": discretization} | ({} if patch.piece is None else {"piece": patch.piece})
-            trim = {} if part.loops is None else {"trim": {"loops": [loop.tolist() for loop in part.loops]}}
+            trim = {} if part.loops is None else {"trim": {"loops": _shell_loops(part, patch, discretization)}}
             try:
                 bodies.append(parse_shell(path, shared | {"surface": surface, "constraints": patch.constraints} | trim,
                                           other_bodies_in_contact))  # fmt: skip
@@ -193,6 +195,18 @@ def parse_cad_shell(path: Path, tables: dict, other_bodies_in_contact: bool = Fa
     shared = tuple(_joint_dofs(t, dofs, joint, bodies, tolerance) for joint in joints)
     return CadShell(tuple(bodies), tuple(joints), tuple(free), penalty, fit, target, tuple(sorted(trimmed)), shared,
                     tuple(labels))
+
+
+def _shell_loops(part, patch: _Patch, discretization: str) -> list[list[list[float]]]:
+    """A trimmed part's loops in its patch's parameters: the part's own, but for exact patches on
+    the part's non-uniform knots, whose uniform spans map onto the knot intervals (each loop vertex
+    mapped; the loops are dense polylines)."""
+    if discretization != "nurbs":
+        return [loop.tolist() for loop in part.loops]
+    from bhem_hpc.geometry.rational_bspline import on_uniform_knots
+
+    shell = on_uniform_knots(patch.surface, tuple(patch.patches))
+    return [np.column_stack(shell.surface_parameters(loop[:, 0], loop[:, 1])).tolist() for loop in part.loops]
 
 
 @dataclass(frozen=True)

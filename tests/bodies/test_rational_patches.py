@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import REPO
 
-from bhem_hpc.geometry.nurbs import revolve
+from bhem_hpc.geometry.nurbs import NurbsSurface, revolve
 from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.io import read_frame
 from bhem_hpc.io.cad import write_parts
@@ -101,6 +101,8 @@ def test_a_revolved_tube_is_cut_at_its_kinks_into_exact_pieces_that_share_their_
     [
         ("", ", contact = { }, self_collision = true",
          r"key 'effects.contact.method' = 'impulse'.*rational.*use method = 'ipc'"),
+        ("", ", pressure = 1.0e3", r"body 'tube_0_0_0': key 'effects.pressure' = 1000.0: a follower pressure has no "
+         r"potential, and a scene of 4 bodies \(or patches\) is solved on its total potential"),
         ('[[bodies.constraints]]\npart = 0\ntype = "pin"\nnodes = [[0, 0]]\n', "",
          r"key 'constraints\[1\].nodes' must be 'edge' or 'corners': part 0 is cut at its C0 knots into 4 x 1 pieces"),
     ],
@@ -157,3 +159,37 @@ effects = { gravity = [0.0, 0.0, -9.81], contact = { method = "ipc", collision_c
         lowest.append(min(float(s.tessellate(6)[0][:, 2].min()) for s in surfaces))
     assert lowest[0] == pytest.approx(0.02, abs=1e-12)
     assert min(lowest) >= 0.0 and lowest[-1] < 1e-3, lowest
+
+
+def test_a_part_on_its_own_knots_with_a_kink_is_two_exact_pieces_sharing_the_kink(comm, shared_tmp_path):
+    """A quadratic part folded along u = 0.5 (a double knot: only C0 there) whose v knots (0.13,
+    0.41, 1/pi + 0.5) lie on no uniform lattice: two pieces on the part's own v knots, within
+    round-off of the part, sharing the fold's control points."""
+    knots_u = [0, 0, 0, 0.25, 0.5, 0.5, 0.75, 1, 1, 1]
+    knots_v = [0, 0, 0, 0.13, 0.41, 1 / np.pi + 0.5, 1, 1, 1]
+    i, j = np.meshgrid(np.linspace(0, 1, 7), np.linspace(0, 1, 6), indexing="ij")
+    control = np.stack([i, j, 0.3 * np.abs(i - 0.5) + 0.02 * np.sin(7 * j)], -1)  # a roof fold at u = 0.5
+    part = NurbsSurface((2, 2), knots_u, knots_v, control, 1.0 + 0.2 * np.cos(3 * i + j), "folded loft")
+    if comm.rank == 0:
+        shared_tmp_path.mkdir(exist_ok=True)
+        write_parts(shared_tmp_path / "fold.igs", [part])
+        (shared_tmp_path / "scene.toml").write_text("""
+[time]
+dt = 0.001
+steps = 1
+[[bodies]]
+name = "fold"
+type = "cad_shell"
+file = "fold.igs"
+patches = [4, 6]
+discretization = "nurbs"
+material = { young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }
+""")
+    comm.Barrier()
+    scene = load_any_scene(shared_tmp_path / "scene.toml")
+    assert scene.names == ("fold_0_0_0", "fold_0_1_0") and scene.cad_models[0]["fit_error_m"] < 1e-13
+    for body in scene.bodies:
+        assert body.surface.knots[0] is None and body.surface.knots[1] is not None  # u: lattice; v: its own
+        assert (body.surface.grid.n1, body.surface.grid.n2) == (2, 8)  # 4 spans asked per part: 2 a piece
+    (record,) = scene.interfaces
+    assert record.shared is not None and len(record.shared) == 8 + 2  # the fold's control points

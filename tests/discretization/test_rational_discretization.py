@@ -17,7 +17,7 @@ from bhem_hpc.discretization import RationalBSplineDiscretization, create_discre
 from bhem_hpc.geometry import bspline as B
 from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.nurbs import NurbsSurface, cylinder_panel, revolved_arc_panel
-from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface, on_uniform_knots
+from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface, insert_knot, on_uniform_knots
 from bhem_hpc.geometry.trim import Trim
 from bhem_hpc.model import bcs
 from bhem_hpc.model.material import Material
@@ -42,9 +42,25 @@ def torus_area() -> float:
         AROUND[1] - AROUND[0])
 
 
-@pytest.fixture(params=[2, 3])
+def uneven_torus_patch(degree: int) -> NurbsSurface:
+    """The torus patch raised to ``degree`` with knots at 1/pi along u and 0.27 along v: on no
+    uniform lattice, so the shell keeps these knots."""
+    patch = on_uniform_knots(torus_patch(), (1, 1), degree).nurbs()
+    knots, homogeneous = insert_knot(patch.u.knots, degree, patch.homogeneous, 1 / math.pi)
+    knots_v, moved = insert_knot(patch.v.knots, degree, np.moveaxis(homogeneous, 1, 0), 0.27)
+    homogeneous = np.moveaxis(moved, 0, 1)
+    return NurbsSurface((degree, degree), knots, knots_v, homogeneous[..., :3] / homogeneous[..., 3:],
+                        homogeneous[..., 3], "uneven torus patch")  # fmt: skip
+
+
+@pytest.fixture(params=[(2, "uniform"), (3, "uniform"), (2, "own knots"), (3, "own knots")])
 def rest(request) -> RationalBSplineSurface:
-    return on_uniform_knots(torus_patch(), (4, 3), request.param)
+    degree, knots = request.param
+    if knots == "uniform":
+        return on_uniform_knots(torus_patch(), (4, 3), degree)
+    surface = on_uniform_knots(uneven_torus_patch(degree), (4, 3))
+    assert surface.knots is not None and surface.knots[0] is not None and surface.knots[1] is not None
+    return surface
 
 
 def test_the_torus_patch_lies_on_the_torus(rest):
@@ -79,8 +95,8 @@ def test_the_mass_is_the_exact_surfaces(comm, rest):
     exact = MATERIAL.density * MATERIAL.thickness * torus_area()
     mass = total_mass(ShellModel(rest, MATERIAL, comm=comm))
     part = torus_patch()
-    interpolated = B.from_callable(lambda u, v: part.evaluate(u.ravel(), v.ravel())[0].reshape(*u.shape, 3),
-                                   rest.grid, degree=rest.degree)  # fmt: skip
+    interpolated = B.from_callable(lambda u, v: part.evaluate(*rest.model_parameters(u.ravel(), v.ravel()))[0]
+                                   .reshape(*u.shape, 3), rest.grid, degree=rest.degree)  # fmt: skip
     approximate = total_mass(ShellModel(interpolated, MATERIAL, comm=comm))
     assert abs(mass / exact - 1) < 1e-7 and abs(approximate / exact - 1) > 10 * abs(mass / exact - 1)
 

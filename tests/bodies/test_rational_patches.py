@@ -44,34 +44,31 @@ def test_the_pinched_hemisphere_in_rational_patches_gives_the_one_patch_value(co
     assert 0.092 < one < 0.095, one
 
 
-def _tube_scene(comm, folder, body: str = "", effects: str = "") -> object:
-    """A steel tube (r 0.1 m, 1 m, 1 mm) revolved in CAD (a rational circle, C0 at its quarter
-    points), clamped at z = 0 and loaded sideways by 1 kPa, as a cad_shell of exact patches."""
+def _cad_scene(comm, folder, name: str, parts: list, patches: str, head: str, body: str):
+    """``folder/scene.toml``: ``head`` (time, output, colliders), then a cad_shell body ``name`` of
+    exact patches read from ``parts`` (written to ``<name>.igs``) on ``patches``, with ``body``'s
+    keys and tables."""
     if comm.rank == 0:
         folder.mkdir(exist_ok=True)
-        tube = revolve(np.array([[0.1, 0.0], [0.1, 1.0]]), np.ones(2), np.array([0.0, 0.0, 1.0, 1.0]), 1, "tube")
-        write_parts(folder / "tube.igs", [tube])
-        (folder / "scene.toml").write_text(f"""
-[time]
-dt = 0.001
-steps = 4
-[output]
-every = 2
-[[bodies]]
-name = "tube"
-type = "cad_shell"
-file = "tube.igs"
-patches = [8, 4]
-discretization = "nurbs"
-material = {{ young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }}
+        write_parts(folder / f"{name}.igs", parts)
+        table = f'name = "{name}"\ntype = "cad_shell"\nfile = "{name}.igs"\npatches = {patches}\n'
+        (folder / "scene.toml").write_text(f'{head}\n[[bodies]]\n{table}discretization = "nurbs"\n{body}')
+    comm.Barrier()
+    return folder / "scene.toml"
+
+
+def _tube_scene(comm, folder, body: str = "", effects: str = ""):
+    """A steel tube (r 0.1 m, 1 m, 1 mm) revolved in CAD (a rational circle, C0 at its quarter
+    points), clamped at z = 0 and loaded sideways by 1 kPa, as a cad_shell of exact patches."""
+    tube = revolve(np.array([[0.1, 0.0], [0.1, 1.0]]), np.ones(2), np.array([0.0, 0.0, 1.0, 1.0]), 1, "tube")
+    return _cad_scene(comm, folder, "tube", [tube], "[8, 4]", "[time]\ndt = 0.001\nsteps = 4\n[output]\nevery = 2",
+                      f"""material = {{ young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }}
 effects = {{ area_loads = [{{ force = [0.0, 1.0e3, 0.0] }}]{effects} }}
 [[bodies.constraints]]
 part = 0
 type = "clamp"
 edge = "xi2_min"
-{body}""")
-    comm.Barrier()
-    return folder / "scene.toml"
+{body}""")  # fmt: skip
 
 
 def test_a_revolved_tube_is_cut_at_its_kinks_into_exact_pieces_that_share_their_seams(comm, shared_tmp_path):
@@ -126,32 +123,14 @@ def test_a_rational_ring_dropped_by_ipc_rests_on_the_floor_without_crossing_it(c
     """A rubber ring (a CAD tube on its side, 2 cm above the floor) falls onto a plane collider by
     incremental potential contact on its rational pieces: no output frame crosses the floor, and the
     ring comes to lie on it."""
-    if comm.rank == 0:
-        tube = revolve(np.array([[0.05, -0.05], [0.05, 0.05]]), np.ones(2), np.array([0.0, 0.0, 1.0, 1.0]), 1, "ring")
-        lying = tube.control[..., [2, 1, 0]] + [0.0, 0.0, 0.07]  # the axis along x, the lowest line at z = 0.02
-        write_parts(shared_tmp_path / "ring.igs", [tube.with_control(lying)])
-        (shared_tmp_path / "scene.toml").write_text("""
-[time]
-dt = 0.005
-steps = 30
-[output]
-every = 5
-[[colliders]]
-type = "plane"
-point = [0.0, 0.0, 0.0]
-normal = [0.0, 0.0, 1.0]
-friction = 0.3
-[[bodies]]
-name = "ring"
-type = "cad_shell"
-file = "ring.igs"
-patches = [8, 2]
-discretization = "nurbs"
-material = { young = 1.0e6, poisson = 0.45, thickness = 2.0e-3, density = 1100.0 }
-effects = { gravity = [0.0, 0.0, -9.81], contact = { method = "ipc", collision_cells = 8 } }
-""")
-    comm.Barrier()
-    summary = run_scene(RunOptions(shared_tmp_path / "scene.toml", shared_tmp_path / "out", progress=False), comm)
+    tube = revolve(np.array([[0.05, -0.05], [0.05, 0.05]]), np.ones(2), np.array([0.0, 0.0, 1.0, 1.0]), 1, "ring")
+    lying = tube.control[..., [2, 1, 0]] + [0.0, 0.0, 0.07]  # the axis along x, the lowest line at z = 0.02
+    floor = '[[colliders]]\ntype = "plane"\npoint = [0.0, 0.0, 0.0]\nnormal = [0.0, 0.0, 1.0]\nfriction = 0.3'
+    path = _cad_scene(comm, shared_tmp_path, "ring", [tube.with_control(lying)], "[8, 2]",
+                      f"[time]\ndt = 0.005\nsteps = 30\n[output]\nevery = 5\n{floor}",
+                      "material = { young = 1.0e6, poisson = 0.45, thickness = 2.0e-3, density = 1100.0 }\n"
+                      'effects = { gravity = [0.0, 0.0, -9.81], contact = { method = "ipc", collision_cells = 8 } }\n')
+    summary = run_scene(RunOptions(path, shared_tmp_path / "out", progress=False), comm)
     assert summary["status"] == "completed"
     lowest = []
     for frame in range(7):
@@ -170,23 +149,9 @@ def test_a_part_on_its_own_knots_with_a_kink_is_two_exact_pieces_sharing_the_kin
     i, j = np.meshgrid(np.linspace(0, 1, 7), np.linspace(0, 1, 6), indexing="ij")
     control = np.stack([i, j, 0.3 * np.abs(i - 0.5) + 0.02 * np.sin(7 * j)], -1)  # a roof fold at u = 0.5
     part = NurbsSurface((2, 2), knots_u, knots_v, control, 1.0 + 0.2 * np.cos(3 * i + j), "folded loft")
-    if comm.rank == 0:
-        shared_tmp_path.mkdir(exist_ok=True)
-        write_parts(shared_tmp_path / "fold.igs", [part])
-        (shared_tmp_path / "scene.toml").write_text("""
-[time]
-dt = 0.001
-steps = 1
-[[bodies]]
-name = "fold"
-type = "cad_shell"
-file = "fold.igs"
-patches = [4, 6]
-discretization = "nurbs"
-material = { young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }
-""")
-    comm.Barrier()
-    scene = load_any_scene(shared_tmp_path / "scene.toml")
+    path = _cad_scene(comm, shared_tmp_path, "fold", [part], "[4, 6]", "[time]\ndt = 0.001\nsteps = 1",
+                      "material = { young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }\n")
+    scene = load_any_scene(path)
     assert scene.names == ("fold_0_0_0", "fold_0_1_0") and scene.cad_models[0]["fit_error_m"] < 1e-13
     for body in scene.bodies:
         assert body.surface.knots[0] is None and body.surface.knots[1] is not None  # u: lattice; v: its own

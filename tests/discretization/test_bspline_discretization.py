@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import random_rotation
+from helpers import assert_closed_derivatives, closed_energy_and_gradient, random_rotation
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -46,21 +46,6 @@ def test_layouts_round_trip(comm, degree, rng):
     np.testing.assert_array_equal(disc.scatter_raw_dofs(raw), disc.surface_to_open(surface))
 
 
-def closed_energy_and_gradient(solver: ShellSolver, values: np.ndarray) -> tuple[float, np.ndarray]:
-    """Total potential and closed residual at owned closed values (collective)."""
-    problem = solver.problem
-    x = solver.x.duplicate()
-    f = solver.x.duplicate()
-    x.array[:] = values
-    problem.update_state(x)
-    energy = problem.potential_energy()
-    problem.assemble_residual(x, f)
-    gradient = f.array.copy()
-    x.destroy()
-    f.destroy()
-    return energy, gradient
-
-
 @pytest.mark.parametrize(("degree", "quadrature"), [(2, None), (3, None), (2, "reduced")])
 def test_closed_gradient_and_hessian_match_central_differences(comm, degree, quadrature, rng):
     """``E^T F(E x_c)`` and ``E^T J E`` against differences of the potential and of the residual in
@@ -71,28 +56,7 @@ def test_closed_gradient_and_hessian_match_central_differences(comm, degree, qua
                        quadrature_points=quadrature)  # fmt: skip
     with ShellSolver(model, prefix=f"bsfd{degree}_") as solver:
         disc = model.discretization
-        x0 = disc.surface_to_closed(state)
-        _, gradient = closed_energy_and_gradient(solver, x0)
-        solver.x.array[:] = x0
-        solver.problem.update_state(solver.x)
-        solver.problem.assemble_jacobian(solver.jacobian)
-        eps = 1e-6
-        for _ in range(4):
-            direction = comm.bcast(rng.normal(size=3 * disc.num_closed) if comm.rank == 0 else None)
-            local = direction[3 * disc.closed_offset : 3 * (disc.closed_offset + disc.num_owned_closed)]
-            plus, g_plus = closed_energy_and_gradient(solver, x0 + eps * local)
-            minus, g_minus = closed_energy_and_gradient(solver, x0 - eps * local)
-            slope = comm.allreduce(float(gradient @ local))
-            assert abs((plus - minus) / (2 * eps) - slope) <= 1e-6 * max(abs(slope), 1e-3)
-            d = solver.x.duplicate()
-            d.array[:] = local
-            jd = solver.x.duplicate()
-            solver.jacobian.mult(d, jd)
-            difference = (g_plus - g_minus) / (2 * eps)
-            scale = comm.allreduce(float(np.abs(jd.array).max()), op=MPI.MAX)
-            assert comm.allreduce(float(np.abs(jd.array - difference).max()), op=MPI.MAX) <= 1e-5 * scale
-            d.destroy()
-            jd.destroy()
+        assert_closed_derivatives(solver, disc, disc.surface_to_closed(state), rng, 4, comm)
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from dolfinx import fem
-from helpers import random_rotation
+from helpers import assert_closed_derivatives, closed_energy_and_gradient, random_rotation
 from mpi4py import MPI
 
 from bhem_hpc import forms
@@ -106,18 +106,6 @@ def total_mass(model: ShellModel) -> float:
     return model.comm.allreduce(fem.assemble_scalar(fem.form(model.in_unknowns(form))))
 
 
-def _energy_and_gradient(solver: ShellSolver, values: np.ndarray) -> tuple[float, np.ndarray]:
-    x, f = solver.x.duplicate(), solver.x.duplicate()
-    x.array[:] = values
-    solver.problem.update_state(x)
-    energy = solver.problem.potential_energy()
-    solver.problem.assemble_residual(x, f)
-    gradient = f.array.copy()
-    x.destroy()
-    f.destroy()
-    return energy, gradient
-
-
 def test_gradient_and_hessian_match_central_differences(comm, rest, rng):
     """The forms rewritten in the homogeneous unknowns: ``E_w^T F`` and ``E_w^T J E_w`` against
     differences of the potential and of the residual in control-point directions (a curved rest
@@ -126,27 +114,7 @@ def test_gradient_and_hessian_match_central_differences(comm, rest, rng):
     model = ShellModel(rest, MATERIAL, Loads(gravity=(0.0, 0.0, -9.81)), comm=comm, initial=state)
     with ShellSolver(model, prefix=f"ratfd{rest.degree}_") as solver:
         disc = model.discretization
-        x0 = disc.surface_to_closed(state)
-        _, gradient = _energy_and_gradient(solver, x0)
-        solver.x.array[:] = x0
-        solver.problem.update_state(solver.x)
-        solver.problem.assemble_jacobian(solver.jacobian)
-        eps = 1e-6
-        for _ in range(3):
-            direction = comm.bcast(rng.normal(size=3 * disc.num_closed) if comm.rank == 0 else None)
-            local = direction[3 * disc.closed_offset : 3 * (disc.closed_offset + disc.num_owned_closed)]
-            plus, g_plus = _energy_and_gradient(solver, x0 + eps * local)
-            minus, g_minus = _energy_and_gradient(solver, x0 - eps * local)
-            slope = comm.allreduce(float(gradient @ local))
-            assert abs((plus - minus) / (2 * eps) - slope) <= 1e-6 * max(abs(slope), 1e-3)
-            d, jd = solver.x.duplicate(), solver.x.duplicate()
-            d.array[:] = local
-            solver.jacobian.mult(d, jd)
-            scale = comm.allreduce(float(np.abs(jd.array).max()), op=MPI.MAX)
-            error = np.abs(jd.array - (g_plus - g_minus) / (2 * eps)).max()
-            assert comm.allreduce(float(error), op=MPI.MAX) <= 1e-5 * scale
-            d.destroy()
-            jd.destroy()
+        assert_closed_derivatives(solver, disc, disc.surface_to_closed(state), rng, 3, comm)
 
 
 def test_rigid_motions_have_no_energy(comm, rest, rng):
@@ -156,7 +124,7 @@ def test_rigid_motions_have_no_energy(comm, rest, rng):
     scale = MATERIAL.young * MATERIAL.thickness
     assert abs(energies["membrane"]) < 1e-12 * scale and abs(energies["bending"]) < 1e-12 * scale
     with ShellSolver(model, prefix="ratrigid_") as solver:
-        _, gradient = _energy_and_gradient(solver, model.discretization.surface_to_closed(moved))
+        _, gradient = closed_energy_and_gradient(solver, model.discretization.surface_to_closed(moved))
     assert comm.allreduce(float(np.abs(gradient).max(initial=0.0)), op=MPI.MAX) < 1e-9 * scale
 
 

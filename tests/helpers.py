@@ -199,6 +199,37 @@ def closed_energy_and_gradient(solver, values: np.ndarray) -> tuple[float, np.nd
     return energy, gradient
 
 
+def assert_falls_freely(rest, material, comm, steps: int, rtol: float) -> None:
+    """Implicit Euler under gravity alone (dt 10 ms): every control point of ``rest`` drops by
+    ``g dt^2 N (N + 1) / 2`` within ``rtol`` and keeps its x and y."""
+    from bhem_hpc.model.shell import Dynamics, Loads
+    from bhem_hpc.solver import ShellSolver
+    from bhem_hpc.solver.dynamics import TimeStepper
+
+    model = ShellModel(rest, material, Loads(gravity=(0.0, 0.0, -9.81)), comm=comm, dynamics=Dynamics(0.01))
+    with ShellSolver(model, prefix="fall_") as solver:
+        stepper = TimeStepper(model, solver)
+        for _ in range(steps):
+            stepper.advance()
+    moved = model.state_surface().control - rest.control
+    np.testing.assert_allclose(moved[..., 2], -9.81 * 0.01**2 * steps * (steps + 1) / 2, rtol=rtol)
+    np.testing.assert_allclose(moved[..., :2], 0.0, atol=1e-10)
+
+
+def assert_rigid_motion_has_no_energy(rest, moved, material, comm, quadrature=None) -> None:
+    """A shell moved rigidly from ``rest``: no membrane or bending energy (1e-12 of E t) and no
+    closed residual (1e-9 of E t)."""
+    from bhem_hpc.solver import ShellSolver
+
+    model = ShellModel(rest, material, comm=comm, initial=moved, quadrature_points=quadrature)
+    energies = model.energies()
+    scale = material.young * material.thickness
+    assert abs(energies["membrane"]) < 1e-12 * scale and abs(energies["bending"]) < 1e-12 * scale
+    with ShellSolver(model, prefix="rigid_") as solver:
+        _, gradient = closed_energy_and_gradient(solver, model.discretization.surface_to_closed(moved))
+    assert comm.allreduce(float(np.abs(gradient).max(initial=0.0)), op=MPI.MAX) < 1e-9 * scale
+
+
 def assert_closed_derivatives(solver, disc, x0: np.ndarray, rng, directions: int, comm) -> None:
     """The closed residual and Jacobian at owned closed values ``x0`` against central differences
     (eps 1e-6) of the potential and of the residual in ``directions`` random directions: the

@@ -299,7 +299,8 @@ def _refined(knots: np.ndarray, degree: int, homogeneous: np.ndarray, wanted: in
 
 
 def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | None = None) -> RationalBSplineSurface:
-    """The part, exactly, as a rational B-spline of ``degree`` (default: its higher degree) on a
+    """The part, exactly, as a rational B-spline of ``degree`` (default: its higher degree, at least
+    2: a bilinear part, as a modeller's planar face, is raised) on a
     uniform grid of at least ``spans`` knot spans per direction (knot insertion): on the uniform
     lattice of its knots where it has a fine enough one (circles, revolutions, most modellers'
     uniform parts), else on its own knots, each span cut into equal parts, the grid's uniform spans
@@ -310,7 +311,7 @@ def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | N
         SurfaceError: naming the part: a degree other than 2 or 3, a lower-degree direction of
             several spans, knots that are not clamped or repeat inside the domain.
     """
-    p = max(part.degrees) if degree is None else degree
+    p = max(2, *part.degrees) if degree is None else degree
     if p not in (2, 3) or p < max(part.degrees):
         raise SurfaceError(f"{part.name}: a rational shell patch has degree 2 or 3; the part has degrees "
                            f"{part.degrees}")  # fmt: skip

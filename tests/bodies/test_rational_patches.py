@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from helpers import REPO
 
-from bhem_hpc.geometry.nurbs import NurbsSurface, revolve
+from bhem_hpc.geometry.nurbs import NurbsSurface, box_faces, revolve
 from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.io import read_frame
 from bhem_hpc.io.cad import write_parts
@@ -158,3 +158,16 @@ def test_a_part_on_its_own_knots_with_a_kink_is_two_exact_pieces_sharing_the_kin
         assert (body.surface.grid.n1, body.surface.grid.n2) == (2, 8)  # 4 spans asked per part: 2 a piece
     (record,) = scene.interfaces
     assert record.shared is not None and len(record.shared) == 8 + 2  # the fold's control points
+
+
+def test_a_tray_of_bilinear_faces_becomes_quadratic_patches_sharing_its_folds(comm, shared_tmp_path):
+    """Five planar faces of a box as a modeller writes them (degree 1 x 1, one span): raised exactly
+    to quadratic patches; all eight folds conform and share their control points."""
+    faces = box_faces([0.0, 0.0, 0.0], [0.3, 0.2, 0.1], degree=1)[:5]
+    path = _cad_scene(comm, shared_tmp_path, "tray", faces, "[2, 2]", "[time]\ndt = 0.001\nsteps = 1",
+                      "material = { young = 2.0e11, poisson = 0.3, thickness = 1.0e-3, density = 7850.0 }\n")
+    scene = load_any_scene(path)
+    report = scene.cad_models[0]
+    assert len(report["joints"]) == 8 and len(report["free_edges"]) == 4 and report["fit_error_m"] < 1e-15
+    assert all(body.surface.degree == 2 and body.surface.knots is None for body in scene.bodies)
+    assert [len(record.shared) for record in scene.interfaces] == [4] * 8  # 2 spans a side, quadratic

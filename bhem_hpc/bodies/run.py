@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +30,7 @@ from bhem_hpc.bodies.solid import SolidBody, build_solid_model
 from bhem_hpc.errors import RunError
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.io import render_surface_png, write_checkpoint
+from bhem_hpc.io.cad import ShellPart, write_parts
 from bhem_hpc.io.interruption import Interruption, RunInterrupted
 from bhem_hpc.io.path_table import CsvTable, probe_columns, read_rows
 from bhem_hpc.io.render import TrimmedSurface
@@ -71,17 +73,25 @@ log = logging.getLogger(__name__)
 
 
 class BodiesOutput:
-    """Rank 0's files of a run of several bodies: each body's time series and probe table, and the
-    collection of all bodies' frames (``bodies.pvd``).
+    """Rank 0's files of a run of several bodies: each body's time series and probe table, the
+    collection of all bodies' frames (``bodies.pvd``), and each CAD shell's deformed model at every
+    frame (``<name>/frame_NNNNNN.igs``: its patches as NURBS parts, exact, trimmed where they are,
+    so the result opens in the modeller it came from).
 
     Args:
         continued: the checkpoint of the run continued in ``out`` (its frames and probe rows up to
             the checkpoint are kept), or None for a fresh ``out``.
+        cad_models: the CAD shells' reports (:meth:`CadShell.report`: ``body``, ``patch_bodies``).
     """
 
-    def __init__(self, out: Path, bodies: list[Body], continued: RestartPoint | None = None):
+    def __init__(self, out: Path, bodies: list[Body], continued: RestartPoint | None = None,
+                 cad_models: Sequence[dict] = ()):  # fmt: skip
         self.out = out
         self.names = [body.name for body in bodies]
+        self.bodies = bodies
+        self.cad_models = [(m["body"], [self.names.index(b) for b in m["patch_bodies"]]) for m in cad_models]
+        for model, _ in self.cad_models:
+            (out / model).mkdir(exist_ok=continued is not None)
         self.series = []
         continue_at = None if continued is None else float(continued.attrs["time"])
         for body in bodies:
@@ -98,6 +108,11 @@ class BodiesOutput:
         """A frame of every body at ``time_value``, and the collection listing every frame so far."""
         for series, surface in zip(self.series, surfaces, strict=True):
             series.write(time_value, surface)
+        for model, members in self.cad_models:
+            frame = len(self.series[members[0]].times) - 1
+            write_parts(self.out / model / f"frame_{frame:06d}.igs",
+                        [cad_part(surfaces[k], self.bodies[k], f"{model} {self.names[k].removeprefix(model + '_')}")
+                         for k in members])  # fmt: skip
         frames, parts = [], []
         for part, (name, series) in enumerate(zip(self.names, self.series, strict=True)):
             for t, file in series.frame_files():
@@ -108,6 +123,15 @@ class BodiesOutput:
     def close(self) -> None:
         for series in self.series:
             series.close()
+
+
+def cad_part(surface, body: Body, name: str) -> ShellPart:
+    """A patch's surface as the NURBS part of a model file, with its trim loops in the part's own
+    parameters where it is trimmed."""
+    trim = body.scene.trim if isinstance(body.scene, Scene) else None
+    loops = None if trim is None else tuple(np.column_stack(surface.model_parameters(loop[:, 0], loop[:, 1]))
+                                            for loop in trim.loops)  # fmt: skip
+    return ShellPart(surface.nurbs(name), loops)
 
 
 def _motions(scene: BodiesScene) -> list[PrescribedMotion]:
@@ -156,10 +180,10 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
 
         def start() -> BodiesOutput:
             if not continuing:
-                start_output_directory(options.out, list(scene.names))
+                start_output_directory(options.out, [*scene.names, *(m["body"] for m in scene.cad_models)])
             write_replacing(options.out / "scene.toml", scene_text)
             summary.write(options.out)
-            return BodiesOutput(options.out, bodies, checkpoint if continuing else None)
+            return BodiesOutput(options.out, bodies, checkpoint if continuing else None, scene.cad_models)
 
         if barrier is not None:
             summary.contact = {**barrier.summary(), "bodies": [b.name for b in bodies if b.scene.contact is not None]}

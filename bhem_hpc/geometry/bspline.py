@@ -61,6 +61,11 @@ def _check_spans(grid: ParameterGrid, degree: int) -> None:
             )
 
 
+def clamped_uniform_knots(spans: int, degree: int, lo: float, hi: float) -> np.ndarray:
+    """The clamped knot vector of ``spans`` uniform spans over ``[lo, hi]``."""
+    return np.concatenate([np.full(degree, lo), np.linspace(lo, hi, spans + 1), np.full(degree, hi)])
+
+
 def open_knots(spans: int, degree: int) -> np.ndarray:
     """The clamped uniform knot vector in span units: ``p + 1`` zeros, ``1 .. n - 1``, ``p + 1`` times ``n``."""
     return np.concatenate([np.zeros(degree), np.arange(spans + 1, dtype=float), np.full(degree, float(spans))])
@@ -299,6 +304,17 @@ class BSplineSurface:
     def model_parameters(self, xi1: np.ndarray, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The parameters of the model the surface was made from (the same: its knots are uniform)."""
         return np.asarray(xi1, dtype=float), np.asarray(xi2, dtype=float)
+
+    def nurbs(self, name: str = "shell"):
+        """The same surface as a NURBS part (clamped uniform knots, weights 1), for writing the model
+        back; periodic directions are refused."""
+        from bhem_hpc.geometry.nurbs import NurbsSurface  # the CAD geometry loads for CAD output only
+
+        if self.grid.periodic1 or self.grid.periodic2:
+            raise SurfaceError("a periodic B-spline surface has no clamped NURBS form here")
+        knots = [clamped_uniform_knots(n, self.degree, lo, hi) for n, (lo, hi) in
+                 ((self.grid.n1, self.grid.xi1_range), (self.grid.n2, self.grid.xi2_range))]  # fmt: skip
+        return NurbsSurface((self.degree, self.degree), *knots, self.control, None, name)
 
     def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> BSplineSurface:
         """The surface moved rigidly: ``x -> R x + t`` (control points transform alike)."""

@@ -25,6 +25,7 @@ from bhem_hpc.geometry.bspline import (
     BSplineSurface,
     Knots,
     bezier_extraction,
+    clamped_uniform_knots,
     point_weights,
     span_extraction,
 )
@@ -177,7 +178,7 @@ class RationalBSplineSurface(BSplineSurface):
         for writing the model back."""
         if self.grid.periodic1 or self.grid.periodic2:
             raise SurfaceError("a periodic rational B-spline surface has no clamped NURBS form here")
-        knots = [_clamped_knots(n, self.degree, lo, hi) if own is None else own for n, (lo, hi), own in
+        knots = [clamped_uniform_knots(n, self.degree, lo, hi) if own is None else own for n, (lo, hi), own in
                  zip((self.grid.n1, self.grid.n2), (self.grid.xi1_range, self.grid.xi2_range),
                      self.knots or (None, None), strict=True)]  # fmt: skip
         return NurbsSurface((self.degree, self.degree), *knots, self.control, self.weights, name)
@@ -214,11 +215,6 @@ def _from_knots(x: np.ndarray, knots: np.ndarray | None, lo: float, h: float) ->
     breaks = np.unique(knots)
     span = np.clip(np.searchsorted(breaks, x, side="right") - 1, 0, len(breaks) - 2)
     return lo + h * (span + (np.asarray(x, dtype=float) - breaks[span]) / (breaks[span + 1] - breaks[span]))
-
-
-def _clamped_knots(spans: int, degree: int, lo: float, hi: float) -> np.ndarray:
-    inner = np.linspace(lo, hi, spans + 1)
-    return np.concatenate([np.full(degree, lo), inner, np.full(degree, hi)])
 
 
 def insert_knot(knots: np.ndarray, degree: int, homogeneous: np.ndarray, value: float) -> tuple[np.ndarray, np.ndarray]:

@@ -155,6 +155,20 @@ class HermiteSurface:
         c = hermite.HERMITE_TO_BEZIER
         return np.matmul(np.kron(c, c), coeffs).reshape(g.n1, g.n2, 4, 4, 3)
 
+    def nurbs(self, name: str = "shell"):
+        """The same surface, exactly, as a bicubic NURBS part (weights 1, every interior node a knot
+        of multiplicity 3: the patches' Bezier nets side by side), for writing the model back."""
+        from bhem_hpc.geometry.nurbs import NurbsSurface  # the CAD geometry loads for CAD output only
+
+        g, nets = self.grid, self.bezier_control_points()
+        control = np.empty((3 * g.n1 + 1, 3 * g.n2 + 1, 3))
+        for k in range(4):
+            for m in range(4):
+                control[k : 3 * g.n1 + k : 3, m : 3 * g.n2 + m : 3] = nets[:, :, k, m]
+        knots = [np.r_[lo, np.repeat(np.linspace(lo, hi, n + 1), 3), hi]
+                 for n, (lo, hi) in ((g.n1, g.xi1_range), (g.n2, g.xi2_range))]  # fmt: skip
+        return NurbsSurface((3, 3), *knots, control, None, name)
+
     def tessellate(self, density: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Quad mesh sampling every patch on a ``(density+1)^2`` grid (shared edges merged).
 

@@ -106,6 +106,7 @@ class CadShell:
         label = self.label
         parts = len({label(k).split("_")[0] for k in range(len(self.bodies))})
         return {"body": name, "file": str(self.file), "parts": parts, "patches": len(self.bodies),
+                "patch_bodies": [f"{name}_{label(k)}" for k in range(len(self.bodies))],
                 "fit_error_m": self.fit_error,
                 "joints": [[f"{name}_{label(j.first)}", j.first_edge, f"{name}_{label(j.second)}", j.second_edge,
                             j.quadrature.gap, "partial" if j.partial else "whole"] for j in self.joints],

@@ -9,11 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import frame_times
 
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.interfaces import find_joints
 from bhem_hpc.io import read_frame
-from bhem_hpc.io.cad import write_parts
+from bhem_hpc.io.cad import read_shell_parts, write_parts
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.scene import SceneError
 from bhem_hpc.scene.loader import load_any_scene
@@ -108,6 +109,13 @@ def test_a_hood_of_four_parts_is_one_shell_joined_where_its_parts_meet(comm, sha
         on_a = (np.ones(7), along) if edge_a == "xi1_max" else (along, np.ones(7))
         on_b = (np.zeros(7), along) if edge_a == "xi1_max" else (along, np.zeros(7))
         assert np.abs(a.evaluate(*on_a).x - b.evaluate(*on_b).x).max() < 1e-5 * sag  # measured 3e-6: the penalty's
+    # the deformed model, written back at the last frame: the same four parts, each its patch exactly
+    last = len(frame_times(shared_tmp_path / "out" / "hood_0")) - 1
+    written = read_shell_parts(shared_tmp_path / "out" / "hood" / f"frame_{last:06d}.igs")
+    assert len(written) == 4 and all(p.loops is None for p in written)
+    u, v = (a.ravel() for a in np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5), indexing="ij"))
+    for part, name in zip(written, scene.names, strict=True):
+        assert np.abs(part.surface.evaluate(u, v)[0] - frames[name].evaluate(u, v).x).max() < 1e-12
 
 
 def test_a_hood_with_a_trimmed_corner_keeps_its_joints_and_drops_the_edges_its_trim_cuts(comm, shared_tmp_path):
@@ -141,6 +149,13 @@ def test_a_hood_with_a_trimmed_corner_keeps_its_joints_and_drops_the_edges_its_t
             with h5py.File(shared_tmp_path / "out" / name / "surface.h5", "r") as f:
                 counts.append(f["topology"].shape[0])
         assert counts[1] / counts[0] == pytest.approx(1 - np.pi / 16, rel=0.03)
+        written = read_shell_parts(shared_tmp_path / "out" / "hood" / "frame_000001.igs")  # its trim written back
+        assert [p.loops is not None for p in written] == [False, False, False, True]
+
+        def area(polygon: np.ndarray) -> float:  # the shoelace formula
+            return 0.5 * abs(float(np.dot(polygon[:-1, 0], polygon[1:, 1]) - np.dot(polygon[1:, 0], polygon[:-1, 1])))
+
+        assert area(written[3].loops[0]) == pytest.approx(area(loop), rel=1e-9)  # the loop, densified (6e-12)
 
 
 def test_an_open_box_is_joined_along_its_folds_in_either_orientation(comm, shared_tmp_path):

@@ -12,7 +12,7 @@ from helpers import REPO
 from bhem_hpc.geometry.nurbs import NurbsSurface, box_faces, revolve
 from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.io import read_frame
-from bhem_hpc.io.cad import write_parts
+from bhem_hpc.io.cad import read_parts, write_parts
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.scene import SceneError
 from bhem_hpc.scene.loader import load_any_scene
@@ -91,6 +91,11 @@ def test_a_revolved_tube_is_cut_at_its_kinks_into_exact_pieces_that_share_their_
     rest, u = scene.bodies[1].surface, np.linspace(0.25, 0.5, 5)
     free, clamped = (surface.evaluate(u, np.full(5, v)).x - rest.evaluate(u, np.full(5, v)).x for v in (1.0, 0.0))
     assert np.all(free[:, 1] > 1e-7) and np.abs(clamped).max() < 1e-12
+    # the deformed model written back: the four pieces as rational parts, each its patch exactly
+    written = read_parts(out / "tube" / "frame_000002.igs")
+    assert len(written) == 4 and all(np.any(part.weights != 1.0) for part in written)
+    v = np.linspace(0.0, 1.0, 5)
+    np.testing.assert_allclose(written[1].evaluate(u, v)[0], surface.evaluate(u, v).x, atol=1e-12)
 
 
 @pytest.mark.parametrize(

@@ -309,7 +309,8 @@ def make_solver(model: ShellModel | list[ShellModel], scene: Scene, scene_file: 
         raise RunError(f"{scene_file}: key 'solver.linear' = {scene.linear!r}: {exc}") from None
     if velocity is not None:  # the line search and the energy trust region both take it
         tolerance = auto_velocity_tolerance(model.rest_diagonal) if velocity == "auto" else float(velocity)
-        solver.problem.step_velocity_test = StepVelocityTest(tolerance, model.comm)
+        solver.problem.step_velocity_test = StepVelocityTest(tolerance, model.comm,
+                                                             block_weights=model.discretization.open_block_weights())
     return solver
 
 

@@ -120,6 +120,10 @@ class BSplineDiscretization:
         """The open values are positions."""
         return None
 
+    def open_block_weights(self) -> None:
+        """The open blocks need no division."""
+        return None
+
     @property
     def closed_is_open(self) -> bool:
         """Never: the open layout holds Lagrange DOFs, the closed one control points."""

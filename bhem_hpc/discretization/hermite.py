@@ -203,6 +203,10 @@ class HermiteDiscretization:
         """The open values are positions."""
         return None
 
+    def open_block_weights(self) -> None:
+        """The open blocks need no division."""
+        return None
+
     @property
     def closed_is_open(self) -> bool:
         """Without seams the closed layout is the open one (no prolongation)."""

@@ -131,6 +131,11 @@ class Discretization(Protocol):
         the homogeneous values of rational B-splines."""
         ...
 
+    def open_block_weights(self) -> np.ndarray | None:
+        """``(open blocks,)`` what divides each open block (owned and ghost) to give a position:
+        ``W`` at the DOF point for rational B-splines; None elsewhere."""
+        ...
+
     def prolongation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """``P`` over the owned open blocks as block CSR ``(indptr, closed blocks, weights)`` (one
         weight per block pair; it acts alike on x, y, z); None where the closed layout is the open one."""

@@ -104,6 +104,10 @@ class RationalBSplineDiscretization(BSplineDiscretization):
         weight = self.weight[0]
         return lambda homogeneous: homogeneous / weight
 
+    def open_block_weights(self) -> np.ndarray:
+        """``(open blocks,)`` ``W`` at each DOF point: an open block over it is the position there."""
+        return self._open_weight
+
     # -- point data ----------------------------------------------------------------------------------
     def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
         """``(open blocks, phi / W)``: the rational basis at a parameter point, on the rank owning it."""

@@ -5,8 +5,9 @@ velocity below the tolerance. ``"auto"`` is IPC's epsilon_d: 1e-2 of the rest su
 diagonal per second.
 
 The step is measured on the open DOF blocks, the 3-vectors the shell's forms see: with B-splines
-the surface's points at the Lagrange nodes, with Hermite patches the nodes' positions and their
-derivatives scaled to the patches' lengths. No PETSc here: the solver maps its step to these blocks.
+the surface's points at the Lagrange nodes (rational ones: the homogeneous blocks over ``W``), with
+Hermite patches the nodes' positions and their derivatives scaled to the patches' lengths. No
+PETSc here: the solver maps its step to these blocks.
 """
 
 from __future__ import annotations
@@ -43,10 +44,14 @@ class StepVelocityTest:
     tolerance: float
     comm: MPI.Comm
     dt: float = 0.0
+    #: ``(open blocks,)`` what divides each block to give a point's motion (rational B-splines' ``W``), or None
+    block_weights: np.ndarray | None = None
 
     def passes(self, blocks: np.ndarray) -> bool:
         """Collective: whether no block of the step ``(blocks, 3)`` (this rank's open blocks, ghosts
         included) moves by more than ``tolerance * dt`` (the same answer on every rank)."""
         moved = np.linalg.norm(np.asarray(blocks, dtype=float).reshape(-1, 3), axis=1)
+        if self.block_weights is not None:
+            moved = moved / self.block_weights
         largest = max(self.comm.allgather(float(moved.max()) if len(moved) else 0.0))
         return self.dt > 0 and largest <= self.tolerance * self.dt

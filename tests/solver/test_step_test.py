@@ -28,6 +28,11 @@ def test_a_step_passes_when_no_block_moves_more_than_the_tolerance_times_dt(comm
     test.dt = 4.9e-3
     assert not test.passes(blocks)
     assert auto_velocity_tolerance(0.5) == pytest.approx(5e-3)
+    # rational B-splines' open blocks are W times a point's motion: a weight of 0.8 makes 5e-4 a 6.25e-4
+    weighted = StepVelocityTest(tolerance=0.1, comm=comm, dt=5e-3, block_weights=np.full(50, 0.8))
+    assert not weighted.passes(blocks)
+    weighted.dt = 6.25e-3
+    assert weighted.passes(blocks)
 
 
 def run_steps(comm, job: str, steps: int, solver_keys: dict, patches: int = 10):

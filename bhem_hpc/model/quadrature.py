@@ -27,6 +27,7 @@ has an exact null vector that the full rule does not have; two spans remove it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -200,3 +201,24 @@ def _reduced_quadrature(grid_mesh, mass: ufl.Measure) -> ShellQuadrature:
         membrane_points=int(sum(counts[tag] * len(rule[1]) for tag, rule in membrane_rules.items())),
         bending_points=int(sum(counts[list(tag)].sum() * len(rule[1]) for tag, rule in bending_rules.items())),
     )
+
+
+def edge_measure(mesh: dolfinx.mesh.Mesh, grid, edges: Sequence[str]) -> ufl.Measure:
+    """The facet measure of the knot-span mesh of ``grid`` tagging each listed edge ``i`` with ``i + 1``."""
+    mesh.topology.create_connectivity(1, 2)
+    tol = 1e-9 * max(grid.h1, grid.h2)
+    locators = {
+        "xi1_min": lambda p: np.abs(p[0] - grid.xi1_range[0]) < tol,
+        "xi1_max": lambda p: np.abs(p[0] - grid.xi1_range[1]) < tol,
+        "xi2_min": lambda p: np.abs(p[1] - grid.xi2_range[0]) < tol,
+        "xi2_max": lambda p: np.abs(p[1] - grid.xi2_range[1]) < tol,
+    }
+    facets, tags = [], []
+    for i, edge in enumerate(edges):
+        found = dolfinx.mesh.locate_entities_boundary(mesh, 1, locators[edge])
+        facets.append(found)
+        tags.append(np.full(len(found), i + 1, dtype=np.int32))
+    facets_all = np.concatenate(facets).astype(np.int32)
+    order = np.argsort(facets_all)
+    meshtags = dolfinx.mesh.meshtags(mesh, 1, facets_all[order], np.concatenate(tags)[order])
+    return ufl.Measure("ds", domain=mesh, subdomain_data=meshtags)

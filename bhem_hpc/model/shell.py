@@ -12,9 +12,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
-import dolfinx
 import dolfinx.fem as fem
-import dolfinx.mesh
 import numpy as np
 import ufl
 from mpi4py import MPI
@@ -37,7 +35,7 @@ from bhem_hpc.model.loads import (  # noqa: F401 - re-exported: the model API
     PointLoad,
 )
 from bhem_hpc.model.material import Material
-from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, shell_quadrature
+from bhem_hpc.model.quadrature import Quadrature, QuadratureError, check_quadrature, edge_measure, shell_quadrature
 from bhem_hpc.model.trimmed import Trim, check_model, outside_constraints, restrict_term, weight_function
 
 ScalarType = np.float64  # the dolfinx build is real, double precision
@@ -151,6 +149,8 @@ class ShellModel:
         space = self.discretization.function_space
         self.x = fem.Function(space, name="position")
         self.x_rest = fem.Function(space, name="rest_position")
+        #: the Functions that hold positions (or velocities) in the discretization's open layout
+        self.position_functions = [self.x, self.x_rest]
         self.x.x.array[:] = self.discretization.surface_to_open(initial)
         self.x_rest.x.array[:] = self.discretization.surface_to_open(rest)
         self.young = self._constant(material.young)
@@ -254,6 +254,7 @@ class ShellModel:
         self.x_predicted = fem.Function(space, name="predicted_position")
         self.x_previous = fem.Function(space, name="previous_position")
         self.velocity = fem.Function(space, name="velocity")
+        self.position_functions += [self.x_predicted, self.x_previous, self.velocity]
         self.x_predicted.x.array[:] = self.x.x.array
         self.x_previous.x.array[:] = self.x.x.array
         rho_h = (self.density, self.thickness)
@@ -301,6 +302,9 @@ class ShellModel:
                 terms.append(Term(f"edge_moment_{i}", work, role="work", load_scaled=True, conservative=False))
         return terms
 
+    def _edge_measure(self, edges: Sequence[str]) -> ufl.Measure:
+        return edge_measure(self.discretization.mesh, self.rest_surface.grid, edges)
+
     def _compose_forms(self) -> None:
         """One composition of the terms: total potential, residual, Jacobian of the model's Hessian
         kind, reports."""
@@ -342,14 +346,12 @@ class ShellModel:
     def in_unknowns(self, form: ufl.Form) -> ufl.Form:
         """A form written in positions, as a form in the Functions the model holds: the identity,
         except for rational B-splines, whose Functions hold the homogeneous ``Y`` and whose position
-        is ``Y / W`` (:meth:`Discretization.position_map`); the state, rest, predicted and previous
-        positions, the velocity and the form's arguments are all replaced, the map being linear."""
+        is ``Y / W`` (:meth:`Discretization.position_map`); every position-like Function
+        (:attr:`position_functions`) and the form's arguments are replaced, the map being linear."""
         position = self.discretization.position_map()
         if position is None:
             return form
-        functions = [self.x, self.x_rest] + [getattr(self, name) for name in ("x_predicted", "x_previous", "velocity")
-                                             if name in vars(self)]  # fmt: skip
-        return ufl.replace(form, {f: position(f) for f in (*functions, *form.arguments())})
+        return ufl.replace(form, {f: position(f) for f in (*self.position_functions, *form.arguments())})
 
     def _jacobian(self, kind: str, residual, potentials: Sequence[Term], works: Sequence[Term], test, trial):
         """The UFL Jacobian of Hessian ``kind``: the exact one, or each term's replacement of that kind."""
@@ -425,28 +427,6 @@ class ShellModel:
         for (blocks, values), force in zip(self._point_load_basis, self.point_forces, strict=True):
             for comp in range(3):
                 np.add.at(self.point_load_open, 3 * blocks + comp, values * force[comp])
-
-    def _edge_measure(self, edges: Sequence[str]) -> ufl.Measure:
-        """Facet measure tagging each listed edge ``i`` with ``i + 1``."""
-        grid = self.rest_surface.grid
-        mesh = self.discretization.mesh
-        mesh.topology.create_connectivity(1, 2)
-        tol = 1e-9 * max(grid.h1, grid.h2)
-        locators = {
-            "xi1_min": lambda p: np.abs(p[0] - grid.xi1_range[0]) < tol,
-            "xi1_max": lambda p: np.abs(p[0] - grid.xi1_range[1]) < tol,
-            "xi2_min": lambda p: np.abs(p[1] - grid.xi2_range[0]) < tol,
-            "xi2_max": lambda p: np.abs(p[1] - grid.xi2_range[1]) < tol,
-        }
-        facets, tags = [], []
-        for i, edge in enumerate(edges):
-            found = dolfinx.mesh.locate_entities_boundary(mesh, 1, locators[edge])
-            facets.append(found)
-            tags.append(np.full(len(found), i + 1, dtype=np.int32))
-        facets_all = np.concatenate(facets).astype(np.int32)
-        order = np.argsort(facets_all)
-        meshtags = dolfinx.mesh.meshtags(mesh, 1, facets_all[order], np.concatenate(tags)[order])
-        return ufl.Measure("ds", domain=mesh, subdomain_data=meshtags)
 
     # -- loads -----------------------------------------------------------------------------------
     def load_names(self) -> list[str]:

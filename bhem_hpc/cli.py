@@ -260,8 +260,11 @@ def _run(args: argparse.Namespace, comm) -> None:
         output = f"{args.out}/surface.xdmf and surface.pvd (ParaView), last.png, summary.json, checkpoint.h5"
         if "bodies" in summary:
             folders = ", ".join(f"{body['name']}/" for body in summary["bodies"])
+            models = "".join(f", {m['body']}/" for m in summary.get("cad_models") or [])
             output = (f"{args.out}/bodies.pvd (ParaView: every body), {folders} (a shell's surface.xdmf and "
-                      "surface.pvd, a solid's surface.pvd and surface_points.pvd), last.png, summary.json")  # fmt: skip
+                      "surface.pvd, a solid's surface.pvd and surface_points.pvd)"
+                      + (f"{models} (a CAD shell's deformed model at each frame, IGES)" if models else "")
+                      + ", last.png, summary.json")  # fmt: skip
         print(
             f"{args.scene}: {len(steps)} step(s) to t = {summary['time']:.6g} s, {summary['dofs']} DoFs, "
             f"{comm.size} rank(s), {newton} Newton iterations, "

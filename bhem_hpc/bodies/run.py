@@ -180,7 +180,7 @@ def run_bodies(options: RunOptions, scene: BodiesScene, checkpoint: RestartPoint
 
         def start() -> BodiesOutput:
             if not continuing:
-                start_output_directory(options.out, [*scene.names, *(m["body"] for m in scene.cad_models)])
+                start_output_directory(options.out, list(scene.names), [m["body"] for m in scene.cad_models])
             write_replacing(options.out / "scene.toml", scene_text)
             summary.write(options.out)
             return BodiesOutput(options.out, bodies, checkpoint if continuing else None, scene.cad_models)

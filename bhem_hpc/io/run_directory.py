@@ -48,8 +48,9 @@ class OutputDirectoryError(UserError, ValueError):
 
 def foreign_entries(out: Path, most: int = 5) -> list[str]:
     """Up to ``most`` entries of ``out`` (relative paths) that no run of this tool writes (a run of
-    several bodies writes a folder per body, named in its manifest)."""
-    return _foreign_in(out, "", set(manifest_bodies(out)), most)
+    several bodies writes a folder per body, and one of model frames per CAD shell, named in its
+    manifest)."""
+    return _foreign_in(out, "", set(manifest_bodies(out)), most, set(manifest_bodies(out, "models")))
 
 
 def run_series(out: Path) -> list[Path]:
@@ -69,25 +70,25 @@ def run_series(out: Path) -> list[Path]:
     return series
 
 
-def manifest_bodies(out: Path) -> list[str]:
+def manifest_bodies(out: Path, key: str = "bodies") -> list[str]:
     """The body folders the manifest of ``out`` names, in the scene's order (none: a run of one
-    body, or no manifest)."""
+    body, or no manifest); ``key = "models"``: the CAD shells' folders of model frames."""
     try:
-        bodies = json.loads((out / MANIFEST).read_text()).get("bodies", [])
+        bodies = json.loads((out / MANIFEST).read_text()).get(key, [])
     except (OSError, ValueError, AttributeError):
         return []
     return [b for b in bodies if isinstance(b, str) and b.isidentifier()] if isinstance(bodies, list) else []
 
 
-def _foreign_in(folder: Path, prefix: str, bodies: set[str], most: int) -> list[str]:
+def _foreign_in(folder: Path, prefix: str, bodies: set[str], most: int, models: frozenset | set = frozenset()
+                ) -> list[str]:  # fmt: skip
     own = {*RUN_FILES, MANIFEST, *(f"{name}.tmp" for name in RUN_FILES)}
     found = []
     for entry in sorted(folder.iterdir()):
         name = entry.name
         is_dir = entry.is_dir() and not entry.is_symlink()
-        if name == "surface_frames" and is_dir:
-            found += [f"{prefix}surface_frames/{f.name}" for f in sorted(entry.iterdir())
-                      if not FRAME_FILE.fullmatch(f.name)]  # fmt: skip
+        if (name == "surface_frames" or name in models) and is_dir:
+            found += [f"{prefix}{name}/{f.name}" for f in sorted(entry.iterdir()) if not FRAME_FILE.fullmatch(f.name)]
         elif name in bodies and is_dir:
             found += _foreign_in(entry, f"{prefix}{name}/", set(), most - len(found))
         elif name not in own and not name.startswith(".bhem-write-test-"):
@@ -156,9 +157,10 @@ def write_replacing(path: Path, data: str | bytes) -> None:
         raise
 
 
-def start_output_directory(out: Path, bodies: list[str] | None = None) -> None:
+def start_output_directory(out: Path, bodies: list[str] | None = None, models: list[str] | None = None) -> None:
     """Make ``out`` a fresh directory holding only the manifest (naming the folders of ``bodies``, a
-    run of several): an existing one is renamed aside, then deleted."""
+    run of several, and of ``models``, its CAD shells' model frames): an existing one is renamed
+    aside, then deleted."""
     if out.exists():
         aside = out.with_name(f".{out.name}.replaced-{os.getpid()}")
         os.rename(out, aside)
@@ -166,7 +168,8 @@ def start_output_directory(out: Path, bodies: list[str] | None = None) -> None:
         shutil.rmtree(aside, ignore_errors=True)
     else:
         out.mkdir(parents=True)
-    manifest = {"tool": "bhem-hpc", "files": list(RUN_FILES)} | ({"bodies": list(bodies)} if bodies else {})
+    manifest = ({"tool": "bhem-hpc", "files": list(RUN_FILES)} | ({"bodies": list(bodies)} if bodies else {})
+                | ({"models": list(models)} if models else {}))  # fmt: skip
     write_replacing(out / MANIFEST, json.dumps(manifest) + "\n")
 
 

@@ -15,6 +15,7 @@ from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.interfaces import find_joints
 from bhem_hpc.io import read_frame
 from bhem_hpc.io.cad import read_shell_parts, write_parts
+from bhem_hpc.io.run_directory import foreign_entries
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.scene import SceneError
 from bhem_hpc.scene.loader import load_any_scene
@@ -109,7 +110,8 @@ def test_a_hood_of_four_parts_is_one_shell_joined_where_its_parts_meet(comm, sha
         on_a = (np.ones(7), along) if edge_a == "xi1_max" else (along, np.ones(7))
         on_b = (np.zeros(7), along) if edge_a == "xi1_max" else (along, np.zeros(7))
         assert np.abs(a.evaluate(*on_a).x - b.evaluate(*on_b).x).max() < 1e-5 * sag  # measured 3e-6: the penalty's
-    # the deformed model, written back at the last frame: the same four parts, each its patch exactly
+    # the deformed model, written back at every frame (the run's own files): the same four parts, each its patch
+    assert foreign_entries(shared_tmp_path / "out") == []
     last = len(frame_times(shared_tmp_path / "out" / "hood_0")) - 1
     written = read_shell_parts(shared_tmp_path / "out" / "hood" / f"frame_{last:06d}.igs")
     assert len(written) == 4 and all(p.loops is None for p in written)

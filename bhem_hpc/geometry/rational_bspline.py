@@ -256,8 +256,9 @@ def _distinct_interior(knots: np.ndarray, degree: int, name: str, where: str) ->
     values, counts = np.unique(knots[degree + 1 : -degree - 1], return_counts=True)
     if np.any(counts > 1):
         raise SurfaceError(f"{where}: the {name} knot {values[counts > 1][0]!r} repeats {counts[counts > 1][0]} "
-                           f"times; a shell patch needs each interior knot once (the part is not C{degree - 1} "
-                           "there: split it at that knot into parts)")  # fmt: skip
+                           f"times; an exact patch needs each interior knot once (the part is not C{degree - 1} "
+                           "there): split the part at that knot in the modeller, or take a polynomial "
+                           "discretization, which interpolates it")  # fmt: skip
     return values, lo, hi
 
 
@@ -309,8 +310,8 @@ def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | N
     """
     p = max(2, *part.degrees) if degree is None else degree
     if p not in (2, 3) or p < max(part.degrees):
-        raise SurfaceError(f"{part.name}: a rational shell patch has degree 2 or 3; the part has degrees "
-                           f"{part.degrees}")  # fmt: skip
+        raise SurfaceError(f"{part.name}: an exact (rational) shell patch has degree 2 or 3; the part has degrees "
+                           f"{part.degrees}: a polynomial discretization interpolates it")  # fmt: skip
     homogeneous = part.homogeneous
     directions = []
     for axis, (direction, name, wanted) in enumerate(((part.u, "u", spans[0]), (part.v, "v", spans[1]))):

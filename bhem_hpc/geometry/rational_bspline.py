@@ -120,9 +120,7 @@ class RationalBSplineSurface(BSplineSurface):
     def __init__(self, grid: ParameterGrid, degree: int, control: np.ndarray, weights: np.ndarray,
                  knots: Knots | None = None):  # fmt: skip
         super().__init__(grid, degree, control)
-        self.knots: Knots | None = None if knots is None or (knots[0] is None and knots[1] is None) else (
-            *(None if k is None else _checked_knots(k, n, degree, r, axis) for axis, (k, n, r) in
-              enumerate(zip(knots, (grid.n1, grid.n2), (grid.xi1_range, grid.xi2_range), strict=True))),)  # fmt: skip
+        self.knots = _checked_knot_pair(knots, grid, self.degree)
         weights = np.asarray(weights, dtype=float)
         if weights.shape != self.control.shape[:2]:
             raise SurfaceError(f"weights must have shape {self.control.shape[:2]}, got {weights.shape}")
@@ -185,6 +183,16 @@ class RationalBSplineSurface(BSplineSurface):
 
     def save(self, path) -> None:
         raise SurfaceError("rational B-spline surfaces are written as NURBS parts (IGES or .3dm), not as .npz")
+
+
+def _checked_knot_pair(knots: Knots | None, grid: ParameterGrid, degree: int) -> Knots | None:
+    """Each direction's own knots checked (:func:`_checked_knots`); None where both are uniform."""
+    if knots is None or (knots[0] is None and knots[1] is None):
+        return None
+    if knots[0] is not None and grid.periodic1 or knots[1] is not None and grid.periodic2:
+        raise SurfaceError("a periodic direction has uniform knots: own knots are for clamped directions")
+    return tuple(None if k is None else _checked_knots(k, n, degree, r, axis) for axis, (k, n, r) in
+                 enumerate(zip(knots, (grid.n1, grid.n2), (grid.xi1_range, grid.xi2_range), strict=True)))  # fmt: skip
 
 
 def _checked_knots(knots, spans: int, degree: int, domain: tuple[float, float], axis: int) -> np.ndarray:

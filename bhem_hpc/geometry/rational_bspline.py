@@ -320,6 +320,7 @@ def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | N
     if p not in (2, 3) or p < max(part.degrees):
         raise SurfaceError(f"{part.name}: an exact (rational) shell patch has degree 2 or 3; the part has degrees "
                            f"{part.degrees}: a polynomial discretization interpolates it")  # fmt: skip
+    part = clamped(part)
     homogeneous = part.homogeneous
     directions = []
     for axis, (direction, name, wanted) in enumerate(((part.u, "u", spans[0]), (part.v, "v", spans[1]))):
@@ -332,6 +333,31 @@ def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | N
     grid = ParameterGrid(n1, n2, range1, range2, False, False)
     weights = homogeneous[..., 3]
     return RationalBSplineSurface(grid, p, homogeneous[..., :3] / weights[..., None], weights, (knots1, knots2))
+
+
+def _clamp_start(knots: np.ndarray, degree: int, homogeneous: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An unclamped start (as a modeller's periodic parts have) clamped along the first axis: the
+    domain's first knot inserted up to multiplicity ``p``, then the knots and control points
+    before it dropped (a basis function's piece on the domain depends on its knots from there on)."""
+    lo = knots[degree]
+    while np.count_nonzero(knots[: degree + 1] == lo) < degree + 1:
+        if np.count_nonzero(knots == lo) >= degree:  # the point at lo interpolated: drop what lies before
+            first = int(np.flatnonzero(knots == lo)[0])
+            return np.r_[lo, knots[first:]], homogeneous[first - 1 :]
+        knots, homogeneous = insert_knot(knots, degree, homogeneous, lo)
+    return knots, homogeneous
+
+
+def clamped(part: NurbsSurface) -> NurbsSurface:
+    """The part with clamped knot vectors, the same surface over its domain (unchanged if clamped)."""
+    homogeneous, knots = part.homogeneous, []
+    for axis, direction in enumerate((part.u, part.v)):
+        moved, k = np.moveaxis(homogeneous, axis, 0), direction.knots
+        k, moved = _clamp_start(k, direction.degree, moved)
+        k, moved = _clamp_start(-k[::-1], direction.degree, moved[::-1])  # the end, as a start reversed
+        homogeneous, knots = np.moveaxis(moved[::-1], 0, axis), [*knots, -k[::-1]]
+    return NurbsSurface(part.degrees, *knots, homogeneous[..., :3] / homogeneous[..., 3:], homogeneous[..., 3],
+                        part.name)  # fmt: skip
 
 
 def _kinks(knots: np.ndarray, degree: int) -> list[int]:
@@ -357,6 +383,7 @@ def split_at_kinks(part: NurbsSurface) -> list[list[NurbsSurface]]:
     """The part cut along its interior knots of multiplicity equal to the degree (where it is only
     C0, as a circle's quarter points): pieces ``[i][j]`` along u and v, each the same surface over
     its knot box, neighbours sharing their edge's control points and weights exactly."""
+    part = clamped(part)
     p, q = part.degrees
     rows = _split_direction(part.u.knots, p, part.homogeneous)
     pieces = []

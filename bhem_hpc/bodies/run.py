@@ -75,8 +75,8 @@ log = logging.getLogger(__name__)
 class BodiesOutput:
     """Rank 0's files of a run of several bodies: each body's time series and probe table, the
     collection of all bodies' frames (``bodies.pvd``), and each CAD shell's deformed model at every
-    frame (``<name>/frame_NNNNNN.igs``: its patches as NURBS parts, exact, trimmed where they are,
-    so the result opens in the modeller it came from).
+    frame (``<name>/frame_NNNNNN.igs``: one NURBS part per part of its file, exact, trimmed where
+    it is, a part's pieces joined back; the result opens in the modeller it came from).
 
     Args:
         continued: the checkpoint of the run continued in ``out`` (its frames and probe rows up to
@@ -110,9 +110,9 @@ class BodiesOutput:
             series.write(time_value, surface)
         for model, members in self.cad_models:
             frame = len(self.series[members[0]].times) - 1
+            labels = {k: self.names[k].removeprefix(model + "_") for k in members}
             write_parts(self.out / model / f"frame_{frame:06d}.igs",
-                        [cad_part(surfaces[k], self.bodies[k], f"{model} {self.names[k].removeprefix(model + '_')}")
-                         for k in members])  # fmt: skip
+                        model_parts(model, [(labels[k], surfaces[k], self.bodies[k]) for k in members]))
         frames, parts = [], []
         for part, (name, series) in enumerate(zip(self.names, self.series, strict=True)):
             for t, file in series.frame_files():
@@ -123,6 +123,29 @@ class BodiesOutput:
     def close(self) -> None:
         for series in self.series:
             series.close()
+
+
+def model_parts(model: str, patches: list[tuple[str, object, Body]]) -> list[ShellPart]:
+    """A CAD shell's patches ``(label, surface, body)`` as the parts of its model file, in the
+    model's order: a part cut at its C0 knots into pieces (labels ``<part>_<i>_<j>``) joined back
+    into one (:func:`~bhem_hpc.geometry.rational_bspline.join_pieces`)."""
+    from bhem_hpc.geometry.rational_bspline import join_pieces  # the CAD geometry loads for CAD models only
+
+    parts: dict[str, dict[tuple[int, int], tuple[object, Body]]] = {}
+    for label, surface, body in patches:
+        part, _, piece = label.partition("_")
+        place = tuple(int(k) for k in piece.split("_")) if piece else (0, 0)
+        parts.setdefault(part, {})[place] = (surface, body)
+    out = []
+    for part, pieces in parts.items():
+        if len(pieces) == 1:
+            surface, body = pieces[0, 0]
+            out.append(cad_part(surface, body, f"{model} {part}"))
+            continue
+        rows, columns = (max(place[a] for place in pieces) + 1 for a in (0, 1))
+        grid = [[pieces[i, j][0].nurbs() for j in range(columns)] for i in range(rows)]
+        out.append(ShellPart(join_pieces(grid, f"{model} {part}")))
+    return out
 
 
 def cad_part(surface, body: Body, name: str) -> ShellPart:

@@ -394,3 +394,29 @@ def split_at_kinks(part: NurbsSurface) -> list[list[NurbsSurface]]:
                                     f"{part.name} piece {i} {j}")
                        for j, (knots_v, block) in enumerate(columns)])  # fmt: skip
     return pieces
+
+
+def _join_direction(pieces: list[tuple[np.ndarray, np.ndarray]], degree: int) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`_split_direction`: pieces ``(knots, homogeneous)`` along the first axis,
+    each starting with the last control row of the one before, joined with the seam knots repeated
+    ``p`` times (only C0 there)."""
+    knots, rows = pieces[0][0][:-1], [pieces[0][1]]
+    for piece_knots, homogeneous in pieces[1:]:
+        knots = np.r_[knots, piece_knots[degree + 1 : -1]]
+        rows.append(homogeneous[1:])
+    return np.r_[knots, pieces[-1][0][-1]], np.concatenate(rows)
+
+
+def join_pieces(pieces: list[list[NurbsSurface]], name: str) -> NurbsSurface:
+    """One part of pieces ``[i][j]`` (:func:`split_at_kinks`'s, each clamped, of one degree;
+    neighbours along u with the same v knots and the same control points on their common edge,
+    and alike along v): the seams become knots of multiplicity equal to the degree. The first
+    piece's control points along each seam are kept."""
+    p, q = pieces[0][0].degrees
+    rows = []
+    for row in pieces:
+        joined = _join_direction([(piece.v.knots, np.moveaxis(piece.homogeneous, 1, 0)) for piece in row], q)
+        rows.append((row[0].u.knots, np.moveaxis(joined[1], 0, 1), joined[0]))
+    knots_u, homogeneous = _join_direction([(k, h) for k, h, _ in rows], p)
+    return NurbsSurface((p, q), knots_u, rows[0][2], homogeneous[..., :3] / homogeneous[..., 3:], homogeneous[..., 3],
+                        name)  # fmt: skip

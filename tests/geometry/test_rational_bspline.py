@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from bhem_hpc.geometry.nurbs import NurbsSurface, cylinder_panel, sphere
-from bhem_hpc.geometry.rational_bspline import clamped, insert_knot, on_uniform_knots
+from bhem_hpc.geometry.nurbs import NurbsSurface, cylinder_panel, pipe_bend, sphere
+from bhem_hpc.geometry.rational_bspline import clamped, insert_knot, join_pieces, on_uniform_knots, split_at_kinks
 from bhem_hpc.geometry.surface import SurfaceError
 
 
@@ -88,6 +88,20 @@ def test_unclamped_parts_are_clamped_exactly(degree, rng):
     shell = on_uniform_knots(part, (8, 3))
     assert shell.grid.xi1_range == (degree, count)
     np.testing.assert_allclose(shell.evaluate(*shell.surface_parameters(u, v)).x, part.evaluate(u, v)[0], atol=1e-13)
+
+
+@pytest.mark.parametrize("part", [sphere(1.0), pipe_bend(0.3, 0.05, (0.0, 1.0))], ids=["sphere", "bend"])
+def test_pieces_cut_at_kinks_join_back_into_the_part(part, rng):
+    """split_at_kinks and join_pieces are inverses (the sphere: 4 x 2 pieces, its knots again);
+    pieces refined as shells join into a finer part of the same surface."""
+    pieces = split_at_kinks(part)
+    joined = join_pieces(pieces, "joined")
+    np.testing.assert_array_equal(joined.u.knots, part.u.knots)
+    np.testing.assert_allclose(joined.control, part.control, atol=1e-15)
+    refined = join_pieces([[on_uniform_knots(p, (3, 3)).nurbs() for p in row] for row in pieces], "refined")
+    (u0, u1), (v0, v1) = part.u.domain, part.v.domain
+    u, v = u0 + (u1 - u0) * rng.random(200), v0 + (v1 - v0) * rng.random(200)
+    np.testing.assert_allclose(refined.evaluate(u, v)[0], part.evaluate(u, v)[0], atol=1e-14)
 
 
 def test_knot_insertion_keeps_the_curve(rng):

@@ -48,7 +48,7 @@ class BSplineDiscretization:
     def __init__(self, grid: ParameterGrid, degree: int, comm: MPI.Comm = MPI.COMM_WORLD):
         self.comm = comm
         self.grid = grid
-        self.patches = BSplinePatches(grid, degree)
+        self.patches = self._make_patches(grid, degree)
         self.degree = self.patches.degree
         self.control_shape = self.patches.control_shape
         self.grid_mesh = GridMesh(grid, comm)
@@ -80,6 +80,10 @@ class BSplineDiscretization:
         self.closed_offset = int(sum(counts[: comm.rank]))
         self.num_closed = self.num_entries
         self._greville_setup()
+
+    def _make_patches(self, grid: ParameterGrid, degree: int) -> BSplinePatches:
+        """The patch layout of the control points (a subclass's own kind of spline)."""
+        return BSplinePatches(grid, degree)
 
     def _greville_setup(self) -> None:
         """Owned blocks at the tensor Greville points and the 1-D collocation matrices."""

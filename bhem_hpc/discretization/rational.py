@@ -31,8 +31,8 @@ from mpi4py import MPI
 
 from bhem_hpc.discretization.bspline import BSplineDiscretization
 from bhem_hpc.discretization.protocol import DiscretizationError
-from bhem_hpc.geometry.bspline import Knots, point_weights
-from bhem_hpc.geometry.rational_bspline import RationalBSplinePatches, RationalBSplineSurface
+from bhem_hpc.geometry.bspline import Knots, check_degree, point_weights
+from bhem_hpc.geometry.rational_bspline import RationalBSplinePatches, RationalBSplineSurface, control_shape
 from bhem_hpc.geometry.surface import ParameterGrid
 
 
@@ -48,22 +48,27 @@ class RationalBSplineDiscretization(BSplineDiscretization):
 
     def __init__(self, grid: ParameterGrid, degree: int, weights: np.ndarray, comm: MPI.Comm = MPI.COMM_WORLD,
                  knots: Knots | None = None):  # fmt: skip
+        self.weights, self.knots = np.asarray(weights, dtype=float), knots  # the patches are made of them
+        expected = control_shape(grid, check_degree(degree), knots)
+        if self.weights.shape != expected:
+            raise DiscretizationError(f"weights must have shape {expected}, got {self.weights.shape}")
         super().__init__(grid, degree, comm)
-        self.weights = np.asarray(weights, dtype=float)
-        if self.weights.shape != self.control_shape:
-            raise DiscretizationError(f"weights must have shape {self.control_shape}, got {self.weights.shape}")
-        self.knots = knots
-        self.patches = RationalBSplinePatches(grid, self.degree, self.weights, knots)
-        if knots is not None:  # the part's own basis on the grid's spans
-            p1, p2, t1, t2 = grid.locate(self.block_points[:, 0], self.block_points[:, 1])
-            self._rows, self._weights = point_weights(grid, self.degree, p1, p2, t1, t2, knots=knots)
+        # E_w: the (polynomial) B-spline basis at the DOF points times the weights: the homogeneous map
+        p1, p2, t1, t2 = grid.locate(self.block_points[:, 0], self.block_points[:, 1])
+        self._rows, basis = point_weights(grid, self.degree, p1, p2, t1, t2, knots=knots)
+        self._weights = basis * self.weights.ravel()[self._rows]
         self._normal_solve = None
-        flat = self.weights.ravel()
-        # E_w: the B-spline basis at the DOF points times the weights (the homogeneous map)
-        self._weights = self._weights * flat[self._rows]
         self._open_weight = self._weights.sum(axis=1)  # W at every open block (owned + ghost)
         self.weight = dolfinx.fem.Function(self.function_space, name="weight")
         self.weight.x.array[:] = np.repeat(self._open_weight, 3)
+
+    def _make_patches(self, grid: ParameterGrid, degree: int) -> RationalBSplinePatches:
+        return RationalBSplinePatches(grid, degree, self.weights, self.knots)
+
+    def _greville_setup(self) -> None:
+        """On uniform knots the Greville interpolation; a part's own knots go back by least squares."""
+        if self.knots is None:
+            super()._greville_setup()
 
     # -- surface <-> layouts ---------------------------------------------------------------------
     def _check(self, surface: RationalBSplineSurface) -> None:

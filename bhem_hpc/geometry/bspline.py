@@ -41,7 +41,7 @@ FILE_VERSION = 1
 Field = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-def _check_degree(degree: object) -> int:
+def check_degree(degree: object) -> int:
     if isinstance(degree, bool) or not isinstance(degree, int | np.integer) or int(degree) not in DEGREES:
         raise SurfaceError(f"B-spline degree must be one of {DEGREES}, got {degree!r}")
     return int(degree)
@@ -145,11 +145,12 @@ def _local_controls(spans: int, degree: int, periodic: bool) -> np.ndarray:
 @lru_cache(maxsize=64)
 def _knot_extraction(knots: tuple[float, ...], degree: int) -> tuple[np.ndarray, np.ndarray]:
     """Bezier extraction matrices ``(spans, p + 1, p + 1)`` and local control indices ``(spans,
-    p + 1)`` of a clamped knot vector whose interior knots appear once (its spans in order)."""
+    p + 1)`` of a clamped knot vector (its nonempty spans in order; interior knots may repeat)."""
     knots_array = np.asarray(knots)
     samples = (np.arange(degree + 1) + 0.5) / (degree + 1)
     inverse = np.linalg.inv(bernstein(samples, degree))
     starts = np.arange(degree, len(knots) - degree - 1)
+    starts = starts[knots_array[starts + 1] > knots_array[starts]]
     out = np.empty((len(starts), degree + 1, degree + 1))
     for s, k in enumerate(starts):
         a, b = knots_array[k], knots_array[k + 1]
@@ -157,9 +158,9 @@ def _knot_extraction(knots: tuple[float, ...], degree: int) -> tuple[np.ndarray,
     return out, (starts - degree)[:, None] + np.arange(degree + 1)[None, :]
 
 
-#: Per direction the knot vector of a surface whose knot spans are not all of one length (None:
-#: uniform): its spans are still the grid's uniform ones in the surface's parameters, each mapped
-#: affinely onto its knot interval.
+#: Per direction the knot vector of a surface whose knot spans are not all of one length, or whose
+#: interior knots repeat (None: uniform): its spans are still the grid's uniform ones in the
+#: surface's parameters, each mapped affinely onto its knot interval.
 Knots = tuple[np.ndarray | None, np.ndarray | None]
 
 
@@ -207,7 +208,8 @@ def point_weights(
     c2, local2, h2 = span_extraction(grid, degree, 1, knots)
     n1 = np.einsum("...ij,...j->...i", c1[p1], bernstein(t1, degree, d1)) / h1**d1  # S + (p + 1,)
     n2 = np.einsum("...ij,...j->...i", c2[p2], bernstein(t2, degree, d2)) / h2**d2
-    columns = control_count(grid.n2, degree, grid.periodic2)
+    columns = control_count(grid.n2, degree, grid.periodic2) if knots is None or knots[1] is None else (
+        len(knots[1]) - degree - 1)
     index = local1[p1][..., :, None] * columns + local2[p2][..., None, :]
     weights = n1[..., :, None] * n2[..., None, :]
     return index.reshape(p1.shape + (-1,)), weights.reshape(p1.shape + (-1,))
@@ -218,7 +220,7 @@ class BSplinePatches:
 
     def __init__(self, grid: ParameterGrid, degree: int):
         self.grid = grid
-        self.degree = _check_degree(degree)
+        self.degree = check_degree(degree)
         self.control_shape = BSplineSurface.control_shape_of(grid, self.degree)
 
     @property
@@ -256,10 +258,10 @@ class BSplineSurface:
     """
 
     def __init__(self, grid: ParameterGrid, degree: int, control: np.ndarray):
-        self.degree = _check_degree(degree)
+        self.degree = check_degree(degree)
         _check_spans(grid, self.degree)
         control = np.asarray(control, dtype=float)
-        shape = self.control_shape_of(grid, self.degree)
+        shape = self._expected_control_shape(grid, self.degree)
         if control.shape != (*shape, 3):
             raise SurfaceError(f"control points must have shape {(*shape, 3)}, got {control.shape}")
         if not np.all(np.isfinite(control)):
@@ -275,10 +277,13 @@ class BSplineSurface:
             control_count(grid.n2, degree, grid.periodic2),
         )
 
+    def _expected_control_shape(self, grid: ParameterGrid, degree: int) -> tuple[int, int]:
+        return self.control_shape_of(grid, degree)
+
     @property
     def node_shape(self) -> tuple[int, int]:
         """The nodes that carry data: the control points ``(c1, c2)``."""
-        return self.control_shape_of(self.grid, self.degree)
+        return self.control.shape[:2]
 
     #: Kinds of data per node: the control point's position only.
     kind_count = 1
@@ -419,7 +424,7 @@ def from_callable(position: Field, grid: ParameterGrid, *, degree: int) -> BSpli
         position: vectorized callable mapping two arrays of shape ``S`` to ``S + (3,)``.
         degree: 2 or 3.
     """
-    degree = _check_degree(degree)
+    degree = check_degree(degree)
     _check_spans(grid, degree)
     g1 = greville(grid.n1, degree, grid.periodic1, *grid.xi1_range)
     g2 = greville(grid.n2, degree, grid.periodic2, *grid.xi2_range)

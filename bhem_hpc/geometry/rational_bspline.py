@@ -25,6 +25,7 @@ from bhem_hpc.geometry.bspline import (
     BSplineSurface,
     Knots,
     bezier_extraction,
+    check_degree,
     clamped_uniform_knots,
     point_weights,
     span_extraction,
@@ -88,6 +89,7 @@ class RationalBSplinePatches(BSplinePatches):
         super().__init__(grid, degree)
         self.weights = np.asarray(weights, dtype=float)
         self.knots = knots
+        self.control_shape = control_shape(grid, self.degree, knots)
 
     def point_entries(self, p1, p2, t1, t2) -> tuple[np.ndarray, np.ndarray]:
         """``(index, values)``, shape ``S + ((p + 1)^2,)`` each: the rational basis at the points."""
@@ -119,8 +121,8 @@ class RationalBSplineSurface(BSplineSurface):
 
     def __init__(self, grid: ParameterGrid, degree: int, control: np.ndarray, weights: np.ndarray,
                  knots: Knots | None = None):  # fmt: skip
+        self.knots = _checked_knot_pair(knots, grid, check_degree(degree))
         super().__init__(grid, degree, control)
-        self.knots = _checked_knot_pair(knots, grid, self.degree)
         weights = np.asarray(weights, dtype=float)
         if weights.shape != self.control.shape[:2]:
             raise SurfaceError(f"weights must have shape {self.control.shape[:2]}, got {weights.shape}")
@@ -135,14 +137,17 @@ class RationalBSplineSurface(BSplineSurface):
         """The discretization whose DOFs are this surface's control points (with its weights)."""
         return f"nurbs{self.degree}"
 
+    def _expected_control_shape(self, grid: ParameterGrid, degree: int) -> tuple[int, int]:
+        return control_shape(grid, degree, self.knots)
+
     def with_nodal(self, nodal: np.ndarray) -> RationalBSplineSurface:
         """The surface with other control points ``(c1, c2, 1, 3)`` and the same weights."""
         return RationalBSplineSurface(self.grid, self.degree, np.asarray(nodal)[:, :, 0, :], self.weights, self.knots)
 
     def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> RationalBSplineSurface:
         """The surface moved rigidly (control points transform alike; the weights stay)."""
-        moved = super().transformed(rotation, translation)
-        return RationalBSplineSurface(self.grid, self.degree, moved.control, self.weights, self.knots)
+        moved = self.control @ np.asarray(rotation, float).T + np.asarray(translation, float)
+        return RationalBSplineSurface(self.grid, self.degree, moved, self.weights, self.knots)
 
     def _direction(self, axis: int) -> tuple[np.ndarray, np.ndarray, float]:
         return span_extraction(self.grid, self.degree, axis, self.knots)
@@ -185,6 +190,14 @@ class RationalBSplineSurface(BSplineSurface):
         raise SurfaceError("rational B-spline surfaces are written as NURBS parts (IGES or .3dm), not as .npz")
 
 
+def control_shape(grid: ParameterGrid, degree: int, knots: Knots | None) -> tuple[int, int]:
+    """Control points ``(c1, c2)`` on ``grid``: ``n + p`` per direction on uniform knots, as many as
+    a direction's own knots have basis functions (repeated interior knots add to them)."""
+    uniform = BSplineSurface.control_shape_of(grid, degree)
+    return tuple(count if own is None else len(own) - degree - 1 for count, own in zip(uniform, knots or (None, None),
+                                                                                        strict=True))  # fmt: skip
+
+
 def _checked_knot_pair(knots: Knots | None, grid: ParameterGrid, degree: int) -> Knots | None:
     """Each direction's own knots checked (:func:`_checked_knots`); None where both are uniform."""
     if knots is None or (knots[0] is None and knots[1] is None):
@@ -196,13 +209,16 @@ def _checked_knot_pair(knots: Knots | None, grid: ParameterGrid, degree: int) ->
 
 
 def _checked_knots(knots, spans: int, degree: int, domain: tuple[float, float], axis: int) -> np.ndarray:
-    """A clamped knot vector of ``spans`` nonempty spans over ``domain``, each interior knot once."""
+    """A clamped knot vector over ``domain`` of ``spans`` nonempty spans, interior knots repeated
+    fewer times than the degree (the surface at least C1)."""
     knots = np.asarray(knots, dtype=float)
-    interior = knots[degree + 1 : -degree - 1] if len(knots) > 2 * degree + 2 else knots[:0]
     ends = np.any(knots[: degree + 1] != domain[0]) or np.any(knots[-degree - 1 :] != domain[1])
-    if knots.shape != (spans + 2 * degree + 1,) or ends or np.any(np.diff(np.r_[domain[0], interior, domain[1]]) <= 0):
-        raise SurfaceError(f"knots of direction {axis + 1} must be {spans + 2 * degree + 1} clamped knots over "
-                           f"{domain}, each interior one once, got {knots.tolist()}")  # fmt: skip
+    interior = knots[degree + 1 : -degree - 1] if knots.ndim == 1 and len(knots) > 2 * degree + 2 else knots[:0]
+    values, counts = np.unique(interior, return_counts=True)
+    inside = np.all((values > domain[0]) & (values < domain[1]))
+    if ends or not inside or len(values) + 1 != spans or np.any(counts >= degree):
+        raise SurfaceError(f"knots of direction {axis + 1} must be clamped over {domain} with {spans} nonempty spans, "
+                           f"interior knots repeated fewer than {degree} times, got {knots.tolist()}")  # fmt: skip
     return knots
 
 
@@ -255,19 +271,21 @@ def _elevated(knots: np.ndarray, degree: int, homogeneous: np.ndarray, target: i
     return np.r_[np.full(target + 1, lo), np.full(target + 1, hi)], homogeneous
 
 
-def _distinct_interior(knots: np.ndarray, degree: int, name: str, where: str) -> tuple[np.ndarray, float, float]:
-    """``(interior knots, lo, hi)`` of a clamped direction whose interior knots appear once."""
+def _distinct_interior(knots: np.ndarray, degree: int, name: str,
+                       where: str) -> tuple[np.ndarray, np.ndarray, float, float]:  # fmt: skip
+    """``(distinct interior knots, their multiplicities, lo, hi)`` of a clamped direction whose
+    interior knots repeat fewer times than the degree."""
     lo, hi = float(knots[degree]), float(knots[-degree - 1])
     if np.any(knots[: degree + 1] != lo) or np.any(knots[-degree - 1 :] != hi):
         raise SurfaceError(f"{where}: the {name} knots are not clamped (degree + 1 equal end knots): "
                            f"{knots.tolist()}")  # fmt: skip
     values, counts = np.unique(knots[degree + 1 : -degree - 1], return_counts=True)
-    if np.any(counts > 1):
-        raise SurfaceError(f"{where}: the {name} knot {values[counts > 1][0]!r} repeats {counts[counts > 1][0]} "
-                           f"times; an exact patch needs each interior knot once (the part is not C{degree - 1} "
-                           "there): split the part at that knot in the modeller, or take a polynomial "
+    if np.any(counts >= degree):
+        raise SurfaceError(f"{where}: the {name} knot {values[counts >= degree][0]!r} repeats "
+                           f"{counts[counts >= degree][0]} times: the part is only C0 there, where an exact patch "
+                           "needs C1; cut it there (split_at_kinks, as cad_shell does), or take a polynomial "
                            "discretization, which interpolates it")  # fmt: skip
-    return values, lo, hi
+    return values, counts, lo, hi
 
 
 def _lattice(values: np.ndarray, lo: float, hi: float) -> int | None:
@@ -285,9 +303,9 @@ def _refined(knots: np.ndarray, degree: int, homogeneous: np.ndarray, wanted: in
     """One direction refined by knot insertion to at least ``wanted`` spans: onto the uniform
     lattice of its knots where that lattice is at most twice as fine as needed (then ``knots`` is
     None: the uniform knots), else by cutting each of its spans into equal parts (its own knots)."""
-    values, lo, hi = _distinct_interior(knots, degree, name, where)
+    values, counts, lo, hi = _distinct_interior(knots, degree, name, where)
     existing = len(values) + 1
-    lattice = _lattice(values, lo, hi)
+    lattice = _lattice(values, lo, hi) if np.all(counts == 1) else None  # repeated knots: its own
     if lattice is not None and lattice * math.ceil(wanted / lattice) <= 2 * max(wanted, existing):
         count = lattice * math.ceil(wanted / lattice)
         new = [v for v in lo + (hi - lo) * np.arange(1, count) / count
@@ -305,16 +323,17 @@ def _refined(knots: np.ndarray, degree: int, homogeneous: np.ndarray, wanted: in
 
 def on_uniform_knots(part: NurbsSurface, spans: tuple[int, int], degree: int | None = None) -> RationalBSplineSurface:
     """The part, exactly, as a rational B-spline of ``degree`` (default: its higher degree, at least
-    2: a bilinear part, as a modeller's planar face, is raised) on a
-    uniform grid of at least ``spans`` knot spans per direction (knot insertion): on the uniform
-    lattice of its knots where it has a fine enough one (circles, revolutions, most modellers'
-    uniform parts), else on its own knots, each span cut into equal parts, the grid's uniform spans
-    mapped onto them (:class:`RationalBSplineSurface`'s ``knots``). A direction of a lower degree is
-    raised exactly where it is one span (a ruled part's straight direction, an arc).
+    2: a bilinear part, as a modeller's planar face, is raised) on a uniform grid of at least
+    ``spans`` knot spans per direction (knot insertion; unclamped knots are clamped first): on the
+    uniform lattice of its knots where it has a fine enough one (circles, revolutions, most
+    modellers' uniform parts), else (or where interior knots repeat) on its own knots, each span cut
+    into equal parts, the grid's uniform spans mapped onto them (:class:`RationalBSplineSurface`'s
+    ``knots``). A direction of a lower degree is raised exactly where it is one span (a ruled part's
+    straight direction, an arc).
 
     Raises:
         SurfaceError: naming the part: a degree other than 2 or 3, a lower-degree direction of
-            several spans, knots that are not clamped or repeat inside the domain.
+            several spans, an interior knot repeated as often as the degree (only C0 there).
     """
     p = max(2, *part.degrees) if degree is None else degree
     if p not in (2, 3) or p < max(part.degrees):

@@ -104,6 +104,19 @@ def test_pieces_cut_at_kinks_join_back_into_the_part(part, rng):
     np.testing.assert_allclose(refined.evaluate(u, v)[0], part.evaluate(u, v)[0], atol=1e-14)
 
 
+def test_a_knot_repeated_below_the_degree_is_kept(rng):
+    """A cubic part that is C1 at u = 0.3 (a double knot): carried over on its own knots, the double
+    knot kept (10 control points along u for 6 spans), the same surface."""
+    knots = [0, 0, 0, 0, 0.3, 0.3, 0.7, 1, 1, 1, 1]
+    part = NurbsSurface((3, 3), knots, [0, 0, 0, 0, 1, 1, 1, 1], rng.normal(size=(7, 4, 3)),
+                        0.6 + rng.random((7, 4)), "C1 part")  # fmt: skip
+    shell = on_uniform_knots(part, (6, 2))
+    assert shell.grid.n1 == 6 and shell.control.shape == (10, 5, 3)
+    assert np.count_nonzero(shell.knots[0] == 0.3) == 2
+    s, t = rng.random(200), rng.random(200)
+    np.testing.assert_allclose(shell.evaluate(s, t).x, part.evaluate(*shell.model_parameters(s, t))[0], atol=1e-13)
+
+
 def test_knot_insertion_keeps_the_curve(rng):
     knots = np.array([0, 0, 0, 0.3, 1, 1, 1], float)
     homogeneous = np.concatenate([rng.normal(size=(4, 3)), 0.5 + rng.random((4, 1))], axis=1)
@@ -120,7 +133,7 @@ def test_knot_insertion_keeps_the_curve(rng):
 @pytest.mark.parametrize(
     ("part", "message"),
     [
-        (sphere(1.0), r"the u knot 0.25 repeats 2 times.*split the part at that knot.*or take a polynomial"),
+        (sphere(1.0), r"the u knot 0.25 repeats 2 times: the part is only C0 there.*cut it there.*a polynomial"),
         (NurbsSurface((4, 2), [0] * 5 + [1] * 5, [0, 0, 0, 1, 1, 1], np.zeros((5, 3, 3))), "degree 2 or 3"),
         (NurbsSurface((1, 2), [0, 0, 0.5, 1, 1], [0, 0, 0, 1, 1, 1], np.zeros((3, 3, 3))),
          "u direction has degree 1 and several spans"),

@@ -310,6 +310,10 @@ class BSplineSurface:
         """The parameters of the model the surface was made from (the same: its knots are uniform)."""
         return np.asarray(xi1, dtype=float), np.asarray(xi2, dtype=float)
 
+    def surface_parameters(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`model_parameters` (the same)."""
+        return np.asarray(u, dtype=float), np.asarray(v, dtype=float)
+
     def nurbs(self, name: str = "shell"):
         """The same surface as a NURBS part (clamped uniform knots, weights 1), for writing the model
         back; periodic directions are refused."""

@@ -213,6 +213,10 @@ class HermiteSurface:
         """The parameters of the model the surface was made from (the same)."""
         return np.asarray(xi1, dtype=float), np.asarray(xi2, dtype=float)
 
+    def surface_parameters(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of :meth:`model_parameters` (the same)."""
+        return np.asarray(u, dtype=float), np.asarray(v, dtype=float)
+
     def bezier_nets(self) -> np.ndarray:
         """Exact bicubic Bezier nets ``(n1 * n2, 4, 4, 3)`` of every patch (order ``p1 * n2 + p2``)."""
         return self.bezier_control_points().reshape(-1, 4, 4, 3)

@@ -82,7 +82,8 @@ def curve_quadrature(first: Patch, loops: Sequence[np.ndarray], second_part: Nur
     point = first.evaluate(xi[:, 0], xi[:, 1])
     speed = np.linalg.norm(point.a1 * direction[:, :1] + point.a2 * direction[:, 1:], axis=1)
     weights = np.tile(gauss, len(segments)) * speed
-    partners, _, distance = closest_points(second_part, point.x)
+    partners, _, distance = closest_points(second_part, point.x)  # in the part's parameters: to the shell's
+    partners = np.column_stack(second.surface_parameters(partners[:, 0], partners[:, 1]))
     matched = distance <= tolerance
     if second_loops is not None:
         grid = second.grid

@@ -493,3 +493,25 @@ class GrowingTwoBodySpring(CouplingBeyondPattern, TwoBodySpring):
         super().__init__(blocks, p, q, stiffness, rest_length)
         rows, _ = blocks.point_basis(0, *p)
         self._split_pattern(np.concatenate(blocks.comm.allgather(blocks.global_open_blocks[rows])))
+
+
+def wavy_cut_loops() -> tuple[np.ndarray, np.ndarray]:
+    """The trim loops (in [0, 1]^2) of two overlapping parts over x in [0, 1.2] and [0.4, 1.6] of a
+    1.6 m plate, cut by the same wavy line x = 0.8 + 0.06 sin(2 pi v): the first keeps what lies
+    before the cut, the second what lies after."""
+    v = np.linspace(0.0, 1.0, 49)
+    cut = 0.8 + 0.06 * np.sin(2 * np.pi * v)
+    first, second = np.column_stack([cut / 1.2, v]), np.column_stack([(cut - 0.4) / 1.2, v])
+    return (np.concatenate([[(0.0, 0.0)], first, [(0.0, 1.0), (0.0, 0.0)]]),
+            np.concatenate([second[:1], [(1.0, 0.0), (1.0, 1.0)], second[::-1]]))  # fmt: skip
+
+
+def assert_bends_as_one_plate(summary_tips: list[tuple[dict | None, np.ndarray]]) -> None:
+    """The two-part run (its summary) joined along the cut by one trim-curve joint of no gap, and its
+    free end's deflections ``(3,)`` those of the one plate (summary None) within 1e-3."""
+    (summary, two), (_, one) = summary_tips
+    joints = summary["cad_models"][0]["joints"]
+    assert [j[:4] for j in joints] == [["plate_0", "trim curve", "plate_1", "trim curve"]]
+    assert joints[0][4] < 1e-12
+    assert one.min() < -1e-3  # it bends
+    np.testing.assert_allclose(two, one, rtol=1e-3)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import frame_times
+from helpers import assert_bends_as_one_plate, frame_times, wavy_cut_loops
 
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.interfaces import find_joints
@@ -277,11 +277,7 @@ def test_two_parts_trimmed_along_a_wavy_cut_bend_as_one_plate(comm, shared_tmp_p
     deflects as the single untrimmed plate's within 1e-3 (measured 1.3e-6 after 30 steps)."""
     from bhem_hpc.io.cad import ShellPart
 
-    v = np.linspace(0.0, 1.0, 49)
-    cut = 0.8 + 0.06 * np.sin(2 * np.pi * v)
-    first, second = np.column_stack([cut / 1.2, v]), np.column_stack([(cut - 0.4) / 1.2, v])
-    loops = (np.concatenate([[(0.0, 0.0)], first, [(0.0, 1.0), (0.0, 0.0)]]),
-             np.concatenate([second[:1], [(1.0, 0.0), (1.0, 1.0)], second[::-1]]))  # fmt: skip
+    loops = wavy_cut_loops()
     tips = []
     for model, parts, patches in (("two.igs", [ShellPart(_flat_part(0.0, 1.2, 0.5), loops[:1]),
                                                ShellPart(_flat_part(0.4, 1.6, 0.5), loops[1:])], "[6, 3]"),
@@ -292,10 +288,6 @@ def test_two_parts_trimmed_along_a_wavy_cut_bend_as_one_plate(comm, shared_tmp_p
                plate=(5.0e-3, -2.0e2, 100.0))  # fmt: skip
         summary = run_scene(RunOptions(folder / "scene.toml", folder / "out", progress=False), comm)
         free_end = read_frame(folder / "out" / f"plate_{len(parts) - 1}" / "surface.h5")[0]
-        tips.append(free_end.evaluate(np.ones(3), np.array([0.0, 0.5, 1.0])).x[:, 2])
-        if model == "two.igs":
-            joints = summary["cad_models"][0]["joints"]
-            assert [j[:4] for j in joints] == [["plate_0", "trim curve", "plate_1", "trim curve"]]
-            assert joints[0][4] < 1e-12
-    assert tips[1].min() < -1e-3  # it bends
-    np.testing.assert_allclose(tips[0], tips[1], rtol=1e-3)
+        tip = free_end.evaluate(np.ones(3), np.array([0.0, 0.5, 1.0])).x[:, 2]
+        tips.append((summary if model == "two.igs" else None, tip))
+    assert_bends_as_one_plate(tips)

@@ -139,6 +139,14 @@ def _piece_boxes(nets: np.ndarray, across: tuple[int, int]) -> tuple[np.ndarray,
 def _axis_normal_signs(nets: np.ndarray, rects: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     """Smallest and largest normal component along ``axis`` over ``SIGN_SAMPLES^2`` points of each
     piece ``rects (N, 4)`` of ``nets (N, ...)``, each normalized by the piece's largest normal."""
+    return _normal_components(nets, rects, np.eye(3)[np.full(len(nets), axis)])
+
+
+def _normal_components(nets: np.ndarray, rects: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest normal component along each piece's direction ``directions (N, 3)``
+    over ``SIGN_SAMPLES^2`` points of each piece ``rects (N, 4)`` of ``nets (N, ...)``, each
+    normalized by the piece's largest normal: where both have one sign, a line along the direction
+    crosses the piece (small, no longer folded) at most once."""
     grid = (np.arange(SIGN_SAMPLES) + 0.5) / SIGN_SAMPLES
     s = rects[:, 0, None, None] + grid[None, :, None] * (rects[:, 1] - rects[:, 0])[:, None, None]
     t = rects[:, 2, None, None] + grid[None, None, :] * (rects[:, 3] - rects[:, 2])[:, None, None]
@@ -148,7 +156,7 @@ def _axis_normal_signs(nets: np.ndarray, rects: np.ndarray, axis: int) -> tuple[
     _, x_s, x_t = evaluate(repeated, s, t)
     normal = np.cross(x_s, x_t).reshape(len(nets), -1, 3)
     size = np.linalg.norm(normal, axis=2).max(axis=1)
-    component = normal[..., axis] / np.where(size > 0.0, size, 1.0)[:, None]
+    component = np.einsum("nkc,nc->nk", normal, directions) / np.where(size > 0.0, size, 1.0)[:, None]
     return component.min(axis=1), component.max(axis=1)
 
 
@@ -409,8 +417,15 @@ def first_hits(
                 nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance
             )
             box = rect[at]
-            inside = converged & _within(s, t, box) & (tau > tau_min[ray[at]]) & (tau <= best[ray[at]])
+            found = converged & _within(s, t, box)
+            inside = found & (tau > tau_min[ray[at]]) & (tau <= best[ray[at]])
             settled[at[inside]] = True
+            # a crossing outside the searched stretch (the ray's own start on a surface, or one beyond
+            # the best hit) is the only one of a piece that the ray crosses one way only
+            outside = np.flatnonzero(found & ~inside)
+            if len(outside):
+                low, high = _normal_components(nets[patch[at[outside]]], box[outside], directions[ray[at[outside]]])
+                settled[at[outside[(low > 0.0) | (high < 0.0)]]] = True
             # a ray in the plane of a flat piece meets it nowhere transversally: splitting such a
             # piece would follow the ray through ever more pieces (twice as many per level)
             settled[at[grazing]] = True

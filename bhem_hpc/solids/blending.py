@@ -25,6 +25,10 @@ from bhem_hpc.geometry.surface import SurfaceError
 
 #: Bisection steps of the cutoff search (the share of nonzeros is a step function of alpha).
 ALPHA_BISECTIONS = 40
+#: A secondary ray is searched from this far (relative to the model's size) beyond its point: a
+#: boundary sample lies on its own part, whose crossing there Newton finds up to its tolerance
+#: (1e-10 of the size) and which is not the next surface.
+BEYOND_POINT = 1e-7
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,8 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
     count = len(points)
     on_part = np.full(count, -1) if on_part is None else np.asarray(on_part)
     groups = bezier_nets_by_degree(parts)
+    control = np.concatenate([p.control.reshape(-1, 3) for p in parts])
+    beyond = BEYOND_POINT * float(np.ptp(control, axis=0).max())
     primary = np.empty((count, len(parts)))
     total = np.full((count, len(parts)), np.inf)
     same = np.zeros((count, len(parts)), dtype=bool)
@@ -112,7 +118,7 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
         away[inside, i] = (points[inside] - nearest[inside]) / distance[inside, None]
         cast = np.flatnonzero((distance < reach) & (distance > 0.0))
         direction = (points[cast] - nearest[cast]) / distance[cast, None]
-        tau_min = distance[cast] * (1.0 + 1e-9)
+        tau_min = distance[cast] + beyond
         best, owner = np.full(len(cast), np.inf), np.full(len(cast), -1)
         for nets, part_of_patch in groups:
             # searched no farther than the nearest hit so far

@@ -82,13 +82,16 @@ class QuadratureShare:
     def __init__(self, solid: ShapeMatchingSolid, start: int, stop: int):
         self.solid, self.start, self.stop = solid, start, stop
         self.weights = solid.quadrature.weights[start:stop]
-        self._gradient_map = solid._gradient_map[9 * start : 9 * stop]
+        # F = G (Pi q): the product G Pi is nearly dense where parts blend everywhere (the castle:
+        # 9 Q x 3 n_q), the factors are sparse and cheaper to build and to apply
+        self._coefficient_gradients = solid._coefficient_gradients[9 * start : 9 * stop]
         self._groups = point_groups([g[start:stop] for g in solid._scalar_gradients])
         self._mu, self._lam = solid._mu[start:stop], solid._lam[start:stop]
 
     def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
         """``(stop - start, 3, 3)`` at the share's points for control points ``q (n_q, 3)``."""
-        return (self._gradient_map @ np.asarray(q, dtype=float).reshape(-1)).reshape(-1, 3, 3)
+        coefficients = self.solid._projection @ np.asarray(q, dtype=float).reshape(-1)
+        return (self._coefficient_gradients @ coefficients).reshape(-1, 3, 3)
 
     def energy(self, q: np.ndarray) -> float:
         """Elastic energy of the share [J] (inf where some ``det F <= 0``)."""
@@ -98,7 +101,8 @@ class QuadratureShare:
     def gradient(self, q: np.ndarray) -> np.ndarray:
         """``(3 n_q,)`` interleaved."""
         _, stress, _ = self.solid._model(self.deformation_gradients(q), self._mu, self._lam, tangent=False)
-        return self._gradient_map.T @ (self.weights[:, None, None] * stress).reshape(-1)
+        weighted = (self.weights[:, None, None] * stress).reshape(-1)
+        return self.solid._projection.T @ (self._coefficient_gradients.T @ weighted)
 
     def hessian(self, q: np.ndarray, projected: bool = True) -> scipy.sparse.csr_matrix:
         """``(3 n_q, 3 n_q)``; ``projected``: each point's tangent clamped positive semi-definite."""
@@ -258,7 +262,7 @@ class ShapeMatchingSolid:
         stacked = scipy.sparse.vstack([b for _, _, b in blocks]).tocsr()  # rows (3c + d) * Q + k
         order = np.arange(9 * count).reshape(9, count).T.ravel()  # to rows 9 k + 3 c + d
         self._projection = _interleave(projection)
-        self._gradient_map = stacked[order] @ self._projection  # (9 Q, 3 n_q)
+        self._coefficient_gradients = stacked[order]  # (9 Q, 3 coefficients): F = this @ (Pi q)
         self._scalar_gradients = grad  # the stiffness is assembled on the coefficients, by groups of points
         # material per quadrature point: the part of largest blending weight
         part_of_point = np.asarray(self.blend.argmax(axis=1)).ravel()
@@ -300,7 +304,7 @@ class ShapeMatchingSolid:
 
     def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
         """``(Q, 3, 3)`` at the quadrature points for control points ``q (n_q, 3)``."""
-        return (self._gradient_map @ np.asarray(q, dtype=float).reshape(-1)).reshape(-1, 3, 3)
+        return self.whole.deformation_gradients(q)
 
     def positions(self, q: np.ndarray) -> np.ndarray:
         """``(Q, 3)`` deformed quadrature points for control points ``q (n_q, 3)``."""

@@ -110,22 +110,24 @@ def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: floa
     total = np.full((count, len(parts)), np.inf)
     same = np.zeros((count, len(parts)), dtype=bool)
     away = np.zeros((count, len(parts), 3))
+    nearest = np.empty((count, len(parts), 3))
     for i, part in enumerate(parts):
-        _, nearest, distance = closest_points(part, points)
+        _, nearest[:, i], distance = closest_points(part, points)
         distance[on_part == i] = 0.0
         primary[:, i] = distance
-        inside = distance > 0.0
-        away[inside, i] = (points[inside] - nearest[inside]) / distance[inside, None]
-        cast = np.flatnonzero((distance < reach) & (distance > 0.0))
-        direction = (points[cast] - nearest[cast]) / distance[cast, None]
-        tau_min = distance[cast] + beyond
-        best, owner = np.full(len(cast), np.inf), np.full(len(cast), -1)
-        for nets, part_of_patch in groups:
-            # searched no farther than the nearest hit so far
-            hits = first_hits(nets, nearest[cast], direction, tau_min, np.minimum(best, reach))
-            closer = hits.tau < best
-            best[closer], owner[closer] = hits.tau[closer], part_of_patch[hits.patch[closer]]
-        total[cast, i] = best
-        same[cast, i] = owner == i
-        same[distance == 0.0, i] = True
+    same[primary == 0.0] = True
+    inside = primary > 0.0
+    away[inside] = (points[:, None] - nearest)[inside] / primary[inside][:, None]
+    # every part's secondary rays in one batch: point k, part i -> the next surface beyond the point
+    point, part_of_ray = np.nonzero((primary < reach) & inside)
+    origins, directions = nearest[point, part_of_ray], away[point, part_of_ray]
+    tau_min = primary[point, part_of_ray] + beyond
+    best, owner = np.full(len(point), np.inf), np.full(len(point), -1)
+    for nets, part_of_patch in groups:
+        # searched no farther than the nearest hit so far
+        hits = first_hits(nets, origins, directions, tau_min, np.minimum(best, reach))
+        closer = hits.tau < best
+        best[closer], owner[closer] = hits.tau[closer], part_of_patch[hits.patch[closer]]
+    total[point, part_of_ray] = best
+    same[point, part_of_ray] = owner == part_of_ray
     return RayDistances(primary, total, same, away, float(reach), time.perf_counter() - clock)

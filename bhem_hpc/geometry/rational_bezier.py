@@ -34,6 +34,10 @@ MAX_LEVEL = 14
 MAX_PIECE = 1.0 / 8.0
 #: Samples per side of a piece where the sign of the normal's axis component is tested.
 SIGN_SAMPLES = 4
+#: A ray crossing a piece no larger than :data:`MAX_PIECE` at this cosine to its normal or more
+#: crosses it once (its normal would have to turn by 60 degrees within the piece to meet the ray
+#: again); at shallower crossings the normal's sign along the ray is tested on the piece.
+ONE_CROSSING_COSINE = 0.5
 #: Crossings closer than this (relative to the model's size) on one line, crossed the same way,
 #: are one crossing found twice (a line through a seam between patches or pieces).
 DUPLICATE_DISTANCE = 1e-9
@@ -417,15 +421,24 @@ def first_hits(
                 nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance
             )
             box = rect[at]
-            found = converged & _within(s, t, box)
-            inside = found & (tau > tau_min[ray[at]]) & (tau <= best[ray[at]])
-            settled[at[inside]] = True
-            # a crossing outside the searched stretch (the ray's own start on a surface, or one beyond
-            # the best hit) is the only one of a piece that the ray crosses one way only
-            outside = np.flatnonzero(found & ~inside)
-            if len(outside):
-                low, high = _normal_components(nets[patch[at[outside]]], box[outside], directions[ray[at[outside]]])
-                settled[at[outside[(low > 0.0) | (high < 0.0)]]] = True
+            found = np.flatnonzero(converged & _within(s, t, box))
+            inside = np.zeros(len(at), dtype=bool)
+            inside[found] = (tau[found] > tau_min[ray[at[found]]]) & (tau[found] <= best[ray[at[found]]])
+            # the crossing Newton found is a piece's only one where the ray crosses it one way only;
+            # else (a ray grazing a sphere crosses one piece twice) the piece splits on, a hit found
+            # in it shortening the ray's stretch. Where the ray meets the piece's surface steeply
+            # (ONE_CROSSING_COSINE) a small piece's normal would have to turn that far within it.
+            if len(found):
+                _, x_s, x_t = evaluate(nets[patch[at[found]]], s[found], t[found])
+                normal = np.cross(x_s, x_t)
+                cosine = np.abs(np.einsum("kc,kc->k", normal, directions[ray[at[found]]])) / np.maximum(
+                    np.linalg.norm(normal, axis=1), 1e-300)
+                steep = cosine >= ONE_CROSSING_COSINE
+                settled[at[found[steep]]] = True
+                oblique = found[~steep]
+                if len(oblique):
+                    low, high = _normal_components(nets[patch[at[oblique]]], box[oblique], directions[ray[at[oblique]]])
+                    settled[at[oblique[(low > 0.0) | (high < 0.0)]]] = True
             # a ray in the plane of a flat piece meets it nowhere transversally: splitting such a
             # piece would follow the ray through ever more pieces (twice as many per level)
             settled[at[grazing]] = True

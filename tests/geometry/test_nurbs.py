@@ -182,3 +182,33 @@ def test_first_hits_of_rays_inside_a_sphere(rng):
         nurbs.sphere(1.0).bezier_patches.nets, origins, directions, np.zeros(len(origins)), 0.5 * exact
     )
     assert np.all(short.patch == -1) and np.all(np.isinf(short.tau))
+
+
+def _sphere_crossing(origins: np.ndarray, directions: np.ndarray, radius: float, after: float) -> np.ndarray:
+    """The first ``tau > after`` where the rays cross the sphere ``radius`` about the origin (inf: none)."""
+    along = np.einsum("ij,ij->i", origins, directions)
+    discriminant = along**2 - (origins**2).sum(axis=1) + radius**2
+    root = np.sqrt(np.maximum(discriminant, 0.0))
+    near, far = -along - root, -along + root
+    tau = np.where(near > after, near, np.where(far > after, far, np.inf))
+    return np.where(discriminant > 0.0, tau, np.inf)
+
+
+def test_first_hits_of_rays_leaving_a_surface_find_the_next_one(rng):
+    """Rays from points on a sphere (the secondary rays of the blending weights start on a part):
+    the crossing at the start is not searched, the next surface is found (the inner sphere where
+    the ray passes through it, else the far side), and rays pointing out find nothing."""
+    points = rng.normal(size=(300, 3))
+    points /= np.linalg.norm(points, axis=1)[:, None]
+    inward = -points + 0.9 * rng.normal(size=points.shape)
+    inward /= np.linalg.norm(inward, axis=1)[:, None]
+    keep = np.einsum("ij,ij->i", inward, points) < -0.05  # rays into the sphere, none grazing it
+    points, inward = points[keep], inward[keep]
+    nets = np.concatenate([nurbs.sphere(1.0).bezier_patches.nets, nurbs.sphere(0.5).bezier_patches.nets])
+    start, far = np.full(len(points), 1e-7), np.full(len(points), 10.0)
+    hits = rb.first_hits(nets, points, inward, start, far)
+    exact = np.minimum(_sphere_crossing(points, inward, 0.5, 1e-7), _sphere_crossing(points, inward, 1.0, 1e-7))
+    assert np.all(np.isfinite(exact))
+    np.testing.assert_allclose(hits.tau, exact, atol=1e-8)
+    outward = rb.first_hits(nets, points, -inward, start, far)
+    assert np.all(outward.patch == -1) and np.all(np.isinf(outward.tau))

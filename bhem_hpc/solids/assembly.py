@@ -51,8 +51,37 @@ def point_groups(gradients: Sequence[scipy.sparse.spmatrix]) -> list[PointGroup]
     return groups
 
 
-def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, count: int) -> scipy.sparse.csr_matrix:
-    """``sum_k G_k^T W_k G_k`` on the interleaved coefficients (row ``3 m + c``), ``(3 count, 3 count)``.
+def dense_coefficients(count: int) -> bool:
+    """Whether the stiffness on ``count`` coefficients is assembled as a dense matrix."""
+    return 3 * count <= DENSE_LIMIT
+
+
+def coefficient_pattern(groups: Sequence[PointGroup], count: int) -> np.ndarray:
+    """``(3 count, 3 count)`` booleans: the entries some group's block reaches (dense coefficients only)."""
+    pattern = np.zeros((3 * count, 3 * count), dtype=bool)
+    for group in groups:
+        index = (3 * group.columns[:, None] + np.arange(3)[None, :]).reshape(-1)
+        pattern[np.ix_(index, index)] = True
+    return pattern
+
+
+def _add_by_runs(dense: np.ndarray, block: np.ndarray, columns: np.ndarray) -> None:
+    """``dense[:, :, columns, columns] += block`` (``(3, 3, n, n)`` and ``(3, 3, m, m)``, the index
+    pairs as ``np.ix_`` makes them) by slices over the runs of consecutive ``columns`` (a part's
+    coefficients are consecutive): the rocket's 86 blocks scattered element by element into the
+    interleaved matrix took 0.10 s of a 0.24 s stiffness, as runs of slices 0.02 s."""
+    breaks = np.flatnonzero(np.diff(columns) != 1) + 1
+    starts, stops = np.r_[0, breaks], np.r_[breaks, len(columns)]
+    for a0, a1 in zip(starts, stops, strict=True):
+        rows = slice(int(columns[a0]), int(columns[a1 - 1]) + 1)
+        for b0, b1 in zip(starts, stops, strict=True):
+            dense[:, :, rows, int(columns[b0]) : int(columns[b1 - 1]) + 1] += block[:, :, a0:a1, b0:b1]
+
+
+def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray,
+                          count: int) -> scipy.sparse.csr_matrix | np.ndarray:  # fmt: skip
+    """``sum_k G_k^T W_k G_k`` on the interleaved coefficients (row ``3 m + c``), ``(3 count, 3 count)``:
+    a dense array where :func:`dense_coefficients`, else a sparse matrix.
 
     Args:
         groups: from :func:`point_groups`.
@@ -61,7 +90,8 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
         count: the number of coefficients ``n_c``.
     """
     size = 3 * count
-    dense = np.zeros((size, size)) if size <= DENSE_LIMIT else None
+    # dense: [c, c', m, m'], interleaved at the end
+    dense = np.zeros((3, 3, count, count)) if dense_coefficients(count) else None
     rows, columns, values = [], [], []
     for group in groups:
         n, m = len(group.points), len(group.columns)
@@ -71,16 +101,16 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
         # sum over k and d': ((k, d'), (c, c', m)) against G[(k, d'), m']
         left = first.reshape(n, 9, 3, m).transpose(0, 2, 1, 3).reshape(3 * n, 9 * m)
         block = (left.T @ group.gradients.reshape(3 * n, m)).reshape(3, 3, m, m)  # [c, c', m, m']
+        if dense is not None:
+            _add_by_runs(dense, block, group.columns)
+            continue
         block = block.transpose(2, 0, 3, 1).reshape(3 * m, 3 * m)  # [(m, c), (m', c')]
         index = (3 * group.columns[:, None] + np.arange(3)[None, :]).reshape(-1)
-        if dense is not None:
-            dense[np.ix_(index, index)] += block
-            continue
         rows.append(np.repeat(index, 3 * m))
         columns.append(np.tile(index, 3 * m))
         values.append(block.reshape(-1))
     if dense is not None:
-        return scipy.sparse.csr_matrix(dense)
+        return np.ascontiguousarray(dense.transpose(2, 0, 3, 1)).reshape(size, size)  # [(m, c), (m', c')]
     stiffness = scipy.sparse.coo_matrix(
         (np.concatenate(values), (np.concatenate(rows), np.concatenate(columns))), shape=(size, size)
     )

@@ -144,6 +144,23 @@ def test_gradient_and_hessian_match_central_differences(box_solid, rng):
     assert eigenvalues.min() > -1e-9 * eigenvalues.max()
 
 
+def test_dense_and_sparse_stiffness_assembly_agree(box_solid, rng, monkeypatch):
+    """Small models assemble the coefficient stiffness densely (runs of slices, then BLAS for
+    Pi^T C Pi on a fixed pattern), large ones as sparse triplets: the two give the same Hessian,
+    and the dense one keeps its pattern at every state."""
+    from bhem_hpc.solids import assembly
+    from bhem_hpc.solids.sem import QuadratureShare
+
+    q = box_solid.reference + 0.02 * rng.normal(size=box_solid.reference.shape)
+    dense_share = QuadratureShare(box_solid, 0, len(box_solid.quadrature.points))
+    dense = dense_share.hessian(q, projected=False)
+    monkeypatch.setattr(assembly, "DENSE_LIMIT", 0)
+    sparse = QuadratureShare(box_solid, 0, len(box_solid.quadrature.points)).hessian(q, projected=False)
+    np.testing.assert_allclose(dense.toarray(), sparse.toarray(), atol=1e-10 * abs(sparse).max())
+    rest = dense_share.hessian(box_solid.reference, projected=False)
+    assert rest.nnz == dense.nnz and np.array_equal(rest.indices, dense.indices)
+
+
 def test_mass_and_gravity(box_solid):
     volume = 2.0 * 1.0 * 0.5
     assert box_solid.mass == pytest.approx(RUBBER.density * volume, rel=1e-12)

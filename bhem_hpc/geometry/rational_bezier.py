@@ -35,8 +35,9 @@ MAX_PIECE = 1.0 / 8.0
 #: Samples per side of a piece where the sign of the normal's axis component is tested.
 SIGN_SAMPLES = 4
 #: A ray crossing a piece no larger than :data:`MAX_PIECE` at this cosine to its normal or more
-#: crosses it once (its normal would have to turn by 60 degrees within the piece to meet the ray
-#: again); at shallower crossings the normal's sign along the ray is tested on the piece.
+#: crosses it once (to meet the ray again, the normal would have to turn by 30 degrees or more
+#: within the piece, to lie across the ray); at shallower crossings the normal's sign along the
+#: ray is tested on the piece.
 ONE_CROSSING_COSINE = 0.5
 #: Crossings closer than this (relative to the model's size) on one line, crossed the same way,
 #: are one crossing found twice (a line through a seam between patches or pieces).

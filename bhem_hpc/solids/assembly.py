@@ -51,9 +51,9 @@ def point_groups(gradients: Sequence[scipy.sparse.spmatrix]) -> list[PointGroup]
     return groups
 
 
-def dense_coefficients(count: int) -> bool:
-    """Whether the stiffness on ``count`` coefficients is assembled as a dense matrix."""
-    return 3 * count <= DENSE_LIMIT
+def fits_dense(size: int) -> bool:
+    """Whether a stiffness of ``size`` rows is assembled as a dense matrix (:data:`DENSE_LIMIT`)."""
+    return size <= DENSE_LIMIT
 
 
 def coefficient_pattern(groups: Sequence[PointGroup], count: int) -> np.ndarray:
@@ -81,7 +81,7 @@ def _add_by_runs(dense: np.ndarray, block: np.ndarray, columns: np.ndarray) -> N
 def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray,
                           count: int) -> scipy.sparse.csr_matrix | np.ndarray:  # fmt: skip
     """``sum_k G_k^T W_k G_k`` on the interleaved coefficients (row ``3 m + c``), ``(3 count, 3 count)``:
-    a dense array where :func:`dense_coefficients`, else a sparse matrix.
+    a dense array where :func:`fits_dense`, else a sparse matrix.
 
     Args:
         groups: from :func:`point_groups`.
@@ -91,7 +91,7 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray,
     """
     size = 3 * count
     # dense: [c, c', m, m'], interleaved at the end
-    dense = np.zeros((3, 3, count, count)) if dense_coefficients(count) else None
+    dense = np.zeros((3, 3, count, count)) if fits_dense(size) else None
     rows, columns, values = [], [], []
     for group in groups:
         n, m = len(group.points), len(group.columns)

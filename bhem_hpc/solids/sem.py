@@ -22,7 +22,7 @@ import scipy.sparse
 
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.assembly import coefficient_pattern, coefficient_stiffness, point_groups
+from bhem_hpc.solids.assembly import coefficient_pattern, coefficient_stiffness, fits_dense, point_groups
 from bhem_hpc.solids.blending import RayDistances, ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
 from bhem_hpc.solids.origins import deformation_origins
@@ -116,7 +116,9 @@ class QuadratureShare:
         coefficients = coefficient_stiffness(self._groups, self.weights[:, None, None] * tangent,
                                              solid.matching.coefficient_count)  # fmt: skip
         if isinstance(coefficients, np.ndarray):
-            return self._dense_product(coefficients)
+            if fits_dense(solid._projection.shape[1]):
+                return self._dense_product(coefficients)
+            coefficients = scipy.sparse.csr_matrix(coefficients)
         return (solid._projection.T @ coefficients @ solid._projection).tocsr()
 
     def _dense_product(self, coefficients: np.ndarray) -> scipy.sparse.csr_matrix:

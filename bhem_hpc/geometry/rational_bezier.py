@@ -382,7 +382,8 @@ def first_hits(
     Pieces of (ray, patch) pairs are kept while the ray's two planes both cut the box of the
     piece's control points (in the ray's frame) within the stretch; a piece no larger than
     :data:`MAX_PIECE` runs Newton's method from its centre, and a hit inside it shortens the
-    ray's stretch; other pieces split into quarters, down to :data:`MAX_LEVEL` levels.
+    ray's stretch; a piece is settled by the crossing Newton found where the ray crosses it once;
+    other pieces split into quarters, down to :data:`MAX_LEVEL` levels.
     """
     nets = np.asarray(nets, dtype=float)
     origins, directions = np.asarray(origins, dtype=float), np.asarray(directions, dtype=float)

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
 from bhem_hpc.geometry.rational_bezier import DUPLICATE_DISTANCE, axis_line_crossings, first_of_repeated
 from bhem_hpc.geometry.surface import SurfaceError
 
@@ -116,7 +116,9 @@ def ray_cast_quadrature(
     lo, hi = model_bounds(parts)
     spacing, cell_area, (first, second) = _line_grid(lo, hi, axis, lines_per_side)
     lines = len(first) * len(second)
-    crossings = [axis_line_crossings(part.bezier_patches.nets, axis, first, second) for part in parts]
+    # one search per patch degree for all parts (a part's crossings met again on another part's
+    # seam are merged below, as crossings found twice within a part are)
+    crossings = [axis_line_crossings(nets, axis, first, second) for nets, _ in bezier_nets_by_degree(parts)]
     line = np.concatenate([c.line for c in crossings])
     position = np.concatenate([c.position for c in crossings])
     direction = np.concatenate([c.direction for c in crossings])

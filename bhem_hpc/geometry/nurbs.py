@@ -403,6 +403,9 @@ def box_faces(lo, hi, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[
 PROJECTION_ITERATIONS = 40
 #: Step halvings per projection iteration.
 BACKTRACKS = 12
+#: A projection step shortening the squared distance by no more than this fraction of it changes
+#: nothing that round-off would not (the distance is stationary at the closest point).
+DISTANCE_ROUNDOFF = 4.0 * np.finfo(float).eps
 
 
 def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: int = 8, chunk: int = 4096):
@@ -458,9 +461,14 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
             at = active[pending]
             u_try = np.clip(u[at] + scale * du[pending], u0, u1)
             v_try = np.clip(v[at] + scale * dv[pending], v0, v1)
-            better = ((surface.evaluate(u_try, v_try)[0] - points[at]) ** 2).sum(1) <= distance[pending]
-            moved[pending[better]] = np.abs(u_try[better] - u[at[better]]) / (u1 - u0) + np.abs(
-                v_try[better] - v[at[better]]
+            trial = ((surface.evaluate(u_try, v_try)[0] - points[at]) ** 2).sum(1)
+            better = trial <= distance[pending]
+            # a step that no longer shortens the distance beyond its round-off ends the point's
+            # search: a point equidistant from a whole circle of the part (on a body of
+            # revolution's axis) would creep along it to the iteration limit
+            gain = distance[pending] - trial > DISTANCE_ROUNDOFF * distance[pending]
+            moved[pending[better & gain]] = np.abs(u_try[better & gain] - u[at[better & gain]]) / (u1 - u0) + np.abs(
+                v_try[better & gain] - v[at[better & gain]]
             ) / (v1 - v0)
             u[at[better]], v[at[better]] = u_try[better], v_try[better]
             pending = pending[~better]

@@ -167,6 +167,26 @@ def test_closest_points_on_sphere_torus_and_face(rng):
     np.testing.assert_allclose(distance, np.linalg.norm(points - clamped, axis=1), atol=1e-12)
 
 
+def test_closest_points_on_a_flat_face_end_when_the_distance_stops_falling(rng, monkeypatch):
+    """On a flat biquadratic face Newton lands in one step; the parameters of some points then crept
+    by round-off (1e-14 to 1e-12) to the iteration limit. The projection ends once a step no longer
+    shortens the distance beyond its round-off, with the exact distances."""
+    face = nurbs.box_faces([0.0, 0.0, 0.0], [0.17, 0.016, 0.18], degree=2)[0]  # x = 0, 0 <= y <= 0.016, 0 <= z <= 0.18
+    points = rng.uniform(-0.3, 0.4, size=(2000, 3))
+    calls = []
+    second_derivatives = nurbs.NurbsSurface.second_derivatives
+
+    def counted(self, u, v):
+        calls.append(len(u))
+        return second_derivatives(self, u, v)
+
+    monkeypatch.setattr(nurbs.NurbsSurface, "second_derivatives", counted)
+    _, _, distance = nurbs.closest_points(face, points)
+    clamped = np.c_[np.zeros(len(points)), np.clip(points[:, 1], 0.0, 0.016), np.clip(points[:, 2], 0.0, 0.18)]
+    np.testing.assert_allclose(distance, np.linalg.norm(points - clamped, axis=1), atol=1e-14)
+    assert len(calls) <= 4
+
+
 def test_first_hits_of_rays_inside_a_sphere(rng):
     origins = 0.4 * rng.normal(size=(600, 3))
     origins = origins[np.linalg.norm(origins, axis=1) < 0.9]

@@ -505,13 +505,3 @@ def wavy_cut_loops() -> tuple[np.ndarray, np.ndarray]:
     return (np.concatenate([[(0.0, 0.0)], first, [(0.0, 1.0), (0.0, 0.0)]]),
             np.concatenate([second[:1], [(1.0, 0.0), (1.0, 1.0)], second[::-1]]))  # fmt: skip
 
-
-def assert_bends_as_one_plate(summary_tips: list[tuple[dict | None, np.ndarray]]) -> None:
-    """The two-part run (its summary) joined along the cut by one trim-curve joint of no gap, and its
-    free end's deflections ``(3,)`` those of the one plate (summary None) within 1e-3."""
-    (summary, two), (_, one) = summary_tips
-    joints = summary["cad_models"][0]["joints"]
-    assert [j[:4] for j in joints] == [["plate_0", "trim curve", "plate_1", "trim curve"]]
-    assert joints[0][4] < 1e-12
-    assert one.min() < -1e-3  # it bends
-    np.testing.assert_allclose(two, one, rtol=1e-3)

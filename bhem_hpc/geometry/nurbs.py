@@ -464,11 +464,11 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
             trial = ((surface.evaluate(u_try, v_try)[0] - points[at]) ** 2).sum(1)
             better = trial <= distance[pending]
             # a step that no longer shortens the distance beyond its round-off ends the point's
-            # search: a point equidistant from a whole circle of the part (on a body of
-            # revolution's axis) would creep along it to the iteration limit
-            gain = distance[pending] - trial > DISTANCE_ROUNDOFF * distance[pending]
-            moved[pending[better & gain]] = np.abs(u_try[better & gain] - u[at[better & gain]]) / (u1 - u0) + np.abs(
-                v_try[better & gain] - v[at[better & gain]]
+            # search: where the distance is stationary the parameters crept by round-off (1e-14 to
+            # 1e-12 a step on flat faces) to the iteration limit
+            progress = better & (distance[pending] - trial > DISTANCE_ROUNDOFF * distance[pending])
+            moved[pending[progress]] = np.abs(u_try[progress] - u[at[progress]]) / (u1 - u0) + np.abs(
+                v_try[progress] - v[at[progress]]
             ) / (v1 - v0)
             u[at[better]], v[at[better]] = u_try[better], v_try[better]
             pending = pending[~better]

@@ -68,8 +68,9 @@ def coefficient_pattern(groups: Sequence[PointGroup], count: int) -> np.ndarray:
 def _add_by_runs(dense: np.ndarray, block: np.ndarray, columns: np.ndarray) -> None:
     """``dense[:, :, columns, columns] += block`` (``(3, 3, n, n)`` and ``(3, 3, m, m)``, the index
     pairs as ``np.ix_`` makes them) by slices over the runs of consecutive ``columns`` (a part's
-    coefficients are consecutive): the rocket's 86 blocks scattered element by element into the
-    interleaved matrix took 0.10 s of a 0.24 s stiffness, as runs of slices 0.02 s."""
+    coefficients are consecutive), into the component-major array, so that no block is transposed
+    to the interleaved order: the rocket's stiffness (86 blocks of about 500 x 500, element-wise
+    scatter into the interleaved matrix) took 0.24 s, this way 0.17 s."""
     breaks = np.flatnonzero(np.diff(columns) != 1) + 1
     starts, stops = np.r_[0, breaks], np.r_[breaks, len(columns)]
     for a0, a1 in zip(starts, stops, strict=True):

@@ -10,6 +10,7 @@ vertices): ``points = point_map(parameters) @ entries``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
@@ -26,6 +27,17 @@ from bhem_hpc.scene.records import Scene
 
 if TYPE_CHECKING:
     from bhem_hpc.contact.ipc_setup import BodyMesh
+
+
+@dataclass(frozen=True)
+class ImpulseContact:
+    """A body's part of contact by impulses: ``surface`` (a
+    :class:`~bhem_hpc.contact.bodies.ContactSurface`), ``detector`` (its contacts with its colliders
+    and itself) and ``projector`` (its share of the response's projection; owns PETSc objects)."""
+
+    surface: object
+    detector: object
+    projector: object
 
 
 class Body(Protocol):
@@ -67,6 +79,16 @@ class Body(Protocol):
 
     def collision_mesh(self) -> BodyMesh:
         """Collective: the body's collision mesh for contact by ``"ipc"`` (its scene's settings)."""
+        ...
+
+    def contact_surface(self) -> object:
+        """The body as impulse contact sees it (a :class:`~bhem_hpc.contact.bodies.ContactSurface`)."""
+        ...
+
+    def impulse_contact(self, problem: object, prefix: str) -> ImpulseContact:
+        """The body's part of contact by impulses (its scene's settings): its contact surface, its
+        detector (its colliders, itself) and its projector, whose PETSc options take ``prefix``
+        (``problem``: the body's problem in the solver)."""
         ...
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
@@ -133,6 +155,20 @@ class ShellBody:
         contact, material = self.scene.contact, self.scene.material
         return shell_mesh(self.model, contact.collision_cells, material.density, material.thickness,
                           contact.self_collision, surface_friction(contact))  # fmt: skip
+
+    def contact_surface(self) -> object:
+        from bhem_hpc.contact.bodies import ShellContactSurface
+
+        return ShellContactSurface(self.model.discretization, self.model.x.x.array.size)
+
+    def impulse_contact(self, problem: object, prefix: str) -> ImpulseContact:
+        from bhem_hpc.contact.petsc import ContactProjector
+        from bhem_hpc.contact.response import ContactHandler  # loaded with impulse contact only
+        from bhem_hpc.run import contact_detector
+
+        ContactHandler.check_model(self.model)
+        return ImpulseContact(self.contact_surface(), contact_detector(self.scene, self.model),
+                              ContactProjector(problem, prefix=prefix))
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
         scene = self.scene

@@ -52,7 +52,6 @@ from bhem_hpc.run import (
     StepRecords,
     build_model,
     checkpoint_attributes,
-    contact_detector,
     contact_settings,
     make_solver,
     prescribed_motions,
@@ -315,15 +314,25 @@ def bodies_contact(bodies: list[Body], solver: ShellSolver, scene: BodiesScene):
     from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries
     from bhem_hpc.contact.response import ContactHandler
 
-    models = [body.model for body in bodies]
-    entries = StackedEntries([m.discretization for m in models], [m.x.x.array.size for m in models])
-    detectors = [contact_detector(body.scene, body.model) if body.scene.contact is not None else None
-                 for body in bodies]  # fmt: skip
-    frictions = [body.scene.contact.friction if body.scene.contact is not None else 0.0 for body in bodies]
-    detector = BodiesDetector(entries, detectors, frictions, [record.bodies for record in scene.interfaces])
-    settings = contact_settings(bodies[in_contact.index(True)].scene)
-    prefixes = [f"{SOLVER_PREFIX}contact_{body.name}_" for body in bodies]
-    return ContactHandler.between_bodies(models, solver.problem.problems, detector, settings, prefixes)
+    problems = [solver.problem] if len(bodies) == 1 else solver.problem.problems  # (one body's is not stacked)
+    parts = [body.impulse_contact(problem, f"{SOLVER_PREFIX}contact_{body.name}_") if contact else None
+             for body, problem, contact in zip(bodies, problems, in_contact, strict=True)]  # fmt: skip
+    try:
+        surfaces = [part.surface if part is not None else body.contact_surface()
+                    for body, part in zip(bodies, parts, strict=True)]  # fmt: skip
+        entries = StackedEntries(surfaces)
+        frictions = [body.scene.contact.friction if part is not None else 0.0
+                     for body, part in zip(bodies, parts, strict=True)]  # fmt: skip
+        detector = BodiesDetector(entries, [part.detector if part is not None else None for part in parts], frictions,
+                                  [record.bodies for record in scene.interfaces])  # fmt: skip
+        settings = contact_settings(bodies[in_contact.index(True)].scene)
+    except Exception:
+        for part in parts:
+            if part is not None:
+                part.projector.close()
+        raise
+    return ContactHandler.between_bodies(problems, detector, lambda b: parts[b].projector, bodies[0].model.comm,
+                                         settings)
 
 
 def _step(run: _BodiesRun, checkpoint: RestartPoint | None, continuing: bool, steps: int) -> list[HermiteSurface]:

@@ -20,6 +20,7 @@ from bhem_hpc.solids.sem import ShapeMatchingSolid
 
 if TYPE_CHECKING:
     from bhem_hpc.contact.ipc_setup import BodyMesh
+    from bhem_hpc.solids.petsc import SolidProblem
 
 
 def build_solid_model(scene: SolidScene, comm: MPI.Comm, name: str = "solid") -> SolidModel:
@@ -53,6 +54,20 @@ class SolidBody:
 
     def __init__(self, name: str, index: int, scene: SolidScene, model: SolidModel):
         self.name, self.index, self.scene, self.model = name, index, scene, model
+        if scene.contact is not None and scene.contact.method == "impulse":
+            self._check_impulse_start()
+
+    def _check_impulse_start(self) -> None:
+        """Refuse a solid whose boundary samples start inside a collider (the impulse response would
+        push them through it), before anything is written."""
+        from bhem_hpc.contact.solid_surface import SolidContactDetector
+
+        surface = self.contact_surface(self.scene.contact.samples_per_side)
+        problem = SolidContactDetector(surface, self.scene.contact.colliders).starting_problem(
+            surface.open_to_entries(self.model.position))
+        if problem is not None:
+            raise SceneError(f"{self.scene.path}: body '{self.name}': key 'effects.contact.method' = 'impulse': "
+                             f"{problem}")  # fmt: skip
 
     def dof_range(self, layout: StackedLayout) -> slice:
         return layout.local_slice(self.index)
@@ -78,6 +93,25 @@ class SolidBody:
         contact = self.scene.contact
         return solid_mesh(self.model.solid.parts, self.model.comm.rank, self.mass(), contact.collision_cells + 1,
                           surface_friction(contact))  # fmt: skip
+
+    def contact_surface(self, samples_per_side: int = 1):
+        """The solid's parts as impulse contact sees them (``samples_per_side`` per knot span)."""
+        from bhem_hpc.contact.solid_surface import SolidContactSurface
+
+        return SolidContactSurface(self.model.solid.parts, samples_per_side)
+
+    def impulse_contact(self, problem: SolidProblem, prefix: str):
+        """The solid's samples against its colliders, and its projection in its mass or the step's
+        Jacobian (numpy and scipy: ``prefix`` names no PETSc solver)."""
+        from bhem_hpc.bodies.body import ImpulseContact
+        from bhem_hpc.contact.solid_projection import SolidContactProjector
+        from bhem_hpc.contact.solid_surface import SolidContactDetector
+
+        contact, model = self.scene.contact, self.model
+        surface = self.contact_surface(contact.samples_per_side)
+        return ImpulseContact(surface, SolidContactDetector(surface, contact.colliders),
+                              SolidContactProjector(model.mass_matrix, model.solid.error_matrix, model.constrained,
+                                                    problem.jacobian_csr))  # fmt: skip
 
     def writer(self, path: Path, continue_at: float | None = None) -> SolidTimeSeries:
         samples = 2 * self.scene.output_density + 1

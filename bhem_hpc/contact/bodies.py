@@ -12,18 +12,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
 from bhem_hpc.contact.broad_phase import overlapping_pairs, swept_boxes
-from bhem_hpc.contact.closest_points import project_to_patches
+from bhem_hpc.contact.closest_points import control_points, project_to_patches
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
 from bhem_hpc.contact.samples import ShellMotion
 from bhem_hpc.contact.self_contact import body_contacts
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.bspline import BSplineSurface
+from bhem_hpc.geometry.nurbs import NurbsSurface, span_lattice
 from bhem_hpc.geometry.surface import HermiteSurface
 
 if TYPE_CHECKING:  # (the discretizations are built on dolfinx; detection is numpy only)
@@ -45,25 +46,96 @@ def pair_friction(first: float, second: float) -> float:
     return math.sqrt(first * second)
 
 
+@runtime_checkable
+class ContactSurface(Protocol):
+    """A body as impulse contact sees it: flat entries ``(N, 3)`` that its contact points are linear
+    maps of, and patches (each moved by a known set of entries)."""
+
+    @property
+    def num_entries(self) -> int: ...
+
+    @property
+    def num_patches(self) -> int: ...
+
+    @property
+    def open_size(self) -> int:
+        """The length of the body's open-layout array on this rank."""
+        ...
+
+    def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
+        """Collective: the entries of the body's open-layout array, on every rank."""
+        ...
+
+    def entries_to_open(self, entries: np.ndarray) -> np.ndarray: ...
+
+    def moved_patches(self, shift: np.ndarray, touched: np.ndarray, margin: float) -> np.ndarray:
+        """``(patches,)`` the patches whose points can have moved by ``margin`` or more under the entry
+        shift ``shift (N, 3)``, and those moved by an entry in ``touched (N,)``."""
+        ...
+
+    def motion(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float) -> ShellMotion:
+        """The body's straight-line motion ``start -> end`` (entries) over a step ``dt``, as the narrow
+        phase sees it (a shell's :class:`ShellMotion`, or one with the same interface)."""
+        ...
+
+
+class ShellContactSurface:
+    """A shell's discretization as a :class:`ContactSurface`: its entries, and its patches' Bezier
+    nets (a patch point is a convex combination of its net's control points).
+
+    Args:
+        discretization: the shell's discretization (``patches``: its :class:`PatchLayout`).
+        open_size: the length of the shell's open-layout array on this rank.
+    """
+
+    def __init__(self, discretization: Discretization, open_size: int):
+        self.discretization = discretization
+        self.open_size = open_size
+        self.layout = discretization.patches
+        self._patch_entries = self.layout.patch_entries()
+
+    @property
+    def num_entries(self) -> int:
+        return self.discretization.num_entries
+
+    @property
+    def num_patches(self) -> int:
+        return self.layout.grid.n1 * self.layout.grid.n2
+
+    def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
+        return self.discretization.open_to_entries(open_array)
+
+    def entries_to_open(self, entries: np.ndarray) -> np.ndarray:
+        return self.discretization.entries_to_open(entries)
+
+    def motion(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float) -> ShellMotion:
+        return ShellMotion.of(self.layout, start, end, dt, gap)
+
+    def moved_patches(self, shift: np.ndarray, touched: np.ndarray, margin: float) -> np.ndarray:
+        nets = self.layout.bezier_nets(shift)
+        moved = np.linalg.norm(nets, axis=-1).reshape(len(nets), -1).max(axis=1) >= margin
+        return moved | touched[self._patch_entries].any(axis=1)
+
+
 class StackedEntries:
     """Every body's flat entries ``(N_b, 3)`` side by side, ``(sum N_b, 3)``, and the stacked
     open-layout array of the solver's state (every body's owned + ghost values, body after body).
 
     Args:
-        discretizations: each body's discretization.
-        open_sizes: each body's open-layout array length on this rank.
+        surfaces: each body's :class:`ContactSurface`.
     """
 
-    def __init__(self, discretizations: Sequence[Discretization], open_sizes: Sequence[int]):
-        self.discretizations = tuple(discretizations)
-        self.layouts = tuple(d.patches for d in self.discretizations)
+    def __init__(self, surfaces: Sequence[ContactSurface]):
+        self.surfaces = tuple(surfaces)
+        for surface in self.surfaces:
+            if not isinstance(surface, ContactSurface):
+                raise TypeError(f"{surface!r} is not a contact surface (bhem_hpc.contact.bodies.ContactSurface)")
         #: where each body's entries start, ``(bodies + 1,)``
-        self.entry_offsets = np.cumsum([0] + [d.num_entries for d in self.discretizations])
+        self.entry_offsets = np.cumsum([0] + [s.num_entries for s in self.surfaces])
         #: where each body's open array starts, ``(bodies + 1,)``
-        self.open_offsets = np.cumsum([0, *open_sizes])
+        self.open_offsets = np.cumsum([0] + [s.open_size for s in self.surfaces])
         #: where each body's patches start in a mask over every body's patches, ``(bodies + 1,)``
-        self.patch_offsets = np.cumsum([0] + [layout.grid.n1 * layout.grid.n2 for layout in self.layouts])
-        self._patch_entries = [layout.patch_entries() for layout in self.layouts]
+        self.patch_offsets = np.cumsum([0] + [s.num_patches for s in self.surfaces])
 
     @property
     def num_entries(self) -> int:
@@ -76,22 +148,17 @@ class StackedEntries:
     def open_to_entries(self, open_array: np.ndarray) -> np.ndarray:
         """Collective: the stacked entries of a stacked open-layout array, on every rank."""
         o = self.open_offsets
-        return np.concatenate([d.open_to_entries(open_array[o[b] : o[b + 1]])
-                               for b, d in enumerate(self.discretizations)])  # fmt: skip
+        return np.concatenate([s.open_to_entries(open_array[o[b] : o[b + 1]]) for b, s in enumerate(self.surfaces)])
 
     def entries_to_open(self, entries: np.ndarray) -> np.ndarray:
         """The stacked open-layout array of stacked entries."""
-        return np.concatenate([d.entries_to_open(self.entries(entries, b)) for b, d in enumerate(self.discretizations)])
+        return np.concatenate([s.entries_to_open(self.entries(entries, b)) for b, s in enumerate(self.surfaces)])
 
     def patches_to_retest(self, shift: np.ndarray, touched: np.ndarray, margin: float) -> np.ndarray:
-        """Mask over every body's patches: those whose Bezier control points moved by ``margin`` or
-        more under the entry shift ``shift (N, 3)``, and those moved by an entry in ``touched (N,)``."""
-        masks = []
-        for b, layout in enumerate(self.layouts):
-            nets = layout.bezier_nets(self.entries(shift, b))
-            moved = np.linalg.norm(nets, axis=-1).reshape(len(nets), -1).max(axis=1) >= margin
-            masks.append(moved | self.entries(touched, b)[self._patch_entries[b]].any(axis=1))
-        return np.concatenate(masks)
+        """Mask over every body's patches: those whose points can have moved by ``margin`` or more
+        under the entry shift ``shift (N, 3)``, and those moved by an entry in ``touched (N,)``."""
+        return np.concatenate([s.moved_patches(self.entries(shift, b), self.entries(touched, b), margin)
+                               for b, s in enumerate(self.surfaces)])  # fmt: skip
 
 
 class BodiesDetector:
@@ -111,8 +178,8 @@ class BodiesDetector:
         self, entries: StackedEntries, detectors: Sequence[ContactDetector | None], frictions: Sequence[float],
         joined: Sequence[tuple[int, int]] = (),
     ):  # fmt: skip
-        if len(detectors) != len(entries.discretizations) or len(frictions) != len(detectors):
-            raise ValueError(f"one detector and one friction coefficient per body: {len(entries.discretizations)} "
+        if len(detectors) != len(entries.surfaces) or len(frictions) != len(detectors):
+            raise ValueError(f"one detector and one friction coefficient per body: {len(entries.surfaces)} "
                              f"bodies, {len(detectors)} detectors, {len(frictions)} coefficients")  # fmt: skip
         if len(detectors) > MAX_BODIES:
             raise InputError(f"contact of {len(detectors)} bodies: at most {MAX_BODIES} bodies meet each other")
@@ -142,50 +209,80 @@ class BodiesDetector:
         stacked numbering; ``patches`` a mask over every body's patches (:meth:`ContactDetector.detect`)."""
         e, p = self.entries, self.entries.patch_offsets
         bodies = self.in_contact
-        count = len(self.detectors)
         parts = []
-        motions = {}
         for b in bodies:
             own = None if patches is None else patches[p[b] : p[b + 1]]
             found = self.detectors[b].detect(e.entries(start, b), e.entries(end, b), time, dt, gap, rank, size, own)
             offset = int(e.entry_offsets[b])
             parts.append(found.stacked(offset, offset, b * GROUP_KEYS, self.width))
-            motions[b] = ShellMotion.of(e.layouts[b], e.entries(start, b), e.entries(end, b), dt, gap)
+        if len(bodies) > 1:
+            parts += self._between(start, end, dt, gap, rank, size, patches)
+        return Contacts.concatenate(parts)
+
+    def _between(self, start: np.ndarray, end: np.ndarray, dt: float, gap: float, rank: int, size: int,
+                 patches: np.ndarray | None) -> list[Contacts]:  # fmt: skip
+        """Every body's samples (this rank's share) against every other body's patches, stacked."""
+        e, p = self.entries, self.entries.patch_offsets
+        bodies, count = self.in_contact, len(self.detectors)
+        motions = {b: e.surfaces[b].motion(e.entries(start, b), e.entries(end, b), dt, gap) for b in bodies}
+        parts = []
         for a in bodies:
             samples = self.detectors[a].samples
             rows = np.arange(rank, len(samples.patch), size)
+            positions = (samples.positions(motions[a].start, rows), samples.positions(motions[a].end, rows))
             for b in bodies:
                 if b == a or frozenset((a, b)) in self.joined:
                     continue
                 mask = None if patches is None else np.concatenate([patches[p[a] : p[a + 1]], patches[p[b] : p[b + 1]]])
                 friction = pair_friction(self.frictions[a], self.frictions[b])
-                found = body_contacts(samples, rows, motions[a], motions[b], mask, friction, 0)
+                found = body_contacts(samples, rows, positions, e.surfaces[a].num_patches, motions[b], mask, friction,
+                                      0)  # fmt: skip
                 group = count + a * count + b
                 parts.append(found.stacked(int(e.entry_offsets[a]), int(e.entry_offsets[b]), group * GROUP_KEYS,
                                            self.width))  # fmt: skip
-        return Contacts.concatenate(parts)
+        return parts
 
 
-def lattice_crossing(first: Surface, second: Surface, per_side: int) -> np.ndarray | None:
-    """A point ``(3,)`` where the sample lattice of ``first`` (``per_side`` samples per patch side,
-    neighbours joined by straight segments) crosses ``second``, or None: a test that two bodies are
-    apart, as detection sees them (a crossing shorter than a lattice segment's width can go unseen).
-    A segment crosses a patch of ``second`` when its ends lie on opposite sides of (or one on) the
-    tangent plane at the closest point of an end that projects inside the patch, and the point where
-    it meets that plane projects inside the patch too: exact for segments short against the
-    patch's curvature.
-    ``first`` and ``second``: Hermite or B-spline surfaces (their ``grid``, ``evaluate`` and
-    ``bezier_nets``)."""
-    grid = first.grid
+def lattice_segments(surface: Surface, per_side: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sample lattice of a shell's surface (``per_side`` samples per patch side), neighbours joined
+    by straight segments: ``(starts (L, 3), ends (L, 3))``."""
+    grid = surface.grid
     axes = []
     for n, (lo, hi), periodic in ((grid.n1, grid.xi1_range, grid.periodic1), (grid.n2, grid.xi2_range, grid.periodic2)):
         count = n * per_side + (0 if periodic else 1)
         axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
-    lattice = first.evaluate(*np.meshgrid(*axes, indexing="ij")).x  # (L1, L2, 3)
+    return _joined(surface.evaluate(*np.meshgrid(*axes, indexing="ij")).x)  # (L1, L2, 3)
+
+
+def part_segments(parts: Sequence[NurbsSurface], per_side: int) -> tuple[np.ndarray, np.ndarray]:
+    """The sample lattices of a solid's NURBS parts (``per_side`` samples per knot span and side),
+    neighbours joined by straight segments: ``(starts (L, 3), ends (L, 3))``."""
+    pieces = []
+    for part in parts:
+        axes = [span_lattice(direction, per_side) for direction in (part.u, part.v)]
+        u, v = np.meshgrid(*axes, indexing="ij")
+        pieces.append(_joined(part.evaluate(u.ravel(), v.ravel())[0].reshape(*u.shape, 3)))
+    return np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])
+
+
+def _joined(lattice: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Segments between neighbours of a lattice ``(L1, L2, 3)``."""
     starts = np.concatenate([lattice[:-1].reshape(-1, 3), lattice[:, :-1].reshape(-1, 3)])
     ends = np.concatenate([lattice[1:].reshape(-1, 3), lattice[:, 1:].reshape(-1, 3)])
-    nets = second.bezier_nets()
-    patch, segment = overlapping_pairs(swept_boxes(nets, nets, 0.0), swept_boxes(starts, ends, 0.0))
+    return starts, ends
+
+
+def lattice_crossing(segments: tuple[np.ndarray, np.ndarray], nets: np.ndarray) -> np.ndarray | None:
+    """A point ``(3,)`` where the ``segments`` of one body's sample lattice (:func:`lattice_segments`,
+    :func:`part_segments`) cross another body's patches ``nets`` (polynomial ``(P, 4, 4, 3)`` or
+    homogeneous ``(P, 4, 4, 4)``), or None: a test that two bodies are apart, as detection sees them
+    (a crossing shorter than a lattice segment's width can go unseen).
+    A segment crosses a patch when its ends lie on opposite sides of (or one on) the tangent plane at
+    the closest point of an end that projects inside the patch, and the point where it meets that
+    plane projects inside the patch too: exact for segments short against the patch's curvature."""
+    starts, ends = segments
+    boxes = control_points(nets)
+    patch, segment = overlapping_pairs(swept_boxes(boxes, boxes, 0.0), swept_boxes(starts, ends, 0.0))
     if not len(patch):
         return None
     # the ends' closest points on each candidate patch: a segment crosses the patch when its ends lie

@@ -23,17 +23,49 @@ START_GRID = 7
 LINE_SEARCH_HALVINGS = 4
 
 
+def control_points(nets: np.ndarray) -> np.ndarray:
+    """The Euclidean control points ``(..., 4, 4, 3)`` of polynomial nets ``(..., 4, 4, 3)`` or of
+    homogeneous ones ``(..., 4, 4, 4)`` (``(w x, w y, w z, w)``, positive weights): a patch lies in
+    their convex hull either way."""
+    return nets if nets.shape[-1] == 3 else nets[..., :3] / nets[..., 3:]
+
+
+def evaluate_points(nets: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """One point per net: polynomial ``(N, 4, 4, 3)`` or homogeneous ``(N, 4, 4, 4)`` nets at
+    ``u, v (N,)`` -> ``(N, 3)``."""
+    if nets.shape[-1] == 3:
+        return evaluate_many(nets, u, v)
+    along_u = np.matmul(_bernstein(u)[:, None, :], nets.reshape(len(nets), 4, 16)).reshape(-1, 4, 4)
+    point = np.matmul(_bernstein(v)[:, None, :], along_u)[:, 0]
+    return point[:, :3] / point[:, 3:]
+
+
 def _derivatives(nets: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Points and partial derivatives up to second order of nets ``(N, 4, 4, 3)`` at ``u, v (N,)``:
-    ``(N, 3, 3, 3)`` indexed ``[order in u, order in v, xyz]`` (orders above 2 in total are unused)."""
+    """Points and partial derivatives up to second order of nets ``(N, 4, 4, C)`` at ``u, v (N,)``:
+    ``(N, 3, 3, 3)`` indexed ``[order in u, order in v, xyz]`` (orders above 2 in total are unused).
+    ``C = 3``: polynomial nets; ``C = 4``: homogeneous ones, differentiated by the quotient rule."""
+    n, c = len(nets), nets.shape[-1]
     along_u = np.stack([_bernstein(u, k) for k in range(3)], axis=1)  # (N, 3, 4)
     along_v = np.stack([_bernstein(v, k) for k in range(3)], axis=1)
-    partial = np.matmul(along_u, nets.reshape(len(nets), 4, 12)).reshape(-1, 3, 4, 3)  # [n, order u, j, xyz]
-    return np.matmul(along_v[:, None], partial)  # [n, order u, order v, xyz]
+    partial = np.matmul(along_u, nets.reshape(n, 4, 4 * c)).reshape(-1, 3, 4, c)  # [n, order u, j, component]
+    h = np.matmul(along_v[:, None], partial)  # [n, order u, order v, component]
+    if c == 3:
+        return h
+    # x = A / W; differentiate A = W x: A_u = W_u x + W x_u, A_uv = W_uv x + W_u x_v + W_v x_u + W x_uv
+    a, w = h[..., :3], h[..., 3:]
+    out = np.zeros((n, 3, 3, 3))
+    x = out[:, 0, 0] = a[:, 0, 0] / w[:, 0, 0]
+    x_u = out[:, 1, 0] = (a[:, 1, 0] - w[:, 1, 0] * x) / w[:, 0, 0]
+    x_v = out[:, 0, 1] = (a[:, 0, 1] - w[:, 0, 1] * x) / w[:, 0, 0]
+    out[:, 2, 0] = (a[:, 2, 0] - w[:, 2, 0] * x - 2.0 * w[:, 1, 0] * x_u) / w[:, 0, 0]
+    out[:, 0, 2] = (a[:, 0, 2] - w[:, 0, 2] * x - 2.0 * w[:, 0, 1] * x_v) / w[:, 0, 0]
+    out[:, 1, 1] = (a[:, 1, 1] - w[:, 1, 1] * x - w[:, 1, 0] * x_v - w[:, 0, 1] * x_u) / w[:, 0, 0]
+    return out
 
 
 def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Closest points of ``points (N, 3)`` on Bezier patches ``nets (N, 4, 4, 3)`` (one each).
+    """Closest points of ``points (N, 3)`` on Bezier patches ``nets (N, 4, 4, 3)`` (one each), or on
+    rational ones given by homogeneous nets ``(N, 4, 4, 4)``.
 
     Newton on the first-order conditions from the nearest of ``START_GRID^2`` samples, at most
     ``PROJECTION_ITERATIONS`` iterations (each projection stops once its distance falls by less than
@@ -53,12 +85,12 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
     grid = np.linspace(0.0, 1.0, START_GRID)
     gu, gv = np.meshgrid(grid, grid, indexing="ij")
     basis = np.einsum("si,sj->sij", _bernstein(gu.ravel()), _bernstein(gv.ravel())).reshape(-1, 16)
-    samples = basis @ nets.reshape(n, 16, 3)  # (N, START_GRID^2, 3)
+    samples = control_points(basis @ nets.reshape(n, 16, nets.shape[-1]))  # (N, START_GRID^2, 3)
     nearest = np.argmin(((samples - points[:, None]) ** 2).sum(-1), axis=1)
     u, v = gu.ravel()[nearest], gv.ravel()[nearest]
-    distance = ((evaluate_many(nets, u, v) - points) ** 2).sum(1)
+    distance = ((evaluate_points(nets, u, v) - points) ** 2).sum(1)
     active = np.arange(n)  # the projections still iterating
-    tolerance = PROJECTION_TOLERANCE * np.linalg.norm(np.ptp(nets.reshape(n, 16, 3), axis=1), axis=1)
+    tolerance = PROJECTION_TOLERANCE * np.linalg.norm(np.ptp(control_points(nets).reshape(n, 16, 3), axis=1), axis=1)
     for _ in range(PROJECTION_ITERATIONS):
         if not len(active):
             break
@@ -81,7 +113,7 @@ def project_to_patches(nets: np.ndarray, points: np.ndarray) -> tuple[np.ndarray
         pending = np.arange(len(active))
         for _ in range(LINE_SEARCH_HALVINGS + 1):
             tu, tv = np.clip(new_u[pending] + du[pending], 0.0, 1.0), np.clip(new_v[pending] + dv[pending], 0.0, 1.0)
-            trial = ((evaluate_many(net[pending], tu, tv) - point[pending]) ** 2).sum(1)
+            trial = ((evaluate_points(net[pending], tu, tv) - point[pending]) ** 2).sum(1)
             accept = trial <= new_distance[pending]
             taken = pending[accept]
             new_u[taken], new_v[taken], new_distance[taken] = tu[accept], tv[accept], trial[accept]
@@ -111,6 +143,24 @@ def _along_normal(offset: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return tangential <= 1e-6 * np.abs(along)
 
 
+def _time_of_impact(net_start: np.ndarray, net_end: np.ndarray, point_start: np.ndarray, point_end: np.ndarray,
+                    dt: float, gap: float) -> tuple[float, float, float] | None:  # fmt: skip
+    """:func:`point_patch_toi` of a point moving ``point_start -> point_end`` ``(3,)`` and a patch
+    moving ``net_start -> net_end`` (polynomial ``(4, 4, 3)`` or homogeneous ``(4, 4, 4)`` nets with
+    the same weights at both ends) over ``dt``, within ``gap``."""
+    if net_start.shape[-1] == 3:
+        return point_patch_toi(net_start, (net_end - net_start) / dt, point_start, (point_end - point_start) / dt, dt,
+                               tolerance=gap)  # fmt: skip
+    # The point lies on the rational patch where sum_j B_j w_j (b_j - x) = W (X - x) = 0: a polynomial
+    # patch of the weighted offsets from the point, met by the origin, which stays put. A point
+    # within gap of the patch is within gap * max(w) of the origin there.
+    weights = net_start[..., 3:]
+    offsets_start = net_start[..., :3] - weights * point_start
+    offsets_end = net_end[..., :3] - weights * point_end
+    return point_patch_toi(offsets_start, (offsets_end - offsets_start) / dt, np.zeros(3), np.zeros(3), dt,
+                           tolerance=gap * float(weights.max()))  # fmt: skip
+
+
 def point_patch_pairs(
     points_start: np.ndarray,
     points_end: np.ndarray,
@@ -120,7 +170,8 @@ def point_patch_pairs(
     gap: float,
     dt: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Narrow phase of candidate (point, patch) pairs.
+    """Narrow phase of candidate (point, patch) pairs (polynomial nets ``(P, 4, 4, 3)`` or
+    homogeneous ones ``(P, 4, 4, 4)`` of rational patches).
 
     A pair is in contact when the point's projection onto the patch lies inside the patch at the
     end of the step and the point is then closer than ``gap`` on the side where it started (or has
@@ -176,14 +227,8 @@ def point_patch_pairs(
         with warnings.catch_warnings():
             warnings.simplefilter("error", BoundReached)
             try:
-                found = point_patch_toi(
-                    nets_start[iq[row]],
-                    (nets_end[iq[row]] - nets_start[iq[row]]) / dt,
-                    points_start[ip[row]],
-                    (points_end[ip[row]] - points_start[ip[row]]) / dt,
-                    dt,
-                    tolerance=gap,
-                )
+                found = _time_of_impact(nets_start[iq[row]], nets_end[iq[row]], points_start[ip[row]],
+                                        points_end[ip[row]], dt, gap)  # fmt: skip
             except BoundReached:
                 found = (0.0, 0.5, 0.5)  # undecided: treat as a contact (never a silent miss)
         if found is not None:

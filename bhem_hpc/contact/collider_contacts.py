@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bhem_hpc.collision.bezier import evaluate_many
 from bhem_hpc.contact.broad_phase import box_distance, overlapping_pairs, swept_boxes
-from bhem_hpc.contact.closest_points import BRUTE_FORCE_PAIRS, point_patch_pairs
+from bhem_hpc.contact.closest_points import BRUTE_FORCE_PAIRS, evaluate_points, point_patch_pairs
 from bhem_hpc.contact.contacts import Contacts, nearest_per_point, no_second_point, sample_contacts
 from bhem_hpc.contact.samples import ShellMotion, ShellSamples
 
@@ -47,14 +46,14 @@ def point_contacts(
     points_start: np.ndarray, velocity: np.ndarray, clearance: float, source: int, rows: np.ndarray,
     motion: ShellMotion, friction: float, patches: np.ndarray | None = None, patch_boxes: np.ndarray | None = None,
 ) -> Contacts:  # fmt: skip
-    """Collider points ``rows`` (mesh vertices, patch-model samples, needle tips) against shell patches.
+    """Collider points ``rows`` (mesh vertices, patch-model samples, needle tips) against a body's
+    patches (``motion``: a shell's, or a solid's rational ones).
 
     The points move at ``velocity``; ``clearance`` is the radius around each point that counts as
-    touching (a round needle tip). ``patches``: a ``(n1 * n2,)`` mask of the patches to test (None:
+    touching (a round needle tip). ``patches``: a ``(patches,)`` mask of the patches to test (None:
     all); ``patch_boxes``: the patches' swept boxes (computed if None).
     """
-    layout, nets_start, nets_end, dt, gap = motion.layout, motion.nets_start, motion.nets_end, motion.dt, motion.gap
-    grid = layout.grid
+    nets_start, nets_end, dt, gap = motion.nets_start, motion.nets_end, motion.dt, motion.gap
     if not len(rows):
         return Contacts.empty()
     q0 = points_start[rows]
@@ -62,7 +61,7 @@ def point_contacts(
     reach = gap + clearance
     tested = np.arange(len(nets_start)) if patches is None else np.flatnonzero(patches)
     if patch_boxes is None:
-        patch_boxes = swept_boxes(nets_start[tested], nets_end[tested], 0.0)
+        patch_boxes = motion.patch_boxes(0.0)[tested]
     else:
         patch_boxes = patch_boxes[tested]
     point_boxes = swept_boxes(q0, q1, 0.0)
@@ -86,7 +85,7 @@ def point_contacts(
     if clearance > 0.0:
         # a round tip or a sphere's centre keeps every patch within reach: each patch's closest
         # point, with the radial normal, whatever side of the patch the centre is on
-        foot = evaluate_many(nets_end[patch], uv[:, 0], uv[:, 1])
+        foot = evaluate_points(nets_end[patch], uv[:, 0], uv[:, 1])
         offset = foot - q1[point]
         length = np.linalg.norm(offset, axis=1)
         # The row holds the Euclidean distance to the foot. A foot off the true closest point (next
@@ -100,11 +99,11 @@ def point_contacts(
         normal[radial] = offset[radial] / length[radial, None]
         if not len(point):
             return Contacts.empty()
-    index, weights = layout.point_entries(patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    index, weights = motion.patch_point_entries(patch, uv)
     b_index, b_weights = no_second_point(len(point), index.shape[1])
     # the shell point must stay on its side: the normal points from the collider point to the shell
     return Contacts(
-        key=source * 2**40 + rows[point] * grid.n1 * grid.n2 + patch,
+        key=source * 2**40 + rows[point] * motion.num_patches + patch,
         index_a=index,
         weights_a=weights,
         index_b=b_index,

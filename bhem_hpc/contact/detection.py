@@ -22,7 +22,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from bhem_hpc.collision.colliders import Collider
-from bhem_hpc.contact.broad_phase import swept_boxes
 from bhem_hpc.contact.collider_contacts import point_contacts, simple_collider_contacts
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.samples import ShellMotion, ShellSamples
@@ -100,30 +99,8 @@ class ContactDetector:
         colliders to those patches and their samples (None: all; self-collision always tests all).
         """
         motion = ShellMotion.of(self.layout, start, end, dt, gap)
-        patch_boxes = None  # swept boxes of the patches, shared by every collider's points
+        parts = colliders_contacts(self.colliders, self.samples, motion, time, rank, size, patches)
         every_row = np.arange(rank, len(self.samples.patch), size)
-        shell_rows = every_row if patches is None else every_row[patches[self.samples.patch[every_row]]]
-        positions = (self.samples.positions(start, shell_rows), self.samples.positions(end, shell_rows))
-        parts = []
-        for source, entry in enumerate(self.colliders):
-            collider = collider_at(entry.collider, time)
-            if collider.analytic:
-                parts.append(
-                    simple_collider_contacts(
-                        collider, 2 * source, self.samples, shell_rows, positions, dt, gap, entry.friction
-                    )
-                )
-            points, clearance = collider.contact_points()
-            if len(points):
-                if patch_boxes is None:
-                    patch_boxes = swept_boxes(motion.nets_start, motion.nets_end, 0.0)
-                rows = np.arange(rank, len(points), size)
-                parts.append(
-                    point_contacts(
-                        points, collider.velocity, clearance, 2 * source + 1, rows, motion, entry.friction,
-                        patches, patch_boxes,
-                    )
-                )  # fmt: skip
         if self.self_collision:
             parts.append(
                 self_contacts(
@@ -136,6 +113,35 @@ class ContactDetector:
                 )
             )  # fmt: skip
         return Contacts.concatenate(parts)
+
+
+def colliders_contacts(
+    colliders: Sequence[ColliderEntry], samples: ShellSamples, motion: ShellMotion, time: float, rank: int, size: int,
+    patches: np.ndarray | None,
+) -> list[Contacts]:  # fmt: skip
+    """A body's contacts with its colliders over the step from ``time`` (``motion``: a shell's, or a
+    solid's with rational patches): its ``samples`` against analytic colliders, the colliders' own
+    points (mesh vertices, a sphere's centre, needle tips) against its patches; this rank's
+    interleaved share of the samples and of the points. ``patches``: a ``(patches,)`` mask of the
+    patches (and their samples) to test (None: all)."""
+    every_row = np.arange(rank, len(samples.patch), size)
+    rows = every_row if patches is None else every_row[patches[samples.patch[every_row]]]
+    positions = (samples.positions(motion.start, rows), samples.positions(motion.end, rows))
+    patch_boxes = None  # swept boxes of the patches, shared by every collider's points
+    parts = []
+    for source, entry in enumerate(colliders):
+        collider = collider_at(entry.collider, time)
+        if collider.analytic:
+            parts.append(simple_collider_contacts(collider, 2 * source, samples, rows, positions, motion.dt, motion.gap,
+                                                  entry.friction))  # fmt: skip
+        points, clearance = collider.contact_points()
+        if len(points):
+            if patch_boxes is None:
+                patch_boxes = motion.patch_boxes(0.0)
+            point_rows = np.arange(rank, len(points), size)
+            parts.append(point_contacts(points, collider.velocity, clearance, 2 * source + 1, point_rows, motion,
+                                        entry.friction, patches, patch_boxes))  # fmt: skip
+    return parts
 
 
 def collider_at(collider: Collider, time: float) -> Collider:

@@ -29,13 +29,13 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
 
-from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries
+from bhem_hpc.contact.bodies import BodiesDetector, ShellContactSurface, StackedEntries
 from bhem_hpc.contact.bodies_petsc import StackedProjector
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
@@ -131,27 +131,27 @@ class ContactHandler:
         prefix: str = "bhem_contact_",
     ):
         settings = self._validated(settings)
-        self._check(model)
+        self.check_model(model)
         # the "jacobian" metric: the last Newton iteration's Jacobian, at (nearly) the step's end
         jacobian = problem.jacobian if settings.metric == "jacobian" else None
         projector = ContactProjector(problem, prefix=prefix, options=options)
-        self._attach(StackedEntries([model.discretization], [model.x.x.array.size]), detector, projector, settings,
-                     model.comm, jacobian)  # fmt: skip
+        surface = ShellContactSurface(model.discretization, model.x.x.array.size)
+        self._attach(StackedEntries([surface]), detector, projector, settings, model.comm, jacobian)
 
     @classmethod
     def between_bodies(
-        cls, models: Sequence[ShellModel], problems: Sequence[ShellProblem], detector: BodiesDetector,
-        settings: ContactSettings | None = None, prefixes: Sequence[str] = (),
+        cls, problems: Sequence[object], detector: BodiesDetector, projector_of: Callable[[int], object],
+        comm: MPI.Comm, settings: ContactSettings | None = None,
     ) -> ContactHandler:  # fmt: skip
         """The handler of several bodies (a solver's ``problem.problems``) whose detector has a part
-        for each body in contact; ``prefixes``: each body's projection options prefix."""
+        for each body in contact; ``projector_of(b)`` makes body ``b``'s projector (a shell's
+        :class:`ContactProjector`, a solid's
+        :class:`~bhem_hpc.contact.solid_projection.SolidContactProjector`)."""
         settings = cls._validated(settings)
-        for b in detector.in_contact:
-            cls._check(models[b])
-        projectors: list[ContactProjector | None] = [None] * len(models)
+        projectors: list[object | None] = [None] * len(problems)
         try:
             for b in detector.in_contact:
-                projectors[b] = ContactProjector(problems[b], prefix=prefixes[b])
+                projectors[b] = projector_of(b)
         except Exception:
             for projector in projectors:
                 if projector is not None:
@@ -160,7 +160,7 @@ class ContactHandler:
         jacobians = [p.jacobian for p in problems] if settings.metric == "jacobian" else None
         handler = cls.__new__(cls)
         handler._attach(detector.entries, detector, StackedProjector(projectors, detector.entries.entry_offsets),
-                        settings, models[0].comm, jacobians)  # fmt: skip
+                        settings, comm, jacobians)  # fmt: skip
         return handler
 
     @staticmethod
@@ -170,7 +170,8 @@ class ContactHandler:
         return settings
 
     @staticmethod
-    def _check(model: ShellModel) -> None:
+    def check_model(model: ShellModel) -> None:
+        """Refuse a shell whose contact rows would push tied control points."""
         if model.ties:
             raise InputError("contact on a model with tied control points (B-spline symmetry planes) is not supported")
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bhem_hpc.contact.broad_phase import swept_boxes
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.surface import PatchLayout
 
@@ -54,6 +55,8 @@ class ShellMotion:
 
     Attributes:
         layout: the patches as maps of the entries (:class:`~bhem_hpc.geometry.surface.HermitePatches`).
+    (A solid's motion, :class:`~bhem_hpc.contact.solid_surface.SolidMotion`, has the same attributes
+    and methods but ``layout``, its nets homogeneous.)
         start, end: entries ``(N, 3)`` at the start and the end of the step.
         nets_start, nets_end: the patches' Bezier nets ``(patches, 4, 4, 3)`` at both ends.
         dt: the step [s]; gap: the push-out distance (contacts are found within it).
@@ -70,3 +73,16 @@ class ShellMotion:
     @staticmethod
     def of(layout: PatchLayout, start: np.ndarray, end: np.ndarray, dt: float, gap: float) -> ShellMotion:
         return ShellMotion(layout, start, end, layout.bezier_nets(start), layout.bezier_nets(end), dt, gap)
+
+    @property
+    def num_patches(self) -> int:
+        return len(self.nets_end)
+
+    def patch_boxes(self, pad: float) -> np.ndarray:
+        """``(patches, 2, 3)`` boxes around each patch over the step, padded by ``pad``."""
+        return swept_boxes(self.nets_start, self.nets_end, pad)
+
+    def patch_point_entries(self, patch: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The entries and weights ``(n, K)`` of the points at local ``uv (n, 2)`` of flat patches ``patch (n,)``."""
+        n2 = self.layout.grid.n2
+        return self.layout.point_entries(patch // n2, patch % n2, uv[:, 0], uv[:, 1])

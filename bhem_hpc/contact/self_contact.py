@@ -33,25 +33,25 @@ def self_contacts(
 
 
 def body_contacts(
-    samples: ShellSamples, rows: np.ndarray, sample_motion: ShellMotion, motion: ShellMotion,
-    patches: np.ndarray | None, friction: float, source: int,
+    samples: ShellSamples, rows: np.ndarray, positions: tuple[np.ndarray, np.ndarray], own_patches: int,
+    motion: ShellMotion, patches: np.ndarray | None, friction: float, source: int,
 ) -> Contacts:  # fmt: skip
-    """Samples ``rows`` of one body (moving as ``sample_motion``) against the patches of another
-    (moving as ``motion``): point ``a`` on the first body, ``b`` on the second, each in its own
-    body's entries.
+    """Samples ``rows`` of one body (at ``positions``, ``(len(rows), 3)`` at both ends of the step)
+    against the patches of another (moving as ``motion``, a shell's or a solid's): point ``a`` on
+    the first body, ``b`` on the second, each in its own body's entries.
 
     Args:
+        own_patches: the sample body's patch count.
         patches: ``(sample body's patches + other body's patches,)`` mask of the patches that can
             hold a new contact (a later detection round); a pair is tested when either of its
             patches can. None: every pair.
     """
     if not len(rows):
         return Contacts.empty()
-    p0, p1 = samples.positions(sample_motion.start, rows), samples.positions(sample_motion.end, rows)
-    ip, iq = overlapping_pairs(swept_boxes(motion.nets_start, motion.nets_end, motion.gap), swept_boxes(p0, p1, 0.0))
+    p0, p1 = positions
+    ip, iq = overlapping_pairs(motion.patch_boxes(motion.gap), swept_boxes(p0, p1, 0.0))
     if patches is not None:
-        own = len(sample_motion.nets_end)
-        keep = patches[samples.patch[rows][iq]] | patches[own + ip]
+        keep = patches[samples.patch[rows][iq]] | patches[own_patches + ip]
         ip, iq = ip[keep], iq[keep]
     return points_on_patches(samples, rows, (p0, p1), motion, (ip, iq), friction, source)
 
@@ -64,7 +64,6 @@ def points_on_patches(
     ``(len(rows), 3)`` at both ends of the step) and the patches of ``motion``: each point's nearest
     patch in contact."""
     ip, iq = pairs
-    layout, grid = motion.layout, motion.layout.grid
     found, uv, side_normal, separation, toi = point_patch_pairs(
         *positions, motion.nets_start, motion.nets_end, (iq, ip), motion.gap, motion.dt
     )
@@ -73,7 +72,7 @@ def points_on_patches(
     point, patch = iq[found], ip[found]
     first = nearest_per_point(point, separation)
     point, patch, uv, side_normal, toi = point[first], patch[first], uv[first], side_normal[first], toi[first]
-    b_index, b_weights = layout.point_entries(patch // grid.n2, patch % grid.n2, uv[:, 0], uv[:, 1])
+    b_index, b_weights = motion.patch_point_entries(patch, uv)
     zeros = np.zeros((len(point), 3))
     return sample_contacts(
         source, samples, rows[point], (b_index, b_weights), side_normal, zeros, zeros, toi, friction

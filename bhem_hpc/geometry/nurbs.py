@@ -241,6 +241,15 @@ class NurbsSurface:
         return RationalBezierPatches(np.array(nets), np.array(boxes, dtype=float))
 
 
+def span_lattice(direction: KnotDirection, per_side: int) -> np.ndarray:
+    """``per_side`` equal steps per nonempty knot span of a direction, both ends of its domain
+    included (a closed part samples its seam twice)."""
+    knots, spans = direction.knots, direction.spans
+    steps = np.arange(per_side) / per_side
+    values = (knots[spans][:, None] + (knots[spans + 1] - knots[spans])[:, None] * steps).ravel()
+    return np.r_[values, direction.domain[1]]
+
+
 def bezier_nets_by_degree(parts: Sequence[NurbsSurface]) -> list[tuple[np.ndarray, np.ndarray]]:
     """The parts' rational Bezier nets in one array per degree (one ray search each) with the part
     of each patch: ``[(nets (P, p + 1, q + 1, 4), part (P,)), ...]``."""

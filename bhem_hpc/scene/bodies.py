@@ -17,8 +17,8 @@ tables), so every key means what it means there; an error names the body and the
 are the scene's colliders: a body whose ``effects`` list ``contact`` meets them (and itself, with
 ``self_collision``) as a scene of one body does, and meets every other body whose effects list
 contact (Coulomb coefficient between two bodies: the geometric mean of their ``effects.friction``).
-Bodies in contact meet by one ``effects.contact.method``: by ``"impulse"`` (shells) they share one
-push-out distance and impulse metric (``push_out`` and ``metric``); by ``"ipc"`` (any body: IPC's
+Bodies in contact meet by one ``effects.contact.method``: by ``"impulse"`` they share one
+push-out distance and impulse metric (``push_out`` and ``metric``); by ``"ipc"`` (IPC's
 barrier on collision meshes embedded in them, in the Newton solve) one ``dhat`` and
 ``barrier_stiffness``. They must be apart at the start. ``[[interfaces]]`` at the top join shell
 bodies into one shell along their edges, or sew panels together (:mod:`bhem_hpc.scene.interfaces`).
@@ -240,7 +240,7 @@ def _check_contact_between(scene: BodiesScene) -> None:
         if scene.bodies[k].contact.method != method:
             raise SceneError(f"{path}: {where(k)}: key 'effects.contact.method' is "
                              f"{scene.bodies[k].contact.method!r} but {where(first)} has {method!r}: bodies in "
-                             "contact meet by one method (a solid by 'ipc')")  # fmt: skip
+                             "contact meet by one method")  # fmt: skip
         for key in shared:
             mine, theirs = getattr(scene.bodies[k].contact, key), getattr(scene.bodies[first].contact, key)
             if mine != theirs:
@@ -256,8 +256,30 @@ def _check_contact_between(scene: BodiesScene) -> None:
             if a == b or frozenset((a, b)) in joined:
                 continue
             per_side = scene.bodies[a].contact.samples_per_side
-            point = lattice_crossing(scene.bodies[a].surface, scene.bodies[b].surface, per_side)
+            point = lattice_crossing(_lattice(scene.bodies[a], per_side), _patch_nets(scene.bodies[b]))
             if point is not None:
+                keys = " or ".join(f"'{key}'" for key in sorted({_placement(scene.bodies[k]) for k in (a, b)}))
                 raise SceneError(f"{path}: {where(a)} and {where(b)} overlap at the start near "
-                                 f"{np.array2string(point, precision=4)}: key 'surface' of one of them must place "
-                                 f"it apart from the other (bodies in contact start apart)")  # fmt: skip
+                                 f"{np.array2string(point, precision=4)}: key {keys} of one of them must place them "
+                                 "apart (bodies in contact start apart)")  # fmt: skip
+
+
+def _lattice(body: Any, per_side: int) -> tuple[np.ndarray, np.ndarray]:
+    """A body's sample lattice as segments (a shell's surface, a solid's parts)."""
+    from bhem_hpc.contact.bodies import lattice_segments, part_segments
+
+    return lattice_segments(body.surface, per_side) if isinstance(body, Scene) else part_segments(body.parts, per_side)
+
+
+def _patch_nets(body: Any) -> np.ndarray:
+    """A body's patches as contact sees them: a shell's Bezier nets, a solid's homogeneous ones."""
+    if isinstance(body, Scene):
+        return body.surface.bezier_nets()
+    from bhem_hpc.contact.solid_surface import SolidContactSurface
+
+    return SolidContactSurface(body.parts, 1).nets(np.concatenate([part.control.reshape(-1, 3) for part in body.parts]))
+
+
+def _placement(body: Any) -> str:
+    """The key that places a body: a shell's surface, a solid's offset."""
+    return "surface" if isinstance(body, Scene) else "offset"

@@ -360,7 +360,7 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
         raise SceneError(f"{path}: contact effects {listed} need a dynamic scene ('time.static' is true)")
     if "contact" not in effects:
         raise SceneError(f"{path}: effects {listed} need 'effects.contact' as well")
-    from bhem_hpc.contact.metrics import CONTACT_METHODS, CONTACT_METRICS  # loaded only for contact scenes
+    from bhem_hpc.contact.metrics import CONTACT_METHODS  # loaded only for contact scenes
 
     settings = effects["contact"]
     if settings is True:
@@ -369,6 +369,15 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
     method = et.get("method", "a string", "impulse", lambda v: v in CONTACT_METHODS, f"one of {CONTACT_METHODS}")
     if method == "ipc":
         return parse_ipc_contact(et, Table(path, "effects", effects), colliders_raw, path, other_bodies)
+    return parse_impulse_contact(et, effects, colliders_raw, path, other_bodies)
+
+
+def parse_impulse_contact(et: Table, effects: dict, colliders_raw: list, path: Path, other_bodies: bool,
+                          key: str = "effects") -> SceneContact:  # fmt: skip
+    """``effects.contact`` with ``method = "impulse"``: the push-out distance, samples and metric of
+    the response between steps, the colliders and self-collision (``key``: where ``effects`` is)."""
+    from bhem_hpc.contact.metrics import CONTACT_METRICS
+
     push_out = et.get("push_out", "a number", 1e-4, lambda v: v > 0, "a number > 0 [m]")
     samples = et.get("samples_per_side", "an integer", 2, lambda v: 1 <= v <= 16, "an integer in 1..16")
     metric = et.get("metric", "a string", "mass", lambda v: v in CONTACT_METRICS, f"one of {CONTACT_METRICS}")
@@ -376,10 +385,10 @@ def _contact(top: Table, path: Path, static: bool, other_bodies: bool) -> SceneC
     friction = effects.get("friction", 0.0)
     if not (is_number(friction) and friction >= 0):
         raise SceneError(
-            f"{path}: key 'effects.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
+            f"{path}: key '{key}.friction' must be a number >= 0 (Coulomb coefficient), got {friction!r}"
         )
     if "static_friction" in effects:
-        raise SceneError(f"{path}: key 'effects.static_friction' = {effects['static_friction']!r}: impulses "
+        raise SceneError(f"{path}: key '{key}.static_friction' = {effects['static_friction']!r}: impulses "
                          "have one Coulomb coefficient ('effects.friction'); static and kinetic ones take "
                          "method = 'ipc'")  # fmt: skip
     self_collision, self_friction = _self_collision(effects.get("self_collision", False), friction, path)

@@ -16,7 +16,9 @@ stdlib; the CAD file is read here, so that a bad model is refused before anythin
                                 # a sin(2 pi t / T) per unit mass;
                                 # contact = { method = "ipc", dhat, barrier_stiffness, collision_cells,
                                 # eps_v }: IPC's barrier on its boundary against the colliders and
-                                # other bodies; friction, static_friction: its Coulomb coefficients
+                                # other bodies; friction, static_friction: its Coulomb coefficients;
+                                # or contact = { method = "impulse", push_out, samples_per_side,
+                                # metric }: impulses between steps; friction: its Coulomb coefficient
     [[bodies.constraints]]      # type = "hold": the control points inside box = [[x0, y0, z0], [x1, y1, z1]]
                                 # (components = [0, 1, 2] by default) keep their place
     [bodies.initial]            # velocity = [vx, vy, vz] [m/s]
@@ -24,8 +26,9 @@ stdlib; the CAD file is read here, so that a bad model is refused before anythin
 It shares ``[time]``, ``[solver]`` (``hessian`` "projected", "exact" or "adaptive"; the linear
 strategy and PETSc options) and ``[output]`` with every body (:mod:`.shared`). A solid is
 time-stepped. It meets the scene's colliders and the other bodies in contact through IPC's barrier on
-its boundary (each part tessellated on ``collision_cells`` cells per side); its parts never meet
-each other (a modeller's parts overlap).
+its boundary (each part tessellated on ``collision_cells`` cells per side), or by impulses between
+steps on its exact rational patches (``samples_per_side`` samples per knot span and side; parts of
+degree 3 at most); its parts never meet each other (a modeller's parts overlap).
 """
 
 from __future__ import annotations
@@ -181,8 +184,8 @@ def _options(t: Table | None) -> SolidOptions:
 
 
 def _contact(t: Table, colliders_raw: list, other_bodies: bool) -> SceneContact | None:
-    """``effects.contact``: IPC's barrier (the one contact method of a solid)."""
-    from bhem_hpc.scene.loader import parse_ipc_contact
+    """``effects.contact``: IPC's barrier in the solve, or impulses between steps."""
+    from bhem_hpc.scene.loader import parse_impulse_contact, parse_ipc_contact
 
     if "contact" not in t.data:
         if colliders_raw:
@@ -192,12 +195,16 @@ def _contact(t: Table, colliders_raw: list, other_bodies: bool) -> SceneContact 
         t.fail("self_collision", "absent: a solid's parts never meet each other", t.data["self_collision"])
     settings = t.data["contact"] if t.data["contact"] is not True else {}
     contact = Table(t.path, t.key("contact"), settings)
-    contact.get("method", "a string", "ipc", lambda v: v == "ipc", "'ipc' (a solid meets others by IPC's barrier)")
+    method = contact.get("method", "a string", "ipc", lambda v: v in ("ipc", "impulse"), "'ipc' or 'impulse'")
     t.used.add("contact")
     if not colliders_raw and not other_bodies:
         raise SceneError(f"{t.path}: key '{t.key('contact')}': a solid's contact needs 'colliders' (planes, spheres, "
                          "meshes) or another body in contact")  # fmt: skip
-    return parse_ipc_contact(contact, t, colliders_raw, t.path, other_bodies, SOLID_COLLISION_CELLS)
+    if method == "ipc":
+        return parse_ipc_contact(contact, t, colliders_raw, t.path, other_bodies, SOLID_COLLISION_CELLS)
+    for key in ("friction", "static_friction"):
+        t.used.add(key)
+    return parse_impulse_contact(contact, t.data, colliders_raw, t.path, other_bodies, t.name)
 
 
 def _effects(t: Table | None) -> tuple[tuple[float, float, float] | None, Wind | None]:

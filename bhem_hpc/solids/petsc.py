@@ -206,6 +206,15 @@ class SolidProblem(ContributionSteps, PetscOwner):
         """Collective: a direction on the owned DOFs as every control point's ``(n_q, 3)``."""
         return np.concatenate(self.comm.allgather(direction.array_r)).reshape(-1, 3)
 
+    def jacobian_csr(self) -> scipy.sparse.csr_matrix:
+        """Collective: the last assembled Jacobian ``(3 n_q, 3 n_q)`` on every rank (each rank's owned
+        rows gathered; the impulse response's ``"jacobian"`` metric)."""
+        indptr, indices, values = self.jacobian.getValuesCSR()
+        parts = self.comm.allgather((indptr, indices, values))
+        size = self.jacobian.getSize()[1]
+        return scipy.sparse.vstack([scipy.sparse.csr_matrix((v, i, p), shape=(len(p) - 1, size))
+                                    for p, i, v in parts]).tocsr()  # fmt: skip
+
     def matrix_nonzeros(self) -> int:
         return stored_entries(self.jacobian)
 

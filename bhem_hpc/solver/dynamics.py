@@ -134,7 +134,7 @@ class TimeStepper:
         self.models = ModelGroup(self.model).models
         if any(m.dynamics is None for m in self.models):
             raise ValueError("TimeStepper needs models built with dynamics (Dynamics, or a solid's SolidDynamics)")
-        handled = 0 if self.contact is None else len(self.contact.entries.discretizations)
+        handled = 0 if self.contact is None else len(self.contact.entries.surfaces)
         if self.contact is not None and handled != len(self.models):
             raise ValueError(f"the contact handler covers {handled} bodies; the stepper has {len(self.models)}")
         self.dt = self.models[0].dynamics.time_step

@@ -12,7 +12,8 @@ from mpi4py import MPI
 
 from bhem_hpc.bodies.body import ShellBody
 from bhem_hpc.bodies.run import bodies_contact
-from bhem_hpc.contact.bodies import BodiesDetector, StackedEntries, pair_friction
+from bhem_hpc.contact.bodies import BodiesDetector, ShellContactSurface, StackedEntries, pair_friction
+from bhem_hpc.contact.petsc import ContactProjector
 from bhem_hpc.contact.response import ContactHandler
 from bhem_hpc.run import build_contact, build_model, contact_detector, contact_settings, make_solver
 from bhem_hpc.scene.loader import load_any_scene, load_scene
@@ -114,10 +115,11 @@ def _run_alone(scene, comm, between: bool) -> np.ndarray:
     model = build_model(scene, comm)
     with make_solver(model, scene, scene.path) as solver:
         if between:
-            entries = StackedEntries([model.discretization], [model.x.x.array.size])
+            entries = StackedEntries([ShellContactSurface(model.discretization, model.x.x.array.size)])
             detector = BodiesDetector(entries, [contact_detector(scene, model)], [scene.contact.friction])
-            handler = ContactHandler.between_bodies([model], [solver.problem], detector, contact_settings(scene),
-                                                    ["bhem_contact_alone_"])  # fmt: skip
+            handler = ContactHandler.between_bodies(
+                [solver.problem], detector, lambda b: ContactProjector(solver.problem, prefix="bhem_contact_alone_"),
+                model.comm, contact_settings(scene))  # fmt: skip
         else:
             handler = build_contact(scene, model, solver.problem)
         try:
@@ -187,7 +189,7 @@ def test_pair_friction_is_the_geometric_mean():
     ("change", "message"),
     [
         ({"gap": -0.002}, r"body 'horizontal' \(bodies\[0\]\) and body 'vertical' \(bodies\[1\]\) overlap at "
-                          r"the start near \[.*\]: key 'surface' of one of them must place it apart"),
+                          r"the start near \[.*\]: key 'surface' of one of them must place them apart"),
         ({"push_out": 2e-4}, r"body 'vertical' \(bodies\[1\]\): key 'effects.contact.push_out' is 0.0002 but body "
                              r"'horizontal' \(bodies\[0\]\) has 0.0001: bodies in contact share one push_out"),
     ],

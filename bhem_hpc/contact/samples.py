@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bhem_hpc.contact.broad_phase import swept_boxes
+from bhem_hpc.contact.closest_points import control_points
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.surface import PatchLayout
 
@@ -55,10 +56,9 @@ class ShellMotion:
 
     Attributes:
         layout: the patches as maps of the entries (:class:`~bhem_hpc.geometry.surface.HermitePatches`).
-    (A solid's motion, :class:`~bhem_hpc.contact.solid_surface.SolidMotion`, has the same attributes
-    and methods but ``layout``, its nets homogeneous.)
         start, end: entries ``(N, 3)`` at the start and the end of the step.
-        nets_start, nets_end: the patches' Bezier nets ``(patches, 4, 4, 3)`` at both ends.
+        nets_start, nets_end: the patches' Bezier nets ``(patches, 4, 4, 3)`` at both ends (a solid's
+            :class:`~bhem_hpc.contact.solid_surface.SolidMotion`: homogeneous ``(patches, 4, 4, 4)``).
         dt: the step [s]; gap: the push-out distance (contacts are found within it).
     """
 
@@ -80,7 +80,7 @@ class ShellMotion:
 
     def patch_boxes(self, pad: float) -> np.ndarray:
         """``(patches, 2, 3)`` boxes around each patch over the step, padded by ``pad``."""
-        return swept_boxes(self.nets_start, self.nets_end, pad)
+        return swept_boxes(control_points(self.nets_start), control_points(self.nets_end), pad)
 
     def patch_point_entries(self, patch: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The entries and weights ``(n, K)`` of the points at local ``uv (n, 2)`` of flat patches ``patch (n,)``."""

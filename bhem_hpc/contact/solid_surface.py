@@ -20,11 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from bhem_hpc.collision.bezier import _bernstein
-from bhem_hpc.contact.broad_phase import swept_boxes
-from bhem_hpc.contact.closest_points import control_points
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ColliderEntry, colliders_contacts
-from bhem_hpc.contact.samples import ShellSamples
+from bhem_hpc.contact.samples import ShellMotion, ShellSamples
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.nurbs import NurbsSurface, span_lattice
 
@@ -171,30 +169,15 @@ class SolidContactSurface:
 
 
 @dataclass(frozen=True)
-class SolidMotion:
-    """A solid's straight-line motion over one step, as detection sees it (the attributes and methods
-    of :class:`~bhem_hpc.contact.samples.ShellMotion` that contact between bodies and collider
-    points use): control points ``start, end (n_q, 3)``, homogeneous nets ``nets_start, nets_end
-    (patches, 4, 4, 4)``, the step ``dt`` [s] and the push-out distance ``gap``."""
+class SolidMotion(ShellMotion):
+    """A solid's straight-line motion over one step, as detection sees it: a
+    :class:`~bhem_hpc.contact.samples.ShellMotion` whose ``layout`` is the solid's
+    :class:`SolidContactSurface`, its nets homogeneous ``(patches, 4, 4, 4)``."""
 
-    surface: SolidContactSurface
-    start: np.ndarray
-    end: np.ndarray
-    nets_start: np.ndarray
-    nets_end: np.ndarray
-    dt: float
-    gap: float
-
-    @property
-    def num_patches(self) -> int:
-        return len(self.nets_end)
-
-    def patch_boxes(self, pad: float) -> np.ndarray:
-        """``(patches, 2, 3)`` boxes around each patch's control points over the step, padded by ``pad``."""
-        return swept_boxes(control_points(self.nets_start), control_points(self.nets_end), pad)
+    layout: SolidContactSurface
 
     def patch_point_entries(self, patch: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.surface.point_entries(patch, uv)
+        return self.layout.point_entries(patch, uv)
 
 
 class SolidContactDetector:

@@ -315,9 +315,11 @@ def bodies_contact(bodies: list[Body], solver: ShellSolver, scene: BodiesScene):
     from bhem_hpc.contact.response import ContactHandler
 
     problems = [solver.problem] if len(bodies) == 1 else solver.problem.problems  # (one body's is not stacked)
-    parts = [body.impulse_contact(problem, f"{SOLVER_PREFIX}contact_{body.name}_") if contact else None
-             for body, problem, contact in zip(bodies, problems, in_contact, strict=True)]  # fmt: skip
+    parts = [None] * len(bodies)
     try:
+        for k, (body, problem) in enumerate(zip(bodies, problems, strict=True)):
+            if in_contact[k]:
+                parts[k] = body.impulse_contact(problem, f"{SOLVER_PREFIX}contact_{body.name}_")
         surfaces = [part.surface if part is not None else body.contact_surface()
                     for body, part in zip(bodies, parts, strict=True)]  # fmt: skip
         entries = StackedEntries(surfaces)

@@ -264,6 +264,19 @@ def test_a_block_lands_on_a_cloth_by_impulses_and_neither_crosses(comm, shared_t
     assert -sag < bottom < -sag + 0.01  # ... and sinks with it, lying in its pocket
 
 
+def test_a_run_of_a_block_landing_by_impulses_restarts_where_it_stopped(comm, shared_tmp_path, block_file):
+    from bhem_hpc.io import read_checkpoint
+
+    path = write_scene(comm, shared_tmp_path / "land.toml", _time(0.005, 10) + _block(friction=0.3) + PLANE)
+    whole, split = shared_tmp_path / "whole", shared_tmp_path / "split"
+    summary = run_scene(RunOptions(path, whole, progress=False), comm)
+    run_scene(RunOptions(path, split, steps=7, progress=False), comm)
+    run_scene(RunOptions(path, split, restart=split, progress=False), comm)
+    assert sum(step["contacts"] for step in summary["steps"]) > 50  # steps 6-10 in contact, 7 the restart
+    np.testing.assert_array_equal(read_checkpoint(split / "checkpoint.h5")[0]["position_dofs"],
+                                  read_checkpoint(whole / "checkpoint.h5")[0]["position_dofs"])  # fmt: skip
+
+
 @pytest.mark.parallel
 def test_two_ranks_give_the_serial_numbers_of_a_block_on_a_cloth(comm, shared_tmp_path, block_file):
     text = _time(0.005, 14) + CLOTH + _block(offset=(0.0, 0.0, 0.11), velocity=(0.0, 0.0, -0.5))

@@ -169,21 +169,14 @@ def _total_energy(energies: dict[str, float]) -> float:
 def frame_gaps(out: Path, colliders: list, within: float) -> dict:
     """The frames of ``out``: the smallest signed distance [m] of the output meshes' vertices from the
     exact colliders that have one (negative: inside), the smallest distance to colliders given as
-    meshes, and the frames whose meshes intersect themselves or a mesh collider (ipc-toolkit); the
-    frames read once for both.
-
-    Raises:
-        ValueError: the run holds a solid (whose series the page does not read).
-    """
+    meshes, and the frames whose meshes intersect themselves, each other or a mesh collider
+    (ipc-toolkit; a solid not itself); the frames read once for both."""
     from bhem_hpc.contact.audit import audit_frames, read_frames
-    from bhem_hpc.io.run_directory import run_series
 
-    if any(path.suffix != ".h5" for path in run_series(out)):
-        raise ValueError(f"{out}: the contact page measures gaps of shells' series only")
-    faces, frames = read_frames(out)
-    audits = audit_frames(faces, frames, within)
-    signed, mesh_gap, mesh_crossings = _collider_gaps(faces, frames, colliders, within) if colliders else (
-        np.inf, np.inf, 0)  # fmt: skip
+    meshes = read_frames(out)
+    audits = audit_frames(meshes, within)
+    signed, mesh_gap, mesh_crossings = _collider_gaps(meshes.faces, meshes.frames, colliders, within) if colliders \
+        else (np.inf, np.inf, 0)  # fmt: skip
     return {"frames": len(audits), "min_signed_gap_m": signed, "min_mesh_gap_m": mesh_gap,
             "mesh_collider_crossings": mesh_crossings, "self_intersecting_frames": sum(a.intersecting for a in audits),
             "min_self_distance_m": min((a.min_distance for a in audits), default=np.inf)}  # fmt: skip

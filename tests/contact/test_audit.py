@@ -1,15 +1,19 @@
 """The intersection audit of a run's output (``bhem-hpc intersections``): two rubber plates that
 pass through each other intersect in every frame where they cross; with the impulse contact between
-them they meet at the push-out distance and intersect in a frame at most."""
+them they meet at the push-out distance and intersect in a frame at most. Two solid blocks (whose
+parts meet along their edges) are tested against each other, never against themselves: they
+intersect in the frames where they pass through each other."""
 
 from __future__ import annotations
 
 import pytest
-from helpers import REPO
+from helpers import REPO, write_scene
 
 from bhem_hpc import cli
-from bhem_hpc.contact.audit import audit_run
+from bhem_hpc.contact.audit import audit_run, read_frames
 from bhem_hpc.errors import InputError, UserError
+from bhem_hpc.geometry import nurbs
+from bhem_hpc.io.cad import write_parts
 from bhem_hpc.run import RunOptions, run_scene
 
 CONTACT = "effects = { contact = { push_out = 1.0e-4 }, friction = 0.2 }\n"
@@ -59,3 +63,34 @@ def test_the_audit_refuses_what_is_not_a_run(comm, shared_tmp_path):
         audit_run(shared_tmp_path, within=1e-3)
     with pytest.raises(InputError, match=r"--within must be a positive distance, got -1.0"):
         audit_run(shared_tmp_path, within=-1.0)
+
+
+BLOCK = """
+[[bodies]]
+name = "{name}"
+type = "solid"
+file = "block.igs"
+offset = [{x}, 0.0, 0.0]
+material = {{ density = 1100.0, young = 2.0e6, poisson = 0.45 }}
+sem = {{ degree = 2, lines_per_side = 8, sparsity = 0.3 }}
+initial = {{ velocity = [{v}, 0.0, 0.0] }}
+"""
+
+
+def test_solids_passing_through_each_other_intersect_in_the_frames_where_they_cross(comm, shared_tmp_path):
+    if comm.rank == 0:
+        write_parts(shared_tmp_path / "block.igs", nurbs.box_faces([-0.1, -0.1, -0.1], [0.1, 0.1, 0.1], degree=2))
+    text = ("[time]\ndt = 0.01\nsteps = 6\n[output]\nevery = 1\n" + BLOCK.format(name="left", x=-0.12, v=1.0)
+            + BLOCK.format(name="right", x=0.12, v=-1.0))  # fmt: skip
+    path = write_scene(comm, shared_tmp_path / "blocks.toml", text)
+    out = shared_tmp_path / "blocks"
+    run_scene(RunOptions(path, out, progress=False), comm)
+    if comm.rank != 0:
+        return
+    meshes = read_frames(out)
+    assert len(meshes.frames) == 7 and len(set(meshes.groups.tolist())) == 2  # one group per solid
+    audits = audit_run(out, within=1e-3)
+    # 0.04 m apart, closing at 2 m/s: they touch at t = 0.02 s and cross after it; every block's own
+    # parts meet along its edges and are never counted
+    assert [a.intersecting for a in audits] == [False, False, audits[2].intersecting, True, True, True, True]
+    assert audits[1].min_distance == float("inf")  # 0.02 m apart: beyond the 1e-3 m measured

@@ -11,6 +11,7 @@ import scipy.sparse
 from mpi4py import MPI
 
 from bhem_hpc.bodies.layout import StackedLayout
+from bhem_hpc.geometry.nurbs import knot_aligned_grid
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.io.solid_output import SolidTimeSeries
 from bhem_hpc.scene.solids import SolidScene
@@ -114,5 +115,12 @@ class SolidBody:
                                                     problem.jacobian_csr))  # fmt: skip
 
     def writer(self, path: Path, continue_at: float | None = None) -> SolidTimeSeries:
-        samples = 2 * self.scene.output_density + 1
-        return SolidTimeSeries(path, self.model.solid.parts, samples, continue_at)
+        """The solid's series; in contact by IPC its boundary is written on its collision mesh's grid
+        (every part's knots and ``collision_cells`` per side), so that the output meshes ParaView
+        shows are the meshes IPC keeps apart."""
+        contact, parts = self.scene.contact, self.model.solid.parts
+        if contact is not None and contact.method == "ipc":
+            cells = contact.collision_cells
+            grids = [(knot_aligned_grid(part.u, cells), knot_aligned_grid(part.v, cells)) for part in parts]
+            return SolidTimeSeries(path, parts, grids, continue_at)
+        return SolidTimeSeries(path, parts, 2 * self.scene.output_density + 1, continue_at)

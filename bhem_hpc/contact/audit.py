@@ -6,17 +6,16 @@ h5py and ipctk; serial).
 A shell crossing itself or another body shows as triangles that intersect in some frame. A crossing
 completed between two frames (a sheet that passed wholly through another) does not: the test sees
 frames, not the motion between them. Analytic colliders are not part of the meshes. A solid's
-frames are its deformed NURBS parts (the IGES file of each frame), tessellated as its boundary
-``.vtu`` is; its parts overlap and meet along their edges by design (a modeller's parts), so a
-solid is tested against the other bodies only, never against itself.
+frames are its boundary ``.vtu`` files (its parts tessellated); its parts overlap and meet along
+their edges by design (a modeller's parts), so a solid is tested against the other bodies only,
+never against itself.
 """
 
 from __future__ import annotations
 
-import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
+from xml.etree import ElementTree
 
 import h5py
 import numpy as np
@@ -78,20 +77,21 @@ def _shell_series(path: Path) -> tuple[np.ndarray, list[tuple[np.ndarray, float]
 
 
 def _solid_series(path: Path) -> tuple[np.ndarray, list[tuple[np.ndarray, float]]]:
-    """A solid's output meshes: its parts of each frame's IGES file tessellated on the grid of its
-    boundary ``.vtu`` (``samples x samples`` points per part)."""
-    from bhem_hpc.io.solid_output import pvd_times, read_solid_frame, tessellate_parts
+    """A solid's output meshes: each frame's boundary ``.vtu`` (its parts tessellated, quadrilaterals)."""
+    from bhem_hpc.io.solid_output import pvd_times
+    from bhem_hpc.io.vtu import read_vtu
 
-    times = pvd_times(path)
+    try:
+        times = pvd_times(path)
+    except (OSError, ElementTree.ParseError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable series of a solid ({exc})") from None
     faces, frames = np.zeros((0, 3), np.int32), []
-    for k in range(len(times)):
-        parts, time = read_solid_frame(path, k)
+    for k, time in enumerate(times):
         boundary = path.with_name(path.stem + "_frames") / f"frame_{k:06d}_boundary.vtu"
-        found = re.search(r'NumberOfPoints="(\d+)"', boundary.read_text(errors="replace")[:4096])
-        if found is None:
-            raise InputError(f"{boundary}: not a readable boundary mesh of a solid")
-        samples = round(math.sqrt(int(found.group(1)) / len(parts.parts)))
-        points, quads, _, _ = tessellate_parts(parts.parts, samples)
+        try:
+            points, quads = read_vtu(boundary)
+        except (OSError, ValueError) as exc:
+            raise InputError(f"{boundary}: not a readable boundary mesh of a solid ({exc})") from None
         faces = _quads_to_triangles(quads)
         frames.append((points, time))
     return faces, frames

@@ -30,6 +30,7 @@ from bhem_hpc.contact.ipc_friction import (
 )
 from bhem_hpc.contact.ipc_round import RoundCollider, allowed_circumradius, round_offset
 from bhem_hpc.errors import RunError
+from bhem_hpc.geometry.nurbs import knot_aligned_grid
 from bhem_hpc.solver.contributions import PointBasis
 from bhem_hpc.solver.step_test import auto_velocity_tolerance
 
@@ -123,17 +124,6 @@ def solid_mesh(parts: Sequence[Any], rank: int, mass: float, samples: int = 9,
         count += len(u)
     rest = np.concatenate(rest)
     return BodyMesh(bases, np.concatenate(triangles), rest, mass / len(rest), friction=friction, chord_gap=gap)
-
-
-def knot_aligned_grid(axis: Any, cells: int) -> np.ndarray:
-    """Parameters in [0, 1] (of ``axis.domain``) for at least ``cells`` cells: every distinct knot
-    inside the domain, each knot span cut into ``ceil(cells / spans)`` equal cells."""
-    low, high = axis.domain
-    knots = np.unique(np.clip(np.asarray(axis.knots, dtype=float), low, high))
-    breaks = (knots - low) / (high - low)
-    per_span = max(1, -(-int(cells) // (len(breaks) - 1)))
-    inner = [np.linspace(a, b, per_span + 1)[:-1] for a, b in zip(breaks[:-1], breaks[1:], strict=True)]
-    return np.concatenate([*inner, [1.0]])
 
 
 def _grid_triangles(count_u: int, count_v: int) -> np.ndarray:

@@ -250,6 +250,17 @@ def span_lattice(direction: KnotDirection, per_side: int) -> np.ndarray:
     return np.r_[values, direction.domain[1]]
 
 
+def knot_aligned_grid(axis: KnotDirection, cells: int) -> np.ndarray:
+    """Parameters in [0, 1] (of ``axis.domain``) for at least ``cells`` cells: every distinct knot
+    inside the domain, each knot span cut into ``ceil(cells / spans)`` equal cells."""
+    low, high = axis.domain
+    knots = np.unique(np.clip(np.asarray(axis.knots, dtype=float), low, high))
+    breaks = (knots - low) / (high - low)
+    per_span = max(1, -(-int(cells) // (len(breaks) - 1)))
+    inner = [np.linspace(a, b, per_span + 1)[:-1] for a, b in zip(breaks[:-1], breaks[1:], strict=True)]
+    return np.concatenate([*inner, [1.0]])
+
+
 def bezier_nets_by_degree(parts: Sequence[NurbsSurface]) -> list[tuple[np.ndarray, np.ndarray]]:
     """The parts' rational Bezier nets in one array per degree (one ray search each) with the part
     of each patch: ``[(nets (P, p + 1, q + 1, 4), part (P,)), ...]``."""

@@ -21,25 +21,39 @@ from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.io.cad import read_parts, write_parts
 from bhem_hpc.io.vtu import VTK_VERTEX, write_pvd, write_vtu
 
+#: A part's tessellation: its parameter lines in ``[0, 1]`` of its domain, ``(u lines, v lines)``.
+PartGrid = tuple[np.ndarray, np.ndarray]
 
-def tessellate_parts(parts: Sequence[NurbsSurface], samples: int = 9):
-    """Every part on a ``samples x samples`` parameter grid: points ``(P, 3)``, quadrilaterals
-    ``(M, 4)`` (counter-clockwise about ``x_u x x_v``), unit normals ``(P, 3)`` and each point's
-    part index ``(P,)``."""
-    grid = np.linspace(0.0, 1.0, samples)
-    u, v = (a.ravel() for a in np.meshgrid(grid, grid, indexing="ij"))
-    cell = np.arange(samples - 1)
-    corner = (cell[:, None] * samples + cell[None, :]).ravel()  # (i, j) -> i * samples + j
-    local_quads = np.stack([corner, corner + samples, corner + samples + 1, corner + 1], axis=1)
+
+def part_grids(parts: Sequence[NurbsSurface], samples: int | Sequence[PartGrid]) -> list[PartGrid]:
+    """Each part's parameter lines: ``samples`` equally spaced per side, or the grids given."""
+    if isinstance(samples, int | np.integer):
+        lines = np.linspace(0.0, 1.0, int(samples))
+        return [(lines, lines)] * len(parts)
+    if len(samples) != len(parts):
+        raise ValueError(f"{len(samples)} tessellation grids for {len(parts)} parts")
+    return [(np.asarray(u, dtype=float), np.asarray(v, dtype=float)) for u, v in samples]
+
+
+def tessellate_parts(parts: Sequence[NurbsSurface], samples: int | Sequence[PartGrid] = 9):
+    """Every part on a parameter grid (``samples x samples`` points, or each part's own grid of
+    :func:`part_grids`): points ``(P, 3)``, quadrilaterals ``(M, 4)`` (counter-clockwise about
+    ``x_u x x_v``), unit normals ``(P, 3)`` and each point's part index ``(P,)``."""
     points, quads, normals, part = [], [], [], []
-    for k, surface in enumerate(parts):
+    start = 0
+    for k, (surface, (lines_u, lines_v)) in enumerate(zip(parts, part_grids(parts, samples), strict=True)):
+        (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
+        u, v = (a.ravel() for a in np.meshgrid(u0 + lines_u * (u1 - u0), v0 + lines_v * (v1 - v0), indexing="ij"))
+        count_v = len(lines_v)
+        corner = (np.arange(len(lines_u) - 1)[:, None] * count_v + np.arange(count_v - 1)[None, :]).ravel()
         point, x_u, x_v = surface.evaluate(u, v)
         normal = np.cross(x_u, x_v)
         length = np.linalg.norm(normal, axis=1, keepdims=True)
         normals.append(np.divide(normal, length, out=np.zeros_like(normal), where=length > 0))  # poles: 0
-        quads.append(local_quads + k * len(u))
+        quads.append(np.stack([corner, corner + count_v, corner + count_v + 1, corner + 1], axis=1) + start)
         points.append(point)
         part.append(np.full(len(u), float(k)))
+        start += len(u)
     return np.concatenate(points), np.concatenate(quads), np.concatenate(normals), np.concatenate(part)
 
 
@@ -51,7 +65,7 @@ def write_solid_files(
     stresses: np.ndarray,
     volumes: np.ndarray,
     stem: str = "solid",
-    samples: int = 9,
+    samples: int | Sequence[PartGrid] = 9,
 ) -> tuple[Path, Path]:
     """Write ``<stem>_boundary.vtu`` (the parts tessellated, with ``normal``, ``displacement`` from
     ``rest_parts`` and ``part``) and ``<stem>_points.vtu`` (the quadrature points at ``positions
@@ -97,12 +111,12 @@ class SolidTimeSeries:
     Args:
         path: the series' name (its suffix is dropped: ``body/surface.xdmf`` writes ``body/surface.pvd``).
         rest_parts: the parts at rest (displacements are from them).
-        samples: tessellation points per part side.
+        samples: tessellation points per part side, or each part's grid (:func:`part_grids`).
         continue_at: continue the series there: its frames up to that time are kept, later ones
             (written after the checkpoint being continued) removed.
     """
 
-    def __init__(self, path: str | Path, rest_parts: Sequence[NurbsSurface], samples: int = 9,
+    def __init__(self, path: str | Path, rest_parts: Sequence[NurbsSurface], samples: int | Sequence[PartGrid] = 9,
                  continue_at: float | None = None):  # fmt: skip
         path = Path(path)
         self.pvd_path = path.with_suffix(".pvd")

@@ -10,6 +10,7 @@ temporary name and renamed.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,33 @@ def vtu_bytes(
     body = b"".join(np.uint64(b.nbytes).astype("<u8").tobytes() + b.astype(b.dtype.newbyteorder("<")).tobytes()
                     for b in blocks)  # fmt: skip
     return header.encode() + body + b"\n</AppendedData>\n</VTKFile>\n"
+
+
+def read_vtu(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The points ``(n, 3)`` and cells ``(m, k)`` of a file :func:`vtu_bytes` wrote (raw appended data).
+
+    Raises:
+        ValueError: the file is not such a file.
+    """
+    data = Path(path).read_bytes()
+    marker = b'<AppendedData encoding="raw">\n_'
+    start = data.find(marker)
+    if start < 0:
+        raise ValueError(f"{path}: not a VTK XML file with raw appended data")
+    header, start = data[:start].decode(errors="replace"), start + len(marker)
+
+    def block(name: str, dtype: str) -> np.ndarray:
+        found = re.search(rf'Name="{name}" NumberOfComponents="\d+" format="appended" offset="(\d+)"', header)
+        if found is None:
+            raise ValueError(f"{path}: no appended array {name!r}")
+        at = start + int(found.group(1))
+        size = int(np.frombuffer(data, "<u8", 1, at)[0])
+        return np.frombuffer(data, dtype, size // np.dtype(dtype).itemsize, at + 8)
+
+    points = block("Points", "<f8").reshape(-1, 3)
+    offsets = block("offsets", "<i8")
+    width = int(offsets[0]) if len(offsets) else 1
+    return points.copy(), block("connectivity", "<i8").reshape(-1, width).copy()
 
 
 def write_vtu(

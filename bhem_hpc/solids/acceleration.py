@@ -1,9 +1,11 @@
 """The acceleration residual of a solid's time step (``solver.acceleration_tolerance``), as
 :class:`~bhem_hpc.solver.acceleration.AccelerationResidual` gives a shell's: ``r^T M^-1 r`` with the
-solid's lumped mass ``M`` (row sums of its consistent mass; its held DOFs' residual left out), so that
-bodies of both kinds share one stopping test. The consistent mass of an SEM solid is singular (shape
-matching has fewer modes than control points: rank 20 of 54 on a biquadratic cube), its row sums
-positive. numpy only: a solid is small, its residual gathered on every rank."""
+solid's lumped mass ``M`` (its held DOFs' residual left out), so that bodies of both kinds share one
+stopping test. The consistent mass of an SEM solid is singular (shape matching has fewer modes than
+control points: rank 20 of 54 on a biquadratic cube) and its row sums can be negative (70 of the
+258 control points of the toy castle of ``jobs/toy-on-cloth.toml``), so the mass is lumped by
+scaling its diagonal to the solid's mass (Hinton, Rock and Zienkiewicz 1976): positive wherever a
+control point moves some mass. numpy only: a solid is small, its residual gathered on every rank."""
 
 from __future__ import annotations
 
@@ -11,9 +13,17 @@ import numpy as np
 
 from bhem_hpc.solids.model import SolidModel
 
-#: The smallest lumped mass of a control point, as a fraction of the mean (a row sum need not be
-#: positive for every shape matching).
+#: The smallest lumped mass of a control point, as a fraction of the mean (a control point whose
+#: shape matching moves no mass has a zero diagonal).
 MIN_LUMPED_FRACTION = 1e-6
+
+
+def lumped_masses(mass_scalar) -> np.ndarray:
+    """``(n_q,)`` each control point's lumped mass [kg]: the consistent scalar mass's diagonal scaled
+    to its total (HRZ lumping), at least :data:`MIN_LUMPED_FRACTION` of the mean."""
+    diagonal = np.asarray(mass_scalar.diagonal(), dtype=float)
+    lumped = diagonal * (float(mass_scalar.sum()) / diagonal.sum())
+    return np.maximum(lumped, MIN_LUMPED_FRACTION * lumped.mean())
 
 
 class SolidAccelerationResidual:
@@ -28,9 +38,7 @@ class SolidAccelerationResidual:
         self.mass = float(model.solid.mass)
         if not self.mass > 0:
             raise ValueError(f"an acceleration residual needs a positive mass, got {self.mass!r} kg")
-        lumped = np.asarray(model.solid.mass_scalar.sum(axis=1)).ravel()
-        lumped = np.maximum(lumped, MIN_LUMPED_FRACTION * lumped.mean())
-        self.inverse_mass = np.repeat(1.0 / lumped, 3)  # per DOF, x y z of each control point
+        self.inverse_mass = np.repeat(1.0 / lumped_masses(model.solid.mass_scalar), 3)  # x y z of each point
         self.held = np.asarray(model.constrained, dtype=np.int64)  # every rank's held DOFs
         self.last = float("nan")
 

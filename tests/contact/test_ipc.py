@@ -156,7 +156,7 @@ def test_a_solids_collision_grid_holds_every_knot():
     spans become 2 per span, the knots among the grid lines."""
     from types import SimpleNamespace
 
-    from bhem_hpc.contact.ipc_setup import knot_aligned_grid
+    from bhem_hpc.geometry.nurbs import knot_aligned_grid
 
     axis = SimpleNamespace(domain=(0.0, 2.0), knots=[0, 0, 0, 0.5, 0.5, 1, 1, 1.5, 1.5, 2, 2, 2])
     np.testing.assert_allclose(knot_aligned_grid(axis, 6), np.arange(9) / 8)

@@ -11,8 +11,10 @@ from helpers import BASE, paraview_read
 
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry import surface as S
+from bhem_hpc.geometry.nurbs import knot_aligned_grid
 from bhem_hpc.io import write_surface_xdmf
-from bhem_hpc.io.solid_output import write_solid_files
+from bhem_hpc.io.solid_output import tessellate_parts, write_solid_files
+from bhem_hpc.io.vtu import read_vtu
 from bhem_hpc.model.material import Material
 from bhem_hpc.run import RunOptions, run_scene
 from bhem_hpc.solids.elasticity import Lame, neo_hookean
@@ -101,3 +103,22 @@ def test_paraview_reads_a_solid_boundary_and_its_stressed_quadrature_points(tmp_
         points["arrays"]["stress"]["first"], expected.reshape(-1), atol=1e-6 * abs(expected).max()
     )
     assert points["arrays"]["von_mises"]["first"][0] == pytest.approx(abs(expected[0, 0] - expected[1, 1]), rel=1e-6)
+
+
+def test_a_solid_boundary_on_its_own_grids_reads_back_point_for_point(tmp_path):
+    """Parts tessellated on grids of their own (a contact mesh's knot-aligned lines) write the points
+    and quadrilaterals that :func:`read_vtu` reads back, and ParaView counts them alike."""
+    parts = nurbs.box_faces([0, 0, 0], [2.0, 1.0, 0.5], degree=2, spans=(2, 1))
+    grids = [(knot_aligned_grid(p.u, 5), knot_aligned_grid(p.v, 3)) for p in parts]
+    points, quads, _, _ = tessellate_parts(parts, grids)
+    assert [len(u) for u, _ in grids] == [7] * 6 and [len(v) for _, v in grids] == [4] * 6  # 2 spans x 3, 3 cells
+    boundary, _ = write_solid_files(tmp_path, parts, parts, np.zeros((1, 3)), np.zeros((1, 3, 3)), np.ones(1),
+                                    samples=grids)  # fmt: skip
+    read_points, read_quads = read_vtu(boundary)
+    np.testing.assert_array_equal(read_points, points)
+    np.testing.assert_array_equal(read_quads, quads)
+    (surface,) = paraview_read(boundary)[str(boundary)][".vtu"]["frames"].values()
+    assert (surface["points"], surface["cells"]) == (6 * 28, 6 * 18)
+    # a uniform grid is the same tessellation as the point count it replaces
+    uniform = [(np.linspace(0.0, 1.0, 5),) * 2] * 6
+    np.testing.assert_array_equal(tessellate_parts(parts, 5)[0], tessellate_parts(parts, uniform)[0])

@@ -6,6 +6,7 @@ intersect in the frames where they pass through each other."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from helpers import REPO, write_scene
 
@@ -94,3 +95,32 @@ def test_solids_passing_through_each_other_intersect_in_the_frames_where_they_cr
     # parts meet along its edges and are never counted
     assert [a.intersecting for a in audits] == [False, False, audits[2].intersecting, True, True, True, True]
     assert audits[1].min_distance == float("inf")  # 0.02 m apart: beyond the 1e-3 m measured
+
+
+def test_bodies_in_contact_by_ipc_are_written_on_their_collision_meshes(comm, shared_tmp_path):
+    """What the audit (and ParaView) sees of a cloth and a block in contact by IPC is their collision
+    meshes: the cloth's lattice of ``collision_cells`` per patch side, the block's knot-aligned grid."""
+    from bhem_hpc.contact.ipc_setup import solid_mesh
+
+    parts = nurbs.box_faces([-0.1, -0.1, 0.05], [0.1, 0.1, 0.25], degree=2)
+    if comm.rank == 0:
+        write_parts(shared_tmp_path / "block.igs", parts)
+    block_table = BLOCK.format(name="block", x=0.0, v=0.0).replace(
+        "initial = { velocity = [0.0, 0.0, 0.0] }", 'effects = { contact = { method = "ipc", collision_cells = 6 } }')
+    text = ("[time]\ndt = 0.01\nsteps = 1\n[output]\nevery = 1\ndensity = 5\n[[bodies]]\nname = \"cloth\"\n"
+            'surface = { kind = "rectangle", size = [0.4, 0.4], patches = [4, 4], origin = [-0.2, -0.2, 0.0] }\n'
+            "material = { young = 1.0e5, poisson = 0.3, thickness = 1.0e-3, density = 200.0 }\n"
+            'effects = { gravity = [0.0, 0.0, -9.81], contact = { method = "ipc", collision_cells = 3 } }\n'
+            + block_table)  # fmt: skip
+    out = shared_tmp_path / "ipc"
+    run_scene(RunOptions(write_scene(comm, shared_tmp_path / "ipc.toml", text), out, progress=False), comm)
+    if comm.rank != 0:
+        return
+    meshes = read_frames(out)
+    cloth = (4 * 3 + 1) ** 2
+    assert len(meshes.frames[0][0]) == cloth + 6 * 7**2  # not density 5's 21^2 and 6 x 11^2
+    block = solid_mesh(parts, 0, 1.0, 7)
+    np.testing.assert_allclose(meshes.frames[0][0][cloth:], block.rest, atol=1e-14)
+    written = meshes.faces[len(meshes.faces) - len(block.triangles):] - cloth
+    np.testing.assert_array_equal(np.unique(np.sort(written, axis=1), axis=0),
+                                  np.unique(np.sort(block.triangles, axis=1), axis=0))  # fmt: skip

@@ -55,20 +55,24 @@ class SolidBody:
 
     def __init__(self, name: str, index: int, scene: SolidScene, model: SolidModel):
         self.name, self.index, self.scene, self.model = name, index, scene, model
+        #: the solid's samples against its colliders, in contact by impulses (else None)
+        self._impulse_detector = None
         if scene.contact is not None and scene.contact.method == "impulse":
-            self._check_impulse_start()
+            self._impulse_detector = self._checked_impulse_detector()
 
-    def _check_impulse_start(self) -> None:
-        """Refuse a solid whose boundary samples start inside a collider (the impulse response would
-        push them through it), before anything is written."""
+    def _checked_impulse_detector(self):
+        """The solid's :class:`~bhem_hpc.contact.solid_surface.SolidContactDetector`; a solid whose
+        boundary samples start inside a collider (the impulse response would push them through it)
+        is refused, before anything is written."""
         from bhem_hpc.contact.solid_surface import SolidContactDetector
 
         surface = self.contact_surface(self.scene.contact.samples_per_side)
-        problem = SolidContactDetector(surface, self.scene.contact.colliders).starting_problem(
-            surface.open_to_entries(self.model.position))
+        detector = SolidContactDetector(surface, self.scene.contact.colliders)
+        problem = detector.starting_problem(surface.open_to_entries(self.model.position))
         if problem is not None:
             raise SceneError(f"{self.scene.path}: body '{self.name}': key 'effects.contact.method' = 'impulse': "
                              f"{problem}")  # fmt: skip
+        return detector
 
     def dof_range(self, layout: StackedLayout) -> slice:
         return layout.local_slice(self.index)
@@ -106,11 +110,9 @@ class SolidBody:
         Jacobian (numpy and scipy: ``prefix`` names no PETSc solver)."""
         from bhem_hpc.bodies.body import ImpulseContact
         from bhem_hpc.contact.solid_projection import SolidContactProjector
-        from bhem_hpc.contact.solid_surface import SolidContactDetector
 
-        contact, model = self.scene.contact, self.model
-        surface = self.contact_surface(contact.samples_per_side)
-        return ImpulseContact(surface, SolidContactDetector(surface, contact.colliders),
+        model, detector = self.model, self._impulse_detector
+        return ImpulseContact(detector.surface, detector,
                               SolidContactProjector(model.mass_matrix, model.solid.error_matrix, model.constrained,
                                                     problem.jacobian_csr))  # fmt: skip
 

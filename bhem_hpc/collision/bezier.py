@@ -47,10 +47,12 @@ def evaluate(net: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int
 
 
 def evaluate_many(nets: np.ndarray, u: np.ndarray, v: np.ndarray, du: int = 0, dv: int = 0) -> np.ndarray:
-    """One point (or partial derivative) per net: nets ``(N, 4, 4, 3)``, ``u, v (N,)`` -> ``(N, 3)``."""
+    """One point (or partial derivative) per net: nets ``(N, 4, 4, C)``, ``u, v (N,)`` -> ``(N, C)``
+    (``C = 3``: points; ``C = 4``: homogeneous coordinates of a rational net)."""
+    components = nets.shape[-1]
     # two batched matrix products: several times faster than one three-operand einsum
-    along_u = np.matmul(_bernstein(u, du)[:, None, :], nets.reshape(len(nets), 4, 12)).reshape(-1, 4, 3)
-    return np.matmul(_bernstein(v, dv)[:, None, :], along_u)[:, 0]
+    along_u = np.matmul(_bernstein(u, du)[:, None, :], nets.reshape(len(nets), 4, 4 * components))
+    return np.matmul(_bernstein(v, dv)[:, None, :], along_u.reshape(-1, 4, components))[:, 0]
 
 
 def _split_curves(points: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ from bhem_hpc.contact.broad_phase import overlapping_pairs, swept_boxes
 from bhem_hpc.contact.closest_points import control_points, project_to_patches
 from bhem_hpc.contact.contacts import Contacts
 from bhem_hpc.contact.detection import ContactDetector
-from bhem_hpc.contact.samples import ShellMotion
+from bhem_hpc.contact.samples import ShellMotion, lattice_axes
 from bhem_hpc.contact.self_contact import body_contacts
 from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.bspline import BSplineSurface
@@ -246,11 +246,7 @@ class BodiesDetector:
 def lattice_segments(surface: Surface, per_side: int) -> tuple[np.ndarray, np.ndarray]:
     """The sample lattice of a shell's surface (``per_side`` samples per patch side), neighbours joined
     by straight segments: ``(starts (L, 3), ends (L, 3))``."""
-    grid = surface.grid
-    axes = []
-    for n, (lo, hi), periodic in ((grid.n1, grid.xi1_range, grid.periodic1), (grid.n2, grid.xi2_range, grid.periodic2)):
-        count = n * per_side + (0 if periodic else 1)
-        axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
+    axes = lattice_axes(surface.grid, per_side)
     return _joined(surface.evaluate(*np.meshgrid(*axes, indexing="ij")).x)  # (L1, L2, 3)
 
 

@@ -33,11 +33,8 @@ def control_points(nets: np.ndarray) -> np.ndarray:
 def evaluate_points(nets: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """One point per net: polynomial ``(N, 4, 4, 3)`` or homogeneous ``(N, 4, 4, 4)`` nets at
     ``u, v (N,)`` -> ``(N, 3)``."""
-    if nets.shape[-1] == 3:
-        return evaluate_many(nets, u, v)
-    along_u = np.matmul(_bernstein(u)[:, None, :], nets.reshape(len(nets), 4, 16)).reshape(-1, 4, 4)
-    point = np.matmul(_bernstein(v)[:, None, :], along_u)[:, 0]
-    return point[:, :3] / point[:, 3:]
+    point = evaluate_many(nets, u, v)
+    return point if nets.shape[-1] == 3 else point[:, :3] / point[:, 3:]
 
 
 def _derivatives(nets: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

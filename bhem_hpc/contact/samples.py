@@ -9,7 +9,17 @@ import numpy as np
 from bhem_hpc.contact.broad_phase import swept_boxes
 from bhem_hpc.contact.closest_points import control_points
 from bhem_hpc.errors import InputError
-from bhem_hpc.geometry.surface import PatchLayout
+from bhem_hpc.geometry.surface import ParameterGrid, PatchLayout
+
+
+def lattice_axes(grid: ParameterGrid, per_side: int) -> list[np.ndarray]:
+    """The parameters of a uniform lattice of ``n * per_side`` steps along each direction of
+    ``grid`` (its end included unless the direction is periodic): ``[xi1 (L1,), xi2 (L2,)]``."""
+    axes = []
+    for n, (lo, hi), periodic in ((grid.n1, grid.xi1_range, grid.periodic1), (grid.n2, grid.xi2_range, grid.periodic2)):
+        count = n * per_side + (0 if periodic else 1)
+        axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
+    return axes
 
 
 @dataclass(frozen=True)
@@ -33,14 +43,7 @@ class ShellSamples:
         if not (isinstance(per_side, int) and 1 <= per_side <= 16):
             raise InputError(f"samples_per_side must be an integer in 1..16, got {per_side!r}")
         grid = layout.grid
-        axes = []
-        for n, (lo, hi), periodic in (
-            (grid.n1, grid.xi1_range, grid.periodic1),
-            (grid.n2, grid.xi2_range, grid.periodic2),
-        ):
-            count = n * per_side + (0 if periodic else 1)
-            axes.append(lo + (hi - lo) * np.arange(count) / (n * per_side))
-        xi1, xi2 = (a.ravel() for a in np.meshgrid(*axes, indexing="ij"))
+        xi1, xi2 = (a.ravel() for a in np.meshgrid(*lattice_axes(grid, per_side), indexing="ij"))
         p1, p2, t1, t2 = grid.locate(xi1, xi2)
         index, weights = layout.point_entries(p1, p2, t1, t2)
         return ShellSamples(p1 * grid.n2 + p2, np.stack([t1, t2], axis=1), index, weights)

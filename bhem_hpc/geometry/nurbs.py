@@ -242,12 +242,10 @@ class NurbsSurface:
 
 
 def span_lattice(direction: KnotDirection, per_side: int) -> np.ndarray:
-    """``per_side`` equal steps per nonempty knot span of a direction, both ends of its domain
-    included (a closed part samples its seam twice)."""
-    knots, spans = direction.knots, direction.spans
-    steps = np.arange(per_side) / per_side
-    values = (knots[spans][:, None] + (knots[spans + 1] - knots[spans])[:, None] * steps).ravel()
-    return np.r_[values, direction.domain[1]]
+    """``per_side`` equal steps per nonempty knot span of a direction, in its parameters, both ends of
+    its domain included (a closed part samples its seam twice): :func:`knot_aligned_grid`'s lines."""
+    low, high = direction.domain
+    return low + knot_aligned_grid(direction, per_side * len(direction.spans)) * (high - low)
 
 
 def knot_aligned_grid(axis: KnotDirection, cells: int) -> np.ndarray:

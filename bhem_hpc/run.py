@@ -599,7 +599,7 @@ def step_summary(record: StepRecord, output_s: float, energies: dict[str, float]
     names = ("step", "time", "newton_iterations", "recoveries", "dt_halvings", "regularized_retries",
              "trust_region_solves", "trust_region_failures", "negative_pivots", "regularized_iterations",
              "projected_iterations", "refactorizations", "chord_iterations", "refactor_retries",
-             "krylov_iterations", "collider_pushes")  # fmt: skip
+             "krylov_iterations", "collider_pushes", "start_guesses")  # fmt: skip
     row = {name: getattr(record, name) for name in names}
     row["wall_s"] = record.wall_s + output_s
     for name in ("assembly_s", "factorization_s", "linear_solve_s", "collision_s", "contacts"):

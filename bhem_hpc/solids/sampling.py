@@ -11,15 +11,19 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import scipy.sparse
 
-from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.bspline import bernstein
+from bhem_hpc.geometry.nurbs import KnotDirection, NurbsSurface
 
 
+@lru_cache(maxsize=16)
 def gauss_lobatto(count: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Lobatto points and weights ``(count,)`` on ``[0, 1]`` (``count >= 2``: both ends included)."""
+    """Gauss-Lobatto points and weights ``(count,)`` on ``[0, 1]`` (``count >= 2``: both ends included;
+    read-only arrays, computed once per count)."""
     if count < 2:
         raise ValueError(f"a Gauss-Lobatto rule needs at least 2 points, got {count}")
     n = count - 1
@@ -28,7 +32,9 @@ def gauss_lobatto(count: int) -> tuple[np.ndarray, np.ndarray]:
     interior = np.sort(np.real(legendre.deriv().roots())) if n > 1 else np.zeros(0)
     x = np.concatenate([[-1.0], interior, [1.0]])
     w = 2.0 / (n * (n + 1) * legendre(x) ** 2)
-    return 0.5 * (x + 1.0), 0.5 * w
+    points, weights = 0.5 * (x + 1.0), 0.5 * w
+    points.flags.writeable = weights.flags.writeable = False
+    return points, weights
 
 
 @dataclass(frozen=True)
@@ -42,27 +48,37 @@ class PartSamples:
     points: np.ndarray
 
 
+def _span_bases(direction: KnotDirection, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The first control index ``(S,)`` of each nonempty span of ``direction`` and its ``p + 1``
+    basis functions at the local ``nodes (n,)`` of every span, ``(S, n, p + 1)`` (the spans'
+    Bezier extraction applied to the Bernstein polynomials at the nodes)."""
+    bernstein_at_nodes = bernstein(nodes, direction.degree)  # (n, p + 1)
+    return direction.spans - direction.degree, np.einsum("sab,nb->sna", direction.extraction, bernstein_at_nodes)
+
+
 def sample_part(part: NurbsSurface, order: int | None = None) -> PartSamples:
     """Gauss-Lobatto samples of ``order`` points per span and direction (default: the NURBS order,
     degree + 1, of the higher direction, and at least 3, so that a bilinear face has the 9 samples
     a quadratic fit needs); points on shared span edges appear once per span, as a
-    composite Lobatto rule's do before its weights are summed (harmless for a least-squares fit)."""
+    composite Lobatto rule's do before its weights are summed (harmless for a least-squares fit).
+    Samples are ordered ``[span_u, span_v, node_u, node_v]``."""
     order = order or max(max(part.degrees) + 1, 3)
     nodes, node_weights = gauss_lobatto(order)
-    u, v, w = [], [], []
-    for ku in part.u.spans:
-        a, b = part.u.knots[ku], part.u.knots[ku + 1]
-        for kv in part.v.spans:
-            c, d = part.v.knots[kv], part.v.knots[kv + 1]
-            uu, vv = np.meshgrid(a + nodes * (b - a), c + nodes * (d - c), indexing="ij")
-            u.append(uu.ravel())
-            v.append(vv.ravel())
-            w.append(np.outer(node_weights * (b - a), node_weights * (d - c)).ravel())
-    u, v, w = np.concatenate(u), np.concatenate(v), np.concatenate(w)
-    index, values = part.basis_matrix(u, v)
-    rows = np.repeat(np.arange(len(u)), index.shape[1])
-    basis = scipy.sparse.csr_matrix((values.ravel(), (rows, index.ravel())), shape=(len(u), part.control[..., 0].size))
-    return PartSamples(basis, w, basis @ part.control.reshape(-1, 3))
+    (first_u, basis_u), (first_v, basis_v) = _span_bases(part.u, nodes), _span_bases(part.v, nodes)
+    rows = first_u[:, None] + np.arange(part.u.degree + 1)  # (S_u, p + 1)
+    cols = first_v[:, None] + np.arange(part.v.degree + 1)  # (S_v, q + 1)
+    local_weights = part.weights[rows[:, None, :, None], cols[None, :, None, :]]  # (S_u, S_v, p + 1, q + 1)
+    # rational basis [span_u, span_v, node_u, node_v, i, j], normalized over (i, j)
+    weighted = np.einsum("aip,bjq,abpq->abijpq", basis_u, basis_v, local_weights)
+    values = weighted / weighted.sum(axis=(4, 5), keepdims=True)
+    index = rows[:, None, None, None, :, None] * part.control.shape[1] + cols[None, :, None, None, None, :]
+    count, per_row = values[..., 0, 0].size, values.shape[4] * values.shape[5]
+    indices = np.broadcast_to(index, values.shape).reshape(count, per_row)
+    csr = (values.reshape(count, per_row).ravel(), indices.ravel(), np.arange(count + 1) * per_row)
+    basis = scipy.sparse.csr_matrix(csr, shape=(count, part.control[..., 0].size))
+    widths_u, widths_v = np.diff(part.u.knots)[part.u.spans], np.diff(part.v.knots)[part.v.spans]
+    weights = np.einsum("a,i,b,j->abij", widths_u, node_weights, widths_v, node_weights).ravel()
+    return PartSamples(basis, weights, basis @ part.control.reshape(-1, 3))
 
 
 def sample_parts(parts: Sequence[NurbsSurface], order: int | None = None) -> list[PartSamples]:

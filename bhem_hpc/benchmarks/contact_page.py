@@ -64,8 +64,9 @@ CONTACT_WINDOWS = (
     ContactWindow("mesh-obstacle", 110, 10, "the cloth lies on the mesh obstacle"),
     # by IPC the rim buckles under the barrier's push in steps 21-30 (line-search Newton crawled along
     # the buckling mode, 100 iterations and 20 recoveries; the trust region follows it in 3 to 10) and
-    # the wall at step 38, where the trust region fails twice and line search takes 35 and then 99
-    # iterations; by impulses the wall buckles between steps 90 and 100 (its radius varies by 2.5 mm
+    # the wall snaps at step 38 (35 iterations, no recovery; started from the inertial prediction,
+    # which overshoots the snap, the trust region failed twice there and line search took 35 and
+    # then 99 iterations); by impulses the wall buckles between steps 90 and 100 (its radius varies by 2.5 mm
     # at a height, then by 26 mm; 13 to 17 iterations a step) and its folds, crushed further, take
     # 12 to 156 a step in steps 116-135 (measured)
     ContactWindow("crushed-can", 20, 25, "the plank presses the rim down; by IPC the wall buckles",

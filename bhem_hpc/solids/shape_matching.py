@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse
 
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.sampling import PartSamples, stacked_bases
+from bhem_hpc.solids.sampling import PartSamples
 
 #: Monomials per degree: degree 1 -> 3, degree 2 -> 9.
 TERMS = {1: 3, 2: 9}
@@ -130,34 +130,75 @@ def _fit(basis: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return inverse @ (basis.T * weights), vectors[:, ~seen]
 
 
-def _stacked_samples(samples, global_basis, group, origin):
-    """The samples of the parts ``group``: offsets from ``origin`` ``(s, 3)``, weights ``(s,)`` and
-    the rows ``J (s, n_q)`` over the stacked control points."""
+class _PartRows:
+    """Rows over the stacked control points, kept as one dense block per part whose control points
+    they reach: ``blocks[g]`` is ``(rows, n_g)`` over part ``g``'s control points (a fit on a few
+    parts' samples reaches only those parts' columns and their origin's translation's)."""
+
+    def __init__(self, blocks: dict[int, np.ndarray]):
+        self.blocks = blocks
+
+    @staticmethod
+    def fitted(fit: np.ndarray, group: Sequence[int], bases: Sequence[np.ndarray]) -> _PartRows:
+        """``fit (k, s) @ J`` with ``J`` the rows of the samples of the parts ``group`` stacked in order
+        (``bases[g] (s_g, n_g)`` over part ``g``'s control points)."""
+        blocks, start = {}, 0
+        for g in group:
+            stop = start + len(bases[g])
+            blocks[g] = fit[:, start:stop] @ bases[g]
+            start = stop
+        return _PartRows(blocks)
+
+    def minus_outer(self, column: np.ndarray, row: _PartRows) -> _PartRows:
+        """``self - column (k,) ⊗ row`` (``row`` a single row)."""
+        blocks = dict(self.blocks)
+        for g, block in row.blocks.items():
+            blocks[g] = blocks.get(g, 0.0) - column[:, None] * block
+        return _PartRows(blocks)
+
+    def plus(self, matrix: np.ndarray, other: _PartRows) -> _PartRows:
+        """``self + matrix @ other``."""
+        blocks = dict(self.blocks)
+        for g, block in other.blocks.items():
+            blocks[g] = blocks.get(g, 0.0) + matrix @ block
+        return _PartRows(blocks)
+
+    def triplets(self, first_row: int, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows, columns and values of the entries, the rows numbered from ``first_row``."""
+        rows, columns, values = [], [], []
+        for g, block in self.blocks.items():
+            r, c = np.nonzero(block)
+            rows.append(first_row + r)
+            columns.append(offsets[g] + c)
+            values.append(block[r, c])
+        return np.concatenate(rows), np.concatenate(columns), np.concatenate(values)
+
+
+def _stacked_samples(samples: Sequence[PartSamples], group: Sequence[int], origin: np.ndarray):
+    """The samples of the parts ``group``: offsets from ``origin`` ``(s, 3)`` and weights ``(s,)``."""
     points = np.concatenate([samples[g].points for g in group]) - origin
-    weights = np.concatenate([samples[g].weights for g in group])
-    return points, weights, scipy.sparse.vstack([global_basis[g] for g in group]).tocsr()
+    return points, np.concatenate([samples[g].weights for g in group])
 
 
-def _group_fit(samples, global_basis, group, origin, translation, degree):
+def _group_fit(samples, bases, group, origin, translation: _PartRows, degree) -> tuple[_PartRows, np.ndarray]:
     """The least-squares rows ``(k, n_q)`` of the monomials about ``origin`` on the samples of the
-    parts ``group``, fitted to ``J q - t`` (``translation``: the row ``(1, n_q)`` of ``t``), and the
-    coefficient directions ``(k, r)`` those samples cannot determine (they get 0)."""
-    points, weights, data = _stacked_samples(samples, global_basis, group, origin)
-    data = data - scipy.sparse.csr_matrix(np.ones((len(points), 1))) @ translation
+    parts ``group``, fitted to ``J q - t`` (``translation``: the row of ``t``), and the coefficient
+    directions ``(k, r)`` those samples cannot determine (they get 0)."""
+    points, weights = _stacked_samples(samples, group, origin)
     fit, unseen = _fit(monomials(points, degree), weights)
-    return scipy.sparse.csr_matrix(fit) @ data, unseen
+    return _PartRows.fitted(fit, group, bases).minus_outer(fit.sum(axis=1), translation), unseen
 
 
-def _translation(samples, global_basis, members, origin, degree) -> scipy.sparse.csr_matrix:
-    """The row ``(1, n_q)`` of an origin's translation: the constant of the polynomial fitted with it
-    over its parts' samples, so that every polynomial motion of the parts' degree is reproduced
-    exactly; where those samples cannot separate the constant from the other terms (a sphere's
+def _translation(samples, bases, members, origin, degree) -> _PartRows:
+    """The row of an origin's translation: the constant of the polynomial fitted with it over its
+    parts' samples, so that every polynomial motion of the parts' degree is reproduced exactly;
+    where those samples cannot separate the constant from the other terms (a sphere's
     ``X^2 + Y^2 + Z^2``), the weighted centroid of the samples (the paper's)."""
-    points, weights, data = _stacked_samples(samples, global_basis, members, origin)
+    points, weights = _stacked_samples(samples, members, origin)
     fit, unseen = _fit(np.hstack([np.ones((len(points), 1)), monomials(points, degree)]), weights)
     if unseen.shape[1] and np.abs(unseen[0]).max() > 1e-8:
-        return scipy.sparse.csr_matrix(weights / weights.sum()) @ data
-    return scipy.sparse.csr_matrix(fit[:1]) @ data
+        return _PartRows.fitted((weights / weights.sum())[None, :], members, bases)
+    return _PartRows.fitted(fit[:1], members, bases)
 
 
 def shape_matching(
@@ -192,7 +233,8 @@ def shape_matching(
     names = list(names or [f"part {i}" for i in range(count)])
     origin_of_part = np.zeros(count, dtype=int) if origin_of_part is None else np.asarray(origin_of_part, dtype=int)
     origins_count = int(origin_of_part.max()) + 1
-    global_basis = stacked_bases(samples)
+    bases = [s.basis.toarray() for s in samples]  # (s_g, n_g): a part's samples see only its own points
+    offsets = np.r_[0, np.cumsum([b.shape[1] for b in bases])]
     origins = np.zeros((origins_count, 3))
     translation = []
     for j in range(origins_count):
@@ -201,7 +243,7 @@ def shape_matching(
             raise SurfaceError(f"deformation origin {j} has no part")
         sigma = sum(samples[i].weights.sum() for i in members)
         origins[j] = sum(samples[i].weights @ samples[i].points for i in members) / sigma
-        translation.append(_translation(samples, global_basis, members, origins[j], degree))
+        translation.append(_translation(samples, bases, members, origins[j], degree))
     every_part = np.arange(count)
     blocks = []
     for i, s in enumerate(samples):
@@ -211,17 +253,21 @@ def shape_matching(
                 "terms; raise the sampling order"
             )
         origin, shift = origins[origin_of_part[i]], translation[origin_of_part[i]]
-        rows, unseen = _group_fit(samples, global_basis, [i], origin, shift, degree)
+        rows, unseen = _group_fit(samples, bases, [i], origin, shift, degree)
         if unseen.shape[1]:
             groups = [np.union1d(neighbours[i], [i])] if neighbours is not None else []
             for group in [*groups, every_part]:
-                completion, still_unseen = _group_fit(samples, global_basis, group, origin, shift, degree)
+                completion, still_unseen = _group_fit(samples, bases, group, origin, shift, degree)
                 if not still_unseen.shape[1]:
                     break
             else:
                 raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
-            rows = rows + scipy.sparse.csr_matrix(unseen @ unseen.T) @ completion
+            rows = rows.plus(unseen @ unseen.T, completion)
         blocks.append(rows)
-    projection = scipy.sparse.vstack(blocks + translation).tocsr()
-    projection.eliminate_zeros()
+    terms = TERMS[degree]
+    first_rows = [*(np.arange(count) * terms), *(count * terms + np.arange(origins_count))]
+    entries = [rows.triplets(first, offsets) for rows, first in zip(blocks + translation, first_rows, strict=True)]
+    shape = (count * terms + origins_count, int(offsets[-1]))
+    rows, columns, values = (np.concatenate(e) for e in zip(*entries, strict=True))
+    projection = scipy.sparse.csr_matrix((values, (rows, columns)), shape=shape)
     return ShapeMatching(projection, degree, origin_of_part, origins, np.arange(count) * TERMS[degree])

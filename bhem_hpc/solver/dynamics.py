@@ -204,7 +204,7 @@ class TimeStepper:
         guesses = [targets[i] if bounds[i] >= 1.0 else
                    start.position + FIRST_GUESS_FRACTION * bounds[i] * (targets[i] - start.position) for i in kept]
         chosen = kept[self._lowest_potential(guesses)]
-        report.start_guesses += chosen
+        report.start_guesses += int(chosen == 1)  # targets[1] is the step's start
         self.state.set_guess(guesses[kept.index(chosen)])
 
     def _lowest_potential(self, guesses: Sequence[np.ndarray]) -> int:

@@ -348,19 +348,11 @@ def _start_output(run: _Run, scene_text: bytes, continued: RestartPoint | None) 
         write_replacing(out / "scene.toml", scene_text)
         run.summary.write(out)
         return SurfaceTimeSeries(
-            out / "surface.xdmf", scene.surface, scene.material, output_density(scene),
+            out / "surface.xdmf", scene.surface, scene.material, scene.written_density,
             continue_at=None if continued is None else float(continued.attrs["time"]), trim=scene.trim,
         )  # fmt: skip
 
     return on_rank0(run.comm, start, f"the output directory {out}")
-
-
-def output_density(scene: Scene) -> int:
-    """Tessellation quads per patch side of a shell's output: its ``output.density``, or in contact by
-    IPC its collision lattice's cells (the same points and triangles: the meshes ParaView shows are
-    the meshes IPC keeps apart)."""
-    contact = scene.contact
-    return contact.collision_cells if contact is not None and contact.method == "ipc" else scene.output_density
 
 
 def steps_to_run(scene: Scene, options: RunOptions, checkpoint: RestartPoint | None) -> int:

@@ -171,8 +171,6 @@ class ShellBody:
                               ContactProjector(problem, prefix=prefix))
 
     def writer(self, path: Path, continue_at: float | None = None) -> SurfaceTimeSeries:
-        from bhem_hpc.run import output_density
-
         scene = self.scene
-        return SurfaceTimeSeries(path, scene.surface, scene.material, output_density(scene), continue_at=continue_at,
+        return SurfaceTimeSeries(path, scene.surface, scene.material, scene.written_density, continue_at=continue_at,
                                  trim=scene.trim)  # fmt: skip

@@ -118,3 +118,11 @@ class Scene:
     def nodal_shape(self) -> tuple[int, ...]:
         """The shape of the surface's nodal data (what a checkpoint keeps of a frame)."""
         return self.surface.nodal.shape
+
+    @property
+    def written_density(self) -> int:
+        """Tessellation quads per patch side of the shell's output: ``output.density``, or in contact
+        by IPC its collision lattice's cells (the same points and triangles: the meshes ParaView
+        shows are the meshes IPC keeps apart)."""
+        contact = self.contact
+        return contact.collision_cells if contact is not None and contact.method == "ipc" else self.output_density

@@ -450,7 +450,6 @@ def test_a_step_starts_from_the_lower_potential_of_the_prediction_and_the_start(
         assert first["start_guesses"] == 0 and first["recoveries"] > 0
     else:
         assert first["start_guesses"] == 1 and first["recoveries"] == 0 and first["newton_iterations"] <= 18
-    if not forced_inertial:
         falling = run_scene(RunOptions(_scene(comm, shared_tmp_path, "falling"), shared_tmp_path / "falling",
                                        steps=4, progress=False), comm)["steps"]  # fmt: skip
         assert [s["start_guesses"] for s in falling] == [0, 0, 0, 0]

@@ -11,8 +11,10 @@ matrix-free (:mod:`bhem_hpc.solver.hessian_action`: an assembly of the residual'
 iteration instead of the matrix's per trust-region iteration); several bodies' is assembled. Where
 contributions bound steps (IPC's barrier), a trial whose straight path from the current iterate the
 bound cuts short (it would pass through a contact) counts as an infinite potential: TAO rejects it
-and shrinks the region, so no iterate is ever in intersection. Contributions that adapt between
-line-search iterations (the barrier's stiffness) keep their parameters within a trust-region solve.
+and shrinks the region, so no iterate is ever in intersection. There the first radius is the
+first Newton step's length, not TAO's interpolation along the gradient, whose long probes contact
+cuts. Contributions that adapt between line-search iterations (the barrier's stiffness) keep their
+parameters within a trust-region solve.
 Its options live under its own prefix (``<solver prefix>ntr_``; the CG and its preconditioner
 under ``<solver prefix>ntr_tao_ntr_``).
 """
@@ -47,6 +49,13 @@ CG_RTOL = "1e-2"
 #: 10 steps, s/step for periods 1, 2, 3, 5: drape 1.11, 0.92, 0.85, 0.82; hanging 0.36, 0.31, 0.27,
 #: 0.25; shear 1.42, 1.40, 1.18, 1.32; never refactored: 1.54, 0.24, 4.79.
 PRECONDITIONER_PERIOD = 3
+#: The first radius of a solve where contributions bound steps (``ntr_tao_ntr_init_type``): the
+#: length of the first Newton step. TAO's default ("interpolation") probes steps along the gradient
+#: from a radius of 100; there each probe is a collision-free-step query, the probes that contact
+#: cuts are refused, and the radius starts at the first one uncut: 1e-4 m on the crushed can by
+#: IPC, whose first iterations then only grow it (steps 36-40 from one checkpoint: 10, 13, 28, 12,
+#: 8 iterations by interpolation; 8, 12, 27, 7, 5 from the Newton step's length).
+STEP_BOUNDED_INITIAL_RADIUS = "direction"
 #: The Krylov solvers of the trust-region subproblem a scene may choose (``ntr_tao_ntr_ksp_type``).
 SUBPROBLEM_SOLVERS = ("stcg", "nash")
 TAO_REASONS = {v: k for k, v in vars(PETSc.TAO.Reason).items() if k.isupper()}
@@ -79,10 +88,13 @@ class EnergyTrustRegion(PetscOwner):
         #: the exact Hessian applied matrix-free, or None (then assembled into the solver's Jacobian)
         self.action: ExactHessianAction | None = exact_hessian_action(solver.problem)
         self.tao: PETSc.TAO | None = None
+        self._hessians = 0  # Hessians asked for in the current solve (the preconditioner's age)
         rtol, atol, _, _ = solver.snes.getTolerances()
         ksp_prefix = self.prefix + "tao_ntr_"
         own = {"tao_max_it": str(MAX_ITERATIONS), "tao_gatol": f"{atol:.3e}", "tao_gttol": f"{rtol:.3e}",
                "tao_grtol": "0"}  # fmt: skip
+        if solver.problem.has_step_bounds:
+            own["tao_ntr_init_type"] = STEP_BOUNDED_INITIAL_RADIUS
         linear = {"ksp_type": "stcg", "ksp_rtol": CG_RTOL, "ksp_max_it": "200",
                   **{k: v for k, v in direct_options.items() if k.startswith(("pc_", "mat_mumps_"))}}  # fmt: skip
         linear["pc_type"] = "cholesky"  # the projected Hessian is symmetric positive definite
@@ -158,7 +170,9 @@ class EnergyTrustRegion(PetscOwner):
         kind = problem.hessian
         assembled = self.solver.jacobian  # the problem assembles into its own matrix; the projected kind is copied out
         try:
-            if tao.getIterationNumber() % PRECONDITIONER_PERIOD == 0:
+            # counted per solve, not by TAO's iteration number: an initial radius other than TAO's
+            # interpolation asks for the first Hessian at iteration 1, with nothing factored yet
+            if self._hessians % PRECONDITIONER_PERIOD == 0:
                 problem.hessian = "projected"
                 problem.assemble_jacobian(assembled)
                 self._copy_preconditioner(assembled)
@@ -171,6 +185,7 @@ class EnergyTrustRegion(PetscOwner):
                 self.action.set_iterate()
         finally:
             problem.hessian = kind
+        self._hessians += 1
         self.solver.reuse.invalidate()  # the line-search solver's kept factorization is of another matrix
 
     def _copy_preconditioner(self, hessian: PETSc.Mat) -> None:
@@ -189,6 +204,7 @@ class EnergyTrustRegion(PetscOwner):
         """Minimize the potential from ``x`` (overwritten with the result, or left as it was when the
         gradient did not meet the solver's tolerances: absolute, relative or acceleration); whether it converged."""
         start = x.copy()
+        self._hessians = 0
         try:
             self.tao.setSolution(x)
             try:

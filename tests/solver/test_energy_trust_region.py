@@ -52,6 +52,20 @@ def test_the_energy_trust_region_steps_cotton_where_line_search_newton_fails(com
             advance(comm, sheared_cotton(kind), 1, f"etr_{kind}_")
 
 
+@pytest.mark.parametrize("initial_radius", ["constant", "direction"])
+def test_every_initial_radius_of_tao_starts_from_a_factored_preconditioner(comm, initial_radius):
+    """TAO asks for the first Hessian of a solve at iteration 1 unless it initializes the radius by
+    interpolation (at iteration 0): the preconditioner is factored at a solve's first Hessian whatever
+    its iteration number, so the shear steps converge from either radius as from the default."""
+    scene = sheared_cotton("trust_region", patches=4)
+    scene.petsc_options["ntr_tao_ntr_init_type"] = initial_radius
+    records, counters, relative_residual = advance(comm, scene, 2, f"etr_{initial_radius}_")
+    assert counters["trust_region_failures"] == 0 and counters["trust_region_solves"] == 0
+    assert all(r.dt_halvings == 0 and r.regularized_retries == 0 for r in records)
+    assert all(0 < r.newton_iterations < MAX_ITERATIONS for r in records)
+    assert relative_residual < 1e-7
+
+
 @pytest.mark.parametrize("subproblem", ["gltr", "gmres"])
 def test_a_subproblem_solver_other_than_steihaug_or_nash_is_refused_by_option_and_value(comm, subproblem):
     """PETSc 3.18's ntr with ``gltr`` aborts the process (free(): invalid pointer): the option is

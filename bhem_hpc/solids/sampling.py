@@ -48,11 +48,20 @@ class PartSamples:
     points: np.ndarray
 
 
-def _span_bases(direction: KnotDirection, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@lru_cache(maxsize=64)
+def _lobatto_bernstein(order: int, degree: int) -> np.ndarray:
+    """The Bernstein polynomials of ``degree`` at the ``order`` Gauss-Lobatto nodes, ``(order, degree + 1)``
+    (read-only, computed once per pair: every part of a model shares them)."""
+    values = bernstein(gauss_lobatto(order)[0], degree)
+    values.flags.writeable = False
+    return values
+
+
+def _span_bases(direction: KnotDirection, order: int) -> tuple[np.ndarray, np.ndarray]:
     """The first control index ``(S,)`` of each nonempty span of ``direction`` and its ``p + 1``
-    basis functions at the local ``nodes (n,)`` of every span, ``(S, n, p + 1)`` (the spans'
-    Bezier extraction applied to the Bernstein polynomials at the nodes)."""
-    bernstein_at_nodes = bernstein(nodes, direction.degree)  # (n, p + 1)
+    basis functions at the ``order`` Gauss-Lobatto nodes of every span, ``(S, order, p + 1)`` (the
+    spans' Bezier extraction applied to the Bernstein polynomials at the nodes)."""
+    bernstein_at_nodes = _lobatto_bernstein(order, direction.degree)
     return direction.spans - direction.degree, np.einsum("sab,nb->sna", direction.extraction, bernstein_at_nodes)
 
 
@@ -63,8 +72,8 @@ def sample_part(part: NurbsSurface, order: int | None = None) -> PartSamples:
     composite Lobatto rule's do before its weights are summed (harmless for a least-squares fit).
     Samples are ordered ``[span_u, span_v, node_u, node_v]``."""
     order = order or max(max(part.degrees) + 1, 3)
-    nodes, node_weights = gauss_lobatto(order)
-    (first_u, basis_u), (first_v, basis_v) = _span_bases(part.u, nodes), _span_bases(part.v, nodes)
+    node_weights = gauss_lobatto(order)[1]
+    (first_u, basis_u), (first_v, basis_v) = _span_bases(part.u, order), _span_bases(part.v, order)
     rows = first_u[:, None] + np.arange(part.u.degree + 1)  # (S_u, p + 1)
     cols = first_v[:, None] + np.arange(part.v.degree + 1)  # (S_v, q + 1)
     local_weights = part.weights[rows[:, None, :, None], cols[None, :, None, :]]  # (S_u, S_v, p + 1, q + 1)

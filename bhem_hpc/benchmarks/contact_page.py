@@ -64,10 +64,11 @@ CONTACT_WINDOWS = (
     ContactWindow("mesh-obstacle", 110, 10, "the cloth lies on the mesh obstacle"),
     # by IPC the rim buckles under the barrier's push in steps 21-30 (line-search Newton crawled along
     # the buckling mode, 100 iterations and 20 recoveries; the trust region follows it in 3 to 10) and
-    # the wall snaps at step 38 (35 iterations, no recovery; started from the inertial prediction,
-    # which overshoots the snap, the trust region failed twice there and line search took 35 and
-    # then 99 iterations); by impulses the wall buckles between steps 90 and 100 (its radius varies by 2.5 mm
-    # at a height, then by 26 mm; 13 to 17 iterations a step) and its folds, crushed further, take
+    # the wall snaps in steps 37-39 (10, 13 and 17 iterations, no recovery; started from the inertial
+    # prediction, which overshoots the snap, the trust region failed twice there and line search took
+    # 35 and then 99 iterations; with TAO's own first radius the snap step took 35); by impulses the
+    # wall buckles between steps 90 and 100 (its radius varies by 2.5 mm at a height, then by 26 mm;
+    # 13 to 17 iterations a step) and its folds, crushed further, take
     # 12 to 156 a step in steps 116-135 (measured)
     ContactWindow("crushed-can", 20, 25, "the plank presses the rim down; by IPC the wall buckles",
                   ipc_hessian="trust_region"),
@@ -289,7 +290,7 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "trust region, which does not take the step test, the cloth pile's line search; fresh factorizations "
         "unless the job keeps them, as the ball does); a job that ships "
         "with IPC (linked-bands, cloth-on-sphere) runs by impulses with the contact table its window names. "
-        "The crushed can's wall buckles at different steps by the two methods (by IPC at step 38, by impulses "
+        "The crushed can's wall buckles at different steps by the two methods (by IPC in steps 37-39, by impulses "
         "between steps 90 and 100): a second window times the impulse run where its folds are crushed "
         "further and its Newton iterations peak. "
         "Each run is a `bhem-hpc run` in a process of its own: the steps before the window without frames, then the "

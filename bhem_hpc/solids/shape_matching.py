@@ -265,9 +265,10 @@ def shape_matching(
             rows = rows.plus(unseen @ unseen.T, completion)
         blocks.append(rows)
     terms = TERMS[degree]
-    first_rows = [*(np.arange(count) * terms), *(count * terms + np.arange(origins_count))]
+    part_rows = np.arange(count) * terms  # each part's first row; the origins' translations follow
+    first_rows = [*part_rows, *(count * terms + np.arange(origins_count))]
     entries = [rows.triplets(first, offsets) for rows, first in zip(blocks + translation, first_rows, strict=True)]
     shape = (count * terms + origins_count, int(offsets[-1]))
     rows, columns, values = (np.concatenate(e) for e in zip(*entries, strict=True))
     projection = scipy.sparse.csr_matrix((values, (rows, columns)), shape=shape)
-    return ShapeMatching(projection, degree, origin_of_part, origins, np.arange(count) * TERMS[degree])
+    return ShapeMatching(projection, degree, origin_of_part, origins, part_rows)

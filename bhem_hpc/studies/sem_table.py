@@ -6,7 +6,7 @@ step timed on this machine, next to the paper's figures (MATLAB and C++ on a Mac
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -59,6 +59,11 @@ def step_cost(solid: ShapeMatchingSolid, fixed: np.ndarray, steps: int = 3) -> t
     return step, stiffness.nnz / stiffness.shape[0] ** 2
 
 
+def _median_seconds(builds: Sequence[ShapeMatchingSolid], stages: Sequence[str]) -> float:
+    """The median over ``builds`` of the seconds their ``stages`` took together."""
+    return float(np.median([sum(b.seconds[s] for s in stages) for b in builds]))
+
+
 def table_rows(steps: int = 3) -> list[dict]:
     """Per model: parts, DoFs, quadrature points, each stage's seconds (the median of
     :data:`BUILDS` builds), the mean seconds of ``steps`` linearly implicit Euler steps under
@@ -68,14 +73,10 @@ def table_rows(steps: int = 3) -> list[dict]:
         builds = [build() for _ in range(BUILDS)]
         solid = builds[-1]
         step, nonzero = step_cost(solid, np.zeros(solid.reference.shape, dtype=bool), steps)
-
-        def median_seconds(*names: str, builds=builds) -> float:
-            return float(np.median([sum(b.seconds[n] for n in names) for b in builds]))
-
-        stages = [median_seconds(*((stage,) if isinstance(stage, str) else stage)) for stage in STAGES]
+        stages = [_median_seconds(builds, (stage,) if isinstance(stage, str) else stage) for stage in STAGES]
         rows.append({"model": name, "parts": len(solid.parts), "dofs": solid.dof_count,
                      "points": len(solid.quadrature.weights), "stages": stages,
-                     "operators": median_seconds("operators"), "step": step,
+                     "operators": _median_seconds(builds, ("operators",)), "step": step,
                      "nnz": 100.0 * nonzero, "paper": PAPER[name]})  # fmt: skip
     return rows
 

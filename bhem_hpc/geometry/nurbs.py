@@ -241,6 +241,57 @@ class NurbsSurface:
         return RationalBezierPatches(np.array(nets), np.array(boxes, dtype=float))
 
 
+def _insert_knot(homogeneous: np.ndarray, knots: np.ndarray, degree: int,
+                 value: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Boehm's insertion of ``value`` once into the first direction of ``homogeneous (n, m, 4)``
+    (degree ``degree``, ``knots (n + degree + 1,)``): ``(n + 1, m, 4)`` points and the new knots."""
+    span = int(np.searchsorted(knots, value, side="right")) - 1
+    first = span - degree + 1  # the points span - degree + 1 .. span are blends of two old ones
+    blend = (value - knots[first : span + 1]) / (knots[first + degree : span + degree + 1] - knots[first : span + 1])
+    middle = blend[:, None, None] * homogeneous[first : span + 1] + (1.0 - blend[:, None, None]) * homogeneous[
+        first - 1 : span
+    ]
+    points = np.concatenate([homogeneous[:first], middle, homogeneous[span:]])
+    return points, np.insert(knots, span + 1, value)
+
+
+def insert_knots(surface: NurbsSurface, u_values: Sequence[float] = (), v_values: Sequence[float] = ()) -> NurbsSurface:
+    """The same surface with the knots ``u_values`` and ``v_values`` inserted (each once, strictly
+    inside the domain): one more control row per ``u`` knot and column per ``v`` knot, the shape
+    unchanged to round-off (Boehm's algorithm in homogeneous coordinates)."""
+    homogeneous = surface.homogeneous
+    knots = {"u": surface.u.knots, "v": surface.v.knots}
+    for axis, direction, values in ((0, surface.u, u_values), (1, surface.v, v_values)):
+        low, high = direction.domain
+        for value in values:
+            if not low < value < high:
+                raise SurfaceError(f"{surface.name}: a knot to insert must lie inside ({low}, {high}), got {value!r}")
+            moved = np.moveaxis(homogeneous, axis, 0)
+            points, knots["uv"[axis]] = _insert_knot(moved, knots["uv"[axis]], direction.degree, float(value))
+            homogeneous = np.moveaxis(points, 0, axis)
+    weights = homogeneous[..., 3]
+    return NurbsSurface(surface.degrees, knots["u"], knots["v"], homogeneous[..., :3] / weights[..., None], weights,
+                        surface.name)  # fmt: skip
+
+
+def _span_midpoints(direction: KnotDirection, count: int) -> list[float]:
+    """``count`` knots that halve the widest spans of ``direction`` in turn (a span once halved
+    counts as two of half its width)."""
+    edges = list(np.unique(direction.knots[direction.spans[0] : direction.spans[-1] + 2]))
+    values = []
+    for _ in range(count):
+        k = int(np.argmax(np.diff(edges)))
+        values.append(0.5 * (edges[k] + edges[k + 1]))
+        edges.insert(k + 1, values[-1])
+    return values
+
+
+def refine(surface: NurbsSurface, extra: tuple[int, int]) -> NurbsSurface:
+    """The same surface with ``extra = (rows, columns)`` more control points, by knots inserted at
+    the middles of its widest spans (:func:`insert_knots`)."""
+    return insert_knots(surface, _span_midpoints(surface.u, extra[0]), _span_midpoints(surface.v, extra[1]))
+
+
 def span_lattice(direction: KnotDirection, per_side: int) -> np.ndarray:
     """``per_side`` equal steps per nonempty knot span of a direction, in its parameters, both ends of
     its domain included (a closed part samples its seam twice): :func:`knot_aligned_grid`'s lines."""

@@ -123,7 +123,7 @@ class QuadratureShare:
 
     def _dense_product(self, coefficients: np.ndarray) -> scipy.sparse.csr_matrix:
         """``Pi^T C Pi`` by dense products (BLAS; scipy's sparse product of a projection that is
-        nearly dense took 0.5 s for the rocket's 810 DoFs), on the entries the share's groups can
+        nearly dense took 0.5 s for a rocket of 810 DoFs), on the entries the share's groups can
         reach, zeros included: the same pattern at every state."""
         if self._pattern is None:
             projection = self.solid._projection.toarray()

@@ -25,10 +25,13 @@ def _turned_about_z(part: nurbs.NurbsSurface, angle: float) -> nurbs.NurbsSurfac
 
 
 def rocket() -> list[nurbs.NurbsSurface]:
-    """A 0.85 m rocket: a body of revolution (radius 0.1 m, a cone on top) and four biquadratic fins
-    (6 faces each) reaching into it: 25 parts."""
-    body = _solid_of_revolution([(0.0, 0.0), (0.1, 0.0), (0.1, 0.3), (0.1, 0.6), (0.06, 0.75), (0.0, 0.85)], "body")
-    fin = nurbs.box_faces([0.05, -0.008, 0.0], [0.22, 0.008, 0.18], degree=2)
+    """A 0.85 m rocket: a body of revolution (radius 0.1 m, flared at the tail, an ogive nose) and
+    four fins reaching into it, each a box of 6 bilinear faces with two spans along one side: 25
+    parts, 216 control points (the paper's 648 DoFs)."""
+    body = _solid_of_revolution(
+        [(0.0, 0.0), (0.09, 0.0), (0.1, 0.05), (0.1, 0.3), (0.1, 0.6), (0.085, 0.72), (0.05, 0.8), (0.0, 0.85)], "body"
+    )
+    fin = nurbs.box_faces([0.05, -0.008, 0.0], [0.22, 0.008, 0.18], degree=1, spans=(1, 2))
     fins = [_turned_about_z(face, k * np.pi / 2).with_name(f"fin {k} {face.name}") for k in range(4) for face in fin]
     return [body, *fins]
 
@@ -56,6 +59,12 @@ def castle() -> list[nurbs.NurbsSurface]:
         for k, (x, y) in enumerate([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)])
     ]
     return base + keep + towers
+
+
+def refined(parts: list[nurbs.NurbsSurface], extra: list[tuple[int, int]]) -> list[nurbs.NurbsSurface]:
+    """``parts`` with ``extra[k] = (rows, columns)`` more control points each, the shapes unchanged
+    (knots inserted by :func:`~bhem_hpc.geometry.nurbs.refine`)."""
+    return [nurbs.refine(part, more) for part, more in zip(parts, extra, strict=True)]
 
 
 def _bezier_pieces(surface: nurbs.NurbsSurface, name: str) -> list[nurbs.NurbsSurface]:

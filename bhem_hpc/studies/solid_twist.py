@@ -1,5 +1,6 @@
-"""The SEM paper's twisted beam (its Fig. 12): a beam of 22 NURBS parts, one end held, the other
-turned about the beam's axis up to 360 degrees in static increments. Serial, numpy and scipy."""
+"""The SEM paper's twisted beam (its Fig. 12): a beam of 22 NURBS parts (756 DoFs, as the paper's),
+one end held, the other turned about the beam's axis up to 360 degrees in static increments.
+Serial, numpy and scipy."""
 
 from __future__ import annotations
 
@@ -17,8 +18,10 @@ from bhem_hpc.solids.sem import ShapeMatchingSolid, SolidMaterial, SolidOptions
 #: Length and square side of the beam [m]; rubber as the paper's twisted beam (Table 1).
 LENGTH, SIDE = 2.0, 0.2
 RUBBER = SolidMaterial(density=1000.0, young=1e6, poisson=0.45)
-#: Sections of 4 biquadratic side parts, plus the two ends: 22 parts, 594 DoFs (the paper: 756).
+#: Sections of 4 biquadratic side parts (3 x 3 control points), plus the two ends refined to 6 x 6
+#: control points: 22 parts, 756 DoFs, the paper's count.
 SECTIONS = 5
+END_REFINEMENT = (3, 3)
 #: Saint-Venant's torsion constant of a square section, ``J = k b^4`` (Timoshenko and Goodier).
 SQUARE_TORSION = 0.1406
 
@@ -45,11 +48,18 @@ def _turned(points: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return out
 
 
-def twist_solid(alpha: float = 0.12, lines: int = 60) -> ShapeMatchingSolid:
-    """The beam along x from 0 to :data:`LENGTH`, its axis the x axis."""
+def twist_parts() -> list[nurbs.NurbsSurface]:
+    """The beam's parts along x from 0 to :data:`LENGTH`, its axis the x axis."""
     half = SIDE / 2
     parts = nurbs.beam_faces([0.0, -half, -half], [LENGTH, half, half], SECTIONS, degree=2)
-    return ShapeMatchingSolid(parts, RUBBER, SolidOptions(degree=2, lines_per_side=lines, alpha=alpha), name="beam")
+    parts[-2:] = [nurbs.refine(end, END_REFINEMENT) for end in parts[-2:]]  # beam_faces puts the ends last
+    return parts
+
+
+def twist_solid(alpha: float = 0.12, lines: int = 60) -> ShapeMatchingSolid:
+    """The beam of :func:`twist_parts`."""
+    options = SolidOptions(degree=2, lines_per_side=lines, alpha=alpha)
+    return ShapeMatchingSolid(twist_parts(), RUBBER, options, name="beam")
 
 
 def _midspan_angle(solid: ShapeMatchingSolid, q: np.ndarray, previous: float) -> float:

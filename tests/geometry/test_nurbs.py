@@ -116,6 +116,27 @@ def test_axis_lines_cross_the_sphere_exactly_twice(axis):
     np.testing.assert_array_equal(counts, 2 * inside)
 
 
+def test_inserted_knots_leave_the_surface_and_its_derivatives_unchanged(rng):
+    """Random knots, one on a double knot (which becomes triple), into both directions of a rational
+    degree 3 x 2 surface: the same points and first derivatives everywhere, one more control row
+    (column) per knot."""
+    surface = random_surface(rng)
+    u_values, v_values = [0.5, *(0.01 + 1.28 * rng.random(3))], list(-0.99 + 2.98 * rng.random(2))
+    refined = nurbs.insert_knots(surface, u_values, v_values)
+    assert refined.control.shape == (8 + 4, 5 + 2, 3)
+    u, v = random_parameters(surface, rng)
+    for before, after in zip(surface.evaluate(u, v), refined.evaluate(u, v), strict=True):
+        np.testing.assert_allclose(after, before, atol=1e-12)
+    with pytest.raises(SurfaceError, match=r"part 4: a knot to insert must lie inside \(0\.0, 1\.3\), got 1\.3"):
+        nurbs.insert_knots(surface.with_name("part 4"), [1.3])
+
+
+def test_refining_halves_the_widest_spans_first():
+    torus = nurbs.refine(nurbs.torus(1.0, 0.3), (5, 0))
+    assert torus.control.shape == (14, 9, 3)
+    assert sorted(set(torus.u.knots)) == pytest.approx([0, 0.0625, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1])
+
+
 def test_bad_nurbs_input_is_refused_with_its_value():
     knots = np.array([0, 0, 0, 1, 1, 1.0])
     control = np.zeros((3, 3, 3))

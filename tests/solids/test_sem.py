@@ -340,3 +340,19 @@ def test_two_legs_move_independently_with_a_local_cutoff():
         moved[label] = np.linalg.norm(state.q - reference, axis=1)[part_of >= 12].max()
     assert moved["local"] < 0.01
     assert moved["wide"] > 0.04
+
+
+def test_the_table_models_have_the_papers_dofs():
+    """Table 1's models (the rocket, the twisted beam, the refined mug and castle) have the paper's
+    DoF counts, three per control point as its q."""
+    from bhem_hpc.studies import sem_models, sem_table
+    from bhem_hpc.studies.solid_twist import twist_parts
+
+    parts = {
+        "rocket (soft)": sem_models.rocket(),
+        "beam (twist)": twist_parts(),
+        "coffee mug (soft)": sem_models.refined(sem_models.mug(), sem_table.MUG_REFINEMENT),
+        "castle": sem_models.refined(sem_models.castle(), sem_table.CASTLE_REFINEMENT),
+    }
+    for name, model in parts.items():
+        assert 3 * sum(part.control.shape[0] * part.control.shape[1] for part in model) == sem_table.PAPER[name][0]

@@ -87,9 +87,19 @@ class QuadratureShare:
         self._coefficient_gradients = solid._coefficient_gradients[9 * start : 9 * stop]
         self._groups = point_groups([g[start:stop] for g in solid._scalar_gradients])
         self._mu, self._lam = solid._mu[start:stop], solid._lam[start:stop]
-        #: the dense projection and the entries ``(rows, columns)`` of the stiffness (dense coefficients)
+        #: the dense projection and the entries ``(rows, columns)`` of the stiffness (dense coefficients),
+        #: made with the operators: they depend on the structure alone
         self._dense_projection: np.ndarray | None = None
         self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+        if fits_dense(3 * solid.matching.coefficient_count) and fits_dense(solid._projection.shape[1]):
+            self._prepare_dense()
+
+    def _prepare_dense(self) -> None:
+        projection = self.solid._projection.toarray()
+        reach = coefficient_pattern(self._groups, self.solid.matching.coefficient_count).astype(float)
+        nonzero = np.abs(projection) > 0.0
+        rows, columns = np.nonzero((nonzero.T.astype(float) @ reach @ nonzero.astype(float)) > 0.0)
+        self._dense_projection, self._pattern = projection, (rows, columns)
 
     def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
         """``(stop - start, 3, 3)`` at the share's points for control points ``q (n_q, 3)``."""
@@ -125,12 +135,8 @@ class QuadratureShare:
         """``Pi^T C Pi`` by dense products (BLAS; scipy's sparse product of a projection that is
         nearly dense took 0.5 s for a rocket of 810 DoFs), on the entries the share's groups can
         reach, zeros included: the same pattern at every state."""
-        if self._pattern is None:
-            projection = self.solid._projection.toarray()
-            reach = coefficient_pattern(self._groups, self.solid.matching.coefficient_count).astype(float)
-            nonzero = np.abs(projection) > 0.0
-            rows, columns = np.nonzero((nonzero.T.astype(float) @ reach @ nonzero.astype(float)) > 0.0)
-            self._dense_projection, self._pattern = projection, (rows, columns)
+        if self._pattern is None or self._dense_projection is None:
+            self._prepare_dense()
         rows, columns = self._pattern
         projection = self._dense_projection
         product = projection.T @ (coefficients @ projection)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.optimize
+import scipy.sparse
 
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
@@ -176,6 +177,42 @@ def test_dense_and_sparse_stiffness_assembly_agree(box_solid, rng, monkeypatch):
     np.testing.assert_allclose(dense.toarray(), sparse.toarray(), atol=1e-10 * abs(sparse).max())
     rest = dense_share.hessian(box_solid.reference, projected=False)
     assert rest.nnz == dense.nnz and np.array_equal(rest.indices, dense.indices)
+
+
+def test_merged_point_groups_give_the_stiffness_of_the_distinct_ones(box_solid, rng, monkeypatch):
+    """Groups of points that see the same coefficients are merged where the cost model says one
+    product beats two; with a cost model under which nothing merges, the stiffness is the same."""
+    from bhem_hpc.solids import assembly
+    from bhem_hpc.solids.sem import QuadratureShare
+
+    q = box_solid.reference + 0.02 * rng.normal(size=box_solid.reference.shape)
+    merged = QuadratureShare(box_solid, 0, len(box_solid.quadrature.points))
+    monkeypatch.setattr(assembly, "ENTRY_SECONDS", 0.0)
+    monkeypatch.setattr(assembly, "GROUP_SECONDS", 0.0)
+    distinct = QuadratureShare(box_solid, 0, len(box_solid.quadrature.points))
+    assert len(merged._groups) < len(distinct._groups)
+    expected = distinct.hessian(q).toarray()
+    np.testing.assert_allclose(merged.hessian(q).toarray(), expected, atol=1e-12 * abs(expected).max())
+
+
+def test_symmetric_solves_are_dense_cholesky_or_sparse_lu(rng, monkeypatch):
+    """A full positive definite system goes to the dense Cholesky factorization, an indefinite one
+    (no Cholesky factor) and a sparse one to the sparse LU: all three solve to round-off."""
+    import scipy.sparse.linalg
+
+    from bhem_hpc.solids import equilibrium
+
+    sparse_solves = []
+    lu = scipy.sparse.linalg.spsolve
+    monkeypatch.setattr(scipy.sparse.linalg, "spsolve", lambda *args: sparse_solves.append(1) or lu(*args))
+    factor = rng.normal(size=(40, 40))
+    definite, indefinite = factor @ factor.T + 40 * np.eye(40), factor + factor.T
+    sparse = scipy.sparse.diags([np.full(39, -1.0), np.full(40, 3.0), np.full(39, -1.0)], [-1, 0, 1])
+    rhs = rng.normal(size=40)
+    for matrix in (definite, indefinite, sparse.toarray()):
+        solution = equilibrium.solve_symmetric(scipy.sparse.csr_matrix(matrix), rhs)
+        np.testing.assert_allclose(matrix @ solution, rhs, atol=1e-10 * np.abs(rhs).max())
+    assert len(sparse_solves) == 2  # the indefinite and the sparse system
 
 
 def test_mass_and_gravity(box_solid):

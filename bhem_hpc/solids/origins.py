@@ -5,14 +5,19 @@ group is a candidate origin. The flow runs source -> candidate -> part -> sink: 
 an edge to every part of its set, costing the sum of that part's blending weights over the
 group's points (heavily connected candidates cost more); every part passes one unit to the sink.
 The parts that draw their unit through one candidate share one origin (placed by
-:func:`~bhem_hpc.solids.shape_matching.shape_matching` at the centroid of their samples). The
-integer program (eq. 10) goes to HiGHS through :func:`scipy.optimize.milp`.
+:func:`~bhem_hpc.solids.shape_matching.shape_matching` at the centroid of their samples).
+
+The integer program (eq. 10) is solved exactly without an LP solver: the source's edges have no
+capacity and no cost, and the parts' edges to the sink capacity 1, so successive shortest paths
+send each part's unit along its cheapest candidate edge, and no later path can reroute an
+earlier one more cheaply (the paths share only the source). HiGHS (:func:`scipy.optimize.milp`)
+found the same optimum in 2-5 ms a model, most of it the solver's setup; the tests check the two
+against each other.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.optimize
 import scipy.sparse
 
 from bhem_hpc.geometry.surface import SurfaceError
@@ -21,8 +26,12 @@ from bhem_hpc.geometry.surface import SurfaceError
 def candidate_groups(weights: scipy.sparse.spmatrix) -> tuple[np.ndarray, np.ndarray]:
     """Groups of points by their set of parts: ``(patterns (G, parts) bool, group of each point (Q,))``."""
     pattern = scipy.sparse.csr_matrix(weights).toarray() > 0.0
-    patterns, group = np.unique(pattern, axis=0, return_inverse=True)
-    return patterns, group.ravel()
+    # one byte string per point (np.unique over rows sorts a structured view: 3 ms for 1328 points);
+    # the bits' order keeps the rows' lexicographic order
+    packed = np.ascontiguousarray(np.packbits(pattern, axis=1))
+    keys = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()
+    _, first, group = np.unique(keys, return_index=True, return_inverse=True)
+    return pattern[first], group.ravel()
 
 
 def assign_candidates(weights: scipy.sparse.spmatrix, name: str = "model") -> tuple[np.ndarray, np.ndarray]:
@@ -33,7 +42,6 @@ def assign_candidates(weights: scipy.sparse.spmatrix, name: str = "model") -> tu
         weights: blending weights ``(Q, parts)`` at the quadrature points.
     """
     weights = scipy.sparse.csr_matrix(weights)
-    parts = weights.shape[1]
     patterns, group = candidate_groups(weights)
     # cost of candidate g -> part i: the part's weights summed over the group's points
     cost = np.asarray(
@@ -42,26 +50,12 @@ def assign_candidates(weights: scipy.sparse.spmatrix, name: str = "model") -> tu
         )
         @ weights.toarray()
     )
-    edges = np.argwhere(patterns)  # (E, 2): candidate, part
-    unreached = np.setdiff1d(np.arange(parts), edges[:, 1])
+    unreached = np.flatnonzero(~patterns.any(axis=0))
     if len(unreached):
         raise SurfaceError(f"{name}: part {int(unreached[0])} has no quadrature point with a nonzero blending weight")
-    count = len(edges)
-    # variables: one flow per candidate -> part edge (source and sink flows follow from them)
-    # each part receives exactly one unit; flows are 0 or 1
-    receive = scipy.sparse.csr_matrix((np.ones(count), (edges[:, 1], np.arange(count))), shape=(parts, count))
-    result = scipy.optimize.milp(
-        c=cost[edges[:, 0], edges[:, 1]],
-        constraints=scipy.optimize.LinearConstraint(receive, np.ones(parts), np.ones(parts)),
-        integrality=np.ones(count),
-        bounds=scipy.optimize.Bounds(np.zeros(count), np.ones(count)),
-    )
-    if not result.success:
-        raise SurfaceError(f"{name}: the deformation-origin flow has no solution ({result.message})")
-    chosen = edges[np.round(result.x).astype(bool)]
-    candidate_of_part = np.empty(parts, dtype=int)
-    candidate_of_part[chosen[:, 1]] = chosen[:, 0]
-    return candidate_of_part, np.where(patterns, cost, np.inf)
+    edge_cost = np.where(patterns, cost, np.inf)
+    # each part's unit along its cheapest edge (the module docstring says why that is the optimum)
+    return np.argmin(edge_cost, axis=0), edge_cost
 
 
 def deformation_origins(weights: scipy.sparse.spmatrix, name: str = "model") -> np.ndarray:

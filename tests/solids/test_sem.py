@@ -279,6 +279,26 @@ def test_deformation_origins_solve_the_network_flow():
     assert origins[0] == 0 and len(np.unique(origins)) > 1
 
 
+def test_the_cheapest_edges_are_the_optimum_of_the_integer_flow(rng):
+    """Random sparse blending weights (seeded): the flow of :func:`assign_candidates` costs what
+    HiGHS's integer program (eq. 10: every part receives one unit over 0/1 candidate edges) costs."""
+    for _ in range(20):
+        weights = rng.random((60, 7)) * (rng.random((60, 7)) < 0.4)
+        weights[np.arange(7), np.arange(7)] += 0.1  # every part has a point
+        candidate, edge_cost = assign_candidates(scipy.sparse.csr_matrix(weights))
+        edges = np.argwhere(np.isfinite(edge_cost))
+        flows = np.arange(len(edges))
+        receive = scipy.sparse.csr_matrix((np.ones(len(edges)), (edges[:, 1], flows)), shape=(7, len(edges)))
+        result = scipy.optimize.milp(
+            c=edge_cost[edges[:, 0], edges[:, 1]],
+            constraints=scipy.optimize.LinearConstraint(receive, np.ones(7), np.ones(7)),
+            integrality=np.ones(len(edges)),
+            bounds=scipy.optimize.Bounds(np.zeros(len(edges)), np.ones(len(edges))),
+        )
+        assert result.success
+        assert edge_cost[candidate, np.arange(7)].sum() == pytest.approx(result.fun, rel=1e-12)
+
+
 def test_origins_option_is_checked():
     with pytest.raises(SurfaceError, match=r"box: origins must be 'flow', 'single' or one index per part, got 'many'"):
         ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins="many", lines_per_side=8), name="box")

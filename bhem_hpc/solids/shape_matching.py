@@ -124,14 +124,31 @@ class ShapeMatching:
         return phi, grad
 
 
-def _fit(basis: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The weighted least-squares fit ``(P^T S P)^+ P^T S`` ``(k, s)`` on ``basis (s, k)`` (minimum
-    norm along the directions the samples cannot determine) and those orthonormal coefficient
-    directions ``(k, r)`` (eigenvalues of ``P^T S P`` below :data:`FIT_RCOND` of the largest)."""
-    values, vectors = np.linalg.eigh(basis.T @ (weights[:, None] * basis))
-    seen = values > FIT_RCOND * max(values.max(), 1e-300)
-    inverse = (vectors[:, seen] / values[seen]) @ vectors[:, seen].T
-    return inverse @ (basis.T * weights), vectors[:, ~seen]
+def shifts(deltas: np.ndarray, degree: int) -> np.ndarray:
+    """``T (n, 1 + k, 1 + k)`` with ``Q(Y + deltas[i]) = T[i] @ Q(Y)`` for ``Q(Y) = (1, monomials(Y))``
+    and ``deltas (n, 3)``: the monomials about one centre as a linear map of those about another."""
+    size = 1 + TERMS[degree]
+    shift = np.zeros((len(deltas), size, size))
+    shift[:, np.arange(size), np.arange(size)] = 1.0
+    shift[:, 1:4, 0] = deltas
+    if degree == 2:
+        for row, (i, j) in zip((4, 5, 6), ((0, 1), (0, 2), (1, 2)), strict=True):
+            shift[:, row, 0] = deltas[:, i] * deltas[:, j]
+            shift[:, row, 1 + i], shift[:, row, 1 + j] = deltas[:, j], deltas[:, i]
+        for i in range(3):
+            shift[:, 7 + i, 0], shift[:, 7 + i, 1 + i] = deltas[:, i] ** 2, 2.0 * deltas[:, i]
+    return shift
+
+
+def _pseudo_inverses(normals: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The minimum-norm inverses ``(n, k, k)`` of weighted least-squares fits' normal matrices
+    ``(n, k, k)`` and, per fit, the orthonormal coefficient directions ``(k, r)`` its samples
+    cannot determine (eigenvalues below :data:`FIT_RCOND` of the largest)."""
+    values, vectors = np.linalg.eigh(normals)
+    seen = values > FIT_RCOND * np.maximum(values.max(axis=1, keepdims=True), 1e-300)
+    scale = np.where(seen, 1.0 / np.where(seen, values, 1.0), 0.0)
+    inverses = (vectors * scale[:, None, :]) @ vectors.transpose(0, 2, 1)
+    return inverses, [v[:, ~s] for v, s in zip(vectors, seen, strict=True)]
 
 
 class _PartRows:
@@ -142,16 +159,9 @@ class _PartRows:
     def __init__(self, blocks: dict[int, np.ndarray]):
         self.blocks = blocks
 
-    @staticmethod
-    def fitted(fit: np.ndarray, group: Sequence[int], bases: Sequence[np.ndarray]) -> _PartRows:
-        """``fit (k, s) @ J`` with ``J`` the rows of the samples of the parts ``group`` stacked in order
-        (``bases[g] (s_g, n_g)`` over part ``g``'s control points)."""
-        blocks, start = {}, 0
-        for g in group:
-            stop = start + len(bases[g])
-            blocks[g] = fit[:, start:stop] @ bases[g]
-            start = stop
-        return _PartRows(blocks)
+    def left(self, matrix: np.ndarray) -> _PartRows:
+        """``matrix @ self``."""
+        return _PartRows({g: matrix @ block for g, block in self.blocks.items()})
 
     def minus_outer(self, column: np.ndarray, row: _PartRows) -> _PartRows:
         """``self - column (k,) ⊗ row`` (``row`` a single row)."""
@@ -186,6 +196,9 @@ class _DenseRows:
     def __init__(self, rows: np.ndarray):
         self.rows = rows
 
+    def left(self, matrix: np.ndarray) -> _DenseRows:
+        return _DenseRows(matrix @ self.rows)
+
     def minus_outer(self, column: np.ndarray, row: _DenseRows) -> _DenseRows:
         return _DenseRows(self.rows - column[:, None] * row.rows)
 
@@ -193,61 +206,97 @@ class _DenseRows:
         return _DenseRows(self.rows + matrix @ other.rows)
 
 
-class _Layout:
-    """The parts' sample bases over their own control points, where each part's control points
-    start in the stacked ones (``offsets (parts + 1,)``), and the kind of rows the fits give: dense
-    for a projection up to :data:`DENSE_PROJECTION_ENTRIES` entries, the bases then stacked into one
-    block-diagonal array ``(samples, n_q)`` whose rows ``sample_offsets`` are each part's."""
+def _block_diagonal(blocks: Sequence[scipy.sparse.csr_matrix], offsets: np.ndarray) -> scipy.sparse.csr_matrix:
+    """The CSR blocks stacked down the diagonal, block ``g``'s columns from ``offsets[g]`` (scipy's
+    ``block_diag`` goes through one COO matrix per block: 1.4 ms for a rocket's 25 parts)."""
+    nonzeros = np.r_[0, np.cumsum([b.nnz for b in blocks])]
+    indptr = np.concatenate([b.indptr[:-1] + start for b, start in zip(blocks, nonzeros[:-1], strict=True)])
+    indices = np.concatenate([b.indices + offset for b, offset in zip(blocks, offsets[:-1], strict=True)])
+    data = np.concatenate([b.data for b in blocks])
+    shape = (sum(b.shape[0] for b in blocks), int(offsets[-1]))
+    return scipy.sparse.csr_matrix((data, indices, np.r_[indptr, nonzeros[-1]]), shape=shape)
 
-    def __init__(self, samples: Sequence[PartSamples], coefficient_count: int):
-        self.coefficient_count = coefficient_count
+
+class _Moments:
+    """The weighted moments of each part's samples about its own centre ``centres (parts, 3)`` (the
+    samples' weighted centroid): with ``Q = (1, monomials)`` of degree ``degree`` at the samples,
+    ``normals[g] = Q^T S Q`` ``(1 + k, 1 + k)`` and ``Q^T S J`` ``(1 + k, n_g)`` over the part's
+    control points. A fit about any origin over any group of parts is a sum of these moved by
+    :func:`shifts`, so no fit goes back to the samples. The rows are dense over all control points
+    (``dense``) for a projection of at most :data:`DENSE_PROJECTION_ENTRIES` entries, where each
+    part's ``Q^T S J`` is kept as ``(1 + k, n_q)``; else per part. :meth:`place` sets the origins
+    ``(origins, 3)`` the fits are made about."""
+
+    def __init__(self, samples: Sequence[PartSamples], degree: int, coefficient_count: int):
+        self.degree, self.coefficient_count = degree, coefficient_count
         self.offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
-        self.sample_offsets = np.r_[0, np.cumsum([s.basis.shape[0] for s in samples])]
         self.dense = coefficient_count * int(self.offsets[-1]) <= DENSE_PROJECTION_ENTRIES
-        if self.dense:
-            self.stacked = np.zeros((int(self.sample_offsets[-1]), int(self.offsets[-1])))
-            for g, s in enumerate(samples):
-                rows, columns = self.sample_offsets[g : g + 2], self.offsets[g : g + 2]
-                self.stacked[rows[0] : rows[1], columns[0] : columns[1]] = s.basis.toarray()
+        counts = np.array([len(s.weights) for s in samples])
+        starts, part = np.r_[0, np.cumsum(counts)[:-1]], np.repeat(np.arange(len(samples)), counts)
+        weights = np.concatenate([s.weights for s in samples])
+        points = np.concatenate([s.points for s in samples])
+        self.sums = np.add.reduceat(weights, starts)
+        self.centres = np.add.reduceat(weights[:, None] * points, starts) / self.sums[:, None]
+        basis = np.hstack([np.ones((len(points), 1)), monomials(points - self.centres[part], degree)])  # (s, 1 + k)
+        weighted = weights[:, None] * basis
+        self.normals = np.add.reduceat(weighted[:, :, None] * basis[:, None, :], starts)
+        size = basis.shape[1]
+        if self.dense:  # every part's Q^T S J at once: (parts (1 + k), s) @ the block-diagonal J (s, n_q)
+            rows = (part[:, None] * size + np.arange(size)).ravel()
+            left = scipy.sparse.csr_matrix((weighted.ravel(), (rows, np.repeat(np.arange(len(part)), size))),
+                                           shape=(len(samples) * size, len(part)))  # fmt: skip
+            stacked = _block_diagonal([s.basis for s in samples], self.offsets)
+            self.projected = (left @ stacked).toarray().reshape(len(samples), size, -1)
         else:
-            self.bases = [s.basis.toarray() for s in samples]  # (s_g, n_g)
+            self.projected = [(s.basis.T @ weighted[a : a + len(s.weights)]).T
+                              for s, a in zip(samples, starts, strict=True)]  # fmt: skip
 
-    def fitted(self, fit: np.ndarray, group: Sequence[int]) -> _PartRows | _DenseRows:
-        """``fit (k, s) @ J`` with ``J`` the rows of the samples of the parts ``group`` stacked in order."""
-        if not self.dense:
-            return _PartRows.fitted(fit, group, self.bases)
-        if len(group) == 1:
-            return _DenseRows(fit @ self.stacked[self.sample_offsets[group[0]] : self.sample_offsets[group[0] + 1]])
-        rows = np.concatenate([np.arange(self.sample_offsets[g], self.sample_offsets[g + 1]) for g in group])
-        return _DenseRows(fit @ self.stacked[rows])
+    def place(self, origins: np.ndarray) -> None:
+        """Each part's shift to each origin and its normal matrix moved there, ``(origins, parts, 1 + k, 1 + k)``."""
+        moved = shifts((self.centres[None, :, :] - origins[:, None, :]).reshape(-1, 3), self.degree)
+        self.moved = moved.reshape(len(origins), len(self.centres), *moved.shape[1:])
+        self.moved_normals = self.moved @ self.normals[None] @ self.moved.transpose(0, 1, 3, 2)
+
+    def about(self, group: Sequence[int], origin: int) -> tuple[np.ndarray, _PartRows | _DenseRows]:
+        """``Q^T S Q`` ``(1 + k, 1 + k)`` and the rows ``Q^T S J`` ``(1 + k, n_q)`` of the samples of
+        the parts ``group``, ``Q`` the monomials about origin number ``origin``."""
+        group = np.asarray(group)
+        moved, normal = self.moved[origin, group], self.moved_normals[origin, group].sum(axis=0)
+        if self.dense:  # sum_g T_g (Q^T S J)_g as one product over (g, b)
+            size = normal.shape[0]
+            stacked = self.projected[group].reshape(len(group) * size, -1)
+            return normal, _DenseRows(moved.transpose(1, 0, 2).reshape(size, -1) @ stacked)
+        return normal, _PartRows({int(g): t @ self.projected[g] for g, t in zip(group, moved, strict=True)})
 
 
-def _stacked_samples(samples: Sequence[PartSamples], group: Sequence[int], origin: np.ndarray):
-    """The samples of the parts ``group``: offsets from ``origin`` ``(s, 3)`` and weights ``(s,)``."""
-    points = np.concatenate([samples[g].points for g in group]) - origin
-    return points, np.concatenate([samples[g].weights for g in group])
-
-
-def _group_fit(samples, layout: _Layout, group, origin, translation,
-               degree) -> tuple[_PartRows | _DenseRows, np.ndarray]:  # fmt: skip
+def _group_fit(moments: _Moments, group, origin, translation,
+               solved: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[_PartRows | _DenseRows, np.ndarray]:
     """The least-squares rows ``(k, n_q)`` of the monomials about ``origin`` on the samples of the
     parts ``group``, fitted to ``J q - t`` (``translation``: the row of ``t``), and the coefficient
-    directions ``(k, r)`` those samples cannot determine (they get 0)."""
-    points, weights = _stacked_samples(samples, group, origin)
-    fit, unseen = _fit(monomials(points, degree), weights)
-    return layout.fitted(fit, group).minus_outer(fit.sum(axis=1), translation), unseen
+    directions ``(k, r)`` those samples cannot determine (they get 0); ``solved``: the normal
+    matrix's inverse and those directions where :func:`_pseudo_inverses` made them for many fits."""
+    normal, rows = moments.about(group, origin)
+    if solved is None:
+        (inverse,), (unseen,) = _pseudo_inverses(normal[None, 1:, 1:])
+    else:
+        inverse, unseen = solved
+    # the fit (P^T S P)^+ P^T S applied to J and to the ones (the translation's column)
+    fitted = _DenseRows(inverse @ rows.rows[1:]) if isinstance(rows, _DenseRows) else _PartRows(
+        {g: inverse @ block[1:] for g, block in rows.blocks.items()}
+    )
+    return fitted.minus_outer(inverse @ normal[1:, 0], translation), unseen
 
 
-def _translation(samples, layout: _Layout, members, origin, degree) -> _PartRows | _DenseRows:
+def _translation(moments: _Moments, members, origin) -> _PartRows | _DenseRows:
     """The row of an origin's translation: the constant of the polynomial fitted with it over its
     parts' samples, so that every polynomial motion of the parts' degree is reproduced exactly;
     where those samples cannot separate the constant from the other terms (a sphere's
     ``X^2 + Y^2 + Z^2``), the weighted centroid of the samples (the paper's)."""
-    points, weights = _stacked_samples(samples, members, origin)
-    fit, unseen = _fit(np.hstack([np.ones((len(points), 1)), monomials(points, degree)]), weights)
+    normal, rows = moments.about(members, origin)
+    (inverse,), (unseen,) = _pseudo_inverses(normal[None])
     if unseen.shape[1] and np.abs(unseen[0]).max() > 1e-8:
-        return layout.fitted((weights / weights.sum())[None, :], members)
-    return layout.fitted(fit[:1], members)
+        return rows.left(np.eye(1, len(normal)) / normal[0, 0])
+    return rows.left(inverse[:1])
 
 
 def shape_matching(
@@ -283,17 +332,21 @@ def shape_matching(
     origin_of_part = np.zeros(count, dtype=int) if origin_of_part is None else np.asarray(origin_of_part, dtype=int)
     origins_count = int(origin_of_part.max()) + 1
     terms = TERMS[degree]
-    layout = _Layout(samples, count * terms + origins_count)
+    moments = _Moments(samples, degree, count * terms + origins_count)
     origins = np.zeros((origins_count, 3))
     translation = []
     for j in range(origins_count):
         members = np.flatnonzero(origin_of_part == j)
         if not len(members):
             raise SurfaceError(f"deformation origin {j} has no part")
-        sigma = sum(samples[i].weights.sum() for i in members)
-        origins[j] = sum(samples[i].weights @ samples[i].points for i in members) / sigma
-        translation.append(_translation(samples, layout, members, origins[j], degree))
+        sums = moments.sums[members]
+        origins[j] = sums @ moments.centres[members] / sums.sum()
+    moments.place(origins)
+    for j in range(origins_count):
+        translation.append(_translation(moments, np.flatnonzero(origin_of_part == j), j))
     every_part = np.arange(count)
+    # each part's own fit, about its origin: all normal matrices inverted at once
+    inverses, unseens = _pseudo_inverses(moments.moved_normals[origin_of_part, every_part][:, 1:, 1:])
     blocks = []
     # the completion of a part depends on its group and origin alone: the planar faces of one fin
     # or box share both, and their fit over many parts' samples is made once
@@ -304,32 +357,32 @@ def shape_matching(
                 f"{names[i]}: {len(s.points)} boundary samples cannot fit the {TERMS[degree]} shape-matching "
                 "terms; raise the sampling order"
             )
-        origin, shift = origins[origin_of_part[i]], translation[origin_of_part[i]]
-        rows, unseen = _group_fit(samples, layout, [i], origin, shift, degree)
+        origin, shift = origin_of_part[i], translation[origin_of_part[i]]
+        rows, unseen = _group_fit(moments, [i], origin, shift, (inverses[i], unseens[i]))
         if unseen.shape[1]:
             groups = [np.union1d(neighbours[i], [i])] if neighbours is not None else []
             key = (tuple(int(g) for g in groups[0]) if groups else (), int(origin_of_part[i]))
             if key not in completions:
-                completions[key] = _completion(samples, layout, [*groups, every_part], origin, shift, degree)
+                completions[key] = _completion(moments, [*groups, every_part], origin, shift)
             rows = rows.plus(unseen @ unseen.T, completions[key])
         blocks.append(rows)
     part_rows = np.arange(count) * terms  # each part's first row; the origins' translations follow
     first_rows = [*part_rows, *(count * terms + np.arange(origins_count))]
-    projection = _assembled(blocks + translation, first_rows, layout)
+    projection = _assembled(blocks + translation, first_rows, moments)
     return ShapeMatching(projection, degree, origin_of_part, origins, part_rows)
 
 
-def _completion(samples, layout: _Layout, groups, origin, translation, degree) -> _PartRows | _DenseRows:
+def _completion(moments: _Moments, groups, origin, translation) -> _PartRows | _DenseRows:
     """The fit over the first of ``groups`` whose samples determine every term (:func:`_group_fit`)."""
     for group in groups:
-        completion, still_unseen = _group_fit(samples, layout, group, origin, translation, degree)
+        completion, still_unseen = _group_fit(moments, group, origin, translation)
         if not still_unseen.shape[1]:
             return completion
     raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
 
 
 def _assembled(row_groups: Sequence[_PartRows | _DenseRows], first_rows: Sequence[int],
-               layout: _Layout) -> scipy.sparse.csr_matrix:  # fmt: skip
+               layout: _Moments) -> scipy.sparse.csr_matrix:  # fmt: skip
     """The projection from its consecutive row groups, each starting at its ``first_rows``."""
     if layout.dense:
         return scipy.sparse.csr_matrix(np.vstack([rows.rows for rows in row_groups]))

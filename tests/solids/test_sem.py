@@ -299,6 +299,20 @@ def test_the_cheapest_edges_are_the_optimum_of_the_integer_flow(rng):
         assert edge_cost[candidate, np.arange(7)].sum() == pytest.approx(result.fun, rel=1e-12)
 
 
+@pytest.mark.parametrize("degree", [1, 2])
+def test_monomials_about_one_centre_are_a_linear_map_of_those_about_another(degree, rng):
+    """The fits sum per-part moments moved to the origin: ``Q(Y + d) = T(d) Q(Y)`` exactly."""
+    from bhem_hpc.solids.shape_matching import monomials, shifts
+
+    points, deltas = rng.normal(size=(50, 3)), rng.normal(size=(4, 3))
+
+    def about(offsets):
+        return np.hstack([np.ones((len(offsets), 1)), monomials(offsets, degree)])
+
+    for delta, shift in zip(deltas, shifts(deltas, degree), strict=True):
+        np.testing.assert_allclose(about(points + delta), about(points) @ shift.T, atol=1e-12)
+
+
 def test_origins_option_is_checked():
     with pytest.raises(SurfaceError, match=r"box: origins must be 'flow', 'single' or one index per part, got 'many'"):
         ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins="many", lines_per_side=8), name="box")

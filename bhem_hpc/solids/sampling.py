@@ -91,7 +91,18 @@ def sample_part(part: NurbsSurface, order: int | None = None) -> PartSamples:
 
 
 def sample_parts(parts: Sequence[NurbsSurface], order: int | None = None) -> list[PartSamples]:
-    return [sample_part(part, order) for part in parts]
+    """:func:`sample_part` of each part; parts of the same degrees, knots and weights (a box's faces,
+    a model's repeated pieces) share one basis and sample weights, computed once (the basis does
+    not depend on the control points)."""
+    shared: dict[tuple, PartSamples] = {}
+    samples = []
+    for part in parts:
+        key = (part.degrees, part.u.knots.tobytes(), part.v.knots.tobytes(), part.weights.tobytes())
+        if key not in shared:
+            shared[key] = sample_part(part, order)
+        basis, weights = shared[key].basis, shared[key].weights
+        samples.append(PartSamples(basis, weights, basis @ part.control.reshape(-1, 3)))
+    return samples
 
 
 def stacked_bases(samples: Sequence[PartSamples]) -> list[scipy.sparse.csr_matrix]:

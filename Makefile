@@ -79,7 +79,7 @@ docs: setup
 	$(MPIRUN) -n 2 $(VENV)/bin/bhem-hpc study --docs docs
 	$(VENV)/bin/bhem-hpc bench --docs docs
 	$(VENV)/bin/bhem-hpc paths --docs docs
-	$(VENV)/bin/bhem-hpc solids --docs docs
+	OPENBLAS_NUM_THREADS=1 $(VENV)/bin/bhem-hpc solids --docs docs
 	$(VENV)/bin/bhem-hpc summary --docs docs --readme README.md
 
 clean:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from pathlib import Path
 
@@ -249,7 +250,8 @@ def write_solids_page(
         "solver as above. Each cell: our seconds, a stage's the median of three builds of the model (the",
         "paper's, the paper's over ours). The paper: MATLAB",
         "and C++ on a MacBook Pro (Intel i5, 2.3 GHz), Embree on triangulated parts; ours: numpy and",
-        "scipy on one core of this machine, rays on the exact rational patches. Operators (no column in",
+        f"scipy serially on this machine (OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}: "
+        "1 is one core), rays on the exact rational patches. Operators (no column in",
         "the paper's table): the kinematic",
         "maps, the mass and the error energy, whose boundary samples need blending weights of their own.",
         "",

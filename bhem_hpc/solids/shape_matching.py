@@ -287,13 +287,21 @@ def _group_fit(moments: _Moments, group, origin, translation,
     return fitted.minus_outer(inverse @ normal[1:, 0], translation), unseen
 
 
-def _translation(moments: _Moments, members, origin) -> _PartRows | _DenseRows:
-    """The row of an origin's translation: the constant of the polynomial fitted with it over its
+def _translations(moments: _Moments, origin_of_part: np.ndarray) -> list[_PartRows | _DenseRows]:
+    """The row of each origin's translation: the constant of the polynomial fitted with it over its
     parts' samples, so that every polynomial motion of the parts' degree is reproduced exactly;
     where those samples cannot separate the constant from the other terms (a sphere's
     ``X^2 + Y^2 + Z^2``), the weighted centroid of the samples (the paper's)."""
-    normal, rows = moments.about(members, origin)
-    (inverse,), (unseen,) = _pseudo_inverses(normal[None])
+    members = [np.flatnonzero(origin_of_part == j) for j in range(int(origin_of_part.max()) + 1)]
+    normals = np.stack([moments.moved_normals[j, group].sum(axis=0) for j, group in enumerate(members)])
+    inverses, unseens = _pseudo_inverses(normals)
+    fits = zip(members, normals, inverses, unseens, strict=True)
+    return [_translation_row(moments.about(group, j)[1], normal, inverse, unseen)
+            for j, (group, normal, inverse, unseen) in enumerate(fits)]  # fmt: skip
+
+
+def _translation_row(rows, normal, inverse, unseen) -> _PartRows | _DenseRows:
+    """:func:`_translations`' row of one origin from its fit's moments, inverse and unseen directions."""
     if unseen.shape[1] and np.abs(unseen[0]).max() > 1e-8:
         return rows.left(np.eye(1, len(normal)) / normal[0, 0])
     return rows.left(inverse[:1])
@@ -342,11 +350,12 @@ def shape_matching(
         sums = moments.sums[members]
         origins[j] = sums @ moments.centres[members] / sums.sum()
     moments.place(origins)
-    for j in range(origins_count):
-        translation.append(_translation(moments, np.flatnonzero(origin_of_part == j), j))
+    translation = _translations(moments, origin_of_part)
     every_part = np.arange(count)
     # each part's own fit, about its origin: all normal matrices inverted at once
-    inverses, unseens = _pseudo_inverses(moments.moved_normals[origin_of_part, every_part][:, 1:, 1:])
+    own_normals = moments.moved_normals[origin_of_part, every_part]
+    inverses, unseens = _pseudo_inverses(own_normals[:, 1:, 1:])
+    own = _own_fits(moments, origin_of_part, own_normals, inverses, translation) if moments.dense else None
     blocks = []
     # the completion of a part depends on its group and origin alone: the planar faces of one fin
     # or box share both, and their fit over many parts' samples is made once
@@ -358,7 +367,10 @@ def shape_matching(
                 "terms; raise the sampling order"
             )
         origin, shift = origin_of_part[i], translation[origin_of_part[i]]
-        rows, unseen = _group_fit(moments, [i], origin, shift, (inverses[i], unseens[i]))
+        if own is None:
+            rows, unseen = _group_fit(moments, [i], origin, shift, (inverses[i], unseens[i]))
+        else:
+            rows, unseen = _DenseRows(own[i]), unseens[i]
         if unseen.shape[1]:
             groups = [np.union1d(neighbours[i], [i])] if neighbours is not None else []
             key = (tuple(int(g) for g in groups[0]) if groups else (), int(origin_of_part[i]))
@@ -370,6 +382,17 @@ def shape_matching(
     first_rows = [*part_rows, *(count * terms + np.arange(origins_count))]
     projection = _assembled(blocks + translation, first_rows, moments)
     return ShapeMatching(projection, degree, origin_of_part, origins, part_rows)
+
+
+def _own_fits(moments: _Moments, origin_of_part: np.ndarray, normals: np.ndarray, inverses: np.ndarray,
+              translation: Sequence[_DenseRows]) -> np.ndarray:  # fmt: skip
+    """:func:`_group_fit` of every part on its own samples at once (dense rows): ``(parts, k, n_q)``."""
+    parts = np.arange(len(origin_of_part))
+    rows = moments.moved[origin_of_part, parts] @ moments.projected  # (parts, 1 + k, n_q)
+    fitted = inverses @ rows[:, 1:]
+    column = (inverses @ normals[:, 1:, :1])[..., 0]  # the fit applied to the ones: the translation's column
+    shifts_row = np.stack([translation[j].rows[0] for j in origin_of_part])
+    return fitted - column[:, :, None] * shifts_row[:, None, :]
 
 
 def _completion(moments: _Moments, groups, origin, translation) -> _PartRows | _DenseRows:
@@ -384,8 +407,11 @@ def _completion(moments: _Moments, groups, origin, translation) -> _PartRows | _
 def _assembled(row_groups: Sequence[_PartRows | _DenseRows], first_rows: Sequence[int],
                layout: _Moments) -> scipy.sparse.csr_matrix:  # fmt: skip
     """The projection from its consecutive row groups, each starting at its ``first_rows``."""
-    if layout.dense:
-        return scipy.sparse.csr_matrix(np.vstack([rows.rows for rows in row_groups]))
+    if layout.dense:  # CSR straight from the nonzeros (scipy's conversion of a dense array goes through COO)
+        dense = np.vstack([rows.rows for rows in row_groups])
+        rows, columns = np.nonzero(dense)
+        indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=len(dense)))]
+        return scipy.sparse.csr_matrix((dense[rows, columns], columns, indptr), shape=dense.shape)
     entries = [rows.triplets(first, layout.offsets) for rows, first in zip(row_groups, first_rows, strict=True)]
     rows, columns, values = (np.concatenate(e) for e in zip(*entries, strict=True))
     return scipy.sparse.csr_matrix((values, (rows, columns)), shape=(layout.coefficient_count, int(layout.offsets[-1])))

@@ -280,7 +280,11 @@ class SolidModel:
             hessian = hessian + self.diagonal_shift * scipy.sparse.identity(hessian.shape[0])
             if self.dynamics is not None:
                 hessian = hessian + self.mass_matrix / self.time_step.value**2
-        return hessian.tocsr()
+        hessian = hessian.tocsr()
+        # a share's fixed pattern holds exact zeros where its merged point groups pad columns their
+        # points do not see; the Jacobian is preallocated for the entries that can be nonzero only
+        hessian.eliminate_zeros()
+        return hessian
 
     def hessian_pattern(self) -> scipy.sparse.csr_matrix:
         """Every entry any rank's Hessian may have (on every rank): the stiffness of all points,

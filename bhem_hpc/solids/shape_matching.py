@@ -163,6 +163,10 @@ class _PartRows:
         """``matrix @ self``."""
         return _PartRows({g: matrix @ block for g, block in self.blocks.items()})
 
+    def fitted(self, inverse: np.ndarray) -> _PartRows:
+        """``inverse (k, k) @ self[1:]``: a fit of the monomials from moments whose first row is the constant's."""
+        return _PartRows({g: inverse @ block[1:] for g, block in self.blocks.items()})
+
     def minus_outer(self, column: np.ndarray, row: _PartRows) -> _PartRows:
         """``self - column (k,) ⊗ row`` (``row`` a single row)."""
         blocks = dict(self.blocks)
@@ -198,6 +202,9 @@ class _DenseRows:
 
     def left(self, matrix: np.ndarray) -> _DenseRows:
         return _DenseRows(matrix @ self.rows)
+
+    def fitted(self, inverse: np.ndarray) -> _DenseRows:
+        return _DenseRows(inverse @ self.rows[1:])
 
     def minus_outer(self, column: np.ndarray, row: _DenseRows) -> _DenseRows:
         return _DenseRows(self.rows - column[:, None] * row.rows)
@@ -281,10 +288,7 @@ def _group_fit(moments: _Moments, group, origin, translation,
     else:
         inverse, unseen = solved
     # the fit (P^T S P)^+ P^T S applied to J and to the ones (the translation's column)
-    fitted = _DenseRows(inverse @ rows.rows[1:]) if isinstance(rows, _DenseRows) else _PartRows(
-        {g: inverse @ block[1:] for g, block in rows.blocks.items()}
-    )
-    return fitted.minus_outer(inverse @ normal[1:, 0], translation), unseen
+    return rows.fitted(inverse).minus_outer(inverse @ normal[1:, 0], translation), unseen
 
 
 def _translations(moments: _Moments, origin_of_part: np.ndarray) -> list[_PartRows | _DenseRows]:
@@ -342,7 +346,6 @@ def shape_matching(
     terms = TERMS[degree]
     moments = _Moments(samples, degree, count * terms + origins_count)
     origins = np.zeros((origins_count, 3))
-    translation = []
     for j in range(origins_count):
         members = np.flatnonzero(origin_of_part == j)
         if not len(members):

@@ -324,6 +324,22 @@ def test_tied_parts_share_a_candidate():
     assert edge_cost[candidate, np.arange(4)].sum() == pytest.approx(np.min(edge_cost, axis=0).sum())
 
 
+@pytest.mark.parametrize("degree", [1, 2])
+def test_dense_and_per_part_projections_agree(degree, monkeypatch):
+    """Small models keep the projection's rows dense, large ones per part: on the castle's 16
+    parts, three origins, both give the same projection."""
+    from bhem_hpc.solids import shape_matching as sm
+    from bhem_hpc.solids.sampling import sample_parts
+    from bhem_hpc.studies import sem_models
+
+    samples = sample_parts(sem_models.castle())
+    origins = np.arange(len(samples)) % 3
+    dense = sm.shape_matching(samples, degree, origins).projection.toarray()
+    monkeypatch.setattr(sm, "DENSE_PROJECTION_ENTRIES", 0)
+    per_part = sm.shape_matching(samples, degree, origins).projection.toarray()
+    np.testing.assert_allclose(per_part, dense, atol=1e-12 * np.abs(dense).max())
+
+
 def test_origins_option_is_checked():
     with pytest.raises(SurfaceError, match=r"box: origins must be 'flow', 'single' or one index per part, got 'many'"):
         ShapeMatchingSolid(nurbs.box_faces(*BOX), RUBBER, SolidOptions(origins="many", lines_per_side=8), name="box")

@@ -52,9 +52,11 @@ def evaluate(nets: np.ndarray, s: np.ndarray, t: np.ndarray) -> tuple[np.ndarray
     p, q = nets.shape[1] - 1, nets.shape[2] - 1
     bs, dbs = bernstein(s, p), bernstein(s, p, 1)
     bt, dbt = bernstein(t, q), bernstein(t, q, 1)
-    a = np.einsum("ni,nj,nijc->nc", bs, bt, nets)
-    a_s = np.einsum("ni,nj,nijc->nc", dbs, bt, nets)
-    a_t = np.einsum("ni,nj,nijc->nc", bs, dbt, nets)
+    # batched products, t first (numpy's einsum over three operands loops in C without BLAS: 2-4x slower)
+    along = np.matmul(np.stack([bt, dbt], axis=1)[:, None], nets)  # (N, p + 1, 2, 4): the t sums and their slopes
+    a = np.matmul(bs[:, None, :], along[:, :, 0])[:, 0]
+    a_s = np.matmul(dbs[:, None, :], along[:, :, 0])[:, 0]
+    a_t = np.matmul(bs[:, None, :], along[:, :, 1])[:, 0]
     point = a[:, :3] / a[:, 3:]
     return point, (a_s[:, :3] - point * a_s[:, 3:]) / a[:, 3:], (a_t[:, :3] - point * a_t[:, 3:]) / a[:, 3:]
 
@@ -82,7 +84,8 @@ def subpatches(nets: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     p, q = nets.shape[1] - 1, nets.shape[2] - 1
     along_s = restriction_matrices(p, boxes[:, 0], boxes[:, 1])
     along_t = restriction_matrices(q, boxes[:, 2], boxes[:, 3])
-    return np.einsum("nai,nbj,nijc->nabc", along_s, along_t, nets)
+    rows = np.matmul(along_s, nets.reshape(len(nets), p + 1, -1)).reshape(len(nets), p + 1, q + 1, 4)
+    return np.matmul(along_t[:, None], rows)  # (N, p + 1, q + 1, 4): [n, a, b, c]
 
 
 def _shared_subpatches(nets: np.ndarray, patch: np.ndarray, rect: np.ndarray) -> np.ndarray:
@@ -400,9 +403,9 @@ def first_hits(
             break
         piece = nets[patch] if level == 0 else _shared_subpatches(nets, patch, rect)  # level 0: the whole patches
         relative = (piece[..., :3] / piece[..., 3:]).reshape(len(ray), -1, 3) - origins[ray][:, None]
-        across_1 = np.einsum("kpc,kc->kp", relative, first_axis[ray])
-        across_2 = np.einsum("kpc,kc->kp", relative, second_axis[ray])
-        along = np.einsum("kpc,kc->kp", relative, directions[ray])
+        # the control points in each ray's frame (across, across, along): one batched product
+        frame = np.matmul(relative, np.stack([first_axis[ray], second_axis[ray], directions[ray]], axis=2))
+        across_1, across_2, along = frame[..., 0], frame[..., 1], frame[..., 2]
         cut = (
             (across_1.min(axis=1) <= tolerance)
             & (across_1.max(axis=1) >= -tolerance)

@@ -93,11 +93,11 @@ def fits_dense(size: int) -> bool:
 
 
 def coefficient_pattern(groups: Sequence[PointGroup], count: int) -> np.ndarray:
-    """``(3 count, 3 count)`` booleans: the entries some group's block reaches (dense coefficients only)."""
-    pattern = np.zeros((3 * count, 3 * count), dtype=bool)
+    """``(count, count)`` booleans: the coefficient pairs some group's block reaches (each pair's
+    three by three components alike; dense coefficients only)."""
+    pattern = np.zeros((count, count), dtype=bool)
     for group in groups:
-        index = (3 * group.columns[:, None] + np.arange(3)[None, :]).reshape(-1)
-        pattern[np.ix_(index, index)] = True
+        pattern[np.ix_(group.columns, group.columns)] = True
     return pattern
 
 

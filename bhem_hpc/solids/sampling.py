@@ -106,13 +106,22 @@ def sample_parts(parts: Sequence[NurbsSurface], order: int | None = None) -> lis
 
 
 def stacked_bases(samples: Sequence[PartSamples]) -> list[scipy.sparse.csr_matrix]:
-    """Each part's ``J`` over the control points of all parts stacked in order: ``(s_i, n_q)``."""
+    """Each part's ``J`` over the control points of all parts stacked in order: ``(s_i, n_q)``
+    (its columns moved by where the part's control points start: scipy's ``hstack`` with empty
+    blocks, or its ``block_diag``, goes through COO matrices, 1.4 ms for a rocket's 25 parts)."""
     offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
-    total = int(offsets[-1])
-    return [
-        scipy.sparse.hstack(
-            [scipy.sparse.csr_matrix((s.basis.shape[0], int(offsets[i]))), s.basis,
-             scipy.sparse.csr_matrix((s.basis.shape[0], total - int(offsets[i + 1])))]
-        ).tocsr()
-        for i, s in enumerate(samples)
-    ]  # fmt: skip
+    return [scipy.sparse.csr_matrix((s.basis.data, s.basis.indices + offset, s.basis.indptr),
+                                    shape=(s.basis.shape[0], int(offsets[-1])))
+            for s, offset in zip(samples, offsets[:-1], strict=True)]  # fmt: skip
+
+
+def stacked_basis(samples: Sequence[PartSamples]) -> scipy.sparse.csr_matrix:
+    """All parts' samples over all their control points, ``(sum s_i, n_q)``: the rows of
+    :func:`stacked_bases` one under the other (block diagonal)."""
+    bases = stacked_bases(samples)
+    nonzeros = np.r_[0, np.cumsum([b.nnz for b in bases])]
+    indptr = np.concatenate([*(b.indptr[:-1] + start for b, start in zip(bases, nonzeros[:-1], strict=True)),
+                             nonzeros[-1:]])  # fmt: skip
+    data, indices = np.concatenate([b.data for b in bases]), np.concatenate([b.indices for b in bases])
+    shape = (sum(b.shape[0] for b in bases), bases[0].shape[1])
+    return scipy.sparse.csr_matrix((data, indices, indptr), shape=shape)

@@ -95,12 +95,14 @@ class QuadratureShare:
             self._prepare_dense()
 
     def _prepare_dense(self) -> None:
-        projection = self.solid._projection.toarray()
+        # the scalar projection: the interleaved one is it times I_3, two thirds zeros in the products,
+        # and a pair of control points the stiffness reaches couples all their components
+        projection = self.solid.matching.projection.toarray()
         reach = coefficient_pattern(self._groups, self.solid.matching.coefficient_count).astype(float)
-        nonzero = np.abs(projection) > 0.0
-        rows, columns = np.nonzero((nonzero.T.astype(float) @ reach @ nonzero.astype(float)) > 0.0)
-        # the scalar projection: the interleaved one is it times I_3, two thirds zeros in the products
-        self._dense_projection, self._pattern = self.solid.matching.projection.toarray(), (rows, columns)
+        nonzero = (np.abs(projection) > 0.0).astype(float)
+        reached = (nonzero.T @ reach @ nonzero) > 0.0
+        rows, columns = np.nonzero(np.kron(reached, np.ones((3, 3), dtype=bool)))
+        self._dense_projection, self._pattern = projection, (rows, columns)
 
     def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
         """``(stop - start, 3, 3)`` at the share's points for control points ``q (n_q, 3)``."""

@@ -130,7 +130,7 @@ def _component_blocks(upper: np.ndarray) -> np.ndarray:
 
 
 def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, count: int,
-                          interleaved: bool = True) -> scipy.sparse.csr_matrix | np.ndarray:  # fmt: skip
+                          pairs: bool = False) -> scipy.sparse.csr_matrix | np.ndarray:  # fmt: skip
     """``sum_k G_k^T W_k G_k`` on the interleaved coefficients (row ``3 m + c``), ``(3 count, 3 count)``:
     a dense array where :func:`fits_dense`, else a sparse matrix.
 
@@ -139,12 +139,13 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
         weighted: ``(Q, 9, 9)`` quadrature weight times the tangent ``d^2 psi / dF[c, d] dF[c', d']``
             at row ``3 c + d``, column ``3 c' + d'``.
         count: the number of coefficients ``n_c``.
-        interleaved: False: where dense, the blocks ``(6, count, count)`` of the component pairs
-            :data:`UPPER_PAIRS` instead (``[pair, m, m']``; the others are their transposes).
+        pairs: the dense blocks ``(6, count, count)`` of the component pairs :data:`UPPER_PAIRS`
+            instead (``[pair, m, m']``; the others are their transposes), for a caller that has
+            decided on dense assembly.
     """
     size = 3 * count
     # dense: [(c, c') of UPPER_PAIRS, m, m'], interleaved at the end
-    dense = np.zeros((len(UPPER_PAIRS), count, count)) if fits_dense(size) else None
+    dense = np.zeros((len(UPPER_PAIRS), count, count)) if pairs or fits_dense(size) else None
     rows, columns, values = [], [], []
     first_component, second_component = UPPER_PAIRS.T
     for group in groups:
@@ -164,7 +165,7 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
         rows.append(np.repeat(index, 3 * m))
         columns.append(np.tile(index, 3 * m))
         values.append(block.reshape(-1))
-    if dense is not None and not interleaved:
+    if pairs:
         return dense
     if dense is not None:
         return np.ascontiguousarray(_component_blocks(dense).transpose(2, 0, 3, 1)).reshape(size, size)

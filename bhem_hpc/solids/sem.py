@@ -87,22 +87,18 @@ class QuadratureShare:
         self._coefficient_gradients = solid._coefficient_gradients[9 * start : 9 * stop]
         self._groups = point_groups([g[start:stop] for g in solid._scalar_gradients])
         self._mu, self._lam = solid._mu[start:stop], solid._lam[start:stop]
-        #: the dense projection and the entries ``(rows, columns)`` of the stiffness (dense coefficients),
-        #: made with the operators: they depend on the structure alone
-        self._dense_projection: np.ndarray | None = None
-        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
-        if fits_dense(3 * solid.matching.coefficient_count) and fits_dense(solid._projection.shape[1]):
-            self._prepare_dense()
-
-    def _prepare_dense(self) -> None:
-        # the scalar projection: the interleaved one is it times I_3, two thirds zeros in the products,
-        # and a pair of control points the stiffness reaches couples all their components
-        projection = self.solid.matching.projection.toarray()
-        reach = coefficient_pattern(self._groups, self.solid.matching.coefficient_count).astype(float)
-        nonzero = (np.abs(projection) > 0.0).astype(float)
-        reached = (nonzero.T @ reach @ nonzero) > 0.0
-        rows, columns = np.nonzero(np.kron(reached, np.ones((3, 3), dtype=bool)))
-        self._dense_projection, self._pattern = projection, (rows, columns)
+        #: whether the stiffness is assembled densely: then the dense scalar projection and the entries
+        #: ``(rows, columns)`` of the stiffness, made with the operators (they depend on the structure alone)
+        self._dense = fits_dense(3 * solid.matching.coefficient_count) and fits_dense(solid._projection.shape[1])
+        if self._dense:
+            # the scalar projection: the interleaved one is it times I_3, two thirds zeros in the
+            # products, and a pair of control points the stiffness reaches couples all their components
+            projection = solid.matching.projection.toarray()
+            reach = coefficient_pattern(self._groups, solid.matching.coefficient_count).astype(float)
+            nonzero = (np.abs(projection) > 0.0).astype(float)
+            reached = (nonzero.T @ reach @ nonzero) > 0.0
+            self._dense_projection = projection
+            self._pattern = np.nonzero(np.kron(reached, np.ones((3, 3), dtype=bool)))
 
     def deformation_gradients(self, q: np.ndarray) -> np.ndarray:
         """``(stop - start, 3, 3)`` at the share's points for control points ``q (n_q, 3)``."""
@@ -127,8 +123,8 @@ class QuadratureShare:
             tangent = project_psd(tangent)
         solid = self.solid
         weighted, count = self.weights[:, None, None] * tangent, solid.matching.coefficient_count
-        if fits_dense(3 * count) and fits_dense(solid._projection.shape[1]):
-            return self._dense_product(coefficient_stiffness(self._groups, weighted, count, interleaved=False))
+        if self._dense:
+            return self._dense_product(coefficient_stiffness(self._groups, weighted, count, pairs=True))
         coefficients = coefficient_stiffness(self._groups, weighted, count)
         if isinstance(coefficients, np.ndarray):
             coefficients = scipy.sparse.csr_matrix(coefficients)
@@ -140,8 +136,6 @@ class QuadratureShare:
         projection that is nearly dense took 0.5 s for a rocket of 810 DoFs, the interleaved dense
         one 0.03 s for 648), on the entries the share's groups can reach, zeros included: the same
         pattern at every state."""
-        if self._pattern is None or self._dense_projection is None:
-            self._prepare_dense()
         rows, columns = self._pattern
         projection = self._dense_projection  # (n_c, n_q)
         points = projection.shape[1]

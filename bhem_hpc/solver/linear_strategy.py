@@ -17,6 +17,7 @@ from petsc4py import PETSc
 from bhem_hpc.bodies.layout import body_array_name
 from bhem_hpc.solver.linear import LinearSolverChoice, available_memory, choose_linear_solver, mass_dominance
 from bhem_hpc.solver.model_group import BodyModel
+from bhem_hpc.solver.reuse import refactor_cost
 
 if TYPE_CHECKING:
     from bhem_hpc.solver.problem import ShellProblem
@@ -28,6 +29,14 @@ log = logging.getLogger(__name__)
 NONZEROS_PER_DOF = 130
 #: A Jacobian assembly and its preconditioner's setup, in Krylov-solved chord iterations.
 ITERATIVE_REFACTOR_COST = 8.0
+
+
+def linear_refactor_cost(kind: str, dofs: int, step_bounded: bool) -> float:
+    """The refactor policy's cost of a new Jacobian and its factorization (or preconditioner), in
+    chord iterations, for the linear strategy ``kind`` on ``dofs`` unknowns (:func:`refactor_cost`)."""
+    if kind != "direct":  # a Krylov solve costs about as much as assembling its preconditioner
+        return ITERATIVE_REFACTOR_COST
+    return refactor_cost(dofs, step_bounded)
 
 
 def default_options(model: BodyModel, linear: str = "direct") -> dict[str, str]:

@@ -29,10 +29,10 @@ from bhem_hpc.solver.energy_trust_region import EnergyTrustRegion
 from bhem_hpc.solver.failure import solve_failure
 from bhem_hpc.solver.linear import LinearSolverChoice, LinearSolverError
 from bhem_hpc.solver.linear_strategy import (
-    ITERATIVE_REFACTOR_COST,
     FactoredState,
     choose_for_models,
     default_options,
+    linear_refactor_cost,
     switch_to_mumps,
 )
 from bhem_hpc.solver.load_steps import solve_in_load_steps
@@ -52,7 +52,7 @@ from bhem_hpc.solver.petsc import (
     unused_options,
 )
 from bhem_hpc.solver.report import SolveReport, solver_counters
-from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse, refactor_cost
+from bhem_hpc.solver.reuse import FACTORIZATION_POLICIES, FactorizationReuse
 from bhem_hpc.solver.trust_region import TrustRegionNewton
 
 log = logging.getLogger(__name__)
@@ -153,12 +153,6 @@ class ShellSolver(PetscOwner):
         self.linear = self._choose_linear(linear)
         #: linear-solver fallbacks taken: ``{"from", "to", "reason"}`` (also logged)
         self.fallbacks: list[dict] = []
-        self.reuse = FactorizationReuse(
-            enabled=factorization == "reuse",
-            chord_within_solve=self.bodies.dynamic,
-            # a Krylov solve costs about as much as assembling the Jacobian that preconditions it
-            refactor_cost=refactor_cost(self._dofs) if self.linear.kind == "direct" else ITERATIVE_REFACTOR_COST,
-        )
         #: ``load factor -> values of the constrained DOFs`` (``model.constrained``) for static load
         #: steps, e.g. prescribed motions whose time is the load factor (rotations turn vectors); None:
         #: straight from the initial values to the targets.
@@ -189,6 +183,8 @@ class ShellSolver(PetscOwner):
             # a pattern grown by contributions' blocks (problem.py): MUMPS analyses the matrix anew
             self.problem.on_pattern_growth = lambda: self.snes.getKSP().getPC().reset()
             self._choose_hessian()
+            self.reuse = FactorizationReuse(factorization == "reuse", self.bodies.dynamic, linear_refactor_cost(
+                self.linear.kind, self._dofs, self.problem.has_step_bounds))  # fmt: skip
 
             PETSc.Log.begin()  # event timers for counters() (idempotent, cheap)
             self._stage = PETSc.Log.Stage(f"{prefix}solve")  # one per prefix: the same stage if reused
@@ -254,7 +250,7 @@ class ShellSolver(PetscOwner):
         switch_to_mumps(self.snes.getKSP(), self.bodies.symmetric, self.matrix_format)
         self.linear = choice
         self._choose_hessian()
-        self.reuse.refactor_cost = refactor_cost(self._dofs)
+        self.reuse.refactor_cost = linear_refactor_cost(self.linear.kind, self._dofs, self.problem.has_step_bounds)
         self.reuse.invalidate()
         self.fallbacks.append({"from": "iterative", "to": "direct", "reason": reason})
         log.warning("%s: the Krylov solve failed (%s); continuing with the direct solver (MUMPS)", self.prefix, reason)
@@ -294,6 +290,8 @@ class ShellSolver(PetscOwner):
                     if self._fall_back_to_direct(f"KSP {KSP_REASONS.get(ksp_reason, ksp_reason)}"):
                         start.copy(self.x)
                         continue
+                if self._converged() and self._final_step and self.problem.has_step_bounds:
+                    self.reuse.ended_by_step_test(self.snes.getFunctionNorm())
                 if self._converged() or not self.reuse.used_chord_steps():
                     return
                 log.info("%s: chord steps on a kept factorization failed (%s); refactoring", self.prefix,

@@ -17,6 +17,9 @@ from typing import ClassVar
 #: ``solver.factorization`` values: ``"reuse"`` keeps factorizations while they converge well,
 #: ``"fresh"`` factors the Jacobian at every Newton iteration (full Newton).
 FACTORIZATION_POLICIES = ("reuse", "fresh")
+#: Whatever the last solves ended at, a solve is expected to reduce its residual by at least this
+#: factor: one that a step test ended after a chord step or two says little about the next one.
+LEAST_EXPECTED_REDUCTION = 1e-2
 
 
 @dataclass
@@ -27,8 +30,15 @@ class FactorizationReuse:
 
     * a chord step did not reduce the residual norm, or the contraction of the last two
       (the geometric mean of ``|F_k| / |F_{k-1}|`` over the chord steps since the factorization,
-      at most two) predicts more chord iterations to the solve's tolerance than ``refactor_cost``
-      (a fresh Jacobian converges in a few Newton iterations from there);
+      at most two) predicts more chord iterations to the solve's end than ``refactor_cost`` (a
+      fresh Jacobian converges in a few Newton iterations from there). The end is the tolerance,
+      or, where IPC's step test ends solves sooner (once a step moves no point by more than a
+      velocity times dt), the smaller of the residual reductions at which it ended the last two
+      (:meth:`ended_by_step_test`), but at least :data:`LEAST_EXPECTED_REDUCTION`. The driver
+      reports those ends only with step-bounded contributions (IPC's barrier), whose iterations
+      cost the most: on the cloth lying on the ball (``jobs/ball.toml``) chord steps then replace
+      half the refactorizations; on the hanging cotton, with the step test and no barrier, the
+      slower chord steps cost more Newton iterations than the refactorizations they save;
     * a solve has taken ``max_chord_iterations`` Newton iterations on it without converging;
     * at the start of a solve, when the last solve cost more than the average solve since the
       factorization was made, counting a refactorization as ``refactor_cost`` Newton iterations:
@@ -67,6 +77,9 @@ class FactorizationReuse:
     _cycle_solves: int = field(default=0, repr=False)
     _solve_cost: float = field(default=0.0, repr=False)  # the current solve's, since the cycle began
     _current_is_kept: bool = field(default=False, repr=False)
+    _first_norm: float = field(default=float("inf"), repr=False)  # the current solve's first residual norm
+    # |F_end| / |F_0| of the last two solves a step test ended, the latest first (0: none yet)
+    _reductions: tuple[float, float] = field(default=(0.0, 0.0), repr=False)
 
     def __post_init__(self) -> None:
         if self.max_chord_iterations < 1:
@@ -79,6 +92,7 @@ class FactorizationReuse:
         if self._valid and self._cycle_solves and self._solve_cost > self._cycle_cost / self._cycle_solves:
             self._valid = False  # the last solve cost more than the cycle's average
         self._previous_norm = float("inf")
+        self._first_norm = float("inf")
         self._chord_in_solve = 0
         self._solve_cost = 0.0
         self._current_is_kept = False
@@ -90,6 +104,9 @@ class FactorizationReuse:
         ``target_norm``; counts the decision."""
         slowed = False
         ratio = residual_norm / self._previous_norm if iteration > 0 else 0.0
+        if iteration == 0:
+            self._first_norm = residual_norm
+        target_norm = self._expected_end(target_norm)
         if iteration > 0 and residual_norm > target_norm:
             # two contractions: Anderson-mixed chord steps contract unevenly from one to the next
             rate = math.sqrt(ratio * self._previous_ratio) if self._previous_ratio > 0 else ratio
@@ -115,6 +132,20 @@ class FactorizationReuse:
         self._current_is_kept = not fresh
         return fresh
 
+    def _expected_end(self, target_norm: float) -> float:
+        """The residual norm at which the current solve is expected to end: ``target_norm``, or the
+        reduction at which a step test ended the last solves (see the class)."""
+        reached = [r for r in self._reductions if r > 0.0]
+        if not reached or not math.isfinite(self._first_norm):
+            return target_norm
+        return max(target_norm, self._first_norm * min(min(reached), LEAST_EXPECTED_REDUCTION))
+
+    def ended_by_step_test(self, final_norm: float) -> None:
+        """A step test ended the current solve at the residual norm ``final_norm``: its reduction
+        from the first norm is what the next solves expect to reach."""
+        if math.isfinite(self._first_norm) and self._first_norm > 0.0 and math.isfinite(final_norm):
+            self._reductions = (final_norm / self._first_norm, self._reductions[0])
+
     def refactored(self, signature: tuple) -> None:
         """The Jacobian was assembled and factored at the current iterate: a new cycle begins
         (the current solve's cost counts from here)."""
@@ -138,12 +169,14 @@ class FactorizationReuse:
         return self._valid
 
     #: The keys of :meth:`state`.
-    STATE_KEYS: ClassVar[tuple[str, ...]] = ("cycle_cost", "cycle_solves", "solve_cost")
+    STATE_KEYS: ClassVar[tuple[str, ...]] = (
+        "cycle_cost", "cycle_solves", "solve_cost", "reduction", "reduction_before")  # fmt: skip
 
     def state(self) -> dict[str, float]:
         """What the policy's next decisions depend on, for a checkpoint (with the iterate the kept
         factorization was made at, a run continued from it decides as an uninterrupted one)."""
-        return dict(zip(self.STATE_KEYS, (self._cycle_cost, self._cycle_solves, self._solve_cost), strict=True))
+        values = (self._cycle_cost, self._cycle_solves, self._solve_cost, *self._reductions)
+        return dict(zip(self.STATE_KEYS, values, strict=True))
 
     def restore(self, state: dict[str, float], signature: tuple) -> None:
         """Continue from :meth:`state` with the factorization remade at ``signature``'s operator."""
@@ -151,6 +184,7 @@ class FactorizationReuse:
         self._cycle_cost = float(state["cycle_cost"])
         self._cycle_solves = int(state["cycle_solves"])
         self._solve_cost = float(state["solve_cost"])
+        self._reductions = (float(state["reduction"]), float(state["reduction_before"]))
 
     def invalidate(self) -> None:
         """The kept factorization no longer belongs to the problem (e.g. the matrix was modified)."""
@@ -163,12 +197,23 @@ class FactorizationReuse:
         self._valid = False
 
 
-def refactor_cost(dofs: int) -> float:
-    """A refactorization's cost in chord iterations for a shell of ``dofs`` unknowns.
+#: A Newton iteration's cost with a step-bounded contribution (IPC's barrier: its energy at every
+#: line-search trial and its gradient, the continuous collision detection of the step bound and of
+#: the step test), in iterations without one: a chord iteration of the cloth lying on the ball
+#: (``jobs/ball.toml``) takes about 0.034 s by IPC, 0.014 s by impulses (their collision
+#: detection, once per step, apart).
+BOUNDED_ITERATION_COST = 2.5
+
+
+def refactor_cost(dofs: int, step_bounded: bool = False) -> float:
+    """A refactorization's cost in chord iterations for a shell of ``dofs`` unknowns; with
+    ``step_bounded`` contributions each iteration costs :data:`BOUNDED_ITERATION_COST` times more,
+    and a refactorization as many fewer of them.
 
     Factoring a 2-D shell's matrix takes ~dofs^1.5 flops (nested-dissection-like orderings),
     its triangular solves and the residual ~dofs, so the ratio grows as sqrt(dofs). Calibrated
     on the 30x30-patch Hermite cloth (11,532 DoFs): a Jacobian assembly and an LDL^T cost about
     15 residual-and-solve iterations there. A count, not a timing: every rank decides alike.
     """
-    return max(4.0, 15.0 * (dofs / 11532) ** 0.5)
+    cost = max(4.0, 15.0 * (dofs / 11532) ** 0.5)
+    return cost / BOUNDED_ITERATION_COST if step_bounded else cost

@@ -67,6 +67,27 @@ def test_a_solve_that_costs_more_than_the_cycle_average_ends_the_cycle():
     assert solve(policy, [1.0])[0] is True  # 8 > 30 / 4: the last solve cost more than the average
 
 
+def test_a_step_test_that_ends_solves_sooner_sets_the_end_the_contraction_is_judged_by():
+    policy = FactorizationReuse(refactor_cost=15.0)
+    solve(policy, [1.0, 1e-10])
+    # ratio 0.3 from 0.3: log(1e-9 / 0.3) / log(0.3) = 16 more steps to the tolerance > 15: refactor
+    assert solve(policy, [1.0, 0.3]) == [False, True]
+    # two solves that a step test ended at 1e-3 and 2e-3 of their first residual
+    for end in (1e-3, 2e-3):
+        decisions = solve(policy, [1.0, 0.1, 1e-2, end])
+        policy.ended_by_step_test(end)
+    # the same contraction is now 4 steps from the smaller reduction reached (1e-3): keep
+    assert solve(policy, [1.0, 0.3]) == [False, False]
+    # a solve that ended after one chord step does not lift the end above 1e-2 of the first residual:
+    # 0.8 per step from 0.8 is 20 steps from 1e-2: refactor
+    for _ in range(2):
+        solve(policy, [1.0, 0.5])
+        policy.ended_by_step_test(0.5)
+    assert solve(policy, [1.0, 0.8]) == [False, True]
+    assert decisions == [False] * 4
+    assert policy.state()["reduction"] == pytest.approx(0.5)
+
+
 def test_a_changed_operator_a_failure_or_an_invalidation_refactors():
     policy = FactorizationReuse(refactor_cost=15.0)
     solve(policy, [1.0, 1e-10])

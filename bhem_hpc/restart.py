@@ -36,7 +36,7 @@ def solver_checkpoint(solver: Any) -> tuple[dict[str, np.ndarray], dict[str, flo
     factorization is remade from, and as attributes its refactor policy's state and its
     contributions' adapted parameters."""
     arrays, reuse = solver.reuse_checkpoint()
-    attrs = {f"{REUSE_PREFIX}{k}": v for k, v in reuse.items()}
+    attrs = {f"{REUSE_PREFIX}{k}": v for k, v in (reuse | solver.reuse.learned()).items()}
     return arrays, attrs | {f"{ADAPTED_PREFIX}{k}": v for k, v in solver.problem.adapted_parameters().items()}
 
 
@@ -44,6 +44,7 @@ def restore_solver(solver: Any, arrays: dict, attrs: dict, kept: bool) -> None:
     """Collective: :func:`solver_checkpoint`'s state back into ``solver``; its kept factorization
     remade where the checkpoint has one (``kept``)."""
     solver.problem.restore_adapted(_prefixed(attrs, ADAPTED_PREFIX))
+    solver.reuse.restore_learned(_prefixed(attrs, REUSE_PREFIX))
     if kept:
         solver.restore_reuse_checkpoint(arrays, _prefixed(attrs, REUSE_PREFIX))
 
@@ -177,8 +178,11 @@ def _state_problem(arrays: dict, scene: Scene, key) -> str | None:
 
 
 def _reuse_problem(arrays: dict, attrs: dict, shapes: list[tuple], static: bool, key) -> str | None:
-    """What is wrong with a checkpoint's kept-factorization state (if it has one), or None;
-    ``shapes``: each body's DOF shape, ``key(name, body)`` the name of a body's array."""
+    """What is wrong with a checkpoint's refactor policy state or its kept-factorization state (if
+    it has one), or None; ``shapes``: each body's DOF shape, ``key(name, body)`` the name of a body's array."""
+    learned = [attrs.get(f"{REUSE_PREFIX}{k}", 0.0) for k in FactorizationReuse.LEARNED_KEYS]
+    if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in learned):
+        return f"its refactor policy attributes {learned} (the reductions learned) are not numbers >= 0"
     if key("factorization_state_dofs", 0) not in arrays:
         return None
     kept_names = ("factorization_state_dofs",) + (() if static else ("factorization_previous_dofs",))

@@ -169,14 +169,23 @@ class FactorizationReuse:
         return self._valid
 
     #: The keys of :meth:`state`.
-    STATE_KEYS: ClassVar[tuple[str, ...]] = (
-        "cycle_cost", "cycle_solves", "solve_cost", "reduction", "reduction_before")  # fmt: skip
+    STATE_KEYS: ClassVar[tuple[str, ...]] = ("cycle_cost", "cycle_solves", "solve_cost")
+    #: The keys of :meth:`learned`.
+    LEARNED_KEYS: ClassVar[tuple[str, ...]] = ("reduction", "reduction_before")
 
     def state(self) -> dict[str, float]:
-        """What the policy's next decisions depend on, for a checkpoint (with the iterate the kept
-        factorization was made at, a run continued from it decides as an uninterrupted one)."""
-        values = (self._cycle_cost, self._cycle_solves, self._solve_cost, *self._reductions)
-        return dict(zip(self.STATE_KEYS, values, strict=True))
+        """What the policy's next decisions on a kept factorization depend on, for a checkpoint (with
+        the iterate it was made at, a run continued from it decides as an uninterrupted one)."""
+        return dict(zip(self.STATE_KEYS, (self._cycle_cost, self._cycle_solves, self._solve_cost), strict=True))
+
+    def learned(self) -> dict[str, float]:
+        """What the policy learned from the solves (the reductions at which a step test ended them),
+        for every checkpoint, a factorization kept or not (0: nothing learned)."""
+        return dict(zip(self.LEARNED_KEYS, self._reductions, strict=True))
+
+    def restore_learned(self, learned: dict[str, float]) -> None:
+        """Continue from :meth:`learned` (a checkpoint without it: nothing learned)."""
+        self._reductions = (float(learned.get("reduction", 0.0)), float(learned.get("reduction_before", 0.0)))
 
     def restore(self, state: dict[str, float], signature: tuple) -> None:
         """Continue from :meth:`state` with the factorization remade at ``signature``'s operator."""
@@ -184,7 +193,6 @@ class FactorizationReuse:
         self._cycle_cost = float(state["cycle_cost"])
         self._cycle_solves = int(state["cycle_solves"])
         self._solve_cost = float(state["solve_cost"])
-        self._reductions = (float(state["reduction"]), float(state["reduction_before"]))
 
     def invalidate(self) -> None:
         """The kept factorization no longer belongs to the problem (e.g. the matrix was modified)."""

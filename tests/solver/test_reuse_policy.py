@@ -85,7 +85,12 @@ def test_a_step_test_that_ends_solves_sooner_sets_the_end_the_contraction_is_jud
         policy.ended_by_step_test(0.5)
     assert solve(policy, [1.0, 0.8]) == [False, True]
     assert decisions == [False] * 4
-    assert policy.state()["reduction"] == pytest.approx(0.5)
+    # what it learned goes into every checkpoint: a policy restored from it decides alike
+    assert policy.learned() == {"reduction": 0.5, "reduction_before": 0.5}
+    continued = FactorizationReuse(refactor_cost=15.0)
+    continued.restore_learned(policy.learned())
+    solve(continued, [1.0, 1e-10])
+    assert solve(continued, [1.0, 0.8]) == [False, True] and solve(continued, [1.0, 0.3]) == [False, False]
 
 
 def test_a_changed_operator_a_failure_or_an_invalidation_refactors():

@@ -122,6 +122,7 @@ def test_refactor_cost_grows_like_the_square_root_of_the_size():
     assert refactor_cost(11532) == pytest.approx(15.0)
     assert refactor_cost(4 * 11532) == pytest.approx(30.0)
     assert refactor_cost(10) == 4.0
+    assert refactor_cost(11532, step_bounded=True) == pytest.approx(15.0 / 2.5)  # IPC's dearer iterations
     with pytest.raises(ValueError, match="refactor_cost"):
         FactorizationReuse(refactor_cost=0.0)
     with pytest.raises(ValueError, match="max_chord_iterations"):

@@ -333,7 +333,7 @@ class ShellSolver(PetscOwner):
         # or a contribution's own test (IPC's) ends the solve: its step, small and collision-free,
         # is taken once SNES has stopped (:meth:`_snes_solve`), not left to the line search
         self._final_step = not (indefinite or at_roundoff) and self.problem.has_step_tests and bool(
-            self.along_step(x, y, self.problem.step_converged))  # fmt: skip
+            self._along_step(x, y, self.problem.step_converged))  # fmt: skip
         if not indefinite and (at_roundoff or self._final_step):
             if self._final_step:
                 y.copy(self._trial)
@@ -380,7 +380,7 @@ class ShellSolver(PetscOwner):
         self._accepted_energy = None
         self.reuse.invalidate()
 
-    def along_step(self, x: PETSc.Vec, y: PETSc.Vec, query: Callable[[PETSc.Vec], float]) -> float:
+    def _along_step(self, x: PETSc.Vec, y: PETSc.Vec, query: Callable[[PETSc.Vec], float]) -> float:
         """Collective: the problem's ``query`` of the step ``x -> x - y`` (its direction), at ``x``."""
         self.problem.update_state(x)
         with negated(y) as direction:
@@ -391,7 +391,7 @@ class ShellSolver(PetscOwner):
         is never crossed, not even by a trial of the line search). Returns the factor applied."""
         if not self.problem.has_step_bounds:
             return 1.0
-        bound = self.along_step(x, y, self.problem.max_step)
+        bound = self._along_step(x, y, self.problem.max_step)
         if bound < 1.0:
             y.scale(bound)
             self.report.bounded_steps += 1

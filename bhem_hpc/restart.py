@@ -181,7 +181,7 @@ def _reuse_problem(arrays: dict, attrs: dict, shapes: list[tuple], static: bool,
     """What is wrong with a checkpoint's refactor policy state or its kept-factorization state (if
     it has one), or None; ``shapes``: each body's DOF shape, ``key(name, body)`` the name of a body's array."""
     learned = [attrs.get(f"{REUSE_PREFIX}{k}", 0.0) for k in FactorizationReuse.LEARNED_KEYS]
-    if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in learned):
+    if not _all_counts(learned):
         return f"its refactor policy attributes {learned} (the reductions learned) are not numbers >= 0"
     if key("factorization_state_dofs", 0) not in arrays:
         return None
@@ -192,9 +192,14 @@ def _reuse_problem(arrays: dict, attrs: dict, shapes: list[tuple], static: bool,
             if kept.shape != shape or kept.dtype.kind != "f" or not np.all(np.isfinite(kept)):
                 return f"dataset {name!r} (the kept factorization's state) is missing or damaged"
     counters = [attrs.get(f"{REUSE_PREFIX}{k}") for k in FactorizationReuse.STATE_KEYS]
-    if not all(isinstance(c, int | float | np.number) and np.isfinite(c) and c >= 0 for c in counters):
+    if not _all_counts(counters):
         return f"its refactor policy attributes {counters} are missing or not numbers >= 0"
     return None
+
+
+def _all_counts(values: list) -> bool:
+    """Whether every value is a finite number >= 0 (a refactor policy attribute of a checkpoint)."""
+    return all(isinstance(v, int | float | np.number) and np.isfinite(v) and v >= 0 for v in values)
 
 
 def _bodies_checkpoint_problem(arrays: dict, attrs: dict, scene: BodiesScene) -> str | None:

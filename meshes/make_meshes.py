@@ -10,8 +10,8 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from bhem_hpc.geometry import surface as S
 from bhem_hpc.collision import PatchModel, control_nets
+from bhem_hpc.geometry import surface as S
 
 here = Path(__file__).resolve().parent
 S.sphere_zone(0.5, 0.15, np.pi / 2, 8, 24).save(here / "hemisphere_zone_8x24.npz")

@@ -185,7 +185,7 @@ class FactorizationReuse:
 
     def restore_learned(self, learned: dict[str, float]) -> None:
         """Continue from :meth:`learned` (a checkpoint without it: nothing learned)."""
-        self._reductions = (float(learned.get("reduction", 0.0)), float(learned.get("reduction_before", 0.0)))
+        self._reductions = tuple(float(learned.get(key, 0.0)) for key in self.LEARNED_KEYS)
 
     def restore(self, state: dict[str, float], signature: tuple) -> None:
         """Continue from :meth:`state` with the factorization remade at ``signature``'s operator."""

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import scipy.spatial
 
 from bhem_hpc.geometry.bspline import basis_functions, bernstein
 from bhem_hpc.geometry.bspline import from_callable as bspline_from_callable
@@ -477,13 +478,14 @@ BACKTRACKS = 12
 DISTANCE_ROUNDOFF = 4.0 * np.finfo(float).eps
 
 
-def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: int = 8, chunk: int = 4096):
+def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: int = 8):
     """Closest points on ``surface`` to ``points (Q, 3)``: parameters ``(Q, 2)``, the surface points
     ``(Q, 3)`` and the distances ``(Q,)``.
 
-    Starts from the nearest of ``seeds_per_side^2`` samples per Bezier patch (brute force in chunks
-    of ``chunk`` points), then Newton steps on ``|x(u, v) - X|^2 / 2`` (Gauss-Newton where its
-    Hessian is indefinite) clamped to the domain, with backtracking, at most
+    Starts from the nearest of ``seeds_per_side^2`` samples per Bezier patch (SciPy's k-d tree: a
+    part of many patches has tens of thousands of samples), then Newton steps on
+    ``|x(u, v) - X|^2 / 2`` (Gauss-Newton where its Hessian is indefinite) clamped to the domain,
+    with backtracking (all halvings of a step that fails in one evaluation), at most
     :data:`PROJECTION_ITERATIONS`; a point stops when its step no longer moves it.
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -497,13 +499,8 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
     )
     seed_u, seed_v = seed_u.ravel(), seed_v.ravel()
     seeds = surface.evaluate(seed_u, seed_v)[0]
-    nearest = np.empty(len(points), dtype=int)
-    for first in range(0, len(points), chunk):
-        block = points[first : first + chunk]
-        distance = (block**2).sum(axis=1)[:, None] - 2.0 * block @ seeds.T + (seeds**2).sum(axis=1)[None, :]
-        nearest[first : first + chunk] = distance.argmin(axis=1)
+    nearest = scipy.spatial.KDTree(seeds).query(points)[1]
     u, v = seed_u[nearest].copy(), seed_v[nearest].copy()
-    (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
     active = np.arange(len(points))
     for _ in range(PROJECTION_ITERATIONS):
         if not len(active):
@@ -523,29 +520,43 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         dv = np.where(safe, -(h11 * g2 - h12 * g1) / np.where(safe, det, 1.0), -g2 / np.maximum(h22, 1e-300))
         # backtracking: far outside a convex part a full step can overshoot
         distance = (residual**2).sum(1)
-        pending = np.arange(len(active))
         moved = np.zeros(len(active))
-        for halving in range(BACKTRACKS):
-            scale = 0.5**halving
-            at = active[pending]
-            u_try = np.clip(u[at] + scale * du[pending], u0, u1)
-            v_try = np.clip(v[at] + scale * dv[pending], v0, v1)
-            trial = ((surface.evaluate(u_try, v_try)[0] - points[at]) ** 2).sum(1)
-            better = trial <= distance[pending]
-            # a step that no longer shortens the distance beyond its round-off ends the point's
-            # search: where the distance is stationary the parameters crept by round-off (1e-14 to
-            # 1e-12 a step on flat faces) to the iteration limit
-            progress = better & (distance[pending] - trial > DISTANCE_ROUNDOFF * distance[pending])
-            moved[pending[progress]] = np.abs(u_try[progress] - u[at[progress]]) / (u1 - u0) + np.abs(
-                v_try[progress] - v[at[progress]]
-            ) / (v1 - v0)
-            u[at[better]], v[at[better]] = u_try[better], v_try[better]
-            pending = pending[~better]
-            if not len(pending):
-                break
+        pending = np.arange(len(active))
+        for scales in (np.ones(1), 0.5 ** np.arange(1, BACKTRACKS)):
+            pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, pending, scales, moved)
         active = active[moved > 1e-14]
     x = surface.evaluate(u, v)[0]
     return np.stack([u, v], axis=1), x, np.linalg.norm(x - points, axis=1)
+
+
+def _backtrack(surface: NurbsSurface, points: np.ndarray, parameters: tuple[np.ndarray, np.ndarray],
+               steps: tuple[np.ndarray, np.ndarray], active: np.ndarray, distance: np.ndarray, pending: np.ndarray,
+               scales: np.ndarray, moved: np.ndarray) -> np.ndarray:  # fmt: skip
+    """One round of :func:`closest_points`' backtracking: for each ``pending`` index into
+    ``active``, the first of ``scales (K,)`` (decreasing) whose clamped step shortens the squared
+    ``distance``, all trials evaluated in one call. Updates ``parameters`` (each ``(Q,)``) and
+    ``moved`` (the accepted step's relative length, 0 where it shortens the distance no more than
+    round-off) in place; returns the indices still pending."""
+    (u, v), (du, dv) = parameters, steps
+    (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
+    at = active[pending]
+    u_try = np.clip(u[at][:, None] + scales[None, :] * du[pending][:, None], u0, u1)
+    v_try = np.clip(v[at][:, None] + scales[None, :] * dv[pending][:, None], v0, v1)
+    x_try = surface.evaluate(u_try.ravel(), v_try.ravel())[0].reshape(len(at), len(scales), 3)
+    trial = ((x_try - points[at][:, None, :]) ** 2).sum(2)
+    better = trial <= distance[pending][:, None]
+    found = better.any(axis=1)
+    first = better.argmax(axis=1)[found]
+    rows = np.flatnonzero(found)
+    taken, u_new, v_new, trial = pending[found], u_try[rows, first], v_try[rows, first], trial[rows, first]
+    # a step that no longer shortens the distance beyond its round-off ends the point's search:
+    # where the distance is stationary the parameters crept by round-off (1e-14 to 1e-12 a step on
+    # flat faces) to the iteration limit
+    progress = distance[taken] - trial > DISTANCE_ROUNDOFF * distance[taken]
+    step = np.abs(u_new - u[at[found]]) / (u1 - u0) + np.abs(v_new - v[at[found]]) / (v1 - v0)
+    moved[taken[progress]] = step[progress]
+    u[at[found]], v[at[found]] = u_new, v_new
+    return pending[~found]
 
 
 def shell_surface(part: NurbsSurface, patches: tuple[int, int], discretization: str):

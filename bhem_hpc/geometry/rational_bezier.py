@@ -197,14 +197,15 @@ def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: 
         lo, hi = _piece_boxes(pieces, across)
         start, stop = _lines_in_box(lo - tolerance, hi + tolerance, first, second)
         holds_lines = np.all(stop > start, axis=1)
+        patch, rect = patch[holds_lines], rect[holds_lines]  # the normals' signs only where lines pass
         low, high = _axis_normal_signs(nets[patch], rect, axis)
         flat = np.maximum(np.abs(low), np.abs(high)) <= 1e-12  # projects onto a curve: no crossing of measure
         unfolded = (low > 0.0) | (high < 0.0)
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
-        done = holds_lines & ~flat & ((unfolded & small) | (level == MAX_LEVEL))
+        done = ~flat & ((unfolded & small) | (level == MAX_LEVEL))
         kept_patch.append(patch[done])
         kept_rect.append(rect[done])
-        split = holds_lines & ~flat & ~done
+        split = ~flat & ~done
         patch, rect = np.repeat(patch[split], 4), _split_rects(rect[split])
     return np.concatenate(kept_patch), np.concatenate(kept_rect)
 
@@ -354,15 +355,22 @@ def _sphere_candidates(points, origins, directions, tau_min, tau_max, tolerance)
     ``(K,)`` ray and patch indices, ray-major."""
     centres = points.mean(axis=1)
     radii = np.linalg.norm(points - centres[:, None], axis=2).max(axis=1) + tolerance
+    # the squares below expanded into matrix products (BLAS); about the centres' middle, whose
+    # round-off the pad of the squared radii bounds
+    middle = centres.mean(axis=0) if len(centres) else np.zeros(3)
+    centres, origins = centres - middle, origins - middle
+    centre_squares = (centres**2).sum(axis=1)
     rays, patches = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]  # no ray: no pair
     step = max(1, SPHERE_CHUNK // max(len(points), 1))
     for first in range(0, len(origins), step):
         last = min(first + step, len(origins))
-        offset = centres[None] - origins[first:last, None]  # (r, P, 3)
-        along = np.einsum("rpc,rc->rp", offset, directions[first:last])
-        across = np.einsum("rpc,rpc->rp", offset, offset) - along**2
+        start, direction = origins[first:last], directions[first:last]
+        start_squares = (start**2).sum(axis=1)
+        along = direction @ centres.T - (start * direction).sum(axis=1)[:, None]  # (r, P): (c - o) . d
+        across = start_squares[:, None] - 2.0 * (start @ centres.T) + centre_squares[None] - along**2
+        pad = 16.0 * np.finfo(float).eps * (start_squares.max(initial=0.0) + centre_squares.max(initial=0.0))
         near = (
-            (across <= radii**2)
+            (across <= radii**2 + pad)
             & (along + radii > tau_min[first:last, None])
             & (along - radii <= tau_max[first:last, None])
         )

@@ -22,7 +22,15 @@ import scipy.sparse
 
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.assembly import UPPER_PAIRS, coefficient_pattern, coefficient_stiffness, fits_dense, point_groups
+from bhem_hpc.solids.assembly import (
+    UPPER_PAIRS,
+    coefficient_pattern,
+    coefficient_stiffness,
+    congruence,
+    fits_dense,
+    point_groups,
+    weighted_gram,
+)
 from bhem_hpc.solids.blending import RayDistances, ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
 from bhem_hpc.solids.origins import deformation_origins
@@ -323,7 +331,7 @@ class ShapeMatchingSolid:
         # consistent mass: Pi^T Phi^T diag(rho v) Phi Pi per component
         position_map = phi @ projection  # (Q, n_q): x = position_map @ q
         self.position_map = position_map
-        self.mass_scalar = (position_map.T @ scipy.sparse.diags(self._density * rule.weights) @ position_map).tocsr()
+        self.mass_scalar = congruence(projection, weighted_gram(phi, self._density * rule.weights))
         # error energy (eq. 16): each part's boundary samples under the blended map Gamma(X) q
         # against the part itself, J(X) q; the blend ties every part to the volume's polynomials
         gamma = self.options.error_stiffness
@@ -333,7 +341,7 @@ class ShapeMatchingSolid:
         for s, part_basis, blend, part_gamma in zip(samples, stacked_bases(samples), blends, gammas, strict=True):
             boundary_phi, _ = matching.kinematic_maps(s.points, blend)
             difference = boundary_phi @ projection - part_basis
-            rows.append(part_gamma * (difference.T @ scipy.sparse.diags(s.weights) @ difference))
+            rows.append(weighted_gram(difference, part_gamma * s.weights))
         self.error_scalar = sum(rows).tocsr()
         self._error = _interleave(self.error_scalar)
         self.whole = QuadratureShare(self, 0, len(rule.points))

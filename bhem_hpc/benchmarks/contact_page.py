@@ -288,7 +288,7 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "barrier stiffness, IPC's step test at 1e-2 of the bounding-box diagonal per second besides the "
         "acceleration test; the job's Hessian, or the one its window names for IPC: the crushed can's "
         "trust region, which does not take the step test, the cloth pile's line search; fresh factorizations "
-        "unless the job keeps them, as the ball does); a job that ships "
+        "unless the job keeps them, as the ball and the needles do); a job that ships "
         "with IPC (linked-bands, cloth-on-sphere) runs by impulses with the contact table its window names. "
         "The crushed can's wall buckles at different steps by the two methods (by IPC in steps 37-39, by impulses "
         "between steps 90 and 100): a second window times the impulse run where its folds are crushed "

@@ -537,6 +537,8 @@ def _backtrack(surface: NurbsSurface, points: np.ndarray, parameters: tuple[np.n
     ``distance``, all trials evaluated in one call. Updates ``parameters`` (each ``(Q,)``) and
     ``moved`` (the accepted step's relative length, 0 where it shortens the distance no more than
     round-off) in place; returns the indices still pending."""
+    if not len(pending):  # every step of the round before shortened its distance
+        return pending
     (u, v), (du, dv) = parameters, steps
     (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
     at = active[pending]

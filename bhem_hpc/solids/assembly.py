@@ -177,10 +177,9 @@ def coefficient_stiffness(groups: Sequence[PointGroup], weighted: np.ndarray, co
 
 #: A weighted Gram matrix ``A^T W A`` (:func:`weighted_gram`) is a BLAS product over the columns
 #: ``A`` uses where at least this fraction of that block holds nonzeros (the castle's error energy:
-#: each part's misfit reaches every control point; scipy's sparse product took 14 s there)...
+#: each part's misfit reaches every control point; scipy's sparse product took 14 s there) and
+#: those columns :func:`fits_dense`.
 GRAM_DENSE_FILL = 0.2
-#: ...and the block's Gram matrix has at most this many entries (128 MB).
-GRAM_DENSE_ENTRIES = 16_000_000
 
 
 def weighted_gram(matrix: scipy.sparse.spmatrix, weights: np.ndarray) -> scipy.sparse.csr_matrix:
@@ -189,7 +188,7 @@ def weighted_gram(matrix: scipy.sparse.spmatrix, weights: np.ndarray) -> scipy.s
     matrix = scipy.sparse.csr_matrix(matrix)
     columns = np.unique(matrix.indices)
     size = len(columns)
-    if not size or size**2 > GRAM_DENSE_ENTRIES or matrix.nnz < GRAM_DENSE_FILL * matrix.shape[0] * size:
+    if not size or not fits_dense(size) or matrix.nnz < GRAM_DENSE_FILL * matrix.shape[0] * size:
         return (matrix.T @ scipy.sparse.diags(weights) @ matrix).tocsr()
     block = matrix[:, columns].toarray()
     return _scattered(block.T @ (np.asarray(weights)[:, None] * block), columns, matrix.shape[1])
@@ -197,11 +196,11 @@ def weighted_gram(matrix: scipy.sparse.spmatrix, weights: np.ndarray) -> scipy.s
 
 def congruence(projection: scipy.sparse.spmatrix, inner: scipy.sparse.spmatrix) -> scipy.sparse.csr_matrix:
     """``projection^T inner projection`` for ``projection (m, n)`` and ``inner (m, m)``: ``(n, n)``,
-    a BLAS product where it fits :data:`GRAM_DENSE_ENTRIES` (a kinematic map's mass or stiffness
-    on the coefficients carried to the control points)."""
+    a BLAS product where the columns it reaches :func:`fits_dense` (a kinematic map's mass or
+    stiffness on the coefficients carried to the control points)."""
     projection = scipy.sparse.csr_matrix(projection)
     columns = np.unique(projection.indices)
-    if len(columns) ** 2 > GRAM_DENSE_ENTRIES:
+    if not fits_dense(len(columns)):
         return (projection.T @ inner @ projection).tocsr()
     block = projection[:, columns].toarray()
     return _scattered(block.T @ (inner @ block), columns, projection.shape[1])

@@ -108,9 +108,16 @@ def bernstein(t: np.ndarray, degree: int, derivative: int = 0) -> np.ndarray:
     if derivative > degree:
         return out
     lower_degree = degree - derivative
-    m = np.arange(lower_degree + 1)
-    binomials = np.array([math.comb(lower_degree, i) for i in m], dtype=float)
-    lower = binomials * t[..., None] ** m * (1.0 - t[..., None]) ** (lower_degree - m)
+    # t^m and (1 - t)^(d - m) by running products: numpy's power with an array of exponents takes
+    # twice as long as the rest of this function on thousands of points
+    rising, falling = np.empty(t.shape + (lower_degree + 1,)), np.empty(t.shape + (lower_degree + 1,))
+    rising[..., 0] = falling[..., lower_degree] = 1.0
+    complement = 1.0 - t
+    for m in range(1, lower_degree + 1):
+        rising[..., m] = rising[..., m - 1] * t
+        falling[..., lower_degree - m] = falling[..., lower_degree - m + 1] * complement
+    binomials = np.array([math.comb(lower_degree, i) for i in range(lower_degree + 1)], dtype=float)
+    lower = binomials * rising * falling
     scale = math.factorial(degree) / math.factorial(lower_degree)
     for j in range(derivative + 1):
         out[..., j : j + lower_degree + 1] += scale * (-1) ** (derivative - j) * math.comb(derivative, j) * lower

@@ -231,15 +231,25 @@ class NurbsSurface:
     @cached_property
     def bezier_patches(self) -> RationalBezierPatches:
         """Exact rational Bezier extraction, patches in order ``span_u * S_v + span_v``."""
-        p, q = self.degrees
-        pw = self.homogeneous
-        nets, boxes = [], []
-        for a, ku in enumerate(self.u.spans):
-            for b, kv in enumerate(self.v.spans):
-                local = pw[ku - p : ku + 1, kv - q : kv + 1]
-                nets.append(np.einsum("ia,jb,ijc->abc", self.u.extraction[a], self.v.extraction[b], local))
-                boxes.append((self.u.knots[ku], self.u.knots[ku + 1], self.v.knots[kv], self.v.knots[kv + 1]))
-        return RationalBezierPatches(np.array(nets), np.array(boxes, dtype=float))
+        (p, q), u, v = self.degrees, self.u, self.v
+        count_u, count_v = len(u.spans), len(v.spans)
+        boxes = np.empty((count_u, count_v, 4))
+        boxes[..., 0], boxes[..., 1] = u.knots[u.spans][:, None], u.knots[u.spans + 1][:, None]
+        boxes[..., 2], boxes[..., 3] = v.knots[v.spans], v.knots[v.spans + 1]
+        boxes = boxes.reshape(-1, 4)
+        if self.control.shape[:2] == (p + 1, q + 1):  # one Bezier patch: its B-splines are the Bernstein polynomials
+            return RationalBezierPatches(self.homogeneous[None], boxes)
+        rows = (u.spans - p)[:, None] + np.arange(p + 1)  # (S_u, p + 1): the control rows of each u span
+        cols = (v.spans - q)[:, None] + np.arange(q + 1)
+        local = self.homogeneous[rows[:, None, :, None], cols[None, :, None, :]]  # [a, b, i, j, c]
+        # nets[a, b, k, l] = sum_ij E_u[a, i, k] E_v[b, j, l] local[a, b, i, j]: two batched products
+        # over all spans, the u sums (batched over a), then the v sums (batched over b)
+        by_u = local.transpose(0, 2, 1, 3, 4).reshape(count_u, p + 1, -1)
+        summed_u = np.matmul(u.extraction.transpose(0, 2, 1), by_u).reshape(count_u, p + 1, count_v, q + 1, 4)
+        by_v = summed_u.transpose(2, 3, 0, 1, 4).reshape(count_v, q + 1, -1)
+        summed_v = np.matmul(v.extraction.transpose(0, 2, 1), by_v).reshape(count_v, q + 1, count_u, p + 1, 4)
+        nets = summed_v.transpose(2, 0, 3, 1, 4).reshape(count_u * count_v, p + 1, q + 1, 4)
+        return RationalBezierPatches(np.ascontiguousarray(nets), boxes)
 
 
 def _insert_knot(homogeneous: np.ndarray, knots: np.ndarray, degree: int,

@@ -18,6 +18,8 @@ each remaining piece then solves for the crossing of every line in its box. Ever
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
@@ -144,10 +146,36 @@ def _piece_boxes(nets: np.ndarray, across: tuple[int, int]) -> tuple[np.ndarray,
     return flat.min(axis=1), flat.max(axis=1)
 
 
-def _axis_normal_signs(nets: np.ndarray, rects: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+@lru_cache(maxsize=16)
+def _sign_sample_bases(degree: int) -> np.ndarray:
+    """``(2 G, degree + 1)``: the Bernstein polynomials at the ``G = SIGN_SAMPLES`` cell centres of
+    the unit interval, then their slopes (read only)."""
+    grid = (np.arange(SIGN_SAMPLES) + 0.5) / SIGN_SAMPLES
+    bases = np.concatenate([bernstein(grid, degree), bernstein(grid, degree, 1)])
+    bases.flags.writeable = False
+    return bases
+
+
+def _piece_axis_normal_signs(pieces: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     """Smallest and largest normal component along ``axis`` over ``SIGN_SAMPLES^2`` points of each
-    piece ``rects (N, 4)`` of ``nets (N, ...)``, each normalized by the piece's largest normal."""
-    return _normal_components(nets, rects, np.eye(3)[np.full(len(nets), axis)])
+    piece's own net ``pieces (N, p+1, q+1, 4)`` (its points at the centres of a regular grid of its
+    parameter square), each normalized by the piece's largest normal: :func:`_normal_components`
+    on the pieces' rectangles of their patches, from nets the split has made anyway. The piece's
+    parameters are the patch's scaled by the piece's positive widths, which the normalization
+    cancels."""
+    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
+    along_s, along_t = _sign_sample_bases(p), _sign_sample_bases(q)
+    count = SIGN_SAMPLES
+    rows = np.matmul(along_t, pieces).reshape(len(pieces), p + 1, -1)  # the t sums: [n, i, (t sample, c)]
+    sums = np.matmul(along_s, rows).reshape(len(pieces), 2 * count, 2 * count, 4)  # [n, s sample, t sample, c]
+    value, slope_s, slope_t = sums[:, :count, :count], sums[:, count:, :count], sums[:, :count, count:]
+    point = value[..., :3] / value[..., 3:]
+    x_s = (slope_s[..., :3] - point * slope_s[..., 3:]) / value[..., 3:]
+    x_t = (slope_t[..., :3] - point * slope_t[..., 3:]) / value[..., 3:]
+    normal = np.cross(x_s, x_t).reshape(len(pieces), -1, 3)
+    size = np.linalg.norm(normal, axis=2).max(axis=1)
+    component = normal[..., axis] / np.where(size > 0.0, size, 1.0)[:, None]
+    return component.min(axis=1), component.max(axis=1)
 
 
 def _normal_components(nets: np.ndarray, rects: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,41 +211,62 @@ def _split_rects(rect: np.ndarray) -> np.ndarray:
     )
 
 
+def _affine(pieces: np.ndarray, tolerance: float) -> np.ndarray:
+    """Mask ``(N,)`` of the pieces ``(N, p+1, q+1, 4)`` whose surface is an affine map of their
+    parameters within ``tolerance`` [m]: equal weights, and control points where the corners'
+    affine map puts them (a flat face of a box or a fin, and its knot-refined pieces). An unfolded
+    affine piece meets a line once, and Newton's method finds the crossing in one step from anywhere."""
+    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
+    weights = pieces[..., 3]
+    equal = np.abs(weights - weights[:, :1, :1]).reshape(len(pieces), -1).max(axis=1) <= 1e-12 * weights[:, 0, 0]
+    points = pieces[..., :3] / pieces[..., 3:]
+    origin = points[:, 0, 0]
+    along_s, along_t = points[:, p, 0] - origin, points[:, 0, q] - origin
+    affine = (origin[:, None, None] + np.linspace(0.0, 1.0, p + 1)[None, :, None, None] * along_s[:, None, None]
+              + np.linspace(0.0, 1.0, q + 1)[None, None, :, None] * along_t[:, None, None])  # fmt: skip
+    return equal & (np.abs(points - affine).reshape(len(pieces), -1).max(axis=1) <= tolerance)
+
+
 def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
-    """Pieces ``(patch (M,), rect (M, 4))`` with lines in their boxes, each small and unfolded (or at
-    :data:`MAX_LEVEL`); pieces whose projection has no area (a face along the axis) are dropped."""
+    """Pieces ``(patch (M,), rect (M, 4), nets (M, p+1, q+1, 4))`` with lines in their boxes, each
+    unfolded and small or affine (:func:`_affine`), or at :data:`MAX_LEVEL`; pieces whose projection
+    has no area (a face along the axis) are dropped."""
     across = tuple(a for a in range(3) if a != axis)
     patch = np.arange(len(nets))
     rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(nets), 1))
-    kept_patch, kept_rect = [], []
+    kept_patch, kept_rect, kept_pieces = [], [], []
     for level in range(MAX_LEVEL + 1):
         if not len(patch):
             break
-        pieces = subpatches(nets[patch], rect)
+        pieces = nets if level == 0 else subpatches(nets[patch], rect)  # level 0: the whole patches
         lo, hi = _piece_boxes(pieces, across)
         start, stop = _lines_in_box(lo - tolerance, hi + tolerance, first, second)
         holds_lines = np.all(stop > start, axis=1)
-        patch, rect = patch[holds_lines], rect[holds_lines]  # the normals' signs only where lines pass
-        low, high = _axis_normal_signs(nets[patch], rect, axis)
+        # the normals' signs only where lines pass
+        patch, rect, pieces = patch[holds_lines], rect[holds_lines], pieces[holds_lines]
+        low, high = _piece_axis_normal_signs(pieces, axis)
         flat = np.maximum(np.abs(low), np.abs(high)) <= 1e-12  # projects onto a curve: no crossing of measure
         unfolded = (low > 0.0) | (high < 0.0)
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
-        done = ~flat & ((unfolded & small) | (level == MAX_LEVEL))
+        simple = unfolded & (small | _affine(pieces, tolerance))
+        done = ~flat & (simple | (level == MAX_LEVEL))
         kept_patch.append(patch[done])
         kept_rect.append(rect[done])
+        kept_pieces.append(pieces[done])
         split = ~flat & ~done
         patch, rect = np.repeat(patch[split], 4), _split_rects(rect[split])
-    return np.concatenate(kept_patch), np.concatenate(kept_rect)
+    return np.concatenate(kept_patch), np.concatenate(kept_rect), np.concatenate(kept_pieces)
 
 
-def _candidate_pairs(nets, patch, rect, axis, first, second, tolerance):
-    """``(piece (K,), line (K,))`` for every line inside each piece's projected box."""
+def _candidate_pairs(pieces: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
+    """``(piece (K,), line (K,))`` for every line inside each piece's projected box, ``pieces (M,
+    p+1, q+1, 4)`` their nets."""
     across = tuple(a for a in range(3) if a != axis)
-    lo, hi = _piece_boxes(subpatches(nets[patch], rect), across)
+    lo, hi = _piece_boxes(pieces, across)
     start, stop = _lines_in_box(lo - tolerance, hi + tolerance, first, second)
     count_first, count_second = stop[:, 0] - start[:, 0], stop[:, 1] - start[:, 1]
     per_piece = count_first * count_second
-    piece = np.repeat(np.arange(len(patch)), per_piece)
+    piece = np.repeat(np.arange(len(pieces)), per_piece)
     offset = np.arange(per_piece.sum()) - np.repeat(np.cumsum(per_piece) - per_piece, per_piece)
     i = start[piece, 0] + offset // count_second[piece]
     j = start[piece, 1] + offset % count_second[piece]
@@ -244,11 +293,11 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     size = float(np.ptp(points.reshape(-1, 3), axis=0).max())
     tolerance = 1e-12 * max(size, 1e-300)
     across = [a for a in range(3) if a != axis]
-    patch, rect = _split_until_simple(nets, axis, first, second, tolerance)
+    patch, rect, pieces = _split_until_simple(nets, axis, first, second, tolerance)
     if not len(patch):
         empty = np.zeros(0)
         return LineCrossings(empty.astype(int), empty, empty.astype(int), empty.astype(int), empty, empty)
-    piece, line = _candidate_pairs(nets, patch, rect, axis, first, second, tolerance)
+    piece, line = _candidate_pairs(pieces, axis, first, second, tolerance)
     box = rect[piece]
     s0, t0 = 0.5 * (box[:, 0] + box[:, 1]), 0.5 * (box[:, 2] + box[:, 3])
     target = np.stack([first[line // len(second)], second[line % len(second)]], axis=1)
@@ -257,17 +306,21 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     origins[:, across] = target
     directions = np.zeros((len(line), 3))
     directions[:, axis] = 1.0
-    start_tau = evaluate(nets[patch[piece]], s0, t0)[0][:, axis]
-    s, t, _, converged, _ = _ray_newton(
-        nets[patch[piece]], s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance
-    )
+    # Newton's first step puts tau where the surface's linearization at (s0, t0) meets the line,
+    # whatever tau starts at (the line's direction is a column of constants): any start will do
+    start_tau = np.zeros(len(line))
+    newton = _ray_newton(nets[patch[piece]], s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance)
     # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
     # every piece keeps crossings up to a slack beyond its edges, and the merge below counts once
     # what two pieces or two patches found
-    own = converged & _within(s, t, box)
-    piece, line, s, t = piece[own], line[own], np.clip(s[own], 0.0, 1.0), np.clip(t[own], 0.0, 1.0)
+    own = newton.converged & _within(newton.s, newton.t, box)
+    piece, line = piece[own], line[own]
+    s, t = np.clip(newton.s[own], 0.0, 1.0), np.clip(newton.t[own], 0.0, 1.0)
     patch_nets = nets[patch[piece]]
-    point, x_s, x_t = evaluate(patch_nets, s, t)
+    point, x_s, x_t = newton.point[own], newton.x_s[own], newton.x_t[own]
+    clipped = np.flatnonzero((s != newton.s[own]) | (t != newton.t[own]))
+    if len(clipped):  # on the patch's edge instead of a rounding error beyond it
+        point[clipped], x_s[clipped], x_t[clipped] = evaluate(patch_nets[clipped], s[clipped], t[clipped])
     normal = np.cross(x_s, x_t)
     degenerate = (
         np.linalg.norm(normal, axis=1) <= 1e-12 * (np.linalg.norm(x_s, axis=1) + np.linalg.norm(x_t, axis=1)) ** 2
@@ -314,11 +367,27 @@ def _ray_frames(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return first, np.cross(directions, first)
 
 
-def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
+class RayNewton(NamedTuple):
+    """:func:`_ray_newton`'s result, ``(K,)`` or ``(K, 3)``: the solution ``s, t, tau``, its
+    success, whether the ray grazes the surface where Newton started, and the surface's point and
+    derivatives at the solution (where converged; the evaluation that found it converged)."""
+
+    s: np.ndarray
+    t: np.ndarray
+    tau: np.ndarray
+    converged: np.ndarray
+    grazing: np.ndarray
+    point: np.ndarray
+    x_s: np.ndarray
+    x_t: np.ndarray
+
+
+def _ray_newton(nets, s, t, tau, origins, directions, tolerance) -> RayNewton:
     """Solve ``x(s, t) = origin + tau direction`` from ``(s, t, tau) (K,)``: the solution, its
     success, and whether the ray grazes the surface where Newton starts (the cosine between the
     ray and the surface normal below :data:`GRAZING_COSINE`: a ray in the plane of a flat piece)."""
     converged, grazing = np.zeros(len(s), dtype=bool), np.zeros(len(s), dtype=bool)
+    solution = np.zeros((3, len(s), 3))  # the point and its two derivatives where converged
     active = np.arange(len(s))
     for iteration in range(NEWTON_ITERATIONS):
         if not len(active):
@@ -327,8 +396,11 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
         residual = point - origins[active] - tau[active, None] * directions[active]
         done = np.linalg.norm(residual, axis=1) <= tolerance
         converged[active[done]] = True
+        solution[:, active[done]] = point[done], x_s[done], x_t[done]
         keep = ~done
         active, residual = active[keep], residual[keep]
+        if not len(active):
+            break
         jacobian = np.stack([x_s[keep], x_t[keep], -directions[active]], axis=2)
         determinant = np.abs(np.linalg.det(jacobian))
         if iteration == 0:  # |det| = |(x_s x x_t) . d|, d of unit length
@@ -342,7 +414,7 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance):
         tau[active] -= step[:, 2]
         inside = (s[active] > -0.5) & (s[active] < 1.5) & (t[active] > -0.5) & (t[active] < 1.5)
         active = active[inside]
-    return s, t, tau, converged, grazing
+    return RayNewton(s, t, tau, converged, grazing, *solution)
 
 
 #: Rays tested against every patch's bounding sphere at once (memory ~ 40 bytes x rays x patches).
@@ -430,9 +502,8 @@ def first_hits(
             s, t = 0.5 * (rect[at, 0] + rect[at, 1]), 0.5 * (rect[at, 2] + rect[at, 3])
             centre = evaluate(nets[patch[at]], s, t)[0]
             tau = np.einsum("kc,kc->k", centre - origins[ray[at]], directions[ray[at]])
-            s, t, tau, converged, grazing = _ray_newton(
-                nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance
-            )
+            newton = _ray_newton(nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance)
+            s, t, tau, converged, grazing = newton.s, newton.t, newton.tau, newton.converged, newton.grazing
             box = rect[at]
             found = np.flatnonzero(converged & _within(s, t, box))
             inside = np.zeros(len(at), dtype=bool)
@@ -442,7 +513,7 @@ def first_hits(
             # in it shortening the ray's stretch. Where the ray meets the piece's surface steeply
             # (ONE_CROSSING_COSINE) a small piece's normal would have to turn that far within it.
             if len(found):
-                _, x_s, x_t = evaluate(nets[patch[at[found]]], s[found], t[found])
+                x_s, x_t = newton.x_s[found], newton.x_t[found]
                 normal = np.cross(x_s, x_t)
                 cosine = np.abs(np.einsum("kc,kc->k", normal, directions[ray[at[found]]])) / np.maximum(
                     np.linalg.norm(normal, axis=1), 1e-300)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -90,6 +91,15 @@ def inside_intervals(line: np.ndarray, position: np.ndarray, direction: np.ndarr
     return line[starts], position[starts], position[ends], open_mask
 
 
+@lru_cache(maxsize=16)
+def _gauss_legendre(order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and weights ``(order,)`` of the Gauss-Legendre rule on [-1, 1] (read only; numpy
+    builds them by an eigenvalue solve, a fifth of a small model's quadrature)."""
+    nodes, weights = np.polynomial.legendre.leggauss(order)
+    nodes.flags.writeable = weights.flags.writeable = False
+    return nodes, weights
+
+
 def ray_cast_quadrature(
     parts: Sequence[NurbsSurface], lines_per_side: int, order: int = 2, axis: int = 0, name: str = "model"
 ) -> VolumeQuadrature:
@@ -141,7 +151,7 @@ def ray_cast_quadrature(
         )
     if not len(at):
         raise SurfaceError(f"{name}: no line along {'xyz'[axis]} found an inside; the parts enclose no volume")
-    nodes, node_weights = np.polynomial.legendre.leggauss(order)
+    nodes, node_weights = _gauss_legendre(order)
     length = end - start
     segments = np.maximum(1, np.ceil(length / spacing - 1e-9).astype(int))
     interval = np.repeat(np.arange(len(at)), segments)

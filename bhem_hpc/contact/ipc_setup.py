@@ -86,7 +86,7 @@ def shell_mesh(model: ShellModel, cells_per_patch: int, density: float, thicknes
         used, triangles = np.unique(triangles, return_inverse=True)
         parameters, triangles = parameters[used], triangles.reshape(-1, 3)
     disc = model.discretization
-    bases = [disc.point_basis(float(a), float(b)) for a, b in parameters]
+    bases = disc.points_basis(parameters[:, 0], parameters[:, 1])
     rest = model.rest_surface.evaluate(parameters[:, 0], parameters[:, 1]).x
     corners = rest[triangles]
     area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1).sum()

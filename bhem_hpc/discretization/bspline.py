@@ -303,6 +303,10 @@ class BSplineDiscretization:
         """The Lagrange basis values at a parameter point in its cell, on the rank owning it."""
         return self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2)
 
+    def points_basis(self, xi1: np.ndarray, xi2: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`point_basis` at parameter points ``xi1, xi2 (N,)``, tabulated at once."""
+        return self.grid_mesh.tabulate_points(self.element, self._cell_dofs, xi1, xi2)
+
     def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
         """``(open blocks (n,), values (3, n))``: the basis and its derivatives along xi1 and xi2 at a
         parameter point (position and tangents), on the rank owning its cell (empty elsewhere)."""

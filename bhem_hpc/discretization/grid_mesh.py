@@ -59,7 +59,7 @@ class GridMesh:
         mesh: the dolfinx mesh over the parameter domain.
         cell_vertices: ``(cells, 4, 2)`` parameters of each local cell's reference vertices.
         jacobian: the one ``J[b, a] = dxi_b / dX_a`` of every cell.
-        cell_of_patch: owned local cell of each patch ``(p1, p2)`` held by this rank.
+        patch_cells: ``(n1, n2)`` the owned local cell of each patch, -1 where another rank owns it.
     """
 
     def __init__(self, grid: ParameterGrid, comm: MPI.Comm):
@@ -83,46 +83,58 @@ class GridMesh:
         h = np.array([grid.h1, grid.h2])
         origin = np.array([grid.xi1_range[0], grid.xi2_range[0]])
         corner = np.rint((self.cell_vertices.min(axis=1) - origin) / h).astype(np.int64)
-        self.cell_of_patch = {(int(n[0]), int(n[1])): c for c, n in enumerate(corner[: cells.size_local])}
+        self.patch_cells = np.full((grid.n1, grid.n2), -1, dtype=np.int64)
+        owned = corner[: cells.size_local]
+        self.patch_cells[owned[:, 0], owned[:, 1]] = np.arange(len(owned))
 
-    def reference_point(self, xi1: float, xi2: float) -> tuple[int | None, np.ndarray]:
-        """The owned local cell holding a parameter point and the point's reference coordinates
-        ``(2,)`` in it (clipped to the cell); ``(None, ...)`` on ranks that do not own that cell."""
+    def reference_points(self, xi1: np.ndarray, xi2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The owned local cells ``(N,)`` holding parameter points ``xi1, xi2 (N,)`` (-1 where another
+        rank owns the cell) and the points' reference coordinates ``(N, 2)`` in them, clipped to the
+        cell (zeros where not owned)."""
         grid = self.grid
-        p1, p2, _, _ = grid.locate(np.array(xi1), np.array(xi2))
-        cell = self.cell_of_patch.get((int(p1), int(p2)))
-        if cell is None:
-            return None, np.zeros(2)
-        origin = self.cell_vertices[cell, 0]
-        xi = np.array([float(xi1), float(xi2)])
-        if grid.periodic1 or grid.periodic2:  # bring a wrapped parameter into this cell
-            period = np.array(
-                [
-                    grid.xi1_range[1] - grid.xi1_range[0] if grid.periodic1 else np.inf,
-                    grid.xi2_range[1] - grid.xi2_range[0] if grid.periodic2 else np.inf,
-                ]
-            )
-            finite = np.isfinite(period)
-            xi[finite] = origin[finite] + np.mod(xi[finite] - origin[finite], period[finite])
-        return cell, np.clip(np.linalg.solve(self.jacobian, xi - origin), 0.0, 1.0)
+        xi1, xi2 = np.broadcast_arrays(np.asarray(xi1, dtype=float).ravel(), np.asarray(xi2, dtype=float).ravel())
+        p1, p2, _, _ = grid.locate(xi1, xi2)
+        cells = self.patch_cells[p1, p2]
+        owned = cells >= 0
+        xi = np.stack([xi1[owned], xi2[owned]], axis=1)
+        origin = self.cell_vertices[cells[owned], 0]
+        periods = ((grid.periodic1, grid.xi1_range), (grid.periodic2, grid.xi2_range))
+        for k, (periodic, (low, high)) in enumerate(periods):
+            if periodic:  # bring a wrapped parameter into its cell
+                xi[:, k] = origin[:, k] + np.mod(xi[:, k] - origin[:, k], high - low)
+        reference = np.zeros((len(cells), 2))
+        reference[owned] = np.clip(np.linalg.solve(self.jacobian, (xi - origin).T).T, 0.0, 1.0)
+        return cells, reference
 
-    def tabulate_point(self, element, cell_dofs: np.ndarray, xi1: float, xi2: float,
-                       derivatives: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-        """The basis of ``element`` at a parameter point in the owned cell holding it.
+    def tabulate_points(self, element, cell_dofs: np.ndarray, xi1: np.ndarray, xi2: np.ndarray,
+                        derivatives: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+        """The basis of ``element`` at parameter points ``xi1, xi2 (N,)``, each in the owned cell
+        holding it: one basix tabulation for all points.
 
         Args:
             element: the basix element of every cell; cell_dofs: ``(cells, n)`` each cell's open blocks.
             derivatives: with the first parametric derivatives.
 
         Returns:
-            ``(blocks (n,), values)``: values ``(n,)``, or with ``derivatives`` ``(3, n)`` (value,
-            d/dxi1, d/dxi2); empty arrays on ranks that do not own the cell.
+            Per point ``(blocks (n,), values)``: values ``(n,)``, or with ``derivatives`` ``(3, n)``
+            (value, d/dxi1, d/dxi2); empty arrays where another rank owns the cell.
         """
-        cell, reference = self.reference_point(xi1, xi2)
-        if cell is None:
-            return np.zeros(0, dtype=np.int64), np.zeros((3, 0) if derivatives else 0)
-        table = element.tabulate(1 if derivatives else 0, reference.reshape(1, 2))[:, 0, :, 0]
-        if not derivatives:
-            return cell_dofs[cell], table[0]
-        # d/dX_a = sum_b d/dxi_b J[b, a]: the parametric gradient is J^-T times the reference one
-        return cell_dofs[cell], np.concatenate([table[:1], np.linalg.solve(self.jacobian.T, table[1:])])
+        cells, reference = self.reference_points(xi1, xi2)
+        owned = np.flatnonzero(cells >= 0)
+        empty = (np.zeros(0, dtype=np.int64), np.zeros((3, 0) if derivatives else 0))
+        bases = [empty] * len(cells)
+        if not len(owned):
+            return bases
+        table = element.tabulate(1 if derivatives else 0, reference[owned])[..., 0]  # (derivatives, points, n)
+        if derivatives:
+            # d/dX_a = sum_b d/dxi_b J[b, a]: the parametric gradient is J^-T times the reference one
+            slopes = np.linalg.solve(self.jacobian.T, table[1:].reshape(2, -1)).reshape(table[1:].shape)
+            table = np.concatenate([table[:1], slopes])
+        for k, point in enumerate(owned):
+            bases[point] = (cell_dofs[cells[point]], table[:, k] if derivatives else table[0, k])
+        return bases
+
+    def tabulate_point(self, element, cell_dofs: np.ndarray, xi1: float, xi2: float,
+                       derivatives: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """:meth:`tabulate_points` at one parameter point."""
+        return self.tabulate_points(element, cell_dofs, np.array([xi1]), np.array([xi2]), derivatives)[0]

@@ -168,6 +168,10 @@ class Discretization(Protocol):
         """``(open blocks, basis values)`` of the cell holding a parameter point, on its owning rank."""
         ...
 
+    def points_basis(self, xi1: np.ndarray, xi2: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`point_basis` at parameter points ``xi1, xi2 (N,)`` (one tabulation for all)."""
+        ...
+
     def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
         """``(open blocks (n,), values (3, n))``: the basis and its xi1 and xi2 derivatives there."""
         ...

@@ -116,10 +116,13 @@ class RationalBSplineDiscretization(BSplineDiscretization):
     # -- point data ----------------------------------------------------------------------------------
     def point_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
         """``(open blocks, phi / W)``: the rational basis at a parameter point, on the rank owning it."""
-        blocks, values = self.grid_mesh.tabulate_point(self.element, self._cell_dofs, xi1, xi2)
-        if not len(blocks):
-            return blocks, values
-        return blocks, values / (values @ self._open_weight[blocks])
+        return self.points_basis(np.array([xi1]), np.array([xi2]))[0]
+
+    def points_basis(self, xi1: np.ndarray, xi2: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`point_basis` at parameter points ``xi1, xi2 (N,)``, tabulated at once."""
+        bases = self.grid_mesh.tabulate_points(self.element, self._cell_dofs, xi1, xi2)
+        return [(blocks, values / (values @ self._open_weight[blocks]) if len(blocks) else values)
+                for blocks, values in bases]  # fmt: skip
 
     def point_frame_basis(self, xi1: float, xi2: float) -> tuple[np.ndarray, np.ndarray]:
         """``(open blocks (n,), values (3, n))``: the rational basis and its xi1 and xi2 derivatives

@@ -26,6 +26,7 @@ import scipy.spatial
 from bhem_hpc.geometry.bspline import basis_functions, bernstein
 from bhem_hpc.geometry.bspline import from_callable as bspline_from_callable
 from bhem_hpc.geometry.grid import ParameterGrid
+from bhem_hpc.geometry.rational_bezier import grid_sums
 from bhem_hpc.geometry.surface import SurfaceError
 from bhem_hpc.geometry.surface import from_callable as hermite_from_callable
 
@@ -508,7 +509,10 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         seeds_per_side, axis=1
     )
     seed_u, seed_v = seed_u.ravel(), seed_v.ravel()
-    seeds = surface.evaluate(seed_u, seed_v)[0]
+    # the seeds from the Bezier nets: every patch on one local grid (two products, not a basis per point)
+    nets = surface.bezier_patches.nets
+    seeds = grid_sums(nets, bernstein(grid, nets.shape[1] - 1), bernstein(grid, nets.shape[2] - 1))
+    seeds = (seeds[..., :3] / seeds[..., 3:]).reshape(-1, 3)
     nearest = scipy.spatial.KDTree(seeds).query(points)[1]
     u, v = seed_u[nearest].copy(), seed_v[nearest].copy()
     active = np.arange(len(points))

@@ -146,6 +146,14 @@ def _piece_boxes(nets: np.ndarray, across: tuple[int, int]) -> tuple[np.ndarray,
     return flat.min(axis=1), flat.max(axis=1)
 
 
+def grid_sums(nets: np.ndarray, along_s: np.ndarray, along_t: np.ndarray) -> np.ndarray:
+    """``(N, A, B, 4)``: ``sum_ij along_s[a, i] along_t[b, j] nets[n, i, j]`` for nets ``(N, p+1, q+1,
+    4)`` and rows of Bernstein values (or slopes) ``along_s (A, p+1)``, ``along_t (B, q+1)`` at fixed
+    local parameters: the homogeneous points of every net on one grid, in two batched products."""
+    rows = np.matmul(along_t, nets).reshape(len(nets), nets.shape[1], -1)  # the t sums: [n, i, (b, c)]
+    return np.matmul(along_s, rows).reshape(len(nets), len(along_s), len(along_t), 4)
+
+
 @lru_cache(maxsize=16)
 def _sign_sample_bases(degree: int) -> np.ndarray:
     """``(2 G, degree + 1)``: the Bernstein polynomials at the ``G = SIGN_SAMPLES`` cell centres of
@@ -164,10 +172,8 @@ def _piece_axis_normal_signs(pieces: np.ndarray, axis: int) -> tuple[np.ndarray,
     parameters are the patch's scaled by the piece's positive widths, which the normalization
     cancels."""
     p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
-    along_s, along_t = _sign_sample_bases(p), _sign_sample_bases(q)
     count = SIGN_SAMPLES
-    rows = np.matmul(along_t, pieces).reshape(len(pieces), p + 1, -1)  # the t sums: [n, i, (t sample, c)]
-    sums = np.matmul(along_s, rows).reshape(len(pieces), 2 * count, 2 * count, 4)  # [n, s sample, t sample, c]
+    sums = grid_sums(pieces, _sign_sample_bases(p), _sign_sample_bases(q))  # [n, s sample, t sample, c]
     value, slope_s, slope_t = sums[:, :count, :count], sums[:, count:, :count], sums[:, :count, count:]
     point = value[..., :3] / value[..., 3:]
     x_s = (slope_s[..., :3] - point * slope_s[..., 3:]) / value[..., 3:]
@@ -485,14 +491,14 @@ def first_hits(
         relative = (piece[..., :3] / piece[..., 3:]).reshape(len(ray), -1, 3) - origins[ray][:, None]
         # the control points in each ray's frame (across, across, along): one batched product
         frame = np.matmul(relative, np.stack([first_axis[ray], second_axis[ray], directions[ray]], axis=2))
-        across_1, across_2, along = frame[..., 0], frame[..., 1], frame[..., 2]
+        frame_low, frame_high = frame.min(axis=1), frame.max(axis=1)  # (K, 3): across, across, along
         cut = (
-            (across_1.min(axis=1) <= tolerance)
-            & (across_1.max(axis=1) >= -tolerance)
-            & (across_2.min(axis=1) <= tolerance)
-            & (across_2.max(axis=1) >= -tolerance)
-            & (along.max(axis=1) > tau_min[ray])
-            & (along.min(axis=1) <= best[ray] + tolerance)
+            (frame_low[:, 0] <= tolerance)
+            & (frame_high[:, 0] >= -tolerance)
+            & (frame_low[:, 1] <= tolerance)
+            & (frame_high[:, 1] >= -tolerance)
+            & (frame_high[:, 2] > tau_min[ray])
+            & (frame_low[:, 2] <= best[ray] + tolerance)
         )
         ray, patch, rect = ray[cut], patch[cut], rect[cut]
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)

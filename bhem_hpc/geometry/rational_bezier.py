@@ -511,7 +511,10 @@ def first_hits(
             newton = _ray_newton(nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance)
             s, t, tau, converged, grazing = newton.s, newton.t, newton.tau, newton.converged, newton.grazing
             box = rect[at]
-            found = np.flatnonzero(converged & _within(s, t, box))
+            # a ray in the plane of a flat piece touches it along a line and crosses it nowhere: no
+            # hit (where Newton's singular steps end on that line is round-off; a secondary ray along
+            # a box's edge met the face beside it at random distances)
+            found = np.flatnonzero(converged & ~grazing & _within(s, t, box))
             inside = np.zeros(len(at), dtype=bool)
             inside[found] = (tau[found] > tau_min[ray[at[found]]]) & (tau[found] <= best[ray[at[found]]])
             # the crossing Newton found is a piece's only one where the ray crosses it one way only;

@@ -253,3 +253,35 @@ def test_first_hits_of_rays_leaving_a_surface_find_the_next_one(rng):
     np.testing.assert_allclose(hits.tau, exact, atol=1e-8)
     outward = rb.first_hits(nets, points, -inward, start, far)
     assert np.all(outward.patch == -1) and np.all(np.isinf(outward.tau))
+
+
+def test_rays_in_the_plane_of_a_flat_face_do_not_hit_it(rng):
+    """A ray lying in a face's plane touches the face along a line and crosses it nowhere: no hit.
+    Round-off tilts such a ray (a secondary ray from a box's bottom edge up along its side): with a
+    start ``1e-16`` off the plane and a tilt of ``1e-16``, Newton's singular steps met the side face
+    at ``tau = -offset / tilt``, anywhere along the ray. The bottom face, which the rays cross at
+    its edge, is the first hit; rays crossing a face's plane hit it exactly."""
+    faces = nurbs.box_faces([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], degree=3, spans=(2, 2))
+    nets = np.concatenate([face.bezier_patches.nets for face in faces])
+    first_patch = np.cumsum([0] + [len(face.bezier_patches.nets) for face in faces])
+
+    def patches_of(axis: int, value: float) -> np.ndarray:
+        (k,) = [k for k, face in enumerate(faces) if np.allclose(face.control[..., axis], value)]
+        return np.arange(first_patch[k], first_patch[k + 1])
+
+    count = 300
+    starts = np.stack([rng.uniform(-1e-16, 1e-16, count), rng.uniform(0.1, 0.9, count), np.full(count, -0.5)], axis=1)
+    up = np.stack([rng.uniform(-1e-16, 1e-16, count), np.zeros(count), np.ones(count)], axis=1)
+    hits = rb.first_hits(nets, starts, up, np.zeros(count), np.full(count, 10.0))
+    np.testing.assert_allclose(hits.tau, 0.5, atol=1e-12)
+    assert np.isin(hits.patch, patches_of(2, 0.0)).all()
+    # beyond the bottom face only the top face is crossed
+    after = rb.first_hits(nets, starts, up, np.full(count, 0.5 + 1e-9), np.full(count, 10.0))
+    np.testing.assert_allclose(after.tau, 1.5, atol=1e-12)
+    assert np.isin(after.patch, patches_of(2, 1.0)).all()
+    # rays through the top face's plane from above hit it where they cross it
+    above = np.stack([rng.uniform(0.1, 0.9, count), rng.uniform(0.1, 0.9, count), np.full(count, 2.0)], axis=1)
+    down = np.tile([0.0, 0.0, -1.0], (count, 1))
+    crossing = rb.first_hits(nets, above, down, np.zeros(count), np.full(count, 10.0))
+    np.testing.assert_allclose(crossing.tau, 1.0, atol=1e-12)
+    assert np.isin(crossing.patch, patches_of(2, 1.0)).all()

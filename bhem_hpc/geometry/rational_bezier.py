@@ -11,8 +11,9 @@ patches: the ray-cast volume quadrature of solids needs all crossings along a li
 direction in which the surface is crossed, not the first hit. Pieces of patches are split
 (exactly, de Casteljau in homogeneous coordinates) while some line falls into their projected
 box and their projection onto the plane across the lines folds (the normal's component along the
-axis changes sign on the piece) or is larger than a set size; Newton's method from the centre of
-each remaining piece then solves for the crossing of every line in its box. Every loop is bounded.
+axis changes sign on the piece) or is larger than a set size and not affine (a flat face's
+pieces need no split: Newton's method is exact on them); Newton's method from the centre of each
+remaining piece then solves for the crossing of every line in its box. Every loop is bounded.
 """
 
 from __future__ import annotations

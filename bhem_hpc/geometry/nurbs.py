@@ -238,7 +238,7 @@ class NurbsSurface:
         boxes[..., 0], boxes[..., 1] = u.knots[u.spans][:, None], u.knots[u.spans + 1][:, None]
         boxes[..., 2], boxes[..., 3] = v.knots[v.spans], v.knots[v.spans + 1]
         boxes = boxes.reshape(-1, 4)
-        if self.control.shape[:2] == (p + 1, q + 1):  # one Bezier patch: its B-splines are the Bernstein polynomials
+        if _bezier_knots(u) and _bezier_knots(v):  # one Bezier patch: its B-splines are the Bernstein polynomials
             return RationalBezierPatches(self.homogeneous[None], boxes)
         rows = (u.spans - p)[:, None] + np.arange(p + 1)  # (S_u, p + 1): the control rows of each u span
         cols = (v.spans - q)[:, None] + np.arange(q + 1)
@@ -251,6 +251,14 @@ class NurbsSurface:
         summed_v = np.matmul(v.extraction.transpose(0, 2, 1), by_v).reshape(count_v, q + 1, count_u, p + 1, 4)
         nets = summed_v.transpose(2, 0, 3, 1, 4).reshape(count_u * count_v, p + 1, q + 1, 4)
         return RationalBezierPatches(np.ascontiguousarray(nets), boxes)
+
+
+def _bezier_knots(direction: KnotDirection) -> bool:
+    """Whether ``direction`` has ``p + 1`` control points on clamped knots ``(a,) * (p + 1) + (b,) *
+    (p + 1)``: one span whose B-splines are the Bernstein polynomials (unclamped knots have one span
+    of other polynomials)."""
+    p, knots = direction.degree, direction.knots
+    return len(knots) == 2 * p + 2 and np.ptp(knots[: p + 1]) == 0.0 and np.ptp(knots[p + 1 :]) == 0.0
 
 
 def _insert_knot(homogeneous: np.ndarray, knots: np.ndarray, degree: int,

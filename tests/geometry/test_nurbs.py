@@ -86,6 +86,19 @@ def test_bezier_extraction_is_exact(rng):
     np.testing.assert_allclose(x_t, x_v * (boxes[:, 3] - boxes[:, 2])[:, None], atol=1e-12)
 
 
+@pytest.mark.parametrize("knots", [[0, 0, 0, 1, 1, 1], [0, 1, 2, 3, 4, 5]], ids=["clamped", "unclamped"])
+def test_bezier_extraction_of_one_span_is_exact(rng, knots):
+    """A part of p + 1 control points per direction has one span: on clamped knots its net is its
+    control net, on unclamped ones the span's B-splines are other polynomials than Bernstein's."""
+    knots = np.asarray(knots, dtype=float)
+    surface = nurbs.NurbsSurface((2, 2), knots, knots, rng.normal(size=(3, 3, 3)), 0.5 + rng.random((3, 3)))
+    patches = surface.bezier_patches
+    assert patches.nets.shape == (1, 3, 3, 4)
+    (u0, u1, v0, v1), s, t = patches.boxes[0], rng.random(50), rng.random(50)
+    point = surface.evaluate(u0 + s * (u1 - u0), v0 + t * (v1 - v0))[0]
+    np.testing.assert_allclose(rb.evaluate(np.repeat(patches.nets, 50, axis=0), s, t)[0], point, atol=1e-13)
+
+
 def test_subpatches_are_exact_restrictions(rng):
     surface = random_surface(rng)
     nets = surface.bezier_patches.nets

@@ -148,8 +148,8 @@ def test_gradient_and_hessian_match_central_differences(box_solid, rng):
 def test_secondary_rays_of_boundary_samples_start_beyond_their_point():
     """A boundary sample lies on its own part: the secondary ray from another part's closest point
     through it goes on to the next surface, never stopping at the sample's own crossing (which
-    round-off used to count on some rays and not on others: 26 of the castle's 445). 1280 rays are
-    cast, 396 meet a surface within reach (rays in the plane of a block's face do not meet it)."""
+    round-off would count on some rays and not on others). Of the castle's 1280 rays, 396 meet a
+    surface within reach (rays in the plane of a block's face do not meet it)."""
     from bhem_hpc.solids.sampling import sample_parts
     from bhem_hpc.studies.sem_models import castle
 

@@ -165,13 +165,13 @@ def _sign_sample_bases(degree: int) -> np.ndarray:
     return bases
 
 
-def _piece_axis_normal_signs(pieces: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest and largest normal component along ``axis`` over ``SIGN_SAMPLES^2`` points of each
-    piece's own net ``pieces (N, p+1, q+1, 4)`` (its points at the centres of a regular grid of its
-    parameter square), each normalized by the piece's largest normal: :func:`_normal_components`
-    on the pieces' rectangles of their patches, from nets the split has made anyway. The piece's
-    parameters are the patch's scaled by the piece's positive widths, which the normalization
-    cancels."""
+def _piece_normal_components(pieces: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest and largest normal component along each piece's direction ``directions (N, 3)``
+    over ``SIGN_SAMPLES^2`` points of each piece's own net ``pieces (N, p+1, q+1, 4)`` (the centres
+    of a regular grid of its parameter square), each normalized by the piece's largest normal:
+    where both have one sign, a line along the direction crosses the piece (small, no longer
+    folded) at most once. A piece's parameters are its patch's scaled by the piece's positive
+    widths, which the normalization cancels."""
     p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
     count = SIGN_SAMPLES
     sums = grid_sums(pieces, _sign_sample_bases(p), _sign_sample_bases(q))  # [n, s sample, t sample, c]
@@ -180,24 +180,6 @@ def _piece_axis_normal_signs(pieces: np.ndarray, axis: int) -> tuple[np.ndarray,
     x_s = (slope_s[..., :3] - point * slope_s[..., 3:]) / value[..., 3:]
     x_t = (slope_t[..., :3] - point * slope_t[..., 3:]) / value[..., 3:]
     normal = np.cross(x_s, x_t).reshape(len(pieces), -1, 3)
-    size = np.linalg.norm(normal, axis=2).max(axis=1)
-    component = normal[..., axis] / np.where(size > 0.0, size, 1.0)[:, None]
-    return component.min(axis=1), component.max(axis=1)
-
-
-def _normal_components(nets: np.ndarray, rects: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Smallest and largest normal component along each piece's direction ``directions (N, 3)``
-    over ``SIGN_SAMPLES^2`` points of each piece ``rects (N, 4)`` of ``nets (N, ...)``, each
-    normalized by the piece's largest normal: where both have one sign, a line along the direction
-    crosses the piece (small, no longer folded) at most once."""
-    grid = (np.arange(SIGN_SAMPLES) + 0.5) / SIGN_SAMPLES
-    s = rects[:, 0, None, None] + grid[None, :, None] * (rects[:, 1] - rects[:, 0])[:, None, None]
-    t = rects[:, 2, None, None] + grid[None, None, :] * (rects[:, 3] - rects[:, 2])[:, None, None]
-    shape = np.broadcast_shapes(s.shape, t.shape)
-    s, t = np.broadcast_to(s, shape).reshape(-1), np.broadcast_to(t, shape).reshape(-1)
-    repeated = np.repeat(nets, SIGN_SAMPLES**2, axis=0)
-    _, x_s, x_t = evaluate(repeated, s, t)
-    normal = np.cross(x_s, x_t).reshape(len(nets), -1, 3)
     size = np.linalg.norm(normal, axis=2).max(axis=1)
     component = np.einsum("nkc,nc->nk", normal, directions) / np.where(size > 0.0, size, 1.0)[:, None]
     return component.min(axis=1), component.max(axis=1)
@@ -251,7 +233,7 @@ def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: 
         holds_lines = np.all(stop > start, axis=1)
         # the normals' signs only where lines pass
         patch, rect, pieces = patch[holds_lines], rect[holds_lines], pieces[holds_lines]
-        low, high = _piece_axis_normal_signs(pieces, axis)
+        low, high = _piece_normal_components(pieces, np.eye(3)[np.full(len(pieces), axis)])
         flat = np.maximum(np.abs(low), np.abs(high)) <= 1e-12  # projects onto a curve: no crossing of measure
         unfolded = (low > 0.0) | (high < 0.0)
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
@@ -316,14 +298,15 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     # Newton's first step puts tau where the surface's linearization at (s0, t0) meets the line,
     # whatever tau starts at (the line's direction is a column of constants): any start will do
     start_tau = np.zeros(len(line))
-    newton = _ray_newton(nets[patch[piece]], s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance)
+    piece_patch_nets = nets[patch[piece]]
+    newton = _ray_newton(piece_patch_nets, s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance)
     # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
     # every piece keeps crossings up to a slack beyond its edges, and the merge below counts once
     # what two pieces or two patches found
     own = newton.converged & _within(newton.s, newton.t, box)
     piece, line = piece[own], line[own]
     s, t = np.clip(newton.s[own], 0.0, 1.0), np.clip(newton.t[own], 0.0, 1.0)
-    patch_nets = nets[patch[piece]]
+    patch_nets = piece_patch_nets[own]
     point, x_s, x_t = newton.point[own], newton.x_s[own], newton.x_t[own]
     clipped = np.flatnonzero((s != newton.s[own]) | (t != newton.t[own]))
     if len(clipped):  # on the patch's edge instead of a rounding error beyond it
@@ -501,15 +484,16 @@ def first_hits(
             & (frame_high[:, 2] > tau_min[ray])
             & (frame_low[:, 2] <= best[ray] + tolerance)
         )
-        ray, patch, rect = ray[cut], patch[cut], rect[cut]
+        ray, patch, rect, piece = ray[cut], patch[cut], rect[cut], piece[cut]
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
         settled = np.zeros(len(ray), dtype=bool)
         if small.any():
             at = np.flatnonzero(small)
             s, t = 0.5 * (rect[at, 0] + rect[at, 1]), 0.5 * (rect[at, 2] + rect[at, 3])
-            centre = evaluate(nets[patch[at]], s, t)[0]
+            patch_nets = nets[patch[at]]
+            centre = evaluate(patch_nets, s, t)[0]
             tau = np.einsum("kc,kc->k", centre - origins[ray[at]], directions[ray[at]])
-            newton = _ray_newton(nets[patch[at]], s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance)
+            newton = _ray_newton(patch_nets, s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance)
             s, t, tau, converged, grazing = newton.s, newton.t, newton.tau, newton.converged, newton.grazing
             box = rect[at]
             # a ray in the plane of a flat piece touches it along a line and crosses it nowhere: no
@@ -531,7 +515,7 @@ def first_hits(
                 settled[at[found[steep]]] = True
                 oblique = found[~steep]
                 if len(oblique):
-                    low, high = _normal_components(nets[patch[at[oblique]]], box[oblique], directions[ray[at[oblique]]])
+                    low, high = _piece_normal_components(piece[at[oblique]], directions[ray[at[oblique]]])
                     settled[at[oblique[(low > 0.0) | (high < 0.0)]]] = True
             # a ray in the plane of a flat piece meets it nowhere transversally: splitting such a
             # piece would follow the ray through ever more pieces (twice as many per level)

@@ -98,15 +98,22 @@ def basis_functions(knots: np.ndarray, degree: int, span: int, x: np.ndarray) ->
     return values
 
 
+@lru_cache(maxsize=32)
+def _binomials(degree: int) -> np.ndarray:
+    """``(degree + 1,)``: the binomial coefficients ``C(degree, i)`` (read only)."""
+    binomials = np.array([math.comb(degree, i) for i in range(degree + 1)], dtype=float)
+    binomials.flags.writeable = False
+    return binomials
+
+
 def bernstein(t: np.ndarray, degree: int, derivative: int = 0) -> np.ndarray:
     """Bernstein polynomials of ``degree`` (or a derivative in ``t``) at ``t``: ``t.shape + (p + 1,)``.
 
     The ``k``-th derivative is ``p! / (p - k)! sum_j (-1)^(k - j) C(k, j) B_(i - j, p - k)``, with the
     Bernstein polynomials of degree ``p - k`` in closed form."""
     t = np.asarray(t, dtype=float)
-    out = np.zeros(t.shape + (degree + 1,))
     if derivative > degree:
-        return out
+        return np.zeros(t.shape + (degree + 1,))
     lower_degree = degree - derivative
     # t^m and (1 - t)^(d - m) by running products: numpy's power with an array of exponents takes
     # twice as long as the rest of this function on thousands of points
@@ -116,8 +123,10 @@ def bernstein(t: np.ndarray, degree: int, derivative: int = 0) -> np.ndarray:
     for m in range(1, lower_degree + 1):
         rising[..., m] = rising[..., m - 1] * t
         falling[..., lower_degree - m] = falling[..., lower_degree - m + 1] * complement
-    binomials = np.array([math.comb(lower_degree, i) for i in range(lower_degree + 1)], dtype=float)
-    lower = binomials * rising * falling
+    lower = _binomials(lower_degree) * rising * falling
+    if derivative == 0:
+        return lower
+    out = np.zeros(t.shape + (degree + 1,))
     scale = math.factorial(degree) / math.factorial(lower_degree)
     for j in range(derivative + 1):
         out[..., j : j + lower_degree + 1] += scale * (-1) ** (derivative - j) * math.comb(derivative, j) * lower

@@ -233,13 +233,14 @@ class NurbsSurface:
     def bezier_patches(self) -> RationalBezierPatches:
         """Exact rational Bezier extraction, patches in order ``span_u * S_v + span_v``."""
         (p, q), u, v = self.degrees, self.u, self.v
+        if _bezier_knots(u) and _bezier_knots(v):  # one Bezier patch: its B-splines are the Bernstein polynomials
+            box = np.array([[u.knots[p], u.knots[p + 1], v.knots[q], v.knots[q + 1]]])
+            return RationalBezierPatches(self.homogeneous[None], box)
         count_u, count_v = len(u.spans), len(v.spans)
         boxes = np.empty((count_u, count_v, 4))
         boxes[..., 0], boxes[..., 1] = u.knots[u.spans][:, None], u.knots[u.spans + 1][:, None]
         boxes[..., 2], boxes[..., 3] = v.knots[v.spans], v.knots[v.spans + 1]
         boxes = boxes.reshape(-1, 4)
-        if _bezier_knots(u) and _bezier_knots(v):  # one Bezier patch: its B-splines are the Bernstein polynomials
-            return RationalBezierPatches(self.homogeneous[None], boxes)
         rows = (u.spans - p)[:, None] + np.arange(p + 1)  # (S_u, p + 1): the control rows of each u span
         cols = (v.spans - q)[:, None] + np.arange(q + 1)
         local = self.homogeneous[rows[:, None, :, None], cols[None, :, None, :]]  # [a, b, i, j, c]
@@ -258,7 +259,8 @@ def _bezier_knots(direction: KnotDirection) -> bool:
     (p + 1)``: one span whose B-splines are the Bernstein polynomials (unclamped knots have one span
     of other polynomials)."""
     p, knots = direction.degree, direction.knots
-    return len(knots) == 2 * p + 2 and np.ptp(knots[: p + 1]) == 0.0 and np.ptp(knots[p + 1 :]) == 0.0
+    # knots are nondecreasing: a run is constant where its ends are equal
+    return len(knots) == 2 * p + 2 and knots[0] == knots[p] and knots[p + 1] == knots[-1]
 
 
 def _insert_knot(homogeneous: np.ndarray, knots: np.ndarray, degree: int,

@@ -12,8 +12,9 @@ direction in which the surface is crossed, not the first hit. Pieces of patches 
 (exactly, de Casteljau in homogeneous coordinates) while some line falls into their projected
 box and their projection onto the plane across the lines folds (the normal's component along the
 axis changes sign on the piece) or is larger than a set size and not affine (a flat face's
-pieces need no split: Newton's method is exact on them); Newton's method from the centre of each
-remaining piece then solves for the crossing of every line in its box. Every loop is bounded.
+pieces need no split: one 2x2 linear solve gives a line's crossing with such a piece); Newton's
+method from the centre of each remaining piece solves for the crossing of every line in its box.
+Every loop is bounded.
 """
 
 from __future__ import annotations
@@ -200,9 +201,18 @@ def _split_rects(rect: np.ndarray) -> np.ndarray:
     )
 
 
-def _affine(pieces: np.ndarray, tolerance: float) -> np.ndarray:
+@lru_cache(maxsize=16)
+def _fractions(degree: int) -> np.ndarray:
+    """``(degree + 1,)``: ``i / degree``, where an affine Bezier curve has its control points (read only)."""
+    fractions = np.linspace(0.0, 1.0, degree + 1)
+    fractions.flags.writeable = False
+    return fractions
+
+
+def _affine(pieces: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
     """Mask ``(N,)`` of the pieces ``(N, p+1, q+1, 4)`` whose surface is an affine map of their
-    parameters within ``tolerance`` [m]: equal weights, and control points where the corners'
+    parameters within ``tolerance`` [m], and their unit normals ``(N, 3)`` (zero where the map
+    collapses; set where the mask holds): equal weights, and control points where the corners'
     affine map puts them (a flat face of a box or a fin, and its knot-refined pieces). An unfolded
     affine piece meets a line once, and Newton's method finds the crossing in one step from anywhere."""
     p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
@@ -211,40 +221,52 @@ def _affine(pieces: np.ndarray, tolerance: float) -> np.ndarray:
     points = pieces[..., :3] / pieces[..., 3:]
     origin = points[:, 0, 0]
     along_s, along_t = points[:, p, 0] - origin, points[:, 0, q] - origin
-    affine = (origin[:, None, None] + np.linspace(0.0, 1.0, p + 1)[None, :, None, None] * along_s[:, None, None]
-              + np.linspace(0.0, 1.0, q + 1)[None, None, :, None] * along_t[:, None, None])  # fmt: skip
-    return equal & (np.abs(points - affine).reshape(len(pieces), -1).max(axis=1) <= tolerance)
+    fractions_s, fractions_t = _fractions(p)[:, None, None], _fractions(q)[:, None]
+    affine = origin[:, None, None] + fractions_s * along_s[:, None, None] + fractions_t * along_t[:, None, None]
+    mask = equal & (np.abs(points - affine).reshape(len(pieces), -1).max(axis=1) <= tolerance)
+    normal = np.cross(along_s[mask], along_t[mask])
+    size = np.linalg.norm(normal, axis=1)
+    normals = np.zeros((len(pieces), 3))
+    normals[mask] = normal / np.where(size > 0.0, size, 1.0)[:, None]
+    return mask, normals
 
 
 def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
-    """Pieces ``(patch (M,), rect (M, 4), nets (M, p+1, q+1, 4))`` with lines in their boxes, each
-    unfolded and small or affine (:func:`_affine`), or at :data:`MAX_LEVEL`; pieces whose projection
-    has no area (a face along the axis) are dropped."""
+    """Pieces ``(patch (M,), rect (M, 4), nets (M, p+1, q+1, 4), affine (M,))`` with lines in their
+    boxes, each unfolded and small or affine (:func:`_affine`, the mask), or at :data:`MAX_LEVEL`;
+    pieces whose projection has no area (a face along the axis) are dropped."""
     across = tuple(a for a in range(3) if a != axis)
     patch = np.arange(len(nets))
     rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(nets), 1))
-    kept_patch, kept_rect, kept_pieces = [], [], []
+    kept_patch, kept_rect, kept_pieces, kept_affine = [], [], [], []
     for level in range(MAX_LEVEL + 1):
-        if not len(patch):
-            break
         pieces = nets if level == 0 else subpatches(nets[patch], rect)  # level 0: the whole patches
         lo, hi = _piece_boxes(pieces, across)
         start, stop = _lines_in_box(lo - tolerance, hi + tolerance, first, second)
         holds_lines = np.all(stop > start, axis=1)
         # the normals' signs only where lines pass
         patch, rect, pieces = patch[holds_lines], rect[holds_lines], pieces[holds_lines]
-        low, high = _piece_normal_components(pieces, np.eye(3)[np.full(len(pieces), axis)])
+        # an affine piece's normal is one vector; the others' signs are sampled
+        affine, normals = _affine(pieces, tolerance)
+        low, high = normals[:, axis].copy(), normals[:, axis].copy()
+        curved = np.flatnonzero(~affine)
+        if len(curved):
+            directions = np.eye(3)[np.full(len(curved), axis)]
+            low[curved], high[curved] = _piece_normal_components(pieces[curved], directions)
         flat = np.maximum(np.abs(low), np.abs(high)) <= 1e-12  # projects onto a curve: no crossing of measure
         unfolded = (low > 0.0) | (high < 0.0)
         small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
-        simple = unfolded & (small | _affine(pieces, tolerance))
+        simple = unfolded & (small | affine)
         done = ~flat & (simple | (level == MAX_LEVEL))
         kept_patch.append(patch[done])
         kept_rect.append(rect[done])
         kept_pieces.append(pieces[done])
+        kept_affine.append(affine[done])
         split = ~flat & ~done
+        if not split.any():
+            break
         patch, rect = np.repeat(patch[split], 4), _split_rects(rect[split])
-    return np.concatenate(kept_patch), np.concatenate(kept_rect), np.concatenate(kept_pieces)
+    return tuple(np.concatenate(kept) for kept in (kept_patch, kept_rect, kept_pieces, kept_affine))
 
 
 def _candidate_pairs(pieces: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
@@ -262,6 +284,43 @@ def _candidate_pairs(pieces: np.ndarray, axis: int, first: np.ndarray, second: n
     return piece, i * len(second) + j
 
 
+def _affine_crossings(pieces: np.ndarray, rect: np.ndarray, target: np.ndarray, axis: int):
+    """Where lines along ``axis`` through ``target (K, 2)`` (the other two coordinates) cross affine
+    pieces ``pieces (K, p+1, q+1, 4)`` of their patches' rectangles ``rect (K, 4)``: the patches'
+    local ``s, t (K,)``, the points and the derivatives along ``s, t`` ``(K, 3)``, from one 2x2 solve
+    across the axis (the pieces are not flat: their normals have a component along it)."""
+    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
+    corners = pieces[:, [0, p, 0], [0, 0, q]]
+    corners = corners[..., :3] / corners[..., 3:]  # (K, 3, 3): the corner (0, 0), then (1, 0) and (0, 1)
+    origin, along_s, along_t = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    across = [a for a in range(3) if a != axis]
+    (a0, a1), (b0, b1) = along_s[:, across].T, along_t[:, across].T
+    offset = target - origin[:, across]
+    determinant = a0 * b1 - a1 * b0
+    sigma = (offset[:, 0] * b1 - offset[:, 1] * b0) / determinant  # Cramer's rule
+    rho = (a0 * offset[:, 1] - a1 * offset[:, 0]) / determinant
+    point = origin + sigma[:, None] * along_s + rho[:, None] * along_t
+    point[:, across] = target  # on the line
+    width_s, width_t = rect[:, 1] - rect[:, 0], rect[:, 3] - rect[:, 2]
+    return (rect[:, 0] + sigma * width_s, rect[:, 2] + rho * width_t, point, along_s / width_s[:, None],
+            along_t / width_t[:, None])  # fmt: skip
+
+
+def _axis_newton(nets: np.ndarray, rect: np.ndarray, target: np.ndarray, axis: int, tolerance: float) -> RayNewton:
+    """:func:`_ray_newton` for lines along ``axis`` through ``target (K, 2)`` on the patches ``nets
+    (K, p+1, q+1, 4)``, from the centres of their pieces ``rect (K, 4)``."""
+    across = [a for a in range(3) if a != axis]
+    # the line through target along the axis, as a ray from the plane through the origin
+    origins = np.zeros((len(target), 3))
+    origins[:, across] = target
+    directions = np.zeros((len(target), 3))
+    directions[:, axis] = 1.0
+    # Newton's first step puts tau where the surface's linearization at (s0, t0) meets the line,
+    # whatever tau starts at (the line's direction is a column of constants): any start will do
+    s0, t0 = 0.5 * (rect[:, 0] + rect[:, 1]), 0.5 * (rect[:, 2] + rect[:, 3])
+    return _ray_newton(nets, s0, t0, np.zeros(len(target)), origins, directions, 1e2 * tolerance)
+
+
 def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray) -> LineCrossings:
     """Every crossing of the lines parallel to coordinate ``axis`` with the patches ``nets``.
 
@@ -271,7 +330,8 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
         first, second: sorted coordinates ``(A,)`` and ``(B,)`` of the lines in the two other axes,
             in increasing axis order; line ``i * B + j`` passes through ``(first[i], second[j])``.
 
-    A crossing in a piece's box is accepted where Newton converges inside the piece (half-open
+    A crossing in a piece's box (one linear solve on an affine piece, Newton's method from the
+    piece's centre on the others) is accepted where it lies inside the piece (half-open
     pieces own their lower edges, so seams inside a patch count once; crossings found twice on a
     seam between patches are merged). A crossing can be missed only where a line grazes a fold
     closer than the last split can separate; the volume quadrature then finds its line unbalanced.
@@ -281,36 +341,38 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     points = nets[..., :3] / nets[..., 3:]
     size = float(np.ptp(points.reshape(-1, 3), axis=0).max())
     tolerance = 1e-12 * max(size, 1e-300)
-    across = [a for a in range(3) if a != axis]
-    patch, rect, pieces = _split_until_simple(nets, axis, first, second, tolerance)
+    patch, rect, pieces, affine = _split_until_simple(nets, axis, first, second, tolerance)
     if not len(patch):
         empty = np.zeros(0)
         return LineCrossings(empty.astype(int), empty, empty.astype(int), empty.astype(int), empty, empty)
     piece, line = _candidate_pairs(pieces, axis, first, second, tolerance)
-    box = rect[piece]
-    s0, t0 = 0.5 * (box[:, 0] + box[:, 1]), 0.5 * (box[:, 2] + box[:, 3])
     target = np.stack([first[line // len(second)], second[line % len(second)]], axis=1)
-    # the line through target along the axis, as a ray from the plane through the origin
-    origins = np.zeros((len(line), 3))
-    origins[:, across] = target
-    directions = np.zeros((len(line), 3))
-    directions[:, axis] = 1.0
-    # Newton's first step puts tau where the surface's linearization at (s0, t0) meets the line,
-    # whatever tau starts at (the line's direction is a column of constants): any start will do
-    start_tau = np.zeros(len(line))
-    piece_patch_nets = nets[patch[piece]]
-    newton = _ray_newton(piece_patch_nets, s0.copy(), t0.copy(), start_tau, origins, directions, 1e2 * tolerance)
-    # Newton may land a rounding error outside its piece when the crossing is on the piece's edge:
-    # every piece keeps crossings up to a slack beyond its edges, and the merge below counts once
-    # what two pieces or two patches found
-    own = newton.converged & _within(newton.s, newton.t, box)
+    converged = np.zeros(len(line), dtype=bool)
+    crossing = [np.zeros(len(line)), np.zeros(len(line)), np.zeros((len(line), 3)), np.zeros((len(line), 3)),
+                np.zeros((len(line), 3))]  # fmt: skip
+    linear = np.flatnonzero(affine[piece])
+    if len(linear):  # an affine piece: one linear solve
+        converged[linear] = True
+        solved = _affine_crossings(pieces[piece[linear]], rect[piece[linear]], target[linear], axis)
+        for values, solution in zip(crossing, solved, strict=True):
+            values[linear] = solution
+    curved = np.flatnonzero(~affine[piece])
+    if len(curved):
+        newton = _axis_newton(nets[patch[piece[curved]]], rect[piece[curved]], target[curved], axis, tolerance)
+        converged[curved] = newton.converged
+        solved = (newton.s, newton.t, newton.point, newton.x_s, newton.x_t)
+        for values, solution in zip(crossing, solved, strict=True):
+            values[curved] = solution
+    # a crossing may land a rounding error outside its piece when it is on the piece's edge: every
+    # piece keeps crossings up to a slack beyond its edges, and the merge below counts once what two
+    # pieces or two patches found
+    own = converged & _within(crossing[0], crossing[1], rect[piece])
     piece, line = piece[own], line[own]
-    s, t = np.clip(newton.s[own], 0.0, 1.0), np.clip(newton.t[own], 0.0, 1.0)
-    patch_nets = piece_patch_nets[own]
-    point, x_s, x_t = newton.point[own], newton.x_s[own], newton.x_t[own]
-    clipped = np.flatnonzero((s != newton.s[own]) | (t != newton.t[own]))
-    if len(clipped):  # on the patch's edge instead of a rounding error beyond it
-        point[clipped], x_s[clipped], x_t[clipped] = evaluate(patch_nets[clipped], s[clipped], t[clipped])
+    solved_s, solved_t, point, x_s, x_t = (values[own] for values in crossing)
+    s, t = np.clip(solved_s, 0.0, 1.0), np.clip(solved_t, 0.0, 1.0)
+    # on the patch's edge instead of a rounding error beyond it: the point moved there to first order
+    # (the second-order term is below round-off; the derivatives change by as little)
+    point = point + x_s * (s - solved_s)[:, None] + x_t * (t - solved_t)[:, None]
     normal = np.cross(x_s, x_t)
     degenerate = (
         np.linalg.norm(normal, axis=1) <= 1e-12 * (np.linalg.norm(x_s, axis=1) + np.linalg.norm(x_t, axis=1)) ** 2
@@ -318,7 +380,7 @@ def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: 
     if degenerate.any():  # a pole or a collapsed edge: the side is that of the nearby surface
         nudge_s = s[degenerate] + 1e-6 * (0.5 - s[degenerate])
         nudge_t = t[degenerate] + 1e-6 * (0.5 - t[degenerate])
-        _, n_s, n_t = evaluate(patch_nets[degenerate], nudge_s, nudge_t)
+        _, n_s, n_t = evaluate(nets[patch[piece[degenerate]]], nudge_s, nudge_t)
         normal[degenerate] = np.cross(n_s, n_t)
     direction = np.sign(normal[:, axis])
     position = point[:, axis]

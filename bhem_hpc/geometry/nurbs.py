@@ -545,9 +545,13 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         # backtracking: far outside a convex part a full step can overshoot
         distance = (residual**2).sum(1)
         moved = np.zeros(len(active))
-        pending = np.arange(len(active))
-        for scales in (np.ones(1), 0.5 ** np.arange(1, BACKTRACKS)):
-            pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, pending, scales, moved)
+        pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, np.arange(len(active)), np.ones(1), moved)
+        # where the full step failed and its model shortens the squared distance by no more than
+        # round-off (the point is at its closest, or far off where the distance is flat), no
+        # shorter step would shorten it measurably: the point stops without halvings
+        negligible = -(g1 * du + g2 * dv) <= DISTANCE_ROUNDOFF * distance
+        pending = pending[~negligible[pending]]
+        _backtrack(surface, points, (u, v), (du, dv), active, distance, pending, 0.5 ** np.arange(1, BACKTRACKS), moved)
         active = active[moved > 1e-14]
     x = surface.evaluate(u, v)[0]
     return np.stack([u, v], axis=1), x, np.linalg.norm(x - points, axis=1)

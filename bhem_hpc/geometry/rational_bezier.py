@@ -434,17 +434,21 @@ class RayNewton(NamedTuple):
     x_t: np.ndarray
 
 
-def _ray_newton(nets, s, t, tau, origins, directions, tolerance) -> RayNewton:
+def _ray_newton(nets, s, t, tau, origins, directions, tolerance, start=None) -> RayNewton:
     """Solve ``x(s, t) = origin + tau direction`` from ``(s, t, tau) (K,)``: the solution, its
     success, and whether the ray grazes the surface where Newton starts (the cosine between the
-    ray and the surface normal below :data:`GRAZING_COSINE`: a ray in the plane of a flat piece)."""
+    ray and the surface normal below :data:`GRAZING_COSINE`: a ray in the plane of a flat piece).
+    ``start``: :func:`evaluate` at the starting ``(s, t)``, where the caller has it."""
     converged, grazing = np.zeros(len(s), dtype=bool), np.zeros(len(s), dtype=bool)
     solution = np.zeros((3, len(s), 3))  # the point and its two derivatives where converged
     active = np.arange(len(s))
     for iteration in range(NEWTON_ITERATIONS):
         if not len(active):
             break
-        point, x_s, x_t = evaluate(nets[active], s[active], t[active])
+        if iteration == 0 and start is not None:
+            point, x_s, x_t = start
+        else:
+            point, x_s, x_t = evaluate(nets[active], s[active], t[active])
         residual = point - origins[active] - tau[active, None] * directions[active]
         done = np.linalg.norm(residual, axis=1) <= tolerance
         converged[active[done]] = True
@@ -565,9 +569,9 @@ def first_hits(
             at = np.flatnonzero(small)
             s, t = 0.5 * (rect[at, 0] + rect[at, 1]), 0.5 * (rect[at, 2] + rect[at, 3])
             patch_nets = nets[patch[at]]
-            centre = evaluate(patch_nets, s, t)[0]
-            tau = np.einsum("kc,kc->k", centre - origins[ray[at]], directions[ray[at]])
-            newton = _ray_newton(patch_nets, s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance)
+            centre = evaluate(patch_nets, s, t)
+            tau = np.einsum("kc,kc->k", centre[0] - origins[ray[at]], directions[ray[at]])
+            newton = _ray_newton(patch_nets, s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance, centre)
             s, t, tau, converged, grazing = newton.s, newton.t, newton.tau, newton.converged, newton.grazing
             box = rect[at]
             # a ray in the plane of a flat piece touches it along a line and crosses it nowhere: no

@@ -23,6 +23,7 @@ from functools import cached_property
 import numpy as np
 import scipy.spatial
 
+from bhem_hpc.geometry.affine import affine_frame, closest_on_parallelogram
 from bhem_hpc.geometry.bspline import basis_functions, bernstein
 from bhem_hpc.geometry.bspline import from_callable as bspline_from_callable
 from bhem_hpc.geometry.grid import ParameterGrid
@@ -494,6 +495,8 @@ def box_faces(lo, hi, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[
 PROJECTION_ITERATIONS = 40
 #: Step halvings per projection iteration.
 BACKTRACKS = 12
+#: The shorter steps tried where a projection step fails: ``1/2, 1/4, ..``.
+HALVINGS = 0.5 ** np.arange(1, BACKTRACKS)
 #: A projection step shortening the squared distance by no more than this fraction of it changes
 #: nothing that round-off would not (the distance is stationary at the closest point).
 DISTANCE_ROUNDOFF = 4.0 * np.finfo(float).eps
@@ -503,13 +506,22 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
     """Closest points on ``surface`` to ``points (Q, 3)``: parameters ``(Q, 2)``, the surface points
     ``(Q, 3)`` and the distances ``(Q,)``.
 
-    Starts from the nearest of ``seeds_per_side^2`` samples per Bezier patch (SciPy's k-d tree: a
-    part of many patches has tens of thousands of samples), then Newton steps on
+    A surface that is an affine map of its parameters (a flat face) gets its closest points in
+    closed form (:mod:`.affine`). Others start from the nearest of ``seeds_per_side^2`` samples per
+    Bezier patch (SciPy's k-d tree: a part of many patches has tens of thousands of samples), then
+    Newton steps on
     ``|x(u, v) - X|^2 / 2`` (Gauss-Newton where its Hessian is indefinite) clamped to the domain,
     with backtracking (all halvings of a step that fails in one evaluation), at most
     :data:`PROJECTION_ITERATIONS`; a point stops when its step no longer moves it.
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
+    (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
+    frame = affine_frame(surface.degrees, (surface.u.knots, surface.v.knots), (surface.u.domain, surface.v.domain),
+                         surface.control, surface.weights)  # fmt: skip
+    if frame is not None:  # a flat face: in closed form
+        scaled, x = closest_on_parallelogram(points, frame)
+        parameters = np.stack([u0 + scaled[:, 0] * (u1 - u0), v0 + scaled[:, 1] * (v1 - v0)], axis=1)
+        return parameters, x, np.linalg.norm(x - points, axis=1)
     grid = (np.arange(seeds_per_side) + 0.5) / seeds_per_side
     boxes = surface.bezier_patches.boxes
     seed_u = (boxes[:, None, None, 0] + grid[None, :, None] * (boxes[:, 1] - boxes[:, 0])[:, None, None]).repeat(
@@ -533,28 +545,51 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         residual = x - points[active]
         g1, g2 = (x_u * residual).sum(1), (x_v * residual).sum(1)
         # Newton on |x - X|^2 / 2; where its Hessian is not positive definite, Gauss-Newton's
-        h11, h12, h22 = (x_u * x_u).sum(1), (x_u * x_v).sum(1), (x_v * x_v).sum(1)
-        n11, n12, n22 = h11 + (x_uu * residual).sum(1), h12 + (x_uv * residual).sum(1), h22 + (x_vv * residual).sum(1)
-        newton = (n11 > 0.0) & (n11 * n22 - n12**2 > 1e-12 * (n11 + n22) ** 2)
-        h11, h12, h22 = np.where(newton, n11, h11), np.where(newton, n12, h12), np.where(newton, n22, h22)
-        det = h11 * h22 - h12**2
-        safe = det > 1e-14 * (h11 + h22) ** 2
-        # singular metric (a pole): a gradient step along the nonzero tangent
-        du = np.where(safe, -(h22 * g1 - h12 * g2) / np.where(safe, det, 1.0), -g1 / np.maximum(h11, 1e-300))
-        dv = np.where(safe, -(h11 * g2 - h12 * g1) / np.where(safe, det, 1.0), -g2 / np.maximum(h22, 1e-300))
+        gauss = (x_u * x_u).sum(1), (x_u * x_v).sum(1), (x_v * x_v).sum(1)
+        full = [h + (second * residual).sum(1) for h, second in zip(gauss, (x_uu, x_uv, x_vv), strict=True)]
+        newton = (full[0] > 0.0) & (full[0] * full[2] - full[1] ** 2 > 1e-12 * (full[0] + full[2]) ** 2)
+        hessian = tuple(np.where(newton, f, g) for f, g in zip(full, gauss, strict=True))
+        # a parameter on the domain's edge whose gradient points out of it is held there (the active
+        # set of the bounds): the coupled step clamped onto the edge moves along it by the wrong
+        # amount where the parameters' metric couples them
+        hold = (((u[active] <= u0) & (g1 > 0.0)) | ((u[active] >= u1) & (g1 < 0.0)),
+                ((v[active] <= v0) & (g2 > 0.0)) | ((v[active] >= v1) & (g2 < 0.0)))  # fmt: skip
+        du, dv = _projection_step(g1, g2, hessian, hold)
         # backtracking: far outside a convex part a full step can overshoot
         distance = (residual**2).sum(1)
         moved = np.zeros(len(active))
-        pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, np.arange(len(active)), np.ones(1), moved)
+        everyone = np.arange(len(active))
+        pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, everyone, np.ones(1), moved)
         # where the full step failed and its model shortens the squared distance by no more than
         # round-off (the point is at its closest, or far off where the distance is flat), no
         # shorter step would shorten it measurably: the point stops without halvings
         negligible = -(g1 * du + g2 * dv) <= DISTANCE_ROUNDOFF * distance
         pending = pending[~negligible[pending]]
-        _backtrack(surface, points, (u, v), (du, dv), active, distance, pending, 0.5 ** np.arange(1, BACKTRACKS), moved)
+        pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, pending, HALVINGS, moved)
+        # far from a part whose parameters bend, Newton's model can fail where Gauss-Newton's descends
+        retry = pending[newton[pending]]
+        if len(retry):
+            du[retry], dv[retry] = _projection_step(g1[retry], g2[retry], tuple(h[retry] for h in gauss),
+                                                    tuple(h[retry] for h in hold))  # fmt: skip
+            _backtrack(surface, points, (u, v), (du, dv), active, distance, retry, np.r_[1.0, HALVINGS], moved)
         active = active[moved > 1e-14]
     x = surface.evaluate(u, v)[0]
     return np.stack([u, v], axis=1), x, np.linalg.norm(x - points, axis=1)
+
+
+def _projection_step(g1: np.ndarray, g2: np.ndarray, hessian: tuple[np.ndarray, np.ndarray, np.ndarray],
+                     hold: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The step ``(du, dv)`` that solves ``hessian (h11, h12, h22) [du, dv] = -[g1, g2]`` (each
+    ``(K,)``); where ``hold`` keeps one parameter on its bound, the other's own step; where the
+    metric is singular (a pole), a gradient step along the nonzero tangent."""
+    h11, h12, h22 = hessian
+    det = h11 * h22 - h12**2
+    safe = det > 1e-14 * (h11 + h22) ** 2
+    along_u, along_v = -g1 / np.maximum(h11, 1e-300), -g2 / np.maximum(h22, 1e-300)
+    du = np.where(safe, -(h22 * g1 - h12 * g2) / np.where(safe, det, 1.0), along_u)
+    dv = np.where(safe, -(h11 * g2 - h12 * g1) / np.where(safe, det, 1.0), along_v)
+    hold_u, hold_v = hold
+    return np.where(hold_u, 0.0, np.where(hold_v, along_u, du)), np.where(hold_v, 0.0, np.where(hold_u, along_v, dv))
 
 
 def _backtrack(surface: NurbsSurface, points: np.ndarray, parameters: tuple[np.ndarray, np.ndarray],

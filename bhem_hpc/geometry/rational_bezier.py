@@ -474,7 +474,7 @@ def _ray_newton(nets, s, t, tau, origins, directions, tolerance, start=None) -> 
 
 
 #: Rays tested against every patch's bounding sphere at once (memory ~ 40 bytes x rays x patches).
-SPHERE_CHUNK = 2_000_000
+SPHERE_CHUNK = 500_000
 
 
 def _sphere_candidates(points, origins, directions, tau_min, tau_max, tolerance) -> tuple[np.ndarray, np.ndarray]:

@@ -79,7 +79,10 @@ class RayDistances:
         return gradients
 
     def nonzero_share(self, alpha: float) -> float:
-        return self.weights(alpha).nnz / self.primary.size
+        """The share of nonzero entries of :meth:`weights` (counted without building the matrix:
+        the positive distance weights, and one for each point that no part reaches)."""
+        positive = self.theta(alpha) > 0.0
+        return float(positive.sum() + np.count_nonzero(~positive.any(axis=1))) / self.primary.size
 
     def cutoff_for(self, target: float, name: str = "model") -> float:
         """The largest cutoff whose share of nonzero weights stays at most ``target`` in ``(0, 1]``

@@ -202,10 +202,17 @@ def test_closest_points_on_sphere_torus_and_face(rng):
 
 
 def test_closest_points_on_a_flat_face_end_when_the_distance_stops_falling(rng, monkeypatch):
-    """On a flat biquadratic face Newton lands in one step; the parameters of some points then crept
-    by round-off (1e-14 to 1e-12) to the iteration limit. The projection ends once a step no longer
-    shortens the distance beyond its round-off, with the exact distances."""
+    """On a flat biquadratic face Newton lands in a few steps; the parameters of some points then
+    crept by round-off (1e-14 to 1e-12) to the iteration limit. The projection ends once a step no
+    longer shortens the distance beyond its round-off, with the exact distances. The face's middle
+    control point moved within its plane keeps its rectangle but makes its map not affine (Newton's
+    method, not the closed form, projects onto it) and couples its parameters: a foot on an edge
+    needs the edge held (a coupled step clamped onto the edge moves along it by the wrong amount),
+    and far points need Gauss-Newton's step where Newton's model fails."""
     face = nurbs.box_faces([0.0, 0.0, 0.0], [0.17, 0.016, 0.18], degree=2)[0]  # x = 0, 0 <= y <= 0.016, 0 <= z <= 0.18
+    control = face.control.copy()
+    control[1, 1, 1:] += [0.002, 0.02]
+    face = face.with_control(control)
     points = rng.uniform(-0.3, 0.4, size=(2000, 3))
     calls = []
     second_derivatives = nurbs.NurbsSurface.second_derivatives
@@ -218,7 +225,7 @@ def test_closest_points_on_a_flat_face_end_when_the_distance_stops_falling(rng, 
     _, _, distance = nurbs.closest_points(face, points)
     clamped = np.c_[np.zeros(len(points)), np.clip(points[:, 1], 0.0, 0.016), np.clip(points[:, 2], 0.0, 0.18)]
     np.testing.assert_allclose(distance, np.linalg.norm(points - clamped, axis=1), atol=1e-14)
-    assert len(calls) <= 4
+    assert len(calls) <= 8  # far below PROJECTION_ITERATIONS, which creeping steps reached
 
 
 def test_first_hits_of_rays_inside_a_sphere(rng):

@@ -521,6 +521,42 @@ def _frame_bounds(relative: np.ndarray, axes: np.ndarray) -> tuple[np.ndarray, n
     return low, high
 
 
+class _NearestHits:
+    """The nearest hit so far of each of ``R`` rays: ``best (R,)`` (the stretch's end until a hit),
+    and the hit's ``patch`` (-1: none) and local ``s, t``."""
+
+    def __init__(self, tau_max: np.ndarray):
+        self.best = np.asarray(tau_max, dtype=float).copy()
+        self.patch = np.full(len(self.best), -1)
+        self.s, self.t = np.zeros(len(self.best)), np.zeros(len(self.best))
+
+    def keep(self, ray: np.ndarray, tau: np.ndarray, patch: np.ndarray, s: np.ndarray, t: np.ndarray) -> None:
+        """Record hits ``(K,)`` within their rays' stretches (several per ray: the smallest tau wins)."""
+        order = np.argsort(-tau)  # the smallest tau written last wins
+        ray = ray[order]
+        self.best[ray], self.patch[ray] = tau[order], patch[order]
+        self.s[ray], self.t[ray] = np.clip(s[order], 0, 1), np.clip(t[order], 0, 1)
+
+
+def _plane_hits(pieces: np.ndarray, origins: np.ndarray, directions: np.ndarray):
+    """Where rays ``origins, directions (K, 3)`` meet the planes of affine pieces ``(K, p+1, q+1, 4)``:
+    the pieces' local ``s, t`` and the rays' ``tau`` ``(K,)``, and whether a ray grazes its plane
+    (the cosine to its normal below :data:`GRAZING_COSINE`; no crossing there)."""
+    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
+    corners = pieces[:, [0, p, 0], [0, 0, q]]
+    corners = corners[..., :3] / corners[..., 3:]  # (K, 3, 3): the corner (0, 0), then (1, 0) and (0, 1)
+    origin, along_s, along_t = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    normal = np.cross(along_s, along_t)
+    area = np.einsum("kc,kc->k", normal, normal)
+    facing = np.einsum("kc,kc->k", normal, directions)
+    grazing = np.abs(facing) <= GRAZING_COSINE * np.sqrt(area)
+    tau = np.einsum("kc,kc->k", origin - origins, normal) / np.where(grazing, 1.0, facing)
+    offset = origins + tau[:, None] * directions - origin  # = s along_s + t along_t
+    s = np.einsum("kc,kc->k", np.cross(offset, along_t), normal) / np.where(area > 0.0, area, 1.0)
+    t = np.einsum("kc,kc->k", np.cross(along_s, offset), normal) / np.where(area > 0.0, area, 1.0)
+    return s, t, tau, grazing
+
+
 def first_hits(
     nets: np.ndarray, origins: np.ndarray, directions: np.ndarray, tau_min: np.ndarray, tau_max: np.ndarray
 ) -> RayHits:
@@ -532,20 +568,23 @@ def first_hits(
         tau_min, tau_max: ``(R,)`` the searched stretch of each ray.
 
     Pieces of (ray, patch) pairs are kept while the ray's two planes both cut the box of the
-    piece's control points (in the ray's frame) within the stretch; a piece no larger than
-    :data:`MAX_PIECE` runs Newton's method from its centre, and a hit inside it shortens the
-    ray's stretch; a piece is settled by the crossing Newton found where the ray crosses it once;
-    other pieces split into quarters, down to :data:`MAX_LEVEL` levels.
+    piece's control points (in the ray's frame) within the stretch. A patch that is an affine map
+    of its parameters (a flat face: :func:`_affine`) meets a ray where its plane does, in one
+    solve. A piece no larger than :data:`MAX_PIECE` runs Newton's method from its centre, and a
+    hit inside it shortens the ray's stretch; a piece is settled by the crossing Newton found
+    where the ray crosses it once; other pieces split into quarters, down to :data:`MAX_LEVEL`
+    levels.
     """
     nets = np.asarray(nets, dtype=float)
     origins, directions = np.asarray(origins, dtype=float), np.asarray(directions, dtype=float)
-    best = np.asarray(tau_max, dtype=float).copy()
+    hits = _NearestHits(tau_max)
     tau_min = np.asarray(tau_min, dtype=float)
-    hit_patch, hit_s, hit_t = np.full(len(origins), -1), np.zeros(len(origins)), np.zeros(len(origins))
     points = nets[..., :3] / nets[..., 3:]
     tolerance = 1e-12 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
     first_axis, second_axis = _ray_frames(directions)
-    ray, patch = _sphere_candidates(points.reshape(len(nets), -1, 3), origins, directions, tau_min, best, tolerance)
+    points = points.reshape(len(nets), -1, 3)
+    ray, patch = _sphere_candidates(points, origins, directions, tau_min, hits.best, tolerance)
+    flat_patch = _affine(nets, tolerance)[0]
     rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(ray), 1))
     for level in range(MAX_LEVEL + 1):
         if not len(ray):
@@ -560,50 +599,61 @@ def first_hits(
             & (frame_low[:, 1] <= tolerance)
             & (frame_high[:, 1] >= -tolerance)
             & (frame_high[:, 2] > tau_min[ray])
-            & (frame_low[:, 2] <= best[ray] + tolerance)
+            & (frame_low[:, 2] <= hits.best[ray] + tolerance)
         )
         ray, patch, rect, piece = ray[cut], patch[cut], rect[cut], piece[cut]
-        small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE)
         settled = np.zeros(len(ray), dtype=bool)
+        if level == 0:  # a flat patch meets a ray once, where its plane does
+            at = np.flatnonzero(flat_patch[patch])
+            s, t, tau, grazing = _plane_hits(piece[at], origins[ray[at]], directions[ray[at]])
+            inside = ~grazing & _within(s, t, rect[at]) & (tau > tau_min[ray[at]]) & (tau <= hits.best[ray[at]])
+            hits.keep(ray[at[inside]], tau[inside], patch[at[inside]], s[inside], t[inside])
+            settled[at] = True
+        small = (rect[:, 1] - rect[:, 0] <= MAX_PIECE) & (rect[:, 3] - rect[:, 2] <= MAX_PIECE) & ~settled
         if small.any():
             at = np.flatnonzero(small)
-            s, t = 0.5 * (rect[at, 0] + rect[at, 1]), 0.5 * (rect[at, 2] + rect[at, 3])
-            patch_nets = nets[patch[at]]
-            centre = evaluate(patch_nets, s, t)
-            tau = np.einsum("kc,kc->k", centre[0] - origins[ray[at]], directions[ray[at]])
-            newton = _ray_newton(patch_nets, s, t, tau, origins[ray[at]], directions[ray[at]], 1e2 * tolerance, centre)
-            s, t, tau, converged, grazing = newton.s, newton.t, newton.tau, newton.converged, newton.grazing
-            box = rect[at]
-            # a ray in the plane of a flat piece touches it along a line and crosses it nowhere: no
-            # hit (where Newton's singular steps end on that line is round-off; a secondary ray along
-            # a box's edge met the face beside it at random distances)
-            found = np.flatnonzero(converged & ~grazing & _within(s, t, box))
-            inside = np.zeros(len(at), dtype=bool)
-            inside[found] = (tau[found] > tau_min[ray[at[found]]]) & (tau[found] <= best[ray[at[found]]])
-            # the crossing Newton found is a piece's only one where the ray crosses it one way only;
-            # else (a ray grazing a sphere crosses one piece twice) the piece splits on, a hit found
-            # in it shortening the ray's stretch. Where the ray meets the piece's surface steeply
-            # (ONE_CROSSING_COSINE) a small piece's normal would have to turn that far within it.
-            if len(found):
-                x_s, x_t = newton.x_s[found], newton.x_t[found]
-                normal = np.cross(x_s, x_t)
-                cosine = np.abs(np.einsum("kc,kc->k", normal, directions[ray[at[found]]])) / np.maximum(
-                    np.linalg.norm(normal, axis=1), 1e-300)
-                steep = cosine >= ONE_CROSSING_COSINE
-                settled[at[found[steep]]] = True
-                oblique = found[~steep]
-                if len(oblique):
-                    low, high = _piece_normal_components(piece[at[oblique]], directions[ray[at[oblique]]])
-                    settled[at[oblique[(low > 0.0) | (high < 0.0)]]] = True
-            # a ray in the plane of a flat piece meets it nowhere transversally: splitting such a
-            # piece would follow the ray through ever more pieces (twice as many per level)
-            settled[at[grazing]] = True
-            order = np.argsort(-tau[inside])  # the smallest tau written last wins
-            rays = ray[at[inside]][order]
-            best[rays] = tau[inside][order]
-            hit_patch[rays] = patch[at[inside]][order]
-            hit_s[rays], hit_t[rays] = np.clip(s[inside][order], 0, 1), np.clip(t[inside][order], 0, 1)
+            settled[at] = _small_piece_hits(nets, piece[at], patch[at], rect[at], ray[at], origins, directions,
+                                            tau_min, hits, tolerance)  # fmt: skip
         split = ~settled & (level < MAX_LEVEL)
         ray, patch, rect = np.repeat(ray[split], 4), np.repeat(patch[split], 4), _split_rects(rect[split])
-    tau = np.where(hit_patch >= 0, best, np.inf)
-    return RayHits(tau, hit_patch, hit_s, hit_t)
+    tau = np.where(hits.patch >= 0, hits.best, np.inf)
+    return RayHits(tau, hits.patch, hits.s, hits.t)
+
+
+def _small_piece_hits(nets, piece, patch, rect, ray, origins, directions, tau_min, hits: _NearestHits,
+                      tolerance: float) -> np.ndarray:  # fmt: skip
+    """Newton's method from the centres of small pieces ``piece (K, p+1, q+1, 4)`` of the patches
+    ``nets[patch]`` on their rectangles ``rect (K, 4)`` for the rays ``ray (K,)``: records the hits
+    within the rays' stretches in ``hits`` and returns which pieces are settled ``(K,)``."""
+    settled = np.zeros(len(ray), dtype=bool)
+    s, t = 0.5 * (rect[:, 0] + rect[:, 1]), 0.5 * (rect[:, 2] + rect[:, 3])
+    patch_nets = nets[patch]
+    centre = evaluate(patch_nets, s, t)
+    tau = np.einsum("kc,kc->k", centre[0] - origins[ray], directions[ray])
+    newton = _ray_newton(patch_nets, s, t, tau, origins[ray], directions[ray], 1e2 * tolerance, centre)
+    s, t, tau, converged, grazing = newton.s, newton.t, newton.tau, newton.converged, newton.grazing
+    # a ray in the plane of a flat piece touches it along a line and crosses it nowhere: no hit
+    # (where Newton's singular steps end on that line is round-off; a secondary ray along a box's
+    # edge met the face beside it at random distances)
+    found = np.flatnonzero(converged & ~grazing & _within(s, t, rect))
+    inside = np.zeros(len(ray), dtype=bool)
+    inside[found] = (tau[found] > tau_min[ray[found]]) & (tau[found] <= hits.best[ray[found]])
+    # the crossing Newton found is a piece's only one where the ray crosses it one way only; else (a
+    # ray grazing a sphere crosses one piece twice) the piece splits on, a hit found in it shortening
+    # the ray's stretch. Where the ray meets the piece's surface steeply (ONE_CROSSING_COSINE) a
+    # small piece's normal would have to turn that far within it.
+    if len(found):
+        normal = np.cross(newton.x_s[found], newton.x_t[found])
+        cosine = np.abs(np.einsum("kc,kc->k", normal, directions[ray[found]])) / np.maximum(
+            np.linalg.norm(normal, axis=1), 1e-300)  # fmt: skip
+        steep = cosine >= ONE_CROSSING_COSINE
+        settled[found[steep]] = True
+        oblique = found[~steep]
+        if len(oblique):
+            low, high = _piece_normal_components(piece[oblique], directions[ray[oblique]])
+            settled[oblique[(low > 0.0) | (high < 0.0)]] = True
+    # a ray in the plane of a flat piece meets it nowhere transversally: splitting such a piece would
+    # follow the ray through ever more pieces (twice as many per level)
+    settled[grazing] = True
+    hits.keep(ray[inside], tau[inside], patch[inside], s[inside], t[inside])
+    return settled

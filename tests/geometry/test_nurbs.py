@@ -275,13 +275,45 @@ def test_first_hits_of_rays_leaving_a_surface_find_the_next_one(rng):
     assert np.all(outward.patch == -1) and np.all(np.isinf(outward.tau))
 
 
-def test_rays_in_the_plane_of_a_flat_face_do_not_hit_it(rng):
+def unit_cube_faces(bent: bool) -> list[nurbs.NurbsSurface]:
+    """The unit cube's faces, bicubic on 2 x 2 spans; ``bent``: each face's inner control points
+    moved within its plane (the same square, a map of its parameters that is not affine, so that
+    rays meet it by Newton's method instead of the plane's one solve)."""
+    faces = nurbs.box_faces([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], degree=3, spans=(2, 2))
+    if not bent:
+        return faces
+    moved = []
+    for face in faces:
+        control = face.control.copy()
+        in_plane = int(np.argmax(np.ptp(control.reshape(-1, 3), axis=0)))  # an axis along the face
+        control[1:-1, 1:-1, in_plane] += 0.03
+        moved.append(face.with_control(control))
+    return moved
+
+
+@pytest.mark.parametrize("bent", [False, True])
+def test_rays_from_inside_a_box_leave_it_through_the_nearest_face(rng, bent):
+    faces = unit_cube_faces(bent)
+    nets = np.concatenate([face.bezier_patches.nets for face in faces])
+    assert rb._affine(nets, 1e-12)[0].sum() == (0 if bent else len(nets))  # the plane's solve or Newton's
+    origins = rng.uniform(0.05, 0.95, size=(2000, 3))
+    directions = rng.normal(size=origins.shape)
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    hits = rb.first_hits(nets, origins, directions, np.zeros(len(origins)), np.full(len(origins), 10.0))
+    with np.errstate(divide="ignore"):
+        exits = np.where(directions > 0.0, (1.0 - origins) / directions, -origins / directions)
+    np.testing.assert_allclose(hits.tau, exits.min(axis=1), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("bent", [False, True])
+def test_rays_in_the_plane_of_a_flat_face_do_not_hit_it(rng, bent):
     """A ray lying in a face's plane touches the face along a line and crosses it nowhere: no hit.
     Round-off tilts such a ray (a secondary ray from a box's bottom edge up along its side): with a
     start ``1e-16`` off the plane and a tilt of ``1e-16``, Newton's singular steps met the side face
-    at ``tau = -offset / tilt``, anywhere along the ray. The bottom face, which the rays cross at
-    its edge, is the first hit; rays crossing a face's plane hit it exactly."""
-    faces = nurbs.box_faces([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], degree=3, spans=(2, 2))
+    at ``tau = -offset / tilt``, anywhere along the ray; the plane's solve divides by a tilt of
+    round-off. The bottom face, which the rays cross at its edge, is the first hit; rays crossing a
+    face's plane hit it exactly."""
+    faces = unit_cube_faces(bent)
     nets = np.concatenate([face.bezier_patches.nets for face in faces])
     first_patch = np.cumsum([0] + [len(face.bezier_patches.nets) for face in faces])
 

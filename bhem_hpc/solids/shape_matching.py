@@ -236,15 +236,11 @@ class _Moments:
         basis = np.hstack([np.ones((len(points), 1)), monomials(points - self.centres[part], degree)])  # (s, 1 + k)
         weighted = weights[:, None] * basis
         self.normals = np.add.reduceat(weighted[:, :, None] * basis[:, None, :], starts)
-        size = basis.shape[1]
-        if self.dense:  # every part's Q^T S J at once: (parts (1 + k), s) @ the block-diagonal J (s, n_q)
-            rows = (part[:, None] * size + np.arange(size)).ravel()
-            left = scipy.sparse.csr_matrix((weighted.ravel(), (rows, np.repeat(np.arange(len(part)), size))),
-                                           shape=(len(samples) * size, len(part)))  # fmt: skip
-            self.projected = (left @ stacked_basis(samples)).toarray().reshape(len(samples), size, -1)
-        else:
-            self.projected = [(s.basis.T @ weighted[a : a + len(s.weights)]).T
-                              for s, a in zip(samples, starts, strict=True)]  # fmt: skip
+        # each part's Q^T S J over its own control points (the other parts' columns are zero): one
+        # product with the block-diagonal J of all parts, each control point's row from its own part
+        self.stacked = np.ascontiguousarray((stacked_basis(samples).T @ weighted).T)  # (1 + k, n_q)
+        self.projected = [self.stacked[:, a:b] for a, b in zip(self.offsets[:-1], self.offsets[1:], strict=True)]
+        self.part_of_column = np.repeat(np.arange(len(samples)), np.diff(self.offsets))
 
     def place(self, origins: np.ndarray) -> None:
         """Each part's shift to each origin and its normal matrix moved there, ``(origins, parts, 1 + k, 1 + k)``."""
@@ -257,10 +253,14 @@ class _Moments:
         the parts ``group``, ``Q`` the monomials about origin number ``origin``."""
         group = np.asarray(group)
         moved, normal = self.moved[origin, group], self.moved_normals[origin, group].sum(axis=0)
-        if self.dense:  # sum_g T_g (Q^T S J)_g as one product over (g, b)
-            size = normal.shape[0]
-            stacked = self.projected[group].reshape(len(group) * size, -1)
-            return normal, _DenseRows(moved.transpose(1, 0, 2).reshape(size, -1) @ stacked)
+        if self.dense:  # T_g (Q^T S J)_g column by column: each control point's own part's moved moments
+            in_group = np.zeros(len(self.centres), dtype=bool)
+            in_group[group] = True
+            columns = np.flatnonzero(in_group[self.part_of_column])
+            rows = np.zeros(self.stacked.shape)
+            moved_of_column = self.moved[origin, self.part_of_column[columns]]  # (c, 1 + k, 1 + k)
+            rows[:, columns] = np.matmul(moved_of_column, self.stacked.T[columns, :, None])[..., 0].T
+            return normal, _DenseRows(rows)
         return normal, _PartRows({int(g): t @ self.projected[g] for g, t in zip(group, moved, strict=True)})
 
 
@@ -347,27 +347,28 @@ def shape_matching(
     own_normals = moments.moved_normals[origin_of_part, every_part]
     inverses, unseens = _pseudo_inverses(own_normals[:, 1:, 1:])
     own = _own_fits(moments, origin_of_part, own_normals, inverses, translation) if moments.dense else None
-    blocks = []
     # the completion of a part depends on its group and origin alone: the planar faces of one fin
     # or box share both, and their fit over many parts' samples is made once
-    completions: dict[tuple[tuple[int, ...], int], _PartRows | _DenseRows] = {}
+    keys: dict[int, _GroupKey] = {}
     for i, s in enumerate(samples):
         if len(s.points) < TERMS[degree]:
             raise SurfaceError(
                 f"{names[i]}: {len(s.points)} boundary samples cannot fit the {TERMS[degree]} shape-matching "
                 "terms; raise the sampling order"
             )
+        if unseens[i].shape[1]:
+            group = tuple(sorted({*neighbours[i].tolist(), i})) if neighbours is not None else ()
+            keys[i] = (group, int(origin_of_part[i]))
+    completions = _completions(moments, set(keys.values()), translation)
+    blocks = []
+    for i in range(count):
         origin, shift = origin_of_part[i], translation[origin_of_part[i]]
         if own is None:
             rows, unseen = _group_fit(moments, [i], origin, shift, (inverses[i], unseens[i]))
         else:
             rows, unseen = _DenseRows(own[i]), unseens[i]
         if unseen.shape[1]:
-            groups = [np.union1d(neighbours[i], [i])] if neighbours is not None else []
-            key = (tuple(int(g) for g in groups[0]) if groups else (), int(origin_of_part[i]))
-            if key not in completions:
-                completions[key] = _completion(moments, [*groups, every_part], origin, shift)
-            rows = rows.plus(unseen @ unseen.T, completions[key])
+            rows = rows.plus(unseen @ unseen.T, completions[keys[i]])
         blocks.append(rows)
     part_rows = np.arange(count) * terms  # each part's first row; the origins' translations follow
     first_rows = [*part_rows, *(count * terms + np.arange(origins_count))]
@@ -379,20 +380,42 @@ def _own_fits(moments: _Moments, origin_of_part: np.ndarray, normals: np.ndarray
               translation: Sequence[_DenseRows]) -> np.ndarray:  # fmt: skip
     """:func:`_group_fit` of every part on its own samples at once (dense rows): ``(parts, k, n_q)``."""
     parts = np.arange(len(origin_of_part))
-    rows = moments.moved[origin_of_part, parts] @ moments.projected  # (parts, 1 + k, n_q)
-    fitted = inverses @ rows[:, 1:]
     column = (inverses @ normals[:, 1:, :1])[..., 0]  # the fit applied to the ones: the translation's column
     shifts_row = np.stack([translation[j].rows[0] for j in origin_of_part])
-    return fitted - column[:, :, None] * shifts_row[:, None, :]
+    fits = -column[:, :, None] * shifts_row[:, None, :]  # (parts, k, n_q)
+    offsets = moments.offsets
+    for i, (moved, projected) in enumerate(zip(moments.moved[origin_of_part, parts], moments.projected, strict=True)):
+        own = slice(offsets[i], offsets[i + 1])  # the part's own columns, where its samples' fit reaches
+        fits[i, :, own] = inverses[i] @ (moved @ projected)[1:] - column[i][:, None] * shifts_row[i, own]
+    return fits
 
 
-def _completion(moments: _Moments, groups, origin, translation) -> _PartRows | _DenseRows:
-    """The fit over the first of ``groups`` whose samples determine every term (:func:`_group_fit`)."""
-    for group in groups:
-        completion, still_unseen = _group_fit(moments, group, origin, translation)
-        if not still_unseen.shape[1]:
-            return completion
-    raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
+_GroupKey = tuple[tuple[int, ...], int]  # the parts of a fit and its origin
+
+
+def _completions(moments: _Moments, keys: set[_GroupKey],
+                 translation: Sequence[_PartRows | _DenseRows]) -> dict[_GroupKey, _PartRows | _DenseRows]:  # fmt: skip
+    """Per ``(group, origin)``: :func:`_group_fit` over the parts ``group`` where their samples
+    determine every term, else over all parts' (an empty group: all parts'); the groups' normal
+    matrices inverted at once."""
+    keys = sorted(keys)
+    fits = {}
+    grouped = [(group, origin) for group, origin in keys if group]
+    if grouped:
+        normals = np.stack([moments.moved_normals[origin, list(group)].sum(axis=0) for group, origin in grouped])
+        inverses, unseens = _pseudo_inverses(normals[:, 1:, 1:])
+        for (group, origin), inverse, unseen in zip(grouped, inverses, unseens, strict=True):
+            if not unseen.shape[1]:
+                solved = (inverse, unseen)
+                fits[group, origin] = _group_fit(moments, list(group), origin, translation[origin], solved)[0]
+    every_part = np.arange(len(moments.centres))
+    for group, origin in keys:
+        if (group, origin) not in fits:
+            fit, unseen = _group_fit(moments, every_part, origin, translation[origin])
+            if unseen.shape[1]:
+                raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
+            fits[group, origin] = fit
+    return fits
 
 
 def _assembled(row_groups: Sequence[_PartRows | _DenseRows], first_rows: Sequence[int],
@@ -400,9 +423,10 @@ def _assembled(row_groups: Sequence[_PartRows | _DenseRows], first_rows: Sequenc
     """The projection from its consecutive row groups, each starting at its ``first_rows``."""
     if layout.dense:  # CSR straight from the nonzeros (scipy's conversion of a dense array goes through COO)
         dense = np.vstack([rows.rows for rows in row_groups])
-        rows, columns = np.nonzero(dense)
-        indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=len(dense)))]
-        return scipy.sparse.csr_matrix((dense[rows, columns], columns, indptr), shape=dense.shape)
+        nonzero = dense != 0.0  # boolean masks select in row order, faster than np.nonzero's index pairs
+        columns = np.broadcast_to(np.arange(dense.shape[1]), dense.shape)[nonzero]
+        indptr = np.r_[0, np.cumsum(nonzero.sum(axis=1))]
+        return scipy.sparse.csr_matrix((dense[nonzero], columns, indptr), shape=dense.shape)
     entries = [rows.triplets(first, layout.offsets) for rows, first in zip(row_groups, first_rows, strict=True)]
     rows, columns, values = (np.concatenate(e) for e in zip(*entries, strict=True))
     return scipy.sparse.csr_matrix((values, (rows, columns)), shape=(layout.coefficient_count, int(layout.offsets[-1])))

@@ -493,6 +493,11 @@ def box_faces(lo, hi, degree: int = 1, spans: tuple[int, int] = (1, 1)) -> list[
 
 #: Newton iterations of a closest-point projection.
 PROJECTION_ITERATIONS = 40
+#: A Newton step of the projection no longer than this (relative to the domain) is taken without
+#: testing the distance (quadratic convergence: the next is of the order of its square).
+CLOSE_STEP = 1e-6
+#: A projection step no longer than this (relative to the domain) is round-off: the search ends.
+ROUNDOFF_STEP = 1e-12
 #: Step halvings per projection iteration.
 BACKTRACKS = 12
 #: The shorter steps tried where a projection step fails: ``1/2, 1/4, ..``.
@@ -555,11 +560,20 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         hold = (((u[active] <= u0) & (g1 > 0.0)) | ((u[active] >= u1) & (g1 < 0.0)),
                 ((v[active] <= v0) & (g2 > 0.0)) | ((v[active] >= v1) & (g2 < 0.0)))  # fmt: skip
         du, dv = _projection_step(g1, g2, hessian, hold)
-        # backtracking: far outside a convex part a full step can overshoot
         distance = (residual**2).sum(1)
         moved = np.zeros(len(active))
-        everyone = np.arange(len(active))
-        pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, everyone, np.ones(1), moved)
+        # close to the closest point Newton's step is exact to second order while the distance it
+        # shortens is below round-off: it is taken as it is (the foot to round-off, not to the
+        # square root of it), and a step of round-off is the last
+        step = np.abs(du) / (u1 - u0) + np.abs(dv) / (v1 - v0)
+        close = newton & (step <= CLOSE_STEP)
+        taken = np.flatnonzero(close)
+        u[active[taken]] = np.clip(u[active[taken]] + du[taken], u0, u1)
+        v[active[taken]] = np.clip(v[active[taken]] + dv[taken], v0, v1)
+        moved[taken] = np.where(step[taken] > ROUNDOFF_STEP, step[taken], 0.0)
+        # backtracking elsewhere: far outside a convex part a full step can overshoot
+        far = np.flatnonzero(~close)
+        pending = _backtrack(surface, points, (u, v), (du, dv), active, distance, far, np.ones(1), moved)
         # where the full step failed and its model shortens the squared distance by no more than
         # round-off (the point is at its closest, or far off where the distance is flat), no
         # shorter step would shorten it measurably: the point stops without halvings

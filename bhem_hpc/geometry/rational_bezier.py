@@ -83,11 +83,20 @@ def restriction_matrices(degree: int, t0: np.ndarray, t1: np.ndarray) -> np.ndar
     return out
 
 
+def _distinct_restrictions(degree: int, t0: np.ndarray, t1: np.ndarray) -> np.ndarray:
+    """:func:`restriction_matrices` ``(N, p + 1, p + 1)``, each distinct interval's made once (the
+    pieces of a split share few: a level of a quadtree has at most ``2^level`` per direction)."""
+    intervals, inverse = np.unique(t0 + 1j * t1, return_inverse=True)
+    if len(intervals) == len(t0):
+        return restriction_matrices(degree, t0, t1)
+    return restriction_matrices(degree, intervals.real, intervals.imag)[inverse.ravel()]
+
+
 def subpatches(nets: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """Nets of the local sub-rectangles ``boxes (N, 4)`` = ``(s0, s1, t0, t1)`` of ``nets (N, p+1, q+1, 4)``."""
     p, q = nets.shape[1] - 1, nets.shape[2] - 1
-    along_s = restriction_matrices(p, boxes[:, 0], boxes[:, 1])
-    along_t = restriction_matrices(q, boxes[:, 2], boxes[:, 3])
+    along_s = _distinct_restrictions(p, boxes[:, 0], boxes[:, 1])
+    along_t = _distinct_restrictions(q, boxes[:, 2], boxes[:, 3])
     rows = np.matmul(along_s, nets.reshape(len(nets), p + 1, -1)).reshape(len(nets), p + 1, q + 1, 4)
     return np.matmul(along_t[:, None], rows)  # (N, p + 1, q + 1, 4): [n, a, b, c]
 
@@ -580,10 +589,15 @@ def first_hits(
     hits = _NearestHits(tau_max)
     tau_min = np.asarray(tau_min, dtype=float)
     points = nets[..., :3] / nets[..., 3:]
-    tolerance = 1e-12 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
+    size = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
+    tolerance = 1e-12 * size
+    # a ray passing a patch's edge within the edges' slack meets the patch (its crossing there is
+    # accepted): the boxes it is tested against are that much wider. A ray through an edge (from a
+    # round tower's foot through its axis, a box's corner) then hits it whatever side round-off puts it on
+    across = EDGE_SLACK * size
     first_axis, second_axis = _ray_frames(directions)
     points = points.reshape(len(nets), -1, 3)
-    ray, patch = _sphere_candidates(points, origins, directions, tau_min, hits.best, tolerance)
+    ray, patch = _sphere_candidates(points, origins, directions, tau_min, hits.best, across)
     flat_patch = _affine(nets, tolerance)[0]
     rect = np.tile([0.0, 1.0, 0.0, 1.0], (len(ray), 1))
     for level in range(MAX_LEVEL + 1):
@@ -594,10 +608,10 @@ def first_hits(
         # the control points' box in each ray's frame (across, across, along)
         frame_low, frame_high = _frame_bounds(relative, np.stack([first_axis[ray], second_axis[ray], directions[ray]]))
         cut = (
-            (frame_low[:, 0] <= tolerance)
-            & (frame_high[:, 0] >= -tolerance)
-            & (frame_low[:, 1] <= tolerance)
-            & (frame_high[:, 1] >= -tolerance)
+            (frame_low[:, 0] <= across)
+            & (frame_high[:, 0] >= -across)
+            & (frame_low[:, 1] <= across)
+            & (frame_high[:, 1] >= -across)
             & (frame_high[:, 2] > tau_min[ray])
             & (frame_low[:, 2] <= hits.best[ray] + tolerance)
         )

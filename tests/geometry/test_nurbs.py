@@ -192,6 +192,10 @@ def test_closest_points_on_sphere_torus_and_face(rng):
     _, nearest, distance = nurbs.closest_points(nurbs.sphere(1.0), points)
     np.testing.assert_allclose(distance, np.abs(np.linalg.norm(points, axis=1) - 1.0), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(nearest, axis=1), 1.0, atol=1e-14)
+    # the foot itself to round-off, not only the distance (which is flat there: a foot off by
+    # 1e-8 of the distance changes it by round-off, and a secondary ray from it misses by as much)
+    radial = points / np.linalg.norm(points, axis=1)[:, None]
+    np.testing.assert_allclose(nearest, radial, rtol=0, atol=1e-13)
     _, _, distance = nurbs.closest_points(nurbs.torus(1.0, 0.3), points)
     rho = np.hypot(points[:, 0], points[:, 1])
     np.testing.assert_allclose(distance, np.abs(np.hypot(rho - 1.0, points[:, 2]) - 0.3), atol=1e-12)
@@ -303,6 +307,26 @@ def test_rays_from_inside_a_box_leave_it_through_the_nearest_face(rng, bent):
     with np.errstate(divide="ignore"):
         exits = np.where(directions > 0.0, (1.0 - origins) / directions, -origins / directions)
     np.testing.assert_allclose(hits.tau, exits.min(axis=1), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("bent", [False, True])
+def test_rays_through_a_boxs_corner_edge_hit_it_on_either_side_of_round_off(rng, bent):
+    """A secondary ray from a round tower's foot through its axis passes a box's corner edge there.
+    Rays from outside the box that touch it only along that edge, offset 1e-11 into the box or
+    away from it (round-off of the foot), all meet it at the edge: a crossing within the edges'
+    slack counts, and the rays are tested against boxes that much wider."""
+    faces = unit_cube_faces(bent)
+    nets = np.concatenate([face.bezier_patches.nets for face in faces])
+    count = 400
+    heights = rng.uniform(0.1, 0.9, count)
+    angles = rng.uniform(0.1, 0.5 * np.pi - 0.1, count)
+    # from x < 0 through the edge x = y = 0 on to y < 0: outside the box but for the edge
+    directions = np.stack([np.cos(angles), -np.sin(angles), np.zeros(count)], axis=1)
+    toward_box = np.stack([np.sin(angles), np.cos(angles), np.zeros(count)], axis=1)
+    offsets = rng.uniform(-1e-11, 1e-11, count)[:, None] * toward_box
+    origins = np.stack([-np.cos(angles), np.sin(angles), heights], axis=1) + offsets
+    hits = rb.first_hits(nets, origins, directions, np.zeros(count), np.full(count, 10.0))
+    np.testing.assert_allclose(hits.tau, 1.0, atol=1e-10)
 
 
 @pytest.mark.parametrize("bent", [False, True])

@@ -240,6 +240,14 @@ def _affine(pieces: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarra
     return mask, normals
 
 
+def flat_share(nets: np.ndarray) -> float:
+    """The share of the patches ``nets (P, p+1, q+1, 4)`` that are affine maps of their parameters
+    (:func:`_affine`, to 1e-12 of their size): rays meet those in one solve."""
+    points = nets[..., :3] / nets[..., 3:]
+    size = max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-300)
+    return float(_affine(nets, 1e-12 * size)[0].mean()) if len(nets) else 1.0
+
+
 def _split_until_simple(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray, tolerance: float):
     """Pieces ``(patch (M,), rect (M, 4), nets (M, p+1, q+1, 4), affine (M,))`` with lines in their
     boxes, each unfolded and small or affine (:func:`_affine`, the mask), or at :data:`MAX_LEVEL`;

@@ -514,9 +514,10 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
     A surface that is an affine map of its parameters (a flat face) gets its closest points in
     closed form (:mod:`.affine`). Others start from the nearest of ``seeds_per_side^2`` samples per
     Bezier patch (SciPy's k-d tree: a part of many patches has tens of thousands of samples), then
-    Newton steps on
-    ``|x(u, v) - X|^2 / 2`` (Gauss-Newton where its Hessian is indefinite) clamped to the domain,
-    with backtracking (all halvings of a step that fails in one evaluation), at most
+    take Newton steps on ``|x(u, v) - X|^2 / 2`` (Gauss-Newton's where its Hessian is indefinite or
+    Newton's step fails) within the domain, a parameter held on a bound its gradient points out of.
+    A step is taken where it shortens the distance (all halvings of a step that fails are tried in
+    one evaluation), and without that test once it is shorter than :data:`CLOSE_STEP`. At most
     :data:`PROJECTION_ITERATIONS`; a point stops when its step no longer moves it.
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)

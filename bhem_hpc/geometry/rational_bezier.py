@@ -301,15 +301,21 @@ def _candidate_pairs(pieces: np.ndarray, axis: int, first: np.ndarray, second: n
     return piece, i * len(second) + j
 
 
+def _corner_frames(pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The corner ``(0, 0)`` of pieces ``(K, p+1, q+1, 4)`` and the edges from it to the corners
+    ``(1, 0)`` and ``(0, 1)``, each ``(K, 3)``: an affine piece is ``origin + s along_s + t along_t``."""
+    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
+    corners = pieces[:, [0, p, 0], [0, 0, q]]
+    corners = corners[..., :3] / corners[..., 3:]
+    return corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+
+
 def _affine_crossings(pieces: np.ndarray, rect: np.ndarray, target: np.ndarray, axis: int):
     """Where lines along ``axis`` through ``target (K, 2)`` (the other two coordinates) cross affine
     pieces ``pieces (K, p+1, q+1, 4)`` of their patches' rectangles ``rect (K, 4)``: the patches'
     local ``s, t (K,)``, the points and the derivatives along ``s, t`` ``(K, 3)``, from one 2x2 solve
     across the axis (the pieces are not flat: their normals have a component along it)."""
-    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
-    corners = pieces[:, [0, p, 0], [0, 0, q]]
-    corners = corners[..., :3] / corners[..., 3:]  # (K, 3, 3): the corner (0, 0), then (1, 0) and (0, 1)
-    origin, along_s, along_t = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    origin, along_s, along_t = _corner_frames(pieces)
     across = [a for a in range(3) if a != axis]
     (a0, a1), (b0, b1) = along_s[:, across].T, along_t[:, across].T
     offset = target - origin[:, across]
@@ -559,10 +565,7 @@ def _plane_hits(pieces: np.ndarray, origins: np.ndarray, directions: np.ndarray)
     """Where rays ``origins, directions (K, 3)`` meet the planes of affine pieces ``(K, p+1, q+1, 4)``:
     the pieces' local ``s, t`` and the rays' ``tau`` ``(K,)``, and whether a ray grazes its plane
     (the cosine to its normal below :data:`GRAZING_COSINE`; no crossing there)."""
-    p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
-    corners = pieces[:, [0, p, 0], [0, 0, q]]
-    corners = corners[..., :3] / corners[..., 3:]  # (K, 3, 3): the corner (0, 0), then (1, 0) and (0, 1)
-    origin, along_s, along_t = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    origin, along_s, along_t = _corner_frames(pieces)
     normal = np.cross(along_s, along_t)
     area = np.einsum("kc,kc->k", normal, normal)
     facing = np.einsum("kc,kc->k", normal, directions)

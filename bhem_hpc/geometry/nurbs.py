@@ -23,7 +23,7 @@ from functools import cached_property
 import numpy as np
 import scipy.spatial
 
-from bhem_hpc.geometry.affine import affine_frame, closest_on_parallelogram
+from bhem_hpc.geometry.affine import AffineFrame, affine_frame, closest_on_parallelogram
 from bhem_hpc.geometry.bspline import basis_functions, bernstein
 from bhem_hpc.geometry.bspline import from_callable as bspline_from_callable
 from bhem_hpc.geometry.grid import ParameterGrid
@@ -229,6 +229,13 @@ class NurbsSurface:
         values = weighted / weighted.sum(axis=(1, 2), keepdims=True)
         index = rows[:, :, None] * self.control.shape[1] + cols[:, None, :]
         return index.reshape(len(u), -1), values.reshape(len(u), -1)
+
+    @cached_property
+    def flat_frame(self) -> AffineFrame | None:
+        """The surface's frame where it is an affine map of its parameters (a flat face; a ray
+        leaving it never meets it again), else ``None`` (:func:`~bhem_hpc.geometry.affine.affine_frame`)."""
+        domains = (self.u.domain, self.v.domain)
+        return affine_frame(self.degrees, (self.u.knots, self.v.knots), domains, self.control, self.weights)
 
     @cached_property
     def bezier_patches(self) -> RationalBezierPatches:
@@ -522,10 +529,8 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
     (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
-    frame = affine_frame(surface.degrees, (surface.u.knots, surface.v.knots), (surface.u.domain, surface.v.domain),
-                         surface.control, surface.weights)  # fmt: skip
-    if frame is not None:  # a flat face: in closed form
-        scaled, x = closest_on_parallelogram(points, frame)
+    if surface.flat_frame is not None:  # a flat face: in closed form
+        scaled, x = closest_on_parallelogram(points, surface.flat_frame)
         parameters = np.stack([u0 + scaled[:, 0] * (u1 - u0), v0 + scaled[:, 1] * (v1 - v0)], axis=1)
         return parameters, x, np.linalg.norm(x - points, axis=1)
     grid = (np.arange(seeds_per_side) + 0.5) / seeds_per_side

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse
@@ -34,16 +34,38 @@ BEYOND_POINT = 1e-7
 @dataclass(frozen=True)
 class RayDistances:
     """Per point and part ``(Q, parts)``: primary distance, total distance (inf: no surface within
-    ``reach``), and whether the secondary ray met the same part; ``away (Q, parts, 3)`` the unit
-    vector from the closest point to the point (the primary distance's gradient); ``reach`` bounds
-    every cutoff."""
+    ``reach``, or no ray cast), and whether the secondary ray met the same part; ``away (Q, parts,
+    3)`` the unit vector from the closest point to the point (the primary distance's gradient),
+    ``feet (Q, parts, 3)`` the closest points; ``reach`` bounds every cutoff."""
 
     primary: np.ndarray
     total: np.ndarray
     same_part: np.ndarray
     away: np.ndarray
+    feet: np.ndarray
     reach: float
     seconds: float
+
+    def with_rays(self, parts: Sequence[NurbsSurface], pairs: np.ndarray, reach: float) -> RayDistances:
+        """These distances with the secondary rays of the point-part ``pairs (Q, parts)`` (a mask)
+        cast from their feet through their points, each searched no farther than ``reach`` (which
+        then bounds every cutoff): the total distances and same-part flags of those pairs."""
+        control = np.concatenate([p.control.reshape(-1, 3) for p in parts])
+        beyond = BEYOND_POINT * float(np.ptp(control, axis=0).max())
+        point, part_of_ray = np.nonzero(pairs)
+        origins, directions = self.feet[point, part_of_ray], self.away[point, part_of_ray]
+        tau_min = self.primary[point, part_of_ray] + beyond
+        best, owner = np.full(len(point), np.inf), np.full(len(point), -1)
+        # flat groups first: their hits, found in one solve, shorten the curved groups' searches
+        for nets, part_of_patch in sorted(bezier_nets_by_degree(parts), key=lambda group: -flat_share(group[0])):
+            # searched no farther than the nearest hit so far
+            hits = first_hits(nets, origins, directions, tau_min, np.minimum(best, reach))
+            closer = hits.tau < best
+            best[closer], owner[closer] = hits.tau[closer], part_of_patch[hits.patch[closer]]
+        total, same = self.total.copy(), self.same_part.copy()
+        total[point, part_of_ray] = best
+        same[point, part_of_ray] = owner == part_of_ray
+        return replace(self, total=total, same_part=same, reach=float(reach))
 
     def theta(self, alpha: float) -> np.ndarray:
         """Distance weights ``(Q, parts)`` for the cutoff ``alpha <= reach``."""
@@ -99,39 +121,45 @@ class RayDistances:
 
 
 def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float,
-                  on_part: np.ndarray | None = None) -> RayDistances:  # fmt: skip
+                  on_part: np.ndarray | None = None, cast: np.ndarray | None = None) -> RayDistances:  # fmt: skip
     """Primary and secondary distances of ``points (Q, 3)`` to ``parts``; secondary rays are cast
     only where the primary distance is below ``reach`` and searched no farther than ``reach``.
-    ``on_part (Q,)``: the part each point lies on (boundary samples; -1: none), at distance 0 from it."""
+    ``on_part (Q,)``: the part each point lies on (boundary samples; -1: none), at distance 0 from
+    it. ``cast (parts,)``: the parts whose secondary rays are cast (default: all; the others' total
+    distances stay inf, see :meth:`RayDistances.with_rays`)."""
     clock = time.perf_counter()
     count = len(points)
     on_part = np.full(count, -1) if on_part is None else np.asarray(on_part)
-    groups = bezier_nets_by_degree(parts)
-    control = np.concatenate([p.control.reshape(-1, 3) for p in parts])
-    beyond = BEYOND_POINT * float(np.ptp(control, axis=0).max())
     primary = np.empty((count, len(parts)))
-    total = np.full((count, len(parts)), np.inf)
-    same = np.zeros((count, len(parts)), dtype=bool)
     away = np.zeros((count, len(parts), 3))
-    nearest = np.empty((count, len(parts), 3))
+    feet = np.empty((count, len(parts), 3))
     for i, part in enumerate(parts):
-        _, nearest[:, i], distance = closest_points(part, points)
+        _, feet[:, i], distance = closest_points(part, points)
         distance[on_part == i] = 0.0
         primary[:, i] = distance
-    same[primary == 0.0] = True
     inside = primary > 0.0
-    away[inside] = (points[:, None] - nearest)[inside] / primary[inside][:, None]
-    # every part's secondary rays in one batch: point k, part i -> the next surface beyond the point
-    point, part_of_ray = np.nonzero((primary < reach) & inside)
-    origins, directions = nearest[point, part_of_ray], away[point, part_of_ray]
-    tau_min = primary[point, part_of_ray] + beyond
-    best, owner = np.full(len(point), np.inf), np.full(len(point), -1)
-    # flat groups first: their hits, found in one solve, shorten the curved groups' searches
-    for nets, part_of_patch in sorted(groups, key=lambda group: -flat_share(group[0])):
-        # searched no farther than the nearest hit so far
-        hits = first_hits(nets, origins, directions, tau_min, np.minimum(best, reach))
-        closer = hits.tau < best
-        best[closer], owner[closer] = hits.tau[closer], part_of_patch[hits.patch[closer]]
-    total[point, part_of_ray] = best
-    same[point, part_of_ray] = owner == part_of_ray
-    return RayDistances(primary, total, same, away, float(reach), time.perf_counter() - clock)
+    away[inside] = (points[:, None] - feet)[inside] / primary[inside][:, None]
+    cast = np.ones(len(parts), dtype=bool) if cast is None else np.asarray(cast, dtype=bool)
+    distances = RayDistances(primary, np.full(primary.shape, np.inf), primary == 0.0, away, feet, float(reach), 0.0)
+    distances = distances.with_rays(parts, (primary < reach) & inside & cast[None, :], reach)
+    return replace(distances, seconds=time.perf_counter() - clock)
+
+
+def cutoff_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float, target: float,
+                     name: str = "model") -> tuple[RayDistances, float]:  # fmt: skip
+    """:func:`ray_distances` and :meth:`RayDistances.cutoff_for` the sparsity ``target``, each flat
+    part's secondary rays cast only where they can matter. A ray leaving a flat part never meets it
+    again, and its next surface lies beyond the point (the secondary distance exceeds the primary),
+    so a flat part's weight is nonzero exactly where its primary distance is below the cutoff: the
+    cutoff follows from the curved parts' rays alone, and the flat parts' rays are then cast where
+    their primary distance is below it, no farther than it (beyond it only the cutoff counts). The
+    weights at the cutoff are those of all rays at full reach."""
+    flat = np.array([part.flat_frame is not None for part in parts])
+    distances = ray_distances(parts, points, reach, cast=~flat)
+    alpha = distances.cutoff_for(target, name)
+    if not flat.any():
+        return distances, alpha
+    clock = time.perf_counter()
+    within = (distances.primary < alpha) & (distances.primary > 0.0) & flat[None, :]
+    distances = distances.with_rays(parts, within, alpha)
+    return replace(distances, seconds=distances.seconds + time.perf_counter() - clock), alpha

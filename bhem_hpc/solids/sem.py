@@ -31,7 +31,7 @@ from bhem_hpc.solids.assembly import (
     point_groups,
     weighted_gram,
 )
-from bhem_hpc.solids.blending import RayDistances, ray_distances
+from bhem_hpc.solids.blending import RayDistances, cutoff_distances, ray_distances
 from bhem_hpc.solids.elasticity import MODELS, Lame, project_psd
 from bhem_hpc.solids.origins import deformation_origins
 from bhem_hpc.solids.quadrature import model_bounds, ray_cast_quadrature
@@ -268,8 +268,10 @@ class ShapeMatchingSolid:
                 raise SurfaceError(f"{self.name}: alpha must be positive, got {options.alpha!r}")
             distances = ray_distances(self.parts, points, options.alpha)
             return distances.weights(options.alpha), self._gradients(distances, options.alpha), options.alpha
-        distances = ray_distances(self.parts, points, 0.5 * diagonal)
-        alpha = 0.5 * diagonal if options.sparsity is None else distances.cutoff_for(options.sparsity, self.name)
+        if options.sparsity is None:
+            distances, alpha = ray_distances(self.parts, points, 0.5 * diagonal), 0.5 * diagonal
+        else:
+            distances, alpha = cutoff_distances(self.parts, points, 0.5 * diagonal, options.sparsity, self.name)
         return distances.weights(alpha), self._gradients(distances, alpha), alpha
 
     def _sample_blends(self, samples) -> list[scipy.sparse.csr_matrix]:

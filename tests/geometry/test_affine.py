@@ -12,8 +12,7 @@ pytestmark = pytest.mark.rank_free  # no communicator: the same computation on e
 
 
 def frame_of(surface: nurbs.NurbsSurface) -> affine.AffineFrame | None:
-    return affine.affine_frame(surface.degrees, (surface.u.knots, surface.v.knots),
-                               (surface.u.domain, surface.v.domain), surface.control, surface.weights)  # fmt: skip
+    return surface.flat_frame
 
 
 def test_greville_abscissae_are_the_means_of_inner_knots():
@@ -71,12 +70,19 @@ def test_closest_points_on_a_skewed_parallelogram_satisfy_the_optimality_conditi
 
 
 def test_closest_points_on_flat_faces_agree_with_newtons_projection(rng, monkeypatch):
-    faces = nurbs.box_faces([0.0, 0.0, 0.0], [0.17, 0.016, 0.18], degree=2, spans=(2, 3))
+    def faces() -> list[nurbs.NurbsSurface]:  # new ones each time: a face keeps its frame once asked
+        return nurbs.box_faces([0.0, 0.0, 0.0], [0.17, 0.016, 0.18], degree=2, spans=(2, 3))
+
     points = rng.uniform(-0.3, 0.4, size=(2000, 3))
-    closed = [nurbs.closest_points(face, points) for face in faces]
-    monkeypatch.setattr(nurbs, "affine_frame", lambda *args: None)  # Newton's projection
-    for face, (parameters, nearest, distance) in zip(faces, closed, strict=True):
+    closed = [nurbs.closest_points(face, points) for face in faces()]
+    monkeypatch.setattr(nurbs.NurbsSurface, "flat_frame", None)  # Newton's projection
+    evaluated = []
+    second_derivatives = nurbs.NurbsSurface.second_derivatives
+    monkeypatch.setattr(nurbs.NurbsSurface, "second_derivatives",
+                        lambda self, u, v: evaluated.append(len(u)) or second_derivatives(self, u, v))  # fmt: skip
+    for face, (parameters, nearest, distance) in zip(faces(), closed, strict=True):
         newton_parameters, newton_nearest, newton_distance = nurbs.closest_points(face, points)
         np.testing.assert_allclose(distance, newton_distance, rtol=0, atol=1e-14)
         np.testing.assert_allclose(nearest, newton_nearest, rtol=0, atol=1e-13)
         np.testing.assert_allclose(parameters, newton_parameters, rtol=0, atol=1e-11)
+    assert evaluated  # Newton's method ran

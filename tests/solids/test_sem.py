@@ -11,7 +11,7 @@ import scipy.sparse
 
 from bhem_hpc.geometry import nurbs
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.blending import ray_distances
+from bhem_hpc.solids.blending import cutoff_distances, ray_distances
 from bhem_hpc.solids.elasticity import (
     Lame,
     inverse_3x3,
@@ -108,6 +108,23 @@ def test_blending_weights_partition_unity_and_meet_the_sparsity_target():
     np.testing.assert_allclose(near.weights(0.2).toarray(), [[0, 0, 0, 0, 1, 0]], atol=1e-12)
     with pytest.raises(SurfaceError, match="sparsity target must lie in"):
         distances.cutoff_for(1.5, "box")
+
+
+@pytest.mark.parametrize("target", [0.3, 0.5, 0.8])
+def test_cutoff_distances_cast_flat_parts_rays_only_below_the_cutoff_with_the_same_weights(target):
+    """A box's flat faces and a sphere through its corner: the cutoff from the sphere's rays alone,
+    then the faces' rays where their primary distance is below it, give the cutoff, weights and
+    weight gradients of every ray at full reach, bit for bit, from fewer rays."""
+    parts = [*nurbs.box_faces(*BOX), nurbs.sphere(0.4)]
+    points = ray_cast_quadrature(parts, 16).points
+    full = ray_distances(parts, points, reach=1.2)
+    alpha = full.cutoff_for(target)
+    distances, cutoff = cutoff_distances(parts, points, 1.2, target)
+    assert cutoff == alpha
+    np.testing.assert_array_equal(distances.weights(cutoff).toarray(), full.weights(alpha).toarray())
+    np.testing.assert_array_equal(distances.weight_gradients(cutoff), full.weight_gradients(alpha))
+    flat_rays = np.isfinite(distances.total[:, :6]).sum()
+    assert flat_rays < np.isfinite(full.total[:, :6]).sum()
 
 
 def test_affine_and_rigid_motions_are_reproduced_exactly(box_solid, rng):

@@ -5,7 +5,7 @@ A CAD model's trimmed faces meet along their trim curves, not along the edges of
 parameter rectangles. Along each loop of a trimmed part (a polygon in its parameters), every
 segment gets :data:`SEGMENT_POINTS` Gauss points, weighted by the segment's rest length there; each
 point finds its partner on the other part by the closest point on that part's NURBS surface
-(:func:`~bhem_hpc.geometry.nurbs.closest_points`). Points whose partner lies within ``tolerance``
+(:func:`~bhem_hpc.geometry.projection.closest_points`). Points whose partner lies within ``tolerance``
 and on the kept part of the other surface (inside its trim, or on its trim loop within
 :data:`LOOP_FRACTION` of a knot span) form the joint; its quadrature carries each point's direction
 along the loop, which the coupling's angle term takes as the interface's tangent. Loop segments on
@@ -20,7 +20,8 @@ import numpy as np
 from numpy.polynomial import legendre
 
 from bhem_hpc.geometry.interfaces import EDGES, EdgeQuadrature, FoundJoint, Patch
-from bhem_hpc.geometry.nurbs import NurbsSurface, closest_points
+from bhem_hpc.geometry.nurbs import NurbsSurface
+from bhem_hpc.geometry.projection import closest_points
 from bhem_hpc.geometry.trim import inside
 
 #: Gauss points per loop segment.

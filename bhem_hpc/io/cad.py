@@ -416,8 +416,8 @@ RHINO_TRIM_TOLERANCE = 1e-6
 def _face_loops(brep, face, surface: NurbsSurface) -> tuple[np.ndarray, ...]:
     """A trimmed .3dm face's loops in ``surface``'s parameters: each trim's 3D edge sampled, the
     pieces chained end to start (each turned where its far end meets the chain), and put on the
-    surface by closest points (:func:`~bhem_hpc.geometry.nurbs.closest_points`)."""
-    from bhem_hpc.geometry.nurbs import closest_points
+    surface by closest points (:func:`~bhem_hpc.geometry.projection.closest_points`)."""
+    from bhem_hpc.geometry.projection import closest_points
     from bhem_hpc.geometry.trim import close_loop
 
     size = float(np.ptp(surface.control.reshape(-1, 3), axis=0).max()) or 1.0

@@ -19,7 +19,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse
 
-from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree, closest_points
+from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
+from bhem_hpc.geometry.projection import closest_points
 from bhem_hpc.geometry.rational_bezier import first_hits, flat_share
 from bhem_hpc.geometry.surface import SurfaceError
 

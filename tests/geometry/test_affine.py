@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bhem_hpc.geometry import affine, nurbs
+from bhem_hpc.geometry import affine, nurbs, projection
 
 pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
 
@@ -74,14 +74,14 @@ def test_closest_points_on_flat_faces_agree_with_newtons_projection(rng, monkeyp
         return nurbs.box_faces([0.0, 0.0, 0.0], [0.17, 0.016, 0.18], degree=2, spans=(2, 3))
 
     points = rng.uniform(-0.3, 0.4, size=(2000, 3))
-    closed = [nurbs.closest_points(face, points) for face in faces()]
+    closed = [projection.closest_points(face, points) for face in faces()]
     monkeypatch.setattr(nurbs.NurbsSurface, "flat_frame", None)  # Newton's projection
     evaluated = []
     second_derivatives = nurbs.NurbsSurface.second_derivatives
     monkeypatch.setattr(nurbs.NurbsSurface, "second_derivatives",
                         lambda self, u, v: evaluated.append(len(u)) or second_derivatives(self, u, v))  # fmt: skip
     for face, (parameters, nearest, distance) in zip(faces(), closed, strict=True):
-        newton_parameters, newton_nearest, newton_distance = nurbs.closest_points(face, points)
+        newton_parameters, newton_nearest, newton_distance = projection.closest_points(face, points)
         np.testing.assert_allclose(distance, newton_distance, rtol=0, atol=1e-14)
         np.testing.assert_allclose(nearest, newton_nearest, rtol=0, atol=1e-13)
         np.testing.assert_allclose(parameters, newton_parameters, rtol=0, atol=1e-11)

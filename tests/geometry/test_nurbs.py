@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from helpers import assert_imports_without
 
-from bhem_hpc.geometry import nurbs
+from bhem_hpc.geometry import nurbs, projection
 from bhem_hpc.geometry import rational_bezier as rb
 from bhem_hpc.geometry.surface import SurfaceError
 
@@ -30,6 +30,8 @@ def random_parameters(surface, rng, count=200):
 def test_nurbs_modules_import_numpy_only():
     assert_imports_without("bhem_hpc.geometry.nurbs")
     assert_imports_without("bhem_hpc.geometry.rational_bezier")
+    assert_imports_without("bhem_hpc.geometry.affine")
+    assert_imports_without("bhem_hpc.geometry.projection")
     assert_imports_without("bhem_hpc.solids.quadrature")
 
 
@@ -189,18 +191,18 @@ def test_second_derivatives_match_central_differences(rng):
 
 def test_closest_points_on_sphere_torus_and_face(rng):
     points = 0.6 * rng.normal(size=(3000, 3))
-    _, nearest, distance = nurbs.closest_points(nurbs.sphere(1.0), points)
+    _, nearest, distance = projection.closest_points(nurbs.sphere(1.0), points)
     np.testing.assert_allclose(distance, np.abs(np.linalg.norm(points, axis=1) - 1.0), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(nearest, axis=1), 1.0, atol=1e-14)
     # the foot itself to round-off, not only the distance (which is flat there: a foot off by
     # 1e-8 of the distance changes it by round-off, and a secondary ray from it misses by as much)
     radial = points / np.linalg.norm(points, axis=1)[:, None]
     np.testing.assert_allclose(nearest, radial, rtol=0, atol=1e-13)
-    _, _, distance = nurbs.closest_points(nurbs.torus(1.0, 0.3), points)
+    _, _, distance = projection.closest_points(nurbs.torus(1.0, 0.3), points)
     rho = np.hypot(points[:, 0], points[:, 1])
     np.testing.assert_allclose(distance, np.abs(np.hypot(rho - 1.0, points[:, 2]) - 0.3), atol=1e-12)
     face = nurbs.box_faces([0.0, 0.0, 0.0], [1.0, 1.0, 1.0])[0]  # x = 0, 0 <= y, z <= 1
-    _, _, distance = nurbs.closest_points(face, points)
+    _, _, distance = projection.closest_points(face, points)
     clamped = np.c_[np.zeros(len(points)), np.clip(points[:, 1:], 0.0, 1.0)]
     np.testing.assert_allclose(distance, np.linalg.norm(points - clamped, axis=1), atol=1e-12)
 
@@ -226,7 +228,7 @@ def test_closest_points_on_a_flat_face_end_when_the_distance_stops_falling(rng, 
         return second_derivatives(self, u, v)
 
     monkeypatch.setattr(nurbs.NurbsSurface, "second_derivatives", counted)
-    _, _, distance = nurbs.closest_points(face, points)
+    _, _, distance = projection.closest_points(face, points)
     clamped = np.c_[np.zeros(len(points)), np.clip(points[:, 1], 0.0, 0.016), np.clip(points[:, 2], 0.0, 0.18)]
     np.testing.assert_allclose(distance, np.linalg.norm(points - clamped, axis=1), atol=1e-14)
     assert len(calls) <= 8  # far below PROJECTION_ITERATIONS, which creeping steps reached

@@ -222,14 +222,13 @@ def _affine(pieces: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarra
     """Mask ``(N,)`` of the pieces ``(N, p+1, q+1, 4)`` whose surface is an affine map of their
     parameters within ``tolerance`` [m], and their unit normals ``(N, 3)`` (zero where the map
     collapses; set where the mask holds): equal weights, and control points where the corners'
-    affine map puts them (a flat face of a box or a fin, and its knot-refined pieces). An unfolded
-    affine piece meets a line once, and Newton's method finds the crossing in one step from anywhere."""
+    affine map puts them (a flat face of a box or a fin, and its knot-refined pieces). A line or
+    ray meets such a piece once, where its plane does (:func:`_affine_crossings`, :func:`_plane_hits`)."""
     p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
     weights = pieces[..., 3]
     equal = np.abs(weights - weights[:, :1, :1]).reshape(len(pieces), -1).max(axis=1) <= 1e-12 * weights[:, 0, 0]
     points = pieces[..., :3] / pieces[..., 3:]
-    origin = points[:, 0, 0]
-    along_s, along_t = points[:, p, 0] - origin, points[:, 0, q] - origin
+    origin, along_s, along_t = _corner_frames(pieces)
     fractions_s, fractions_t = _fractions(p)[:, None, None], _fractions(q)[:, None]
     affine = origin[:, None, None] + fractions_s * along_s[:, None, None] + fractions_t * along_t[:, None, None]
     mask = equal & (np.abs(points - affine).reshape(len(pieces), -1).max(axis=1) <= tolerance)

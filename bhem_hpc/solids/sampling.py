@@ -105,11 +105,17 @@ def sample_parts(parts: Sequence[NurbsSurface], order: int | None = None) -> lis
     return samples
 
 
+def column_offsets(samples: Sequence[PartSamples]) -> np.ndarray:
+    """``(parts + 1,)``: where each part's control points start among all parts' stacked in order,
+    then their count."""
+    return np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
+
+
 def stacked_bases(samples: Sequence[PartSamples]) -> list[scipy.sparse.csr_matrix]:
     """Each part's ``J`` over the control points of all parts stacked in order: ``(s_i, n_q)``
     (its columns moved by where the part's control points start: scipy's ``hstack`` with empty
     blocks, or its ``block_diag``, goes through COO matrices, 1.4 ms for a rocket's 25 parts)."""
-    offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
+    offsets = column_offsets(samples)
     return [scipy.sparse.csr_matrix((s.basis.data, s.basis.indices + offset, s.basis.indptr),
                                     shape=(s.basis.shape[0], int(offsets[-1])))
             for s, offset in zip(samples, offsets[:-1], strict=True)]  # fmt: skip
@@ -120,7 +126,7 @@ def stacked_basis(samples: Sequence[PartSamples]) -> scipy.sparse.csr_matrix:
     :func:`stacked_bases` one under the other (block diagonal), assembled from the parts' CSR
     arrays (a matrix per part first costs scipy's checks 25 times for a rocket)."""
     bases = [s.basis for s in samples]
-    columns = np.r_[0, np.cumsum([b.shape[1] for b in bases])]
+    columns = column_offsets(samples)
     nonzeros = np.r_[0, np.cumsum([b.nnz for b in bases])]
     indptr = np.concatenate([*(b.indptr[:-1] + start for b, start in zip(bases, nonzeros[:-1], strict=True)),
                              nonzeros[-1:]])  # fmt: skip

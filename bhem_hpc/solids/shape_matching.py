@@ -25,7 +25,7 @@ import numpy as np
 import scipy.sparse
 
 from bhem_hpc.geometry.surface import SurfaceError
-from bhem_hpc.solids.sampling import PartSamples, stacked_basis
+from bhem_hpc.solids.sampling import PartSamples, column_offsets, stacked_basis
 
 #: Monomials per degree: degree 1 -> 3, degree 2 -> 9.
 TERMS = {1: 3, 2: 9}
@@ -225,7 +225,7 @@ class _Moments:
 
     def __init__(self, samples: Sequence[PartSamples], degree: int, coefficient_count: int):
         self.degree, self.coefficient_count = degree, coefficient_count
-        self.offsets = np.r_[0, np.cumsum([s.basis.shape[1] for s in samples])]
+        self.offsets = column_offsets(samples)
         self.dense = coefficient_count * int(self.offsets[-1]) <= DENSE_PROJECTION_ENTRIES
         counts = np.array([len(s.weights) for s in samples])
         starts, part = np.r_[0, np.cumsum(counts)[:-1]], np.repeat(np.arange(len(samples)), counts)
@@ -409,12 +409,15 @@ def _completions(moments: _Moments, keys: set[_GroupKey],
                 solved = (inverse, unseen)
                 fits[group, origin] = _group_fit(moments, list(group), origin, translation[origin], solved)[0]
     every_part = np.arange(len(moments.centres))
+    over_all: dict[int, _PartRows | _DenseRows] = {}  # per origin: the fit over all parts' samples
     for group, origin in keys:
         if (group, origin) not in fits:
-            fit, unseen = _group_fit(moments, every_part, origin, translation[origin])
-            if unseen.shape[1]:
-                raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
-            fits[group, origin] = fit
+            if origin not in over_all:
+                fit, unseen = _group_fit(moments, every_part, origin, translation[origin])
+                if unseen.shape[1]:
+                    raise SurfaceError("the parts' samples lie on one quadric or plane: they bound no volume")
+                over_all[origin] = fit
+            fits[group, origin] = over_all[origin]
     return fits
 
 

@@ -77,6 +77,13 @@ STIFFNESS_GROWTH_DISTANCE = 1e-9
 #: The adaptive stiffness grows up to this many times its start (the top of ipc-toolkit's range):
 #: on the mandrel the can's wall, pressed onto the mandrel by the axial load, took 2^13 of it.
 STIFFNESS_GROWTH_LIMIT = 1e4
+#: The pairs that may come within dhat are found once for boxes inflated by dhat / 2 plus this
+#: fraction of dhat, and kept for every state whose vertices all lie within that fraction of dhat
+#: (in each coordinate) of where they were found: a pair within dhat there has boxes within dhat plus
+#: twice the margin where they were found. The broad phase is most of a build's time (the needles
+#: job: 18 of 25 ms), and Newton's later iterations and line-search trials move the vertices much
+#: less than dhat.
+CANDIDATE_MARGIN = 0.5
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.
 WEIGHT_CUTOFF = 1e-12
@@ -214,6 +221,8 @@ class IpcBarrier:
         self._translation = self._translation_weights() if self.moving else np.zeros(0)
         self._step = (0.0, 0.0)  # the time step of the last begin_step: its start and length [s]
         self._last_collisions: tuple[np.ndarray, Any] = (np.zeros((0, 3)), None)
+        # the pairs' candidates and the vertices where they were found (:meth:`_candidates_near`)
+        self._candidates: tuple[np.ndarray, Any] = (np.zeros((0, 3)), None)
 
     def _triangle_pattern(self, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs ``(i, j)`` of mesh blocks (columns of the global map) that share a triangle."""
@@ -289,8 +298,8 @@ class IpcBarrier:
     def _collisions(self, vertices: np.ndarray):
         """The pairs closer than dhat at ``vertices``: the last ones again where the vertices (and
         the obstacles' places) are those of the last call. A Newton iteration asks at one state for
-        the energy (its line search's accepted trial), the gradient and the Hessian; each build
-        takes tens of milliseconds on a mesh that meets itself (the needles job: 57 ms)."""
+        the energy (its line search's accepted trial), the gradient and the Hessian. The pairs come
+        from candidates kept while the vertices stay near (:meth:`_candidates_near`)."""
         last_vertices, collisions = self._last_collisions
         if collisions is not None and not self._toolkit_pairs:
             return collisions
@@ -298,11 +307,24 @@ class IpcBarrier:
             return collisions
         collisions = self._ipctk.NormalCollisions()
         if self._toolkit_pairs:
-            collisions.build(self.mesh, vertices, self.dhat)
+            collisions.build(self._candidates_near(vertices), self.mesh, vertices, self.dhat)
         if self.mesh.planes:
             collisions.pv_collisions = self._plane_collisions(vertices)
         self._last_collisions = (np.array(vertices), collisions)
         return collisions
+
+    def _candidates_near(self, vertices: np.ndarray):
+        """ipc-toolkit's candidate pairs for the barrier at ``vertices`` ``(vertices, 3)``: those found
+        last if no vertex has moved farther than :data:`CANDIDATE_MARGIN` dhat in a coordinate since,
+        else found anew there (the same on every rank: the vertices are everyone's)."""
+        margin = CANDIDATE_MARGIN * self.dhat
+        found_at, candidates = self._candidates
+        if (candidates is None or found_at.shape != vertices.shape
+                or np.abs(vertices - found_at).max(initial=0.0) > margin):
+            candidates = self._ipctk.Candidates()
+            candidates.build(self.mesh, vertices, 0.5 * self.dhat + margin)
+            self._candidates = (np.array(vertices), candidates)
+        return candidates
 
     def _plane_collisions(self, vertices: np.ndarray) -> list:
         """The plane-vertex pairs closer than dhat: every body vertex within dhat of a plane.

@@ -118,3 +118,38 @@ def test_a_translating_plane_carries_the_blocks_it_reaches_as_a_translation(comm
     np.testing.assert_allclose(moved[near], np.broadcast_to([-2e-3, 0.0, 0.0], moved[near].shape), atol=1e-12)
     assert np.all(np.abs(moved[~near]).max(axis=1) <= 2e-3 + 1e-12)
     np.testing.assert_allclose(-barrier.mesh.planes[0].offset(), -(front - 2e-3), rtol=1e-12)
+
+
+
+def test_kept_candidates_give_the_pairs_and_energy_of_a_fresh_search(comm, rng):
+    """The hairpin's collision mesh with its arms 1.5 mm apart (dhat 1 mm: no pair of the two arms
+    within it): mesh states whose vertices move by random amounts up to the candidate margin in
+    each coordinate (seeded) keep the candidates found at the first state, and give the pairs and
+    barrier energy of a barrier that searches anew at each state (the arms come within 0.6 mm);
+    a state moved beyond the margin searches anew."""
+    import ipctk
+
+    from bhem_hpc.contact.ipc_contribution import CANDIDATE_MARGIN
+
+    model, _ = hairpin_model(comm, "hermite", 12)
+    positions = model.x.x.array.reshape(-1, 3).copy()
+    positions[:, 2] *= 1.5e-3 / 0.03
+    kept = shell_barrier(model, [], 1e-3, 1.0, 2, 200.0, 1e-3, self_contact=True)
+    start = kept._vertices(positions)
+    kept._collisions(start)
+    first = kept._candidates[1]
+    margin = CANDIDATE_MARGIN * kept.dhat
+    fresh, counts = shell_barrier(model, [], 1e-3, 1.0, 2, 200.0, 1e-3, self_contact=True), []
+    for _ in range(4):
+        moved = np.asfortranarray(start + comm.bcast(rng.uniform(-margin, margin, start.shape), root=0))
+        pairs = kept._collisions(moved)
+        assert kept._candidates[1] is first
+        reference = ipctk.NormalCollisions()
+        reference.build(fresh.mesh, moved, fresh.dhat)
+        counts.append(len(pairs))
+        assert len(pairs) == len(reference)
+        np.testing.assert_allclose(kept.barrier(pairs, kept.mesh, moved), fresh.barrier(reference, fresh.mesh, moved),
+                                   rtol=1e-12)  # fmt: skip
+    assert min(counts) > 0
+    kept._collisions(np.asfortranarray(start + np.array([0.0, 0.0, 1.01 * margin])))
+    assert kept._candidates[1] is not first

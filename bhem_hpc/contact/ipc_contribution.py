@@ -84,6 +84,9 @@ STIFFNESS_GROWTH_LIMIT = 1e4
 #: job: 18 of 25 ms), and Newton's later iterations and line-search trials move the vertices much
 #: less than dhat.
 CANDIDATE_MARGIN = 0.5
+#: How many states' vertices the barrier keeps (:meth:`IpcBarrier._vertices`): an iterate and a
+#: step's end (a step bound asks for both).
+KEPT_VERTEX_STATES = 2
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.
 WEIGHT_CUTOFF = 1e-12
@@ -223,6 +226,8 @@ class IpcBarrier:
         self._last_collisions: tuple[np.ndarray, Any] = (np.zeros((0, 3)), None)
         # the pairs' candidates and the vertices where they were found (:meth:`_candidates_near`)
         self._candidates: tuple[np.ndarray, Any] = (np.zeros((0, 3)), None)
+        # open block positions and the shell's vertices there, the latest first (:meth:`_vertices`)
+        self._kept_vertices: list[tuple[np.ndarray, np.ndarray]] = []
 
     def _triangle_pattern(self, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs ``(i, j)`` of mesh blocks (columns of the global map) that share a triangle."""
@@ -291,9 +296,17 @@ class IpcBarrier:
             self._last_collisions = (np.zeros((0, 3)), None)  # the planes are not among the vertices
 
     def _vertices(self, positions: np.ndarray) -> np.ndarray:
-        """Collective: the mesh's vertices for this rank's open block positions ``(blocks, 3)``."""
-        shell = self._comm.allreduce(self.local_map @ np.asarray(positions).reshape(-1, 3))
-        return np.asfortranarray(np.concatenate([shell, self._obstacle_vertices]))
+        """Collective: the mesh's vertices for this rank's open block positions ``(blocks, 3)``. A
+        Newton iteration asks at its iterate for the energy, gradient, Hessian and step bounds: the
+        shell's vertices of the last :data:`KEPT_VERTEX_STATES` positions are kept (a state is taken
+        from there only where every rank has it: the sum over the ranks is collective)."""
+        positions = np.asarray(positions, dtype=float).reshape(-1, 3)
+        kept = next((shell for at, shell in self._kept_vertices
+                     if at.shape == positions.shape and np.array_equal(at, positions)), None)  # fmt: skip
+        if self._comm.allreduce(int(kept is None)):
+            kept = self._comm.allreduce(self.local_map @ positions)
+            self._kept_vertices = [(positions.copy(), kept), *self._kept_vertices][:KEPT_VERTEX_STATES]
+        return np.asfortranarray(np.concatenate([kept, self._obstacle_vertices]))
 
     def _collisions(self, vertices: np.ndarray):
         """The pairs closer than dhat at ``vertices``: the last ones again where the vertices (and
@@ -489,6 +502,8 @@ class IpcBarrier:
         """The largest fraction of the straight motion of the mesh's vertices ``start -> end``
         ``(vertices, 3)`` that no pair crosses (ipc-toolkit's additive CCD)."""
         bound = 1.0
+        if np.array_equal(start, end):  # no motion (the step's start as a first guess)
+            return bound
         if self._toolkit_pairs:
             bound = float(self._ipctk.compute_collision_free_stepsize(self.mesh, start, end, 0.0, None, self._ccd))
         if len(self.round):

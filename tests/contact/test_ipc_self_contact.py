@@ -153,3 +153,21 @@ def test_kept_candidates_give_the_pairs_and_energy_of_a_fresh_search(comm, rng):
     assert min(counts) > 0
     kept._collisions(np.asfortranarray(start + np.array([0.0, 0.0, 1.01 * margin])))
     assert kept._candidates[1] is not first
+
+
+def test_kept_vertices_follow_positions_changed_in_place(comm):
+    """The barrier keeps the vertices of the last two block positions it was asked for: positions
+    changed in place (the same array) give the vertices of their new values, and the two kept states
+    give theirs again. B-spline control points: a shift of them all moves every point by it."""
+    model, _ = hairpin_model(comm, "bspline2", 12)
+    barrier = _barrier(model)
+    positions = model.x.x.array.reshape(-1, 3).copy()
+    first = barrier._vertices(positions)
+    moved = positions + np.array([1e-3, -2e-3, 0.5e-3])
+    second = barrier._vertices(moved)
+    positions[:, 2] += 1e-3  # in place
+    third = barrier._vertices(positions)
+    np.testing.assert_allclose(third[:, 2] - first[:, 2], 1e-3, atol=1e-12)
+    np.testing.assert_allclose(second - first, np.broadcast_to([1e-3, -2e-3, 0.5e-3], first.shape), atol=1e-12)
+    np.testing.assert_array_equal(barrier._vertices(moved), second)
+    np.testing.assert_array_equal(barrier._vertices(positions), third)

@@ -171,3 +171,39 @@ def test_kept_vertices_follow_positions_changed_in_place(comm):
     np.testing.assert_allclose(second - first, np.broadcast_to([1e-3, -2e-3, 0.5e-3], first.shape), atol=1e-12)
     np.testing.assert_array_equal(barrier._vertices(moved), second)
     np.testing.assert_array_equal(barrier._vertices(positions), third)
+
+
+
+def test_a_motion_far_beyond_the_mesh_is_bounded_through_its_first_stretch(comm):
+    """The hairpin's upper arm (1.5 mm above the lower) moved 20 diagonals down and sideways: the
+    CCD sees no vertex move farther than CCD_REACH diagonals, the bound is its result scaled to the
+    whole motion, the motion up to it is free of intersections, and it cuts the arm short of the
+    other."""
+    import types
+
+    import ipctk
+
+    from bhem_hpc.contact.ipc_contribution import CCD_REACH
+
+    model, _ = hairpin_model(comm, "hermite", 12)
+    positions = model.x.x.array.reshape(-1, 3).copy()
+    positions[:, 2] *= 1.5e-3 / 0.03
+    barrier = _barrier(model, cells=2)
+    start = barrier._vertices(positions)
+    far = 20.0 * barrier.diagonal
+    arm = start[:, 2:3] > 0.7e-3  # the upper arm's points (the bend's stay)
+    shift = np.where(arm, 1.0, 0.0) * np.array([0.3, 0.0, -1.0]) * far / np.hypot(0.3, 1.0)
+    seen = []
+
+    def stepsize(mesh, first, last, *args):
+        seen.append((np.linalg.norm(last - first, axis=1).max(), ipctk.compute_collision_free_stepsize(
+            mesh, first, last, *args)))  # fmt: skip
+        return seen[-1][1]
+
+    barrier._ipctk = types.SimpleNamespace(compute_collision_free_stepsize=stepsize)
+    bound = barrier._collision_free_fraction(start, np.asfortranarray(start + shift))
+    (move, stretch_bound), = seen
+    assert move <= CCD_REACH * barrier.diagonal * (1.0 + 1e-12) and CCD_REACH < 1.0
+    np.testing.assert_allclose(bound, move / far * stretch_bound, rtol=1e-12)
+    assert 0.0 < bound < 1.5e-3 * np.hypot(0.3, 1.0) / far  # before the arm would reach the other
+    assert ipctk.is_step_collision_free(barrier.mesh, start, np.asfortranarray(start + bound * shift))

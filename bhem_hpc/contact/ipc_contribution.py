@@ -90,8 +90,9 @@ CANDIDATE_MARGIN = 0.5
 #: trial of the crushed can by IPC that moved its wall by 1.5 m (eight diagonals) made nearly every
 #: pair of the mesh a candidate, 67 s for one bound; that step takes 1.8 s with this (measured).
 CCD_REACH = 0.1
-#: How many states' vertices the barrier keeps (:meth:`IpcBarrier._vertices`): an iterate and a
-#: step's end (a step bound asks for both).
+#: How many states' vertices and pairs the barrier keeps (:meth:`IpcBarrier._vertices`,
+#: :meth:`IpcBarrier._collisions`): an iterate and a step's end (a step bound asks for both), or a
+#: step's start and its inertial prediction (its first guess).
 KEPT_VERTEX_STATES = 2
 #: Basis weights below this (relative to the point's largest) are dropped from the map: a point on
 #: a cell's edge then depends only on that edge's blocks, which neighbouring cells share.
@@ -229,7 +230,8 @@ class IpcBarrier:
         self.friction = friction
         self._translation = self._translation_weights() if self.moving else np.zeros(0)
         self._step = (0.0, 0.0)  # the time step of the last begin_step: its start and length [s]
-        self._last_collisions: tuple[np.ndarray, Any] = (np.zeros((0, 3)), None)
+        # vertices and the pairs there, the latest first (:meth:`_collisions`)
+        self._kept_collisions: list[tuple[np.ndarray, Any]] = []
         # the pairs' candidates and the vertices where they were found (:meth:`_candidates_near`)
         self._candidates: tuple[np.ndarray, Any] = (np.zeros((0, 3)), None)
         # open block positions and the shell's vertices there, the latest first (:meth:`_vertices`)
@@ -299,7 +301,7 @@ class IpcBarrier:
         if self.moving:
             self._obstacle_vertices = self._obstacle_rest + time * self._obstacle_velocity
             self.mesh.planes = self._planes_at(time)
-            self._last_collisions = (np.zeros((0, 3)), None)  # the planes are not among the vertices
+            self._kept_collisions = []  # the planes are not among the vertices
 
     def _vertices(self, positions: np.ndarray) -> np.ndarray:
         """Collective: the mesh's vertices for this rank's open block positions ``(blocks, 3)``. A
@@ -315,21 +317,23 @@ class IpcBarrier:
         return np.asfortranarray(np.concatenate([kept, self._obstacle_vertices]))
 
     def _collisions(self, vertices: np.ndarray):
-        """The pairs closer than dhat at ``vertices``: the last ones again where the vertices (and
-        the obstacles' places) are those of the last call. A Newton iteration asks at one state for
-        the energy (its line search's accepted trial), the gradient and the Hessian. The pairs come
-        from candidates kept while the vertices stay near (:meth:`_candidates_near`)."""
-        last_vertices, collisions = self._last_collisions
-        if collisions is not None and not self._toolkit_pairs:
-            return collisions
-        if collisions is not None and last_vertices.shape == vertices.shape and np.array_equal(last_vertices, vertices):
-            return collisions
+        """The pairs closer than dhat at ``vertices``: those of one of the last
+        :data:`KEPT_VERTEX_STATES` calls again where the vertices (and the obstacles' places) are
+        that call's. A Newton iteration asks at one state for the energy (its line search's
+        accepted trial), the gradient and the Hessian; a step's first guess for the energies of the
+        inertial prediction and of the step's start (the last step's end). The pairs come from
+        candidates kept while the vertices stay near (:meth:`_candidates_near`)."""
+        if self._kept_collisions and not self._toolkit_pairs:
+            return self._kept_collisions[0][1]
+        for at, collisions in self._kept_collisions:
+            if at.shape == vertices.shape and np.array_equal(at, vertices):
+                return collisions
         collisions = self._ipctk.NormalCollisions()
         if self._toolkit_pairs:
             collisions.build(self._candidates_near(vertices), self.mesh, vertices, self.dhat)
         if self.mesh.planes:
             collisions.pv_collisions = self._plane_collisions(vertices)
-        self._last_collisions = (np.array(vertices), collisions)
+        self._kept_collisions = [(np.array(vertices), collisions), *self._kept_collisions][:KEPT_VERTEX_STATES]
         return collisions
 
     def _candidates_near(self, vertices: np.ndarray):

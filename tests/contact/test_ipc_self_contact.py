@@ -12,8 +12,9 @@ from bhem_hpc.contact.ipc_setup import shell_barrier
 from bhem_hpc.solver.contributions import ContributionState, diagonal_compensation
 
 
-def _barrier(model, self_contact: bool = True, cells: int = 2):
-    return shell_barrier(model, [], None, None, cells, 200.0, 1e-3, self_contact=self_contact)
+def _barrier(model, self_contact: bool = True, cells: int = 2, dhat: float | None = None,
+             stiffness: float | None = None):  # fmt: skip
+    return shell_barrier(model, [], dhat, stiffness, cells, 200.0, 1e-3, self_contact=self_contact)
 
 
 def test_diagonal_compensation_keeps_a_band_restricted_matrix_positive_semi_definite(rng):
@@ -120,7 +121,6 @@ def test_a_translating_plane_carries_the_blocks_it_reaches_as_a_translation(comm
     np.testing.assert_allclose(-barrier.mesh.planes[0].offset(), -(front - 2e-3), rtol=1e-12)
 
 
-
 def test_kept_candidates_give_the_pairs_and_energy_of_a_fresh_search(comm, rng):
     """The hairpin's collision mesh with its arms 1.5 mm apart (dhat 1 mm: no pair of the two arms
     within it): mesh states whose vertices move by random amounts up to the candidate margin in
@@ -134,12 +134,12 @@ def test_kept_candidates_give_the_pairs_and_energy_of_a_fresh_search(comm, rng):
     model, _ = hairpin_model(comm, "hermite", 12)
     positions = model.x.x.array.reshape(-1, 3).copy()
     positions[:, 2] *= 1.5e-3 / 0.03
-    kept = shell_barrier(model, [], 1e-3, 1.0, 2, 200.0, 1e-3, self_contact=True)
+    kept = _barrier(model, dhat=1e-3, stiffness=1.0)
     start = kept._vertices(positions)
     kept._collisions(start)
     first = kept._candidates[1]
     margin = CANDIDATE_MARGIN * kept.dhat
-    fresh, counts = shell_barrier(model, [], 1e-3, 1.0, 2, 200.0, 1e-3, self_contact=True), []
+    fresh, counts = _barrier(model, dhat=1e-3, stiffness=1.0), []
     for _ in range(4):
         moved = np.asfortranarray(start + comm.bcast(rng.uniform(-margin, margin, start.shape), root=0))
         pairs = kept._collisions(moved)
@@ -171,7 +171,6 @@ def test_kept_vertices_follow_positions_changed_in_place(comm):
     np.testing.assert_allclose(second - first, np.broadcast_to([1e-3, -2e-3, 0.5e-3], first.shape), atol=1e-12)
     np.testing.assert_array_equal(barrier._vertices(moved), second)
     np.testing.assert_array_equal(barrier._vertices(positions), third)
-
 
 
 def test_a_motion_far_beyond_the_mesh_is_bounded_through_its_first_stretch(comm):

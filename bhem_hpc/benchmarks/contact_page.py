@@ -41,7 +41,9 @@ class ContactWindow:
     """Where a job is timed: after ``start`` untimed steps, ``steps`` steps; ``phase``: what happens;
     ``impulse_contact``: the contact table of the impulse run of a job that ships with IPC;
     ``ipc_hessian``: the IPC run's ``solver.hessian`` where it is not the job's own; ``methods``: the
-    methods timed there (a job whose methods meet its hard phase at different steps has a window for each)."""
+    methods timed there (a job whose methods meet its hard phase at different steps has a window for each);
+    ``ipc_contact``: the IPC run's contact table; ``variant``: what sets a second window of a job at the
+    same steps apart (its runs' names and its rows' label)."""
 
     job: str
     start: int
@@ -50,6 +52,13 @@ class ContactWindow:
     impulse_contact: str | None = None
     ipc_hessian: str | None = None
     methods: tuple[str, ...] = METHODS
+    ipc_contact: str = IPC_CONTACT
+    variant: str = ""
+
+    @property
+    def label(self) -> str:
+        """The job's name, with the variant's where it has one."""
+        return f"{self.job} ({self.variant})" if self.variant else self.job
 
     @property
     def timed_steps(self) -> tuple[int, int]:
@@ -61,6 +70,14 @@ class ContactWindow:
 CONTACT_WINDOWS = (
     ContactWindow("ball", 70, 20, "the cloth lies on the ball and slides off it"),
     ContactWindow("needles", 240, 10, "the cloth hangs on the needles and folds onto itself"),
+    # the same steps with the barrier's stiffness set in the scene: with the adaptive one the contacts
+    # rest 2e-6 m from the needles and 1e-5 m apart in the folds, the barrier's Hessian changes much
+    # from one iterate to the next there and a kept factorization serves few chord steps (3
+    # factorizations a step against 0.2 with this one, 10 steps from one state, measured)
+    ContactWindow("needles", 240, 10, "the cloth hangs on the needles and folds onto itself, the barrier's "
+                  "stiffness set to 1.7e4 N/m (100 times its adaptive start)", methods=("ipc",),
+                  ipc_contact='contact = { method = "ipc", velocity_tolerance = "auto", barrier_stiffness = 1.7e4 }',
+                  variant="κ 1.7e4 N/m"),
     ContactWindow("mesh-obstacle", 110, 10, "the cloth lies on the mesh obstacle"),
     # by IPC the rim buckles under the barrier's push in steps 21-30 (line-search Newton crawled along
     # the buckling mode, 100 iterations and 20 recoveries; the trust region follows it in 3 to 10) and
@@ -100,10 +117,10 @@ class Tessellated(Protocol):
 
 
 def job_variant(text: str, method: str, every: int, source: str, impulse_contact: str | None = None,
-                ipc_hessian: str | None = None) -> str:  # fmt: skip
+                ipc_hessian: str | None = None, ipc_contact: str = IPC_CONTACT) -> str:  # fmt: skip
     """The scene ``text`` with its contact by ``method`` (``impulse``: as given, or every contact table
-    replaced by ``impulse_contact``; ``ipc``: every contact table replaced, and the Hessian set to
-    ``ipc_hessian`` where given) and a frame every ``every`` steps.
+    replaced by ``impulse_contact``; ``ipc``: every contact table replaced by ``ipc_contact``, and the
+    Hessian set to ``ipc_hessian`` where given) and a frame every ``every`` steps.
 
     Raises:
         ValueError: the scene has no ``contact = { ... }`` table (named by ``source``).
@@ -112,7 +129,7 @@ def job_variant(text: str, method: str, every: int, source: str, impulse_contact
         raise ValueError(f"{source}: expected a 'contact = {{ ... }}' table (or 'contact = true') in its effects, "
                          "found none")
     if method == "ipc":
-        text = CONTACT_TABLE.sub(IPC_CONTACT, text)
+        text = CONTACT_TABLE.sub(ipc_contact, text)
         text = text if ipc_hessian is None else _with_hessian(text, ipc_hessian)
     elif impulse_contact is not None:
         text = CONTACT_TABLE.sub(impulse_contact, text)
@@ -226,20 +243,28 @@ def job_bodies(path: Path) -> tuple:
     return scene.bodies if isinstance(scene, BodiesScene) else (scene,)
 
 
+def run_name(window: ContactWindow, method: str) -> str:
+    """The stem of the run directories and scene files of ``window`` by ``method``: job, variant (in
+    letters, digits and dots), method, start."""
+    variant = re.sub(r"[^0-9A-Za-z.]+", "-", window.variant).strip("-")
+    return "-".join(filter(None, (window.job, variant, method, str(window.start))))
+
+
 def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
     """Run ``window``'s job by ``method`` into ``runs/<job>-<method>-<start>-{warm,window}`` (scene files
     beside them); its figures over the window."""
     source = JOBS / f"{window.job}.toml"
     text = source.read_text()
-    name = f"{window.job}-{method}-{window.start}"
+    name = run_name(window, method)
     warm_scene, window_scene = runs / f"{name}-warm.toml", runs / f"{name}-window.toml"
-    warm_scene.write_text(job_variant(text, method, 10**6, str(source), window.impulse_contact, window.ipc_hessian))
-    window_scene.write_text(job_variant(text, method, 1, str(source), window.impulse_contact, window.ipc_hessian))
+    for scene, every in ((warm_scene, 10**6), (window_scene, 1)):
+        scene.write_text(job_variant(text, method, every, str(source), window.impulse_contact, window.ipc_hessian,
+                                     window.ipc_contact))  # fmt: skip
     warm, out = runs / f"{name}-warm", runs / f"{name}-window"
     started = time.perf_counter()
     status = _run(warm_scene, warm, window.start, timeout)
     warm_s = time.perf_counter() - started
-    row = {"job": window.job, "method": method, "window": list(window.timed_steps),
+    row = {"job": window.label, "method": method, "window": list(window.timed_steps),
            "phase": window.phase, "warm_up": status, "warm_up_s": warm_s}  # fmt: skip
     if status != "completed":
         return row | {"status": f"warm-up {status}", "steps": 0}
@@ -290,6 +315,9 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "trust region, which does not take the step test, the cloth pile's line search; fresh factorizations "
         "unless the job keeps them, as the ball and the needles do); a job that ships "
         "with IPC (linked-bands, cloth-on-sphere) runs by impulses with the contact table its window names. "
+        "The needles run by IPC a second time over the same steps with the barrier's stiffness set in the scene "
+        "(its row's label): the contacts rest farther apart, within dhat, and a kept factorization serves more "
+        "chord steps. "
         "The crushed can's wall buckles at different steps by the two methods (by IPC in steps 37-39, by impulses "
         "between steps 90 and 100): a second window times the impulse run where its folds are crushed "
         "further and its Newton iterations peak. "
@@ -331,8 +359,8 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         )
     lines += _time_table(rows)
     timed = {(r["job"], r["window"][0]) for r in rows}
-    lines += ["", "Windows:", ""] + [f"- {w.job}: steps {w.timed_steps[0]}–{w.timed_steps[1]}, {w.phase}."
-                                     for w in CONTACT_WINDOWS if (w.job, w.timed_steps[0]) in timed]  # fmt: skip
+    lines += ["", "Windows:", ""] + [f"- {w.label}: steps {w.timed_steps[0]}–{w.timed_steps[1]}, {w.phase}."
+                                     for w in CONTACT_WINDOWS if (w.label, w.timed_steps[0]) in timed]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

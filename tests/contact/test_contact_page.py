@@ -5,6 +5,7 @@ every body's series."""
 
 from __future__ import annotations
 
+import re
 import tomllib
 
 import h5py
@@ -17,14 +18,14 @@ from bhem_hpc.collision.colliders import Plane, Sphere
 pytestmark = pytest.mark.rank_free  # no communicator: the same computation on every rank
 
 
-@pytest.mark.parametrize("window", CONTACT_WINDOWS, ids=lambda w: w.job)
+@pytest.mark.parametrize("window", CONTACT_WINDOWS, ids=lambda w: w.label)
 def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_other_settings(tmp_path, window):
     source = JOBS / f"{window.job}.toml"
     shipped = job_bodies(source)
     for method in ("impulse", "ipc"):
         variant = tmp_path / f"{method}.toml"
         variant.write_text(job_variant(source.read_text(), method, 7, str(source), window.impulse_contact,
-                                       window.ipc_hessian))  # fmt: skip
+                                       window.ipc_hessian, window.ipc_contact))  # fmt: skip
         bodies = job_bodies(variant)
         assert len(bodies) == len(shipped)
         for scene, original in zip(bodies, shipped, strict=True):
@@ -32,8 +33,10 @@ def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_
             assert original.contact.method == ("impulse" if window.impulse_contact is None else "ipc")
             assert window.start + window.steps <= original.steps
             assert scene.contact.method == method and scene.output_every == 7
-            if method == "ipc":  # IPC's step test at IPC's tolerance
+            if method == "ipc":  # IPC's step test at IPC's tolerance, the adaptive stiffness unless the window sets one
                 assert scene.contact.velocity_tolerance == "auto"
+                contact = tomllib.loads(window.ipc_contact)["contact"]
+                assert scene.contact.barrier_stiffness == contact.get("barrier_stiffness")
             if method == "ipc" and window.ipc_hessian is not None:
                 assert scene.hessian == window.ipc_hessian != original.hessian
             else:
@@ -41,6 +44,17 @@ def test_every_contact_job_has_variants_by_both_methods_that_load_with_the_jobs_
             assert scene.contact.self_collision == original.contact.self_collision
             assert len(scene.contact.colliders) == len(original.contact.colliders)
             assert scene.steps == original.steps and scene.material == original.material
+
+
+def test_every_window_and_method_runs_in_directories_of_its_own_and_has_a_label_of_its_own():
+    from bhem_hpc.benchmarks.contact_page import run_name
+
+    names = [run_name(w, method) for w in CONTACT_WINDOWS for method in w.methods]
+    assert len(set(names)) == len(names) and all(re.fullmatch(r"[0-9A-Za-z.-]+", name) for name in names)
+    labels = [(w.label, w.start, method) for w in CONTACT_WINDOWS for method in w.methods]
+    assert len(set(labels)) == len(labels)
+    stiff = [w for w in CONTACT_WINDOWS if w.variant]
+    assert [run_name(w, "ipc") for w in stiff] == ["needles-1.7e4-N-m-ipc-240"]
 
 
 def test_a_scene_without_a_contact_table_is_refused_by_name():

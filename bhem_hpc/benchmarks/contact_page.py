@@ -251,8 +251,8 @@ def run_name(window: ContactWindow, method: str) -> str:
 
 
 def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
-    """Run ``window``'s job by ``method`` into ``runs/<job>-<method>-<start>-{warm,window}`` (scene files
-    beside them); its figures over the window."""
+    """Run ``window``'s job by ``method`` into ``runs/<name>-{warm,window}`` (:func:`run_name`; scene
+    files beside them); its figures over the window."""
     source = JOBS / f"{window.job}.toml"
     text = source.read_text()
     name = run_name(window, method)

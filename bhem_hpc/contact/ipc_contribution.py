@@ -99,6 +99,17 @@ KEPT_VERTEX_STATES = 2
 WEIGHT_CUTOFF = 1e-12
 
 
+def _kept_value(states: list[tuple[np.ndarray, Any]], at: np.ndarray) -> Any:
+    """The value kept in ``states`` (``(array, value)``, the latest first) for an array equal to
+    ``at`` (shape and entries), or None."""
+    return next((value for key, value in states if key.shape == at.shape and np.array_equal(key, at)), None)
+
+
+def _keeping(states: list[tuple[np.ndarray, Any]], at: np.ndarray, value: Any) -> list[tuple[np.ndarray, Any]]:
+    """``states`` with ``(at, value)`` first, the oldest dropped beyond :data:`KEPT_VERTEX_STATES`."""
+    return [(at, value), *states][:KEPT_VERTEX_STATES]
+
+
 @dataclass(frozen=True)
 class Obstacles:
     """Colliders as the barrier sees them, where they are at time 0, each translating at a constant velocity.
@@ -309,11 +320,10 @@ class IpcBarrier:
         shell's vertices of the last :data:`KEPT_VERTEX_STATES` positions are kept (a state is taken
         from there only where every rank has it: the sum over the ranks is collective)."""
         positions = np.asarray(positions, dtype=float).reshape(-1, 3)
-        kept = next((shell for at, shell in self._kept_vertices
-                     if at.shape == positions.shape and np.array_equal(at, positions)), None)  # fmt: skip
+        kept = _kept_value(self._kept_vertices, positions)
         if self._comm.allreduce(int(kept is None)):
             kept = self._comm.allreduce(self.local_map @ positions)
-            self._kept_vertices = [(positions.copy(), kept), *self._kept_vertices][:KEPT_VERTEX_STATES]
+            self._kept_vertices = _keeping(self._kept_vertices, positions.copy(), kept)
         return np.asfortranarray(np.concatenate([kept, self._obstacle_vertices]))
 
     def _collisions(self, vertices: np.ndarray):
@@ -325,15 +335,15 @@ class IpcBarrier:
         candidates kept while the vertices stay near (:meth:`_candidates_near`)."""
         if self._kept_collisions and not self._toolkit_pairs:
             return self._kept_collisions[0][1]
-        for at, collisions in self._kept_collisions:
-            if at.shape == vertices.shape and np.array_equal(at, vertices):
-                return collisions
+        kept = _kept_value(self._kept_collisions, vertices)
+        if kept is not None:
+            return kept
         collisions = self._ipctk.NormalCollisions()
         if self._toolkit_pairs:
             collisions.build(self._candidates_near(vertices), self.mesh, vertices, self.dhat)
         if self.mesh.planes:
             collisions.pv_collisions = self._plane_collisions(vertices)
-        self._kept_collisions = [(np.array(vertices), collisions), *self._kept_collisions][:KEPT_VERTEX_STATES]
+        self._kept_collisions = _keeping(self._kept_collisions, np.array(vertices), collisions)
         return collisions
 
     def _candidates_near(self, vertices: np.ndarray):

@@ -11,16 +11,12 @@ from bhem_hpc.model.material import Material
 def fundamental_forms(point: SurfacePoint) -> tuple[np.ndarray, np.ndarray]:
     """First and second fundamental forms ``(a, b)``, each of shape ``S + (2, 2)``."""
     a1, a2, n = point.a1, point.a2, point.normal
-    a = np.stack(
-        [np.stack([(a1 * a1).sum(-1), (a1 * a2).sum(-1)], -1), np.stack([(a2 * a1).sum(-1), (a2 * a2).sum(-1)], -1)], -2
-    )
-    b = np.stack(
-        [
-            np.stack([(point.a11 * n).sum(-1), (point.a12 * n).sum(-1)], -1),
-            np.stack([(point.a12 * n).sum(-1), (point.a22 * n).sum(-1)], -1),
-        ],
-        -2,
-    )
+    a = np.empty(a1.shape[:-1] + (2, 2))
+    b = np.empty_like(a)
+    a[..., 0, 0], a[..., 1, 1] = np.einsum("...c,...c->...", a1, a1), np.einsum("...c,...c->...", a2, a2)
+    a[..., 0, 1] = a[..., 1, 0] = np.einsum("...c,...c->...", a1, a2)
+    b[..., 0, 0], b[..., 1, 1] = np.einsum("...c,...c->...", point.a11, n), np.einsum("...c,...c->...", point.a22, n)
+    b[..., 0, 1] = b[..., 1, 0] = np.einsum("...c,...c->...", point.a12, n)
     return a, b
 
 
@@ -33,24 +29,41 @@ def inverse_2x2(m: np.ndarray) -> np.ndarray:
     return adjugate / det[..., None, None]
 
 
-def mean_curvature(point: SurfacePoint) -> np.ndarray:
-    """``H = tr(a^-1 b) / 2`` (sign follows the normal a1 x a2), shape ``S``."""
-    a, b = fundamental_forms(point)
-    return 0.5 * np.trace(inverse_2x2(a) @ b, axis1=-2, axis2=-1)
+def _trace_of_product(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """``tr(left right)`` of matrices ``S + (2, 2)`` (without the products' off-diagonal entries)."""
+    return np.einsum("...ij,...ji->...", left, right)
 
 
-def energy_densities(rest: SurfacePoint, current: SurfacePoint, material: Material) -> tuple[np.ndarray, np.ndarray]:
-    """Membrane and bending energy per unit rest area (paper eqs. 7-8), each of shape ``S``."""
-    a_rest, b_rest = fundamental_forms(rest)
-    a, b = fundamental_forms(current)
+def mean_curvature(point: SurfacePoint, forms: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """``H = tr(a^-1 b) / 2`` (sign follows the normal a1 x a2), shape ``S``; ``forms``: the point's
+    :func:`fundamental_forms` where the caller has them."""
+    a, b = fundamental_forms(point) if forms is None else forms
+    return 0.5 * _trace_of_product(inverse_2x2(a), b)
+
+
+class RestMetric:
+    """What the energy densities need of the rest surface at a set of points: the inverse of its
+    first fundamental form and both forms, each ``S + (2, 2)`` (an output series computes them once)."""
+
+    def __init__(self, rest: SurfacePoint):
+        self.first, self.second = fundamental_forms(rest)
+        self.inverse = inverse_2x2(self.first)
+
+
+def energy_densities(rest: SurfacePoint | RestMetric, current: SurfacePoint, material: Material,
+                     forms: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Membrane and bending energy per unit rest area (paper eqs. 7-8), each of shape ``S``; ``rest``
+    the rest surface's points or their :class:`RestMetric`, ``forms`` the current points'
+    :func:`fundamental_forms` where the caller has them."""
+    metric = rest if isinstance(rest, RestMetric) else RestMetric(rest)
+    a, b = fundamental_forms(current) if forms is None else forms
     nu, young = material.poisson, material.young
     lmbda, mu = young * nu / (1 - nu**2), young / (2 * (1 + nu))
-    inverse = inverse_2x2(a_rest)
+    inverse = metric.inverse
 
     def svk(strain: np.ndarray) -> np.ndarray:
-        mixed = inverse @ strain
-        trace = np.trace(mixed, axis1=-2, axis2=-1)
-        return 0.5 * lmbda * trace**2 + mu * np.trace(mixed @ mixed, axis1=-2, axis2=-1)
+        mixed = np.matmul(inverse, strain)
+        return 0.5 * lmbda * np.trace(mixed, axis1=-2, axis2=-1) ** 2 + mu * _trace_of_product(mixed, mixed)
 
     h = material.thickness
-    return h * svk(0.5 * (a - a_rest)), h**3 / 3 * svk(0.5 * (b - b_rest))
+    return h * svk(0.5 * (a - metric.first)), h**3 / 3 * svk(0.5 * (b - metric.second))

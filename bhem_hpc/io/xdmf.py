@@ -99,14 +99,16 @@ def _document(grids: str) -> str:
     return f'<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n{grids}\n  </Domain>\n</Xdmf>\n'
 
 
-def _point_fields(point, rest_point=None, material=None) -> dict[str, np.ndarray]:
+def _point_fields(point, rest=None, material=None) -> dict[str, np.ndarray]:
     """Per-point fields of a surface for ParaView: normal ``(n, 3)``, mean curvature ``(n,)`` and,
-    given the rest surface's points and the material, membrane and bending energy densities."""
-    from bhem_hpc.io.fields import energy_densities, mean_curvature
+    given the rest surface's points (or their :class:`~bhem_hpc.io.fields.RestMetric`) and the
+    material, membrane and bending energy densities."""
+    from bhem_hpc.io.fields import energy_densities, fundamental_forms, mean_curvature
 
-    fields = {"normal": point.normal, "mean_curvature": mean_curvature(point)}
-    if rest_point is not None and material is not None:
-        membrane, bending = energy_densities(rest_point, point, material)
+    forms = fundamental_forms(point)
+    fields = {"normal": point.normal, "mean_curvature": mean_curvature(point, forms)}
+    if rest is not None and material is not None:
+        membrane, bending = energy_densities(rest, point, material, forms)
         fields |= {"membrane_energy_density": membrane, "bending_energy_density": bending}
     return fields
 
@@ -177,7 +179,9 @@ class SurfaceTimeSeries:
         _, self.quads, self.params = rest.tessellate(density)
         if trim is not None:
             self.quads = trim.kept_elements(self.params, self.quads)
-        self.rest_point = rest.evaluate(self.params[:, 0], self.params[:, 1])
+        from bhem_hpc.io.fields import RestMetric  # as in _point_fields
+
+        self.rest_metric = RestMetric(rest.evaluate(self.params[:, 0], self.params[:, 1]))
         self.times: list[float] = []
         self._failed = False
         if continue_at is not None:
@@ -253,7 +257,7 @@ class SurfaceTimeSeries:
 
     def _write_frame(self, time: float, surface: HermiteSurface) -> None:
         point = surface.evaluate(self.params[:, 0], self.params[:, 1])
-        fields = _point_fields(point, self.rest_point, self.material)
+        fields = _point_fields(point, self.rest_metric, self.material)
         fields = {name: fields[name] for name in SERIES_FIELDS}
         group = self.file.create_group(f"frames/{len(self.times)}")
         group["geometry"] = point.x

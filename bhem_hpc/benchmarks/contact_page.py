@@ -31,6 +31,10 @@ CONTACT_TABLE = re.compile(r"\bcontact\s*=\s*(\{[^{}]*\}|true\b)")
 #: A scene's Hessian setting (in its ``[solver]`` table).
 HESSIAN_LINE = re.compile(r'^hessian\s*=\s*"[a-z_]+"', flags=re.MULTILINE)
 METHODS = ("impulse", "ipc")
+#: Runs of each window from the same warm-up checkpoint: their Newton iterations are the same and their
+#: wall times are not (this machine's other load; the ball's s/step moved by 0.35-0.48 between pages of
+#: one code), so the page shows the median s/step with the runs' range.
+WINDOW_RUNS = 3
 #: The parts of a step its record times (``<part>_s``): the Jacobians' and residuals' assembly (with
 #: the IPC barrier's gradient and Hessian), the factorizations, the triangular and Krylov solves.
 TIMED_PARTS = ("assembly", "factorization", "linear_solve")
@@ -252,7 +256,9 @@ def run_name(window: ContactWindow, method: str) -> str:
 
 def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -> dict:
     """Run ``window``'s job by ``method`` into ``runs/<name>-{warm,window}`` (:func:`run_name`; scene
-    files beside them); its figures over the window."""
+    files beside them); its figures over the window. The window runs :data:`WINDOW_RUNS` times from the
+    warm-up (the later runs into ``<name>-window-<k>``); s/step is the median over the runs that took
+    the first one's Newton iterations."""
     source = JOBS / f"{window.job}.toml"
     text = source.read_text()
     name = run_name(window, method)
@@ -269,11 +275,13 @@ def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -
     if status != "completed":
         return row | {"status": f"warm-up {status}", "steps": 0}
     row["status"] = _run(window_scene, out, window.steps, timeout, restart=warm)
-    records = [r for r in _records(out, window.start) if r["step"] <= window.timed_steps[1]]
+    records = _window_records(out, window)
     row["steps"] = len(records)
     if not records:
         return row
     wall = sum(r["wall_s"] for r in records)
+    step_seconds = [wall / len(records)] + _repeated_step_seconds(window, window_scene, runs / name, warm, records,
+                                                                  timeout)  # fmt: skip
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").is_file() else {}
     contact = summary.get("contact") or {}
     contact_s = contact.get("barrier_s", 0.0) if method == "ipc" else sum(r.get("collision_s", 0.0) for r in records)
@@ -284,7 +292,8 @@ def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -
                       if body.contact is not None), [])  # fmt: skip
     dhat = contact.get("dhat_m") or 1e-3
     row |= {
-        "step_s": wall / len(records), "newton_per_step": sum(r["newton_iterations"] for r in records) / len(records),
+        "step_s": float(np.median(step_seconds)), "step_s_runs": step_seconds,
+        "newton_per_step": sum(r["newton_iterations"] for r in records) / len(records),
         "max_newton": max(r["newton_iterations"] for r in records),
         "factorizations_per_step": sum(r["refactorizations"] for r in records) / len(records),
         **{f"{part}_share": sum(r[f"{part}_s"] for r in records) / wall if wall > 0 else 0.0
@@ -295,6 +304,33 @@ def run_window(window: ContactWindow, method: str, runs: Path, timeout: float) -
         "stiffness": contact.get("barrier_stiffness"), "stiffness_doublings": contact.get("stiffness_doublings"),
     }  # fmt: skip
     return row | frame_gaps(out, colliders, max(dhat, 1e-3))
+
+
+def _repeated_step_seconds(window: ContactWindow, scene: Path, stem: Path, warm: Path, records: list[dict],
+                           timeout: float) -> list[float]:  # fmt: skip
+    """The mean s/step of the window's runs after the first (into ``<stem>-window-<k>``) that took the
+    first run's Newton iterations (its ``records``) in every step."""
+    iterations = [r["newton_iterations"] for r in records]
+    seconds = []
+    for k in range(2, WINDOW_RUNS + 1):
+        again = stem.with_name(f"{stem.name}-window-{k}")
+        repeated = _window_records(again, window) if _run(scene, again, window.steps, timeout,
+                                                          restart=warm) == "completed" else []  # fmt: skip
+        if [r["newton_iterations"] for r in repeated] == iterations:
+            seconds.append(sum(r["wall_s"] for r in repeated) / len(repeated))
+    return seconds
+
+
+def _window_records(out: Path, window: ContactWindow) -> list[dict]:
+    """The step records of the window's timed steps in the run ``out``."""
+    return [r for r in _records(out, window.start) if r["step"] <= window.timed_steps[1]]
+
+
+def _seconds(row: dict) -> str:
+    """The median s/step of a row's window runs, with their range where there are several."""
+    runs = row.get("step_s_runs") or [row["step_s"]]
+    spread = f" ({min(runs):.3g}–{max(runs):.3g})" if len(runs) > 1 else ""
+    return f"{row['step_s']:.3g}{spread}"
 
 
 def _gap(row: dict) -> str:
@@ -322,8 +358,10 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         "between steps 90 and 100): a second window times the impulse run where its folds are crushed "
         "further and its Newton iterations peak. "
         "Each run is a `bhem-hpc run` in a process of its own: the steps before the window without frames, then the "
-        "window, continued from that checkpoint, with a frame at every step. "
-        "s/step and Newton/step are means over the window's steps; a step counts the Newton iterations of "
+        f"window, continued from that checkpoint, with a frame at every step, {WINDOW_RUNS} times: the runs take "
+        "the same Newton iterations, and s/step is the median of their means over the window's steps (in "
+        "brackets the fastest and the slowest run's; the figures besides are the first run's). "
+        "Newton/step is a mean over the window's steps; a step counts the Newton iterations of "
         "the solve that converged, and a step that recovered (recoveries) spent more in the attempts that "
         "failed before it (a trust region that failed ran to its iteration limit). Contact share: the impulse step's "
         "collision detection and response, or the IPC barrier's energy, gradient, Hessian, step bounds and "
@@ -353,7 +391,7 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
         stiffness = "" if r["stiffness"] is None else f"{r['stiffness']:.3g} ({r['stiffness_doublings']})"
         energy = "" if r["energy_change"] is None else f"{r['energy_change']:+.2e}"  # (runs of several bodies: none)
         lines.append(
-            f"| {r['job']} | {r['method']} | {window} | {status} | {r['step_s']:.3g} | "
+            f"| {r['job']} | {r['method']} | {window} | {status} | {_seconds(r)} | "
             f"{r['newton_per_step']:.1f} ({r['max_newton']}) | {r['recoveries']} | {100 * r['contact_share']:.0f} % | "
             f"{_gap(r)} | {crossings} of {r['frames']} | {energy} | {stiffness} |"
         )
@@ -366,8 +404,8 @@ def contact_markdown(rows: list[dict], command: str, machine: str) -> str:
 
 def _time_table(rows: list[dict]) -> list[str]:
     """Where a step's time goes, per job and method (rows that timed steps)."""
-    lines = ["", "Where the time goes: shares of the window's wall time. Assembly: Jacobians and residuals (by "
-             "IPC with the barrier's gradient and Hessian, which its contact share counts as well); "
+    lines = ["", "Where the time goes: shares of the first window run's wall time. Assembly: Jacobians and "
+             "residuals (by IPC with the barrier's gradient and Hessian, which its contact share counts as well); "
              "factorization: the LDLᵀ factorizations (factorizations/step of them; a kept one serves chord "
              "steps); solves: the triangular and Krylov solves.", "",
              "| job | method | window (steps) | s/step | factorizations/step | assembly | factorization | solves | "

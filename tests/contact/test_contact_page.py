@@ -150,3 +150,34 @@ def test_the_page_runs_each_window_by_the_methods_it_names_and_writes_their_rows
     assert [(r["method"], r["window"][0]) for r in rows] == [("impulse", first), ("ipc", first), ("impulse", second)]
     assert rows[0]["gap"] is None  # not-a-number figures are written as null
     assert page.read_text().count("- crushed-can: steps") == 2
+
+
+def test_a_window_runs_again_and_only_runs_of_the_same_newton_iterations_count_for_its_seconds(tmp_path, monkeypatch):
+    """The later runs of a window go to directories of their own; one whose steps took other Newton
+    iterations (another computation) is left out of the median; the page shows the median and the range."""
+    import json
+
+    from bhem_hpc.benchmarks import contact_page
+
+    window = CONTACT_WINDOWS[0]
+    first, last = window.timed_steps
+    iterations = {"ball-ipc-70-window-2": 5, "ball-ipc-70-window-3": 6}
+    ran = []
+
+    def fake_run(scene, out, steps, timeout, restart=None):
+        ran.append(out.name)
+        out.mkdir()
+        rows = [{"step": step, "newton_iterations": iterations[out.name], "wall_s": 2.0}
+                for step in range(window.start + 1, last + 1)]  # fmt: skip
+        (out / "steps.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+        return "completed"
+
+    monkeypatch.setattr(contact_page, "_run", fake_run)
+    records = [{"step": step, "newton_iterations": 5, "wall_s": 1.0} for step in range(first, last + 1)]
+    seconds = contact_page._repeated_step_seconds(window, tmp_path / "scene.toml", tmp_path / "ball-ipc-70",
+                                                  tmp_path / "warm", records, 1.0)  # fmt: skip
+    assert ran == ["ball-ipc-70-window-2", "ball-ipc-70-window-3"][: contact_page.WINDOW_RUNS - 1]
+    assert seconds == [2.0]
+    row = {"step_s": 1.5, "step_s_runs": [1.0, *seconds]}
+    assert contact_page._seconds(row) == "1.5 (1–2)"
+    assert contact_page._seconds({"step_s": 1.25}) == "1.25"

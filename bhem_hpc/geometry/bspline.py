@@ -32,6 +32,7 @@ from bhem_hpc.geometry.surface import (
     rectangle_shape,
     save_surface_file,
     sphere_zone_shape,
+    tensor_product_point,
     torus_shape,
 )
 
@@ -357,15 +358,13 @@ class BSplineSurface:
         return point_weights(self.grid, self.degree, p1, p2, t1, t2, d1, d2)
 
     def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint:
-        """Position and first and second parametric derivatives at parameters of shape ``S``."""
+        """Position and first and second parametric derivatives at parameters of shape ``S``: the
+        spans' Bezier nets contracted with the Bernstein bases."""
         p1, p2, t1, t2 = self.grid.locate(xi1, xi2)
-        flat = self.control.reshape(-1, 3)
-
-        def derivative(d1: int, d2: int) -> np.ndarray:
-            index, weights = self.point_weights(p1, p2, t1, t2, d1, d2)
-            return np.einsum("...j,...jc->...c", weights, flat[index])
-
-        return SurfacePoint.of(derivative)
+        nets = self.bezier_control_points()[p1.ravel(), p2.ravel()]  # (K, p + 1, p + 1, 3)
+        basis1 = np.stack([bernstein(t1.ravel(), self.degree, d) / self.grid.h1**d for d in range(3)], axis=1)
+        basis2 = np.stack([bernstein(t2.ravel(), self.degree, d) / self.grid.h2**d for d in range(3)], axis=1)
+        return tensor_product_point(nets, basis1, basis2, p1.shape)
 
     # -- Bezier form ----------------------------------------------------------------------------
     def bezier_control_points(self) -> np.ndarray:

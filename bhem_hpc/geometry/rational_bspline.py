@@ -32,7 +32,7 @@ from bhem_hpc.geometry.bspline import (
 )
 from bhem_hpc.geometry.grid import ParameterGrid
 from bhem_hpc.geometry.nurbs import NurbsSurface
-from bhem_hpc.geometry.surface import SurfaceError
+from bhem_hpc.geometry.surface import SurfaceError, SurfacePoint
 
 #: The finest uniform knot lattice searched for a part's knots (spans per direction).
 MAX_LATTICE = 512
@@ -155,6 +155,18 @@ class RationalBSplineSurface(BSplineSurface):
     def point_weights(self, p1, p2, t1, t2, d1: int = 0, d2: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """See :func:`rational_point_weights`."""
         return rational_point_weights(self.grid, self.degree, self.weights, p1, p2, t1, t2, d1, d2, self.knots)
+
+    def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint:
+        """Position and first and second parametric derivatives at parameters of shape ``S``, by the
+        rational weights of :meth:`point_weights` (linear in the control points, the weights fixed)."""
+        p1, p2, t1, t2 = self.grid.locate(xi1, xi2)
+        flat = self.control.reshape(-1, 3)
+
+        def derivative(d1: int, d2: int) -> np.ndarray:
+            index, weights = self.point_weights(p1, p2, t1, t2, d1, d2)
+            return np.einsum("...j,...jc->...c", weights, flat[index])
+
+        return SurfacePoint.of(derivative)
 
     def homogeneous_nets(self) -> np.ndarray:
         """Exact rational Bezier nets ``(n1, n2, p + 1, p + 1, 4)`` of every span: ``(w x, w y, w z, w)``."""

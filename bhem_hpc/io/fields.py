@@ -50,20 +50,19 @@ class RestMetric:
         self.inverse = inverse_2x2(self.first)
 
 
-def energy_densities(rest: SurfacePoint | RestMetric, current: SurfacePoint, material: Material,
+def energy_densities(rest: RestMetric, current: SurfacePoint, material: Material,
                      forms: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Membrane and bending energy per unit rest area (paper eqs. 7-8), each of shape ``S``; ``rest``
-    the rest surface's points or their :class:`RestMetric`, ``forms`` the current points'
-    :func:`fundamental_forms` where the caller has them."""
-    metric = rest if isinstance(rest, RestMetric) else RestMetric(rest)
+    """Membrane and bending energy per unit rest area (paper eqs. 7-8), each of shape ``S``, from the
+    rest surface's metric at the points; ``forms``: the current points' :func:`fundamental_forms`
+    where the caller has them."""
     a, b = fundamental_forms(current) if forms is None else forms
     nu, young = material.poisson, material.young
     lmbda, mu = young * nu / (1 - nu**2), young / (2 * (1 + nu))
-    inverse = metric.inverse
+    inverse = rest.inverse
 
     def svk(strain: np.ndarray) -> np.ndarray:
         mixed = np.matmul(inverse, strain)
         return 0.5 * lmbda * np.trace(mixed, axis1=-2, axis2=-1) ** 2 + mu * _trace_of_product(mixed, mixed)
 
     h = material.thickness
-    return h * svk(0.5 * (a - metric.first)), h**3 / 3 * svk(0.5 * (b - metric.second))
+    return h * svk(0.5 * (a - rest.first)), h**3 / 3 * svk(0.5 * (b - rest.second))

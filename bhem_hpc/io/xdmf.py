@@ -23,6 +23,7 @@ from bhem_hpc.errors import InputError
 from bhem_hpc.geometry.rational_bspline import RationalBSplineSurface
 from bhem_hpc.geometry.surface import HermiteSurface
 from bhem_hpc.geometry.trim import Trim
+from bhem_hpc.io.fields import RestMetric, energy_densities, fundamental_forms, mean_curvature
 from bhem_hpc.io.run_directory import write_replacing
 from bhem_hpc.io.vtu import write_pvd, write_vtu
 
@@ -99,12 +100,10 @@ def _document(grids: str) -> str:
     return f'<?xml version="1.0"?>\n<Xdmf Version="3.0">\n  <Domain>\n{grids}\n  </Domain>\n</Xdmf>\n'
 
 
-def _point_fields(point, rest=None, material=None) -> dict[str, np.ndarray]:
+def _point_fields(point, rest: RestMetric | None = None, material=None) -> dict[str, np.ndarray]:
     """Per-point fields of a surface for ParaView: normal ``(n, 3)``, mean curvature ``(n,)`` and,
-    given the rest surface's points (or their :class:`~bhem_hpc.io.fields.RestMetric`) and the
-    material, membrane and bending energy densities."""
-    from bhem_hpc.io.fields import energy_densities, fundamental_forms, mean_curvature
-
+    given the rest surface's :class:`~bhem_hpc.io.fields.RestMetric` and the material, membrane and
+    bending energy densities."""
     forms = fundamental_forms(point)
     fields = {"normal": point.normal, "mean_curvature": mean_curvature(point, forms)}
     if rest is not None and material is not None:
@@ -129,7 +128,8 @@ def write_surface_xdmf(
     points, quads, params = surface.tessellate(density)
     point = surface.evaluate(params[:, 0], params[:, 1])
     rest_point = None if rest is None else rest.evaluate(params[:, 0], params[:, 1])
-    fields = {**_point_fields(point, rest_point, material), "xi1": params[:, 0], "xi2": params[:, 1]}
+    metric = None if rest_point is None else RestMetric(rest_point)
+    fields = {**_point_fields(point, metric, material), "xi1": params[:, 0], "xi2": params[:, 1]}
     if rest_point is not None:
         fields["displacement"] = point.x - rest_point.x
     tmp_h5 = h5_path.with_name(h5_path.name + ".tmp")
@@ -179,8 +179,6 @@ class SurfaceTimeSeries:
         _, self.quads, self.params = rest.tessellate(density)
         if trim is not None:
             self.quads = trim.kept_elements(self.params, self.quads)
-        from bhem_hpc.io.fields import RestMetric  # as in _point_fields
-
         self.rest_metric = RestMetric(rest.evaluate(self.params[:, 0], self.params[:, 1]))
         self.times: list[float] = []
         self._failed = False

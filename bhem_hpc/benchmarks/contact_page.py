@@ -31,9 +31,10 @@ CONTACT_TABLE = re.compile(r"\bcontact\s*=\s*(\{[^{}]*\}|true\b)")
 #: A scene's Hessian setting (in its ``[solver]`` table).
 HESSIAN_LINE = re.compile(r'^hessian\s*=\s*"[a-z_]+"', flags=re.MULTILINE)
 METHODS = ("impulse", "ipc")
-#: Runs of each window from the same warm-up checkpoint: their Newton iterations are the same and their
-#: wall times are not (this machine's other load; the ball's s/step moved by 0.35-0.48 between pages of
-#: one code), so the page shows the median s/step with the runs' range.
+#: Runs of each window from the same warm-up checkpoint. Their wall times differ (this machine's other
+#: load; the ball's s/step moved by 0.35-0.48 between pages of one code), and so, in a contact-rich
+#: step, can their Newton iterations (ipc-toolkit sums over its threads in varying order): the page
+#: shows the median s/step of the runs that took the first run's iterations, with their range.
 WINDOW_RUNS = 3
 #: The parts of a step its record times (``<part>_s``): the Jacobians' and residuals' assembly (with
 #: the IPC barrier's gradient and Hessian), the factorizations, the triangular and Krylov solves.

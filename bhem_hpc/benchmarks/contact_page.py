@@ -315,8 +315,8 @@ def _repeated_step_seconds(window: ContactWindow, scene: Path, stem: Path, warm:
     seconds = []
     for k in range(2, WINDOW_RUNS + 1):
         again = stem.with_name(f"{stem.name}-window-{k}")
-        repeated = _window_records(again, window) if _run(scene, again, window.steps, timeout,
-                                                          restart=warm) == "completed" else []  # fmt: skip
+        status = _run(scene, again, window.steps, timeout, restart=warm)
+        repeated = _window_records(again, window) if status == "completed" else []
         if [r["newton_iterations"] for r in repeated] == iterations:
             seconds.append(sum(r["wall_s"] for r in repeated) / len(repeated))
     return seconds

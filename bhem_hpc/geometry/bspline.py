@@ -358,13 +358,17 @@ class BSplineSurface:
         return point_weights(self.grid, self.degree, p1, p2, t1, t2, d1, d2)
 
     def evaluate(self, xi1: np.ndarray, xi2: np.ndarray) -> SurfacePoint:
-        """Position and first and second parametric derivatives at parameters of shape ``S``: the
-        spans' Bezier nets contracted with the Bernstein bases."""
-        p1, p2, t1, t2 = self.grid.locate(xi1, xi2)
-        nets = self.bezier_control_points()[p1.ravel(), p2.ravel()]  # (K, p + 1, p + 1, 3)
-        basis1 = np.stack([bernstein(t1.ravel(), self.degree, d) / self.grid.h1**d for d in range(3)], axis=1)
-        basis2 = np.stack([bernstein(t2.ravel(), self.degree, d) / self.grid.h2**d for d in range(3)], axis=1)
-        return tensor_product_point(nets, basis1, basis2, p1.shape)
+        """Position and first and second parametric derivatives at parameters of shape ``S``: each
+        point's span's control points contracted with its B-spline basis in each parameter (the span's
+        extraction of the Bernstein basis; no other span's)."""
+        located = self.grid.locate(xi1, xi2)
+        p1, p2, t1, t2 = (np.ravel(a) for a in located)
+        (c1, local1, h1), (c2, local2, h2) = self._direction(0), self._direction(1)
+        basis1, basis2 = (np.stack([np.einsum("kij,kj->ki", c[p], bernstein(t, self.degree, d)) / h**d
+                                    for d in range(3)], axis=1)
+                          for c, p, t, h in ((c1, p1, t1, h1), (c2, p2, t2, h2)))  # fmt: skip
+        control = self.control[local1[p1][:, :, None], local2[p2][:, None, :]]  # (K, p + 1, p + 1, 3)
+        return tensor_product_point(control, basis1, basis2, located[0].shape)
 
     # -- Bezier form ----------------------------------------------------------------------------
     def bezier_control_points(self) -> np.ndarray:

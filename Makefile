@@ -9,6 +9,10 @@ RUFF_VERSION := 0.8.4
 IPCTK_VERSION := 1.6.1
 # McNeel's OpenNURBS for Rhino .3dm files (bhem_hpc/io/cad.py)
 RHINO3DM_VERSION := 8.35.0
+# numba: the compiled ray casting of the solids' setup (bhem_hpc/compiled); 0.58 is the last
+# release that takes Debian's numpy 1.24 and Python 3.11
+NUMBA_VERSION := 0.58.1
+LLVMLITE_VERSION := 0.41.1
 # pytest-xdist: the serial half of the suite on two worker processes (one per core)
 XDIST_VERSION := 3.6.1
 EXECNET_VERSION := 2.1.1
@@ -25,6 +29,7 @@ $(VENV)/.installed: pyproject.toml scripts/install-system-packages Makefile
 	[ -x $(PY) ] || $(SYSTEM_PYTHON) -m venv --system-site-packages $(VENV)
 	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
 	$(PY) -m pip install -q ruff==$(RUFF_VERSION) ipctk==$(IPCTK_VERSION) rhino3dm==$(RHINO3DM_VERSION)
+	$(PY) -m pip install -q --no-deps numba==$(NUMBA_VERSION) llvmlite==$(LLVMLITE_VERSION)
 	$(PY) -m pip install -q --no-deps execnet==$(EXECNET_VERSION) pytest-xdist==$(XDIST_VERSION)
 	touch $@
 

@@ -226,12 +226,12 @@ def _affine(pieces: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarra
     ray meets such a piece once, where its plane does (:func:`_affine_crossings`, :func:`_plane_hits`)."""
     p, q = pieces.shape[1] - 1, pieces.shape[2] - 1
     weights = pieces[..., 3]
-    equal = np.abs(weights - weights[:, :1, :1]).reshape(len(pieces), -1).max(axis=1) <= 1e-12 * weights[:, 0, 0]
+    equal = np.abs(weights - weights[:, :1, :1]).max(axis=(1, 2), initial=0.0) <= 1e-12 * weights[:, 0, 0]
     points = pieces[..., :3] / pieces[..., 3:]
     origin, along_s, along_t = _corner_frames(pieces)
     fractions_s, fractions_t = _fractions(p)[:, None, None], _fractions(q)[:, None]
     affine = origin[:, None, None] + fractions_s * along_s[:, None, None] + fractions_t * along_t[:, None, None]
-    mask = equal & (np.abs(points - affine).reshape(len(pieces), -1).max(axis=1) <= tolerance)
+    mask = equal & (np.abs(points - affine).max(axis=(1, 2, 3), initial=0.0) <= tolerance)
     normal = np.cross(along_s[mask], along_t[mask])
     size = np.linalg.norm(normal, axis=1)
     normals = np.zeros((len(pieces), 3))

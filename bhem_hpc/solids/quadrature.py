@@ -20,8 +20,10 @@ from functools import lru_cache
 
 import numpy as np
 
+from bhem_hpc.compiled.line_crossings import axis_line_crossings
+from bhem_hpc.compiled.volume_points import merged_crossings, volume_points
 from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
-from bhem_hpc.geometry.rational_bezier import DUPLICATE_DISTANCE, axis_line_crossings, first_of_repeated
+from bhem_hpc.geometry.rational_bezier import DUPLICATE_DISTANCE
 from bhem_hpc.geometry.surface import SurfaceError
 
 #: Largest share of the lines with inside intervals that may be open before the model is refused.
@@ -72,25 +74,6 @@ def _line_grid(lo: np.ndarray, hi: np.ndarray, axis: int, lines_per_side: int):
     return spacing, float(widths[0] * widths[1]), centres
 
 
-def inside_intervals(line: np.ndarray, position: np.ndarray, direction: np.ndarray, lines: int):
-    """Inside intervals from crossings sorted by line then position (nonzero winding rule).
-
-    The winding number steps by ``-direction`` at each crossing (entering an outward-oriented
-    solid raises it); a line is closed when its crossings sum to zero. Returns the intervals'
-    lines, starts and ends ``(I,)`` on closed lines, and a mask ``(lines,)`` of the open ones.
-    """
-    total = np.bincount(line, weights=-direction, minlength=lines)
-    open_mask = total != 0
-    keep = ~open_mask[line]
-    line, position, direction = line[keep], position[keep], direction[keep]
-    winding = np.cumsum(-direction)
-    # winding is cumulative over all lines, but each closed line returns to zero before the next
-    before = np.r_[0, winding[:-1]]
-    starts = (before == 0) & (winding != 0)
-    ends = (before != 0) & (winding == 0)
-    return line[starts], position[starts], position[ends], open_mask
-
-
 @lru_cache(maxsize=16)
 def _gauss_legendre(order: int) -> tuple[np.ndarray, np.ndarray]:
     """Nodes and weights ``(order,)`` of the Gauss-Legendre rule on [-1, 1] (read only; numpy
@@ -129,42 +112,24 @@ def ray_cast_quadrature(
     # one search per patch degree for all parts (a part's crossings met again on another part's
     # seam are merged below, as crossings found twice within a part are)
     crossings = [axis_line_crossings(nets, axis, first, second) for nets, _ in bezier_nets_by_degree(parts)]
-    line = np.concatenate([c.line for c in crossings])
-    position = np.concatenate([c.position for c in crossings])
-    direction = np.concatenate([c.direction for c in crossings])
-    order_all = np.lexsort((position, line))
-    line, position, direction = line[order_all], position[order_all], direction[order_all]
-    once = first_of_repeated(line, position, direction, DUPLICATE_DISTANCE * float(np.max(hi - lo)))
-    line, position, direction = line[once], position[once], direction[once]
+    line, position, direction = (np.concatenate([getattr(c, key) for c in crossings])
+                                 for key in ("line", "position", "direction"))  # fmt: skip
+    line, position, direction = merged_crossings(line, position, direction, DUPLICATE_DISTANCE * float(np.max(hi - lo)))
     seconds["crossings"] = time.perf_counter() - clock
     clock = time.perf_counter()
-    at, start, end, open_mask = inside_intervals(line, position, direction, lines)
+    nodes, node_weights = _gauss_legendre(order)
+    points, weights, open_mask, crossed, intervals = volume_points(
+        line, position, direction, first, second, axis, spacing, cell_area, nodes, node_weights)
     open_lines = np.stack(
         [first[np.flatnonzero(open_mask) // len(second)], second[np.flatnonzero(open_mask) % len(second)]], axis=1
     )
-    crossed = len(np.unique(line))
     if len(open_lines) > OPEN_LINE_SHARE * crossed:
         where = ", ".join(f"({a:.4g}, {b:.4g})" for a, b in open_lines[:3])
         raise SurfaceError(
             f"{name}: {len(open_lines)} of {crossed} lines along {'xyz'[axis]} found no closed inside "
             f"(gaps between parts or inconsistently oriented parts), e.g. through {where}"
         )
-    if not len(at):
+    if not intervals:
         raise SurfaceError(f"{name}: no line along {'xyz'[axis]} found an inside; the parts enclose no volume")
-    nodes, node_weights = _gauss_legendre(order)
-    length = end - start
-    segments = np.maximum(1, np.ceil(length / spacing - 1e-9).astype(int))
-    interval = np.repeat(np.arange(len(at)), segments)
-    index = np.arange(segments.sum()) - np.repeat(np.cumsum(segments) - segments, segments)
-    width = (length / segments)[interval]
-    left = start[interval] + index * width
-    along = left[:, None] + 0.5 * width[:, None] * (nodes[None, :] + 1.0)
-    weights = (0.5 * width[:, None] * node_weights[None, :]) * cell_area
-    across = [a for a in range(3) if a != axis]
-    points = np.empty((along.size, 3))
-    points[:, axis] = along.ravel()
-    segment_line = at[interval]
-    points[:, across[0]] = np.repeat(first[segment_line // len(second)], order)
-    points[:, across[1]] = np.repeat(second[segment_line % len(second)], order)
     seconds["points"] = time.perf_counter() - clock
-    return VolumeQuadrature(points, weights.ravel(), axis, spacing, lines, open_lines, seconds)
+    return VolumeQuadrature(points, weights, axis, spacing, lines, open_lines, seconds)

@@ -1,0 +1,250 @@
+"""Every crossing of axis-parallel lines with rational Bezier patches, compiled: the search of
+:func:`bhem_hpc.geometry.rational_bezier.axis_line_crossings` (same pieces, same tests, same
+Newton starts and tolerances) run depth first per patch in one compiled loop instead of level by
+level in numpy calls; the crossings agree to round-off (the pieces are halved from their parents
+here, restricted from the patch there)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from bhem_hpc.compiled.patch_kernels import (
+    affine_frame,
+    cartesian_box,
+    evaluate,
+    halves_along_s,
+    halves_along_t,
+    model_size,
+    normal_component_range,
+    quarters,
+    ray_newton,
+    sample_table,
+    straight_along,
+)
+from bhem_hpc.geometry import rational_bezier as rb
+
+MAX_LEVEL = rb.MAX_LEVEL
+MAX_PIECE = rb.MAX_PIECE
+EDGE_SLACK = rb.EDGE_SLACK
+NEWTON_ITERATIONS = rb.NEWTON_ITERATIONS
+DUPLICATE_DISTANCE = rb.DUPLICATE_DISTANCE
+#: Pieces waiting on one patch's stack: a split replaces one piece by four, at most MAX_LEVEL deep.
+STACK = 3 * MAX_LEVEL + 4
+#: The quarters' boxes in the local parameters of their parent, in the order of
+#: :func:`~bhem_hpc.compiled.patch_kernels.quarters`: ``(s0, s1, t0, t1)``.
+QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
+
+
+@njit(cache=True, error_model="numpy")
+def _grown(floats: np.ndarray, ints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The output arrays ``(K, 3)`` with twice the rows, the first ``K`` copied."""
+    more_floats = np.empty((2 * len(floats), floats.shape[1]))
+    more_ints = np.empty((2 * len(ints), ints.shape[1]), dtype=np.int64)
+    more_floats[: len(floats)] = floats
+    more_ints[: len(ints)] = ints
+    return more_floats, more_ints
+
+
+@njit(cache=True, error_model="numpy")
+def _cross_axis(point: np.ndarray, axis: int) -> tuple[float, float]:
+    """The component along ``axis`` of ``x_s x x_t`` (rows 1 and 2 of ``point``) and the squared
+    length of the normal over that of ``|x_s| + |x_t|`` squared's scale (for the degeneracy test)."""
+    nx = point[1, 1] * point[2, 2] - point[1, 2] * point[2, 1]
+    ny = point[1, 2] * point[2, 0] - point[1, 0] * point[2, 2]
+    nz = point[1, 0] * point[2, 1] - point[1, 1] * point[2, 0]
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    sides = np.sqrt(point[1, 0] ** 2 + point[1, 1] ** 2 + point[1, 2] ** 2) + np.sqrt(
+        point[2, 0] ** 2 + point[2, 1] ** 2 + point[2, 2] ** 2)  # fmt: skip
+    component = (nx, ny, nz)[axis]
+    return component, length - 1e-12 * sides * sides
+
+
+@njit(cache=True, error_model="numpy")
+def _affine_crossing(frame: np.ndarray, rect: np.ndarray, target: tuple[float, float], axis: int, a0: int, a1: int,
+                     point: np.ndarray) -> tuple[float, float]:  # fmt: skip
+    """The patch's ``s, t`` where the line through ``target`` meets the affine piece ``frame``
+    (corner, edge along s, edge along t) of the rectangle ``rect``; the point and the patch's
+    derivatives into ``point (3, 3)`` (:func:`~bhem_hpc.geometry.rational_bezier._affine_crossings`)."""
+    e0, e1 = target[0] - frame[0, a0], target[1] - frame[0, a1]
+    det = frame[1, a0] * frame[2, a1] - frame[1, a1] * frame[2, a0]
+    sigma = (e0 * frame[2, a1] - e1 * frame[2, a0]) / det
+    rho = (frame[1, a0] * e1 - frame[1, a1] * e0) / det
+    width_s, width_t = rect[1] - rect[0], rect[3] - rect[2]
+    for c in range(3):
+        point[0, c] = frame[0, c] + sigma * frame[1, c] + rho * frame[2, c]
+        point[1, c] = frame[1, c] / width_s
+        point[2, c] = frame[2, c] / width_t
+    point[0, a0], point[0, a1] = target[0], target[1]
+    return rect[0] + sigma * width_s, rect[2] + rho * width_t
+
+
+@njit(cache=True, error_model="numpy")
+def _push_quarters(piece, rect, level, scratch, stack, rects, levels, top) -> int:
+    """Push the quarters of ``piece`` (on ``rect``, at ``level``) onto the stack at ``top``; the new top."""
+    quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
+    width_s, width_t = rect[1] - rect[0], rect[3] - rect[2]
+    for k in range(4):
+        rects[top + k, 0] = rect[0] + QUARTERS[k, 0] * width_s
+        rects[top + k, 1] = rect[0] + QUARTERS[k, 1] * width_s
+        rects[top + k, 2] = rect[2] + QUARTERS[k, 2] * width_t
+        rects[top + k, 3] = rect[2] + QUARTERS[k, 3] * width_t
+        levels[top + k] = level + 1
+    return top + 4
+
+
+@njit(cache=True, error_model="numpy")
+def _push_halves(rect, level, along_s, scratch, stack, rects, levels, top) -> int:
+    """Push the halves along ``s`` (else ``t``) of the piece at ``top`` (on ``rect``, at ``level``,
+    just popped) onto the stack; the new top."""
+    if along_s:
+        halves_along_s(stack[top], scratch[0], scratch[1])
+    else:
+        halves_along_t(stack[top], scratch[0], scratch[1])
+    stack[top], stack[top + 1] = scratch[0], scratch[1]
+    middle = 0.5 * (rect[0] + rect[1]) if along_s else 0.5 * (rect[2] + rect[3])
+    for k in range(2):
+        rects[top + k] = rect
+        levels[top + k] = level + 1
+    if along_s:
+        rects[top, 1] = rects[top + 1, 0] = middle
+    else:
+        rects[top, 3] = rects[top + 1, 2] = middle
+    return top + 2
+
+
+@njit(cache=True, error_model="numpy")
+def _split(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top) -> int:
+    """Split the piece just popped from ``top`` along the directions in which it is large (both when
+    neither is); the new top."""
+    if large_s != large_t:
+        return _push_halves(rect, level, large_s, scratch, stack, rects, levels, top)
+    return _push_quarters(piece, rect, level, scratch, stack, rects, levels, top)
+
+
+@njit(cache=True, error_model="numpy")
+def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints, count):  # noqa: C901, PLR0912, PLR0913, PLR0915
+    """Append the crossings of the lines with ``nets[patch]`` to ``floats (K, 3)`` (position,
+    ``s``, ``t``) and ``ints (K, 3)`` (line, direction, patch) from row ``count``; the arrays (grown
+    when full) and the new count."""
+    a0, a1 = (1, 2) if axis == 0 else ((0, 2) if axis == 1 else (0, 1))
+    net = nets[patch]
+    stack, rects, levels, scratch, rows, basis, point, frame, low, high, along, origin = work
+    along[:] = 0.0
+    along[axis] = 1.0
+    origin[:] = 0.0
+    stack[0] = net
+    # a direction in which the patch is straight needs no split for Newton's sake (a tower's height)
+    straight_s, straight_t = straight_along(net, True), straight_along(net, False)
+    rects[0, 0], rects[0, 1], rects[0, 2], rects[0, 3] = 0.0, 1.0, 0.0, 1.0
+    levels[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        piece, rect, level = stack[top], rects[top].copy(), levels[top]
+        cartesian_box(piece, low, high)
+        i0 = np.searchsorted(first, low[a0] - tolerance, side="left")
+        i1 = np.searchsorted(first, high[a0] + tolerance, side="right")
+        j0 = np.searchsorted(second, low[a1] - tolerance, side="left")
+        j1 = np.searchsorted(second, high[a1] + tolerance, side="right")
+        if i1 <= i0 or j1 <= j0:
+            continue
+        affine = affine_frame(piece, tolerance, frame)
+        large_s = rect[1] - rect[0] > MAX_PIECE and not straight_s
+        large_t = rect[3] - rect[2] > MAX_PIECE and not straight_t
+        small = not (large_s or large_t)
+        if level > 0 and not (affine or small or level == MAX_LEVEL):
+            # split whatever its normal: the sign test decides only for small or affine pieces (a
+            # piece without crossings of measure, tested on its patch, is dropped in its quarters)
+            top = _split(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top)
+            continue
+        if affine:
+            nx = frame[1, 1] * frame[2, 2] - frame[1, 2] * frame[2, 1]
+            ny = frame[1, 2] * frame[2, 0] - frame[1, 0] * frame[2, 2]
+            nz = frame[1, 0] * frame[2, 1] - frame[1, 1] * frame[2, 0]
+            size = np.sqrt(nx * nx + ny * ny + nz * nz)
+            component = (nx, ny, nz)[axis] / (size if size > 0.0 else 1.0)
+            smallest = largest = component
+        else:
+            smallest, largest = normal_component_range(piece, along, tables[0], tables[1], rows)
+        if max(abs(smallest), abs(largest)) <= 1e-12:  # projects onto a curve: no crossing of measure
+            continue
+        unfolded = smallest > 0.0 or largest < 0.0
+        if not ((unfolded and (small or affine)) or level == MAX_LEVEL):
+            # a fold splits both ways; an unfolded piece only where it is large
+            top = _split(piece, rect, level, large_s or not unfolded, large_t or not unfolded, scratch, stack,
+                         rects, levels, top)  # fmt: skip
+            continue
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                if affine:
+                    s, t = _affine_crossing(frame, rect, (first[i], second[j]), axis, a0, a1, point)
+                else:
+                    origin[a0], origin[a1] = first[i], second[j]
+                    converged, s, t, _ = ray_newton(net, 0.5 * (rect[0] + rect[1]), 0.5 * (rect[2] + rect[3]), 0.0,
+                                                    origin, along, 1e2 * tolerance, NEWTON_ITERATIONS, basis, point)  # fmt: skip
+                    if not converged:
+                        continue
+                if not (rect[0] - EDGE_SLACK <= s <= rect[1] + EDGE_SLACK
+                        and rect[2] - EDGE_SLACK <= t <= rect[3] + EDGE_SLACK):  # fmt: skip
+                    continue
+                clipped_s, clipped_t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+                # on the patch's edge instead of a rounding error beyond it, to first order
+                position = point[0, axis] + point[1, axis] * (clipped_s - s) + point[2, axis] * (clipped_t - t)
+                component, regular = _cross_axis(point, axis)
+                if regular <= 0.0:  # a pole or a collapsed edge: the side is that of the nearby surface
+                    evaluate(net, clipped_s + 1e-6 * (0.5 - clipped_s), clipped_t + 1e-6 * (0.5 - clipped_t), basis,
+                             point)  # fmt: skip
+                    component, _ = _cross_axis(point, axis)
+                if count == len(ints):
+                    floats, ints = _grown(floats, ints)
+                floats[count, 0], floats[count, 1], floats[count, 2] = position, clipped_s, clipped_t
+                ints[count, 0] = i * len(second) + j
+                ints[count, 1] = 1 if component > 0.0 else (-1 if component < 0.0 else 0)
+                ints[count, 2] = patch
+                count += 1
+    return floats, ints, count
+
+
+@njit(cache=True, error_model="numpy")
+def _all_crossings(nets, axis, first, second):
+    """The crossings of every patch, sorted by line then position, repeats and tangencies dropped:
+    ``floats (K, 3)`` (position, s, t) and ``ints (K, 3)`` (line, direction, patch)."""
+    size = model_size(nets)
+    tolerance, duplicate = 1e-12 * max(size, 1e-300), DUPLICATE_DISTANCE * size
+    tables = (sample_table(nets.shape[1] - 1), sample_table(nets.shape[2] - 1))
+    floats, ints = np.empty((256, 3)), np.empty((256, 3), dtype=np.int64)
+    count = 0
+    shape = nets.shape
+    work = (np.empty((STACK, shape[1], shape[2], 4)), np.empty((STACK, 4)), np.empty(STACK, dtype=np.int64),
+            np.empty((2, shape[1], shape[2], 4)), np.empty((2, tables[0].shape[1], shape[2], 4)),
+            np.empty((4, max(shape[1], shape[2]))), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3),
+            np.empty(3), np.empty(3))  # fmt: skip
+    for patch in range(nets.shape[0]):
+        floats, ints, count = _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints,
+                                            count)  # fmt: skip
+    floats, ints = floats[:count], ints[:count]
+    order = np.argsort(floats[:, 0], kind="mergesort")
+    order = order[np.argsort(ints[order, 0], kind="mergesort")]
+    floats, ints = floats[order], ints[order]
+    keep = np.ones(count, dtype=np.bool_)
+    for k in range(count):
+        if k > 0 and ints[k, 0] == ints[k - 1, 0] and ints[k, 1] == ints[k - 1, 1] and (
+                floats[k, 0] - floats[k - 1, 0] <= duplicate):  # fmt: skip
+            keep[k] = False
+        if ints[k, 1] == 0:
+            keep[k] = False
+    return floats[keep], ints[keep]
+
+
+def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray) -> rb.LineCrossings:
+    """:func:`bhem_hpc.geometry.rational_bezier.axis_line_crossings`, compiled: the same arguments
+    (``nets (P, p + 1, q + 1, 4)``, ``axis``, sorted line coordinates ``first (A,)``, ``second (B,)``)
+    and the same crossings, sorted by line, then position."""
+    nets = np.ascontiguousarray(nets, dtype=float)
+    first, second = np.ascontiguousarray(first, dtype=float), np.ascontiguousarray(second, dtype=float)
+    if not len(nets):
+        empty = np.zeros(0)
+        return rb.LineCrossings(empty.astype(int), empty, empty.astype(int), empty.astype(int), empty, empty)
+    floats, ints = _all_crossings(nets, int(axis), first, second)
+    return rb.LineCrossings(ints[:, 0], floats[:, 0], ints[:, 1], ints[:, 2], floats[:, 1], floats[:, 2])

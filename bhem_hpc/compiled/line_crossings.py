@@ -181,8 +181,9 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
                     s, t = _affine_crossing(frame, rect, (first[i], second[j]), axis, a0, a1, point)
                 else:
                     origin[a0], origin[a1] = first[i], second[j]
-                    converged, s, t, _ = ray_newton(net, 0.5 * (rect[0] + rect[1]), 0.5 * (rect[2] + rect[3]), 0.0,
-                                                    origin, along, 1e2 * tolerance, NEWTON_ITERATIONS, basis, point)  # fmt: skip
+                    centre_s, centre_t = 0.5 * (rect[0] + rect[1]), 0.5 * (rect[2] + rect[3])
+                    converged, s, t, _ = ray_newton(net, centre_s, centre_t, 0.0, origin, along, 1e2 * tolerance,
+                                                    NEWTON_ITERATIONS, basis, point)  # fmt: skip
                     if not converged:
                         continue
                 if not (rect[0] - EDGE_SLACK <= s <= rect[1] + EDGE_SLACK

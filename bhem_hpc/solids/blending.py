@@ -1,4 +1,5 @@
-"""Ray-cast blending weights of parts (SEM paper §6.1), numpy and scipy only.
+"""Ray-cast blending weights of parts (SEM paper §6.1): numpy and scipy, the secondary rays cast
+compiled (:mod:`bhem_hpc.compiled.ray_hits`).
 
 For a volume point ``X`` and a part ``b_i``: ``X*`` is the closest point of the part, the primary
 distance ``d_p = |X - X*|``; a secondary ray from ``X*`` through ``X`` meets the next surface at
@@ -19,9 +20,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse
 
+from bhem_hpc.compiled.ray_hits import first_hits
 from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
 from bhem_hpc.geometry.projection import closest_points
-from bhem_hpc.geometry.rational_bezier import first_hits, flat_share
+from bhem_hpc.geometry.rational_bezier import flat_share
 from bhem_hpc.geometry.surface import SurfaceError
 
 #: Bisection steps of the cutoff search (the share of nonzeros is a step function of alpha).

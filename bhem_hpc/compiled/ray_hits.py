@@ -1,0 +1,250 @@
+"""First hits of rays on rational Bezier patches, compiled: the search of
+:func:`bhem_hpc.geometry.rational_bezier.first_hits` (bounding spheres, pieces kept while the ray's
+two planes cut their control points' box within the searched stretch, flat patches in one plane
+solve, Newton's method from the centres of small pieces, a piece settled by a steep crossing or a
+normal of one sign along the ray) run ray by ray, depth first, in one compiled loop instead of
+level by level over all rays in numpy calls. The nearest hit within the stretch does not depend
+on the order in which pieces are searched."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from bhem_hpc.compiled.patch_kernels import (
+    affine_frame,
+    evaluate,
+    model_size,
+    normal_component_range,
+    quarters,
+    ray_newton,
+    sample_table,
+)
+from bhem_hpc.geometry import rational_bezier as rb
+
+MAX_LEVEL = rb.MAX_LEVEL
+MAX_PIECE = rb.MAX_PIECE
+EDGE_SLACK = rb.EDGE_SLACK
+NEWTON_ITERATIONS = rb.NEWTON_ITERATIONS
+GRAZING_COSINE = rb.GRAZING_COSINE
+ONE_CROSSING_COSINE = rb.ONE_CROSSING_COSINE
+#: Pieces waiting on one (ray, patch) search's stack: a split replaces one piece by four.
+STACK = 3 * MAX_LEVEL + 4
+QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
+
+
+@njit(cache=True, error_model="numpy")
+def _ray_frame(direction: np.ndarray, frame: np.ndarray) -> None:
+    """Rows 0 and 1 of ``frame (3, 3)``: unit vectors orthogonal to each other and to the unit
+    ``direction``, row 2 the direction (as :func:`~bhem_hpc.geometry.rational_bezier._ray_frames`)."""
+    hx, hy, hz = (1.0, 0.0, 0.0) if abs(direction[0]) < 0.9 else (0.0, 1.0, 0.0)
+    dx, dy, dz = direction[0], direction[1], direction[2]
+    ax, ay, az = dy * hz - dz * hy, dz * hx - dx * hz, dx * hy - dy * hx
+    length = np.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / length, ay / length, az / length
+    frame[0, 0], frame[0, 1], frame[0, 2] = ax, ay, az
+    frame[1, 0], frame[1, 1], frame[1, 2] = dy * az - dz * ay, dz * ax - dx * az, dx * ay - dy * ax
+    frame[2, 0], frame[2, 1], frame[2, 2] = dx, dy, dz
+
+
+@njit(cache=True, error_model="numpy")
+def _cut(piece: np.ndarray, origin: np.ndarray, frame: np.ndarray, across: float, tau_min: float,
+         tau_max: float) -> bool:  # fmt: skip
+    """Whether the box of ``piece``'s control points in the ray's frame (across, across, along; the
+    first two widened by ``across``) meets the ray's stretch ``tau_min < tau <= tau_max``."""
+    low0 = low1 = low2 = np.inf
+    high0 = high1 = high2 = -np.inf
+    for i in range(piece.shape[0]):
+        for j in range(piece.shape[1]):
+            w = piece[i, j, 3]
+            x, y, z = piece[i, j, 0] / w - origin[0], piece[i, j, 1] / w - origin[1], piece[i, j, 2] / w - origin[2]
+            c0 = x * frame[0, 0] + y * frame[0, 1] + z * frame[0, 2]
+            c1 = x * frame[1, 0] + y * frame[1, 1] + z * frame[1, 2]
+            c2 = x * frame[2, 0] + y * frame[2, 1] + z * frame[2, 2]
+            low0, high0 = min(low0, c0), max(high0, c0)
+            low1, high1 = min(low1, c1), max(high1, c1)
+            low2, high2 = min(low2, c2), max(high2, c2)
+    return low0 <= across and high0 >= -across and low1 <= across and high1 >= -across and high2 > tau_min and (
+        low2 <= tau_max)  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _plane_hit(frame: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> tuple[float, float, float, bool]:
+    """Where the ray meets the plane of the affine piece ``frame`` (corner, edge along s, edge along
+    t): local ``s, t``, ``tau`` and whether it grazes the plane (:func:`~bhem_hpc.geometry.
+    rational_bezier._plane_hits`)."""
+    sx, sy, sz = frame[1, 0], frame[1, 1], frame[1, 2]
+    tx, ty, tz = frame[2, 0], frame[2, 1], frame[2, 2]
+    nx, ny, nz = sy * tz - sz * ty, sz * tx - sx * tz, sx * ty - sy * tx
+    area = nx * nx + ny * ny + nz * nz
+    facing = nx * direction[0] + ny * direction[1] + nz * direction[2]
+    grazing = abs(facing) <= GRAZING_COSINE * np.sqrt(area)
+    ox, oy, oz = frame[0, 0] - origin[0], frame[0, 1] - origin[1], frame[0, 2] - origin[2]
+    tau = (ox * nx + oy * ny + oz * nz) / (1.0 if grazing else facing)
+    # the offset from the corner: s along_s + t along_t
+    ex = origin[0] + tau * direction[0] - frame[0, 0]
+    ey = origin[1] + tau * direction[1] - frame[0, 1]
+    ez = origin[2] + tau * direction[2] - frame[0, 2]
+    scale = area if area > 0.0 else 1.0
+    s = ((ey * tz - ez * ty) * nx + (ez * tx - ex * tz) * ny + (ex * ty - ey * tx) * nz) / scale
+    t = ((sy * ez - sz * ey) * nx + (sz * ex - sx * ez) * ny + (sx * ey - sy * ex) * nz) / scale
+    return s, t, tau, grazing
+
+
+@njit(cache=True, error_model="numpy")
+def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, across, tables, work):  # noqa: C901, PLR0912, PLR0913, PLR0915
+    """The nearest hit of the ray with the curved patch ``net`` within ``tau_min < tau <= best``:
+    ``(tau, s, t)``, ``tau = inf`` where there is none."""
+    stack, rects, levels, scratch, rows, basis, point = work
+    hit_tau, hit_s, hit_t = np.inf, 0.0, 0.0
+    stack[0] = net
+    rects[0, 0], rects[0, 1], rects[0, 2], rects[0, 3] = 0.0, 1.0, 0.0, 1.0
+    levels[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        piece, level = stack[top], levels[top]
+        s0, s1, t0, t1 = rects[top, 0], rects[top, 1], rects[top, 2], rects[top, 3]
+        if not _cut(piece, origin, frame, across, tau_min, best + tolerance):
+            continue
+        settled = False
+        if s1 - s0 <= MAX_PIECE and t1 - t0 <= MAX_PIECE:
+            s, t = 0.5 * (s0 + s1), 0.5 * (t0 + t1)
+            evaluate(net, s, t, basis, point)
+            tau = ((point[0, 0] - origin[0]) * direction[0] + (point[0, 1] - origin[1]) * direction[1]
+                   + (point[0, 2] - origin[2]) * direction[2])  # fmt: skip
+            r0 = point[0, 0] - origin[0] - tau * direction[0]
+            r1 = point[0, 1] - origin[1] - tau * direction[1]
+            r2 = point[0, 2] - origin[2] - tau * direction[2]
+            if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) > 1e2 * tolerance:  # not already on the ray: the start's slope
+                nx = point[1, 1] * point[2, 2] - point[1, 2] * point[2, 1]
+                ny = point[1, 2] * point[2, 0] - point[1, 0] * point[2, 2]
+                nz = point[1, 0] * point[2, 1] - point[1, 1] * point[2, 0]
+                facing = abs(nx * direction[0] + ny * direction[1] + nz * direction[2])
+                if facing <= GRAZING_COSINE * np.sqrt(nx * nx + ny * ny + nz * nz):
+                    continue  # a ray in the plane of a flat piece meets it nowhere transversally
+            converged, s, t, tau = ray_newton(net, s, t, tau, origin, direction, 1e2 * tolerance, NEWTON_ITERATIONS,
+                                              basis, point)  # fmt: skip
+            if converged and s0 - EDGE_SLACK <= s <= s1 + EDGE_SLACK and t0 - EDGE_SLACK <= t <= t1 + EDGE_SLACK:
+                if tau_min < tau <= best:
+                    best, hit_tau, hit_s, hit_t = tau, tau, min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+                # the crossing found is the piece's only one where the ray crosses it steeply, or
+                # where the normal has one sign along the ray on the piece
+                nx = point[1, 1] * point[2, 2] - point[1, 2] * point[2, 1]
+                ny = point[1, 2] * point[2, 0] - point[1, 0] * point[2, 2]
+                nz = point[1, 0] * point[2, 1] - point[1, 1] * point[2, 0]
+                size = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+                cosine = abs(nx * direction[0] + ny * direction[1] + nz * direction[2]) / size
+                settled = cosine >= ONE_CROSSING_COSINE
+                if not settled:
+                    low, high = normal_component_range(piece, direction, tables[0], tables[1], rows)
+                    settled = low > 0.0 or high < 0.0
+        if settled or level == MAX_LEVEL:
+            continue
+        quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
+        width_s, width_t = s1 - s0, t1 - t0
+        for k in range(4):
+            rects[top + k, 0] = s0 + QUARTERS[k, 0] * width_s
+            rects[top + k, 1] = s0 + QUARTERS[k, 1] * width_s
+            rects[top + k, 2] = t0 + QUARTERS[k, 2] * width_t
+            rects[top + k, 3] = t0 + QUARTERS[k, 3] * width_t
+            levels[top + k] = level + 1
+        top += 4
+    return hit_tau, hit_s, hit_t
+
+
+@njit(cache=True, error_model="numpy")
+def _bounding_spheres(nets: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centres ``(P, 3)`` (the means of the control points) and radii ``(P,)`` (plus ``pad``) of
+    spheres holding the patches."""
+    count, rows, columns = nets.shape[0], nets.shape[1], nets.shape[2]
+    centres, radii = np.zeros((count, 3)), np.zeros(count)
+    for n in range(count):
+        for i in range(rows):
+            for j in range(columns):
+                for c in range(3):
+                    centres[n, c] += nets[n, i, j, c] / nets[n, i, j, 3] / (rows * columns)
+        for i in range(rows):
+            for j in range(columns):
+                d2 = 0.0
+                for c in range(3):
+                    d2 += (nets[n, i, j, c] / nets[n, i, j, 3] - centres[n, c]) ** 2
+                radii[n] = max(radii[n], np.sqrt(d2))
+        radii[n] += pad
+    return centres, radii
+
+
+@njit(cache=True, error_model="numpy")
+def _first_hits(nets, origins, directions, tau_min, tau_max):  # noqa: C901, PLR0912, PLR0915
+    """``tau (R,)`` (inf: no hit), ``patch (R,)`` (-1), ``s, t (R,)`` of each ray's first hit."""
+    count, rays = nets.shape[0], origins.shape[0]
+    size = max(model_size(nets), 1e-300)
+    tolerance, across = 1e-12 * size, EDGE_SLACK * size
+    shape = nets.shape
+    tables = (sample_table(shape[1] - 1), sample_table(shape[2] - 1))
+    work = (np.empty((STACK, shape[1], shape[2], 4)), np.empty((STACK, 4)), np.empty(STACK, dtype=np.int64),
+            np.empty((2, shape[1], shape[2], 4)), np.empty((2, tables[0].shape[1], shape[2], 4)),
+            np.empty((4, max(shape[1], shape[2]))), np.empty((3, 3)))  # fmt: skip
+    centres, radii = _bounding_spheres(nets, across)
+    # flat patches: their planes (corner, edges), met in one solve
+    flat, planes = np.zeros(count, dtype=np.bool_), np.empty((count, 3, 3))
+    for n in range(count):
+        flat[n] = affine_frame(nets[n], tolerance, planes[n])
+    hit_tau, hit_patch = np.full(rays, np.inf), np.full(rays, -1, dtype=np.int64)
+    hit_s, hit_t = np.zeros(rays), np.zeros(rays)
+    frame = np.empty((3, 3))
+    candidates, entries = np.empty(count, dtype=np.int64), np.empty(count)
+    for ray in range(rays):
+        origin, direction = origins[ray], directions[ray]
+        _ray_frame(direction, frame)
+        best = tau_max[ray]
+        # the patches whose spheres the stretch meets, nearest entry first (a near hit prunes the rest)
+        found = 0
+        for n in range(count):
+            vx, vy, vz = centres[n, 0] - origin[0], centres[n, 1] - origin[1], centres[n, 2] - origin[2]
+            along = vx * direction[0] + vy * direction[1] + vz * direction[2]
+            across2 = vx * vx + vy * vy + vz * vz - along * along
+            pad = 16.0 * np.finfo(np.float64).eps * (vx * vx + vy * vy + vz * vz)
+            if across2 > radii[n] ** 2 + pad or along + radii[n] <= tau_min[ray] or along - radii[n] > best:
+                continue
+            k = found  # insertion by entry
+            while k > 0 and entries[k - 1] > along - radii[n]:
+                entries[k], candidates[k] = entries[k - 1], candidates[k - 1]
+                k -= 1
+            entries[k], candidates[k] = along - radii[n], n
+            found += 1
+        for k in range(found):
+            if entries[k] > best:
+                break
+            n = candidates[k]
+            if not _cut(nets[n], origin, frame, across, tau_min[ray], best + tolerance):
+                continue
+            if flat[n]:  # a flat patch meets a ray once, where its plane does
+                s, t, tau, grazing = _plane_hit(planes[n], origin, direction)
+                if grazing or not (-EDGE_SLACK <= s <= 1.0 + EDGE_SLACK and -EDGE_SLACK <= t <= 1.0 + EDGE_SLACK):
+                    continue
+                s, t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+                if not tau_min[ray] < tau <= best:
+                    continue
+            else:
+                tau, s, t = _search_patch(nets[n], origin, direction, frame, tau_min[ray], best, tolerance, across,
+                                          tables, work)  # fmt: skip
+            if tau < best or (tau == best and hit_patch[ray] < 0 and np.isfinite(tau)):
+                best, hit_tau[ray], hit_patch[ray], hit_s[ray], hit_t[ray] = tau, tau, n, s, t
+    return hit_tau, hit_patch, hit_s, hit_t
+
+
+def first_hits(nets: np.ndarray, origins: np.ndarray, directions: np.ndarray, tau_min: np.ndarray,
+               tau_max: np.ndarray) -> rb.RayHits:  # fmt: skip
+    """:func:`bhem_hpc.geometry.rational_bezier.first_hits`, compiled: the first hit of each ray
+    ``origins, directions (R, 3)`` (unit directions) with ``tau_min < tau <= tau_max`` ``(R,)`` on
+    the patches ``nets (P, p + 1, q + 1, 4)``."""
+    nets = np.ascontiguousarray(nets, dtype=float)
+    origins, directions = np.ascontiguousarray(origins, dtype=float), np.ascontiguousarray(directions, dtype=float)
+    tau_min = np.ascontiguousarray(np.broadcast_to(tau_min, len(origins)), dtype=float)
+    tau_max = np.ascontiguousarray(np.broadcast_to(tau_max, len(origins)), dtype=float)
+    if not len(nets) or not len(origins):
+        return rb.RayHits(np.full(len(origins), np.inf), np.full(len(origins), -1), np.zeros(len(origins)),
+                          np.zeros(len(origins)))  # fmt: skip
+    tau, patch, s, t = _first_hits(nets, origins, directions, tau_min, tau_max)
+    return rb.RayHits(tau, patch, s, t)

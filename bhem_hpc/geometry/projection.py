@@ -49,21 +49,7 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         scaled, x = closest_on_parallelogram(points, surface.flat_frame)
         parameters = np.stack([u0 + scaled[:, 0] * (u1 - u0), v0 + scaled[:, 1] * (v1 - v0)], axis=1)
         return parameters, x, np.linalg.norm(x - points, axis=1)
-    grid = (np.arange(seeds_per_side) + 0.5) / seeds_per_side
-    boxes = surface.bezier_patches.boxes
-    seed_u = (boxes[:, None, None, 0] + grid[None, :, None] * (boxes[:, 1] - boxes[:, 0])[:, None, None]).repeat(
-        seeds_per_side, axis=2
-    )
-    seed_v = (boxes[:, None, None, 2] + grid[None, None, :] * (boxes[:, 3] - boxes[:, 2])[:, None, None]).repeat(
-        seeds_per_side, axis=1
-    )
-    seed_u, seed_v = seed_u.ravel(), seed_v.ravel()
-    # the seeds from the Bezier nets: every patch on one local grid (two products, not a basis per point)
-    nets = surface.bezier_patches.nets
-    seeds = grid_sums(nets, bernstein(grid, nets.shape[1] - 1), bernstein(grid, nets.shape[2] - 1))
-    seeds = (seeds[..., :3] / seeds[..., 3:]).reshape(-1, 3)
-    nearest = scipy.spatial.KDTree(seeds).query(points)[1]
-    u, v = seed_u[nearest].copy(), seed_v[nearest].copy()
+    u, v = nearest_seeds(surface, points, seeds_per_side)
     active = np.arange(len(points))
     for _ in range(PROJECTION_ITERATIONS):
         if not len(active):
@@ -111,6 +97,27 @@ def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: in
         active = active[moved > 1e-14]
     x = surface.evaluate(u, v)[0]
     return np.stack([u, v], axis=1), x, np.linalg.norm(x - points, axis=1)
+
+
+def nearest_seeds(surface: NurbsSurface, points: np.ndarray, seeds_per_side: int) -> tuple[np.ndarray, np.ndarray]:
+    """The parameters ``u, v (Q,)`` of the nearest to each of ``points (Q, 3)`` of ``seeds_per_side^2``
+    samples per Bezier patch of ``surface`` (the centres of a regular grid of each patch's box;
+    SciPy's k-d tree: a part of many patches has tens of thousands of samples)."""
+    grid = (np.arange(seeds_per_side) + 0.5) / seeds_per_side
+    boxes = surface.bezier_patches.boxes
+    seed_u = (boxes[:, None, None, 0] + grid[None, :, None] * (boxes[:, 1] - boxes[:, 0])[:, None, None]).repeat(
+        seeds_per_side, axis=2
+    )
+    seed_v = (boxes[:, None, None, 2] + grid[None, None, :] * (boxes[:, 3] - boxes[:, 2])[:, None, None]).repeat(
+        seeds_per_side, axis=1
+    )
+    seed_u, seed_v = seed_u.ravel(), seed_v.ravel()
+    # the seeds from the Bezier nets: every patch on one local grid (two products, not a basis per point)
+    nets = surface.bezier_patches.nets
+    seeds = grid_sums(nets, bernstein(grid, nets.shape[1] - 1), bernstein(grid, nets.shape[2] - 1))
+    seeds = (seeds[..., :3] / seeds[..., 3:]).reshape(-1, 3)
+    nearest = scipy.spatial.KDTree(seeds).query(points)[1]
+    return seed_u[nearest].copy(), seed_v[nearest].copy()
 
 
 def _projection_step(g1: np.ndarray, g2: np.ndarray, hessian: tuple[np.ndarray, np.ndarray, np.ndarray],

@@ -1,5 +1,5 @@
-"""Ray-cast blending weights of parts (SEM paper §6.1): numpy and scipy, the secondary rays cast
-compiled (:mod:`bhem_hpc.compiled.ray_hits`).
+"""Ray-cast blending weights of parts (SEM paper §6.1): numpy and scipy, the closest points and the
+secondary rays compiled (:mod:`bhem_hpc.compiled.projection`, :mod:`bhem_hpc.compiled.ray_hits`).
 
 For a volume point ``X`` and a part ``b_i``: ``X*`` is the closest point of the part, the primary
 distance ``d_p = |X - X*|``; a secondary ray from ``X*`` through ``X`` meets the next surface at
@@ -20,9 +20,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse
 
+from bhem_hpc.compiled.projection import closest_points
 from bhem_hpc.compiled.ray_hits import first_hits
 from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
-from bhem_hpc.geometry.projection import closest_points
 from bhem_hpc.geometry.rational_bezier import flat_share
 from bhem_hpc.geometry.surface import SurfaceError
 

@@ -11,8 +11,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from bhem_hpc.compiled import bvh
 from bhem_hpc.compiled.patch_kernels import (
     affine_frame,
+    cartesian_box,
     evaluate,
     model_size,
     normal_component_range,
@@ -154,24 +156,12 @@ def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, acros
 
 
 @njit(cache=True, error_model="numpy")
-def _bounding_spheres(nets: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
-    """Centres ``(P, 3)`` (the means of the control points) and radii ``(P,)`` (plus ``pad``) of
-    spheres holding the patches."""
-    count, rows, columns = nets.shape[0], nets.shape[1], nets.shape[2]
-    centres, radii = np.zeros((count, 3)), np.zeros(count)
-    for n in range(count):
-        for i in range(rows):
-            for j in range(columns):
-                for c in range(3):
-                    centres[n, c] += nets[n, i, j, c] / nets[n, i, j, 3] / (rows * columns)
-        for i in range(rows):
-            for j in range(columns):
-                d2 = 0.0
-                for c in range(3):
-                    d2 += (nets[n, i, j, c] / nets[n, i, j, 3] - centres[n, c]) ** 2
-                radii[n] = max(radii[n], np.sqrt(d2))
-        radii[n] += pad
-    return centres, radii
+def _patch_boxes(nets: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``(P, 3), (P, 3)`` of the patches' control points (which hold them), widened by ``pad``."""
+    low, high = np.empty((len(nets), 3)), np.empty((len(nets), 3))
+    for n in range(len(nets)):
+        cartesian_box(nets[n], low[n], high[n])
+    return low - pad, high + pad
 
 
 @njit(cache=True, error_model="numpy")
@@ -185,7 +175,9 @@ def _first_hits(nets, origins, directions, tau_min, tau_max):  # noqa: C901, PLR
     work = (np.empty((STACK, shape[1], shape[2], 4)), np.empty((STACK, 4)), np.empty(STACK, dtype=np.int64),
             np.empty((2, shape[1], shape[2], 4)), np.empty((2, tables[0].shape[1], shape[2], 4)),
             np.empty((4, max(shape[1], shape[2]))), np.empty((3, 3)))  # fmt: skip
-    centres, radii = _bounding_spheres(nets, across)
+    low, high = _patch_boxes(nets, across + tolerance)
+    hierarchy = bvh.build(low, high)
+    stack = np.empty(len(hierarchy[0]), dtype=np.int64)
     # flat patches: their planes (corner, edges), met in one solve
     flat, planes = np.zeros(count, dtype=np.bool_), np.empty((count, 3, 3))
     for n in range(count):
@@ -198,21 +190,8 @@ def _first_hits(nets, origins, directions, tau_min, tau_max):  # noqa: C901, PLR
         origin, direction = origins[ray], directions[ray]
         _ray_frame(direction, frame)
         best = tau_max[ray]
-        # the patches whose spheres the stretch meets, nearest entry first (a near hit prunes the rest)
-        found = 0
-        for n in range(count):
-            vx, vy, vz = centres[n, 0] - origin[0], centres[n, 1] - origin[1], centres[n, 2] - origin[2]
-            along = vx * direction[0] + vy * direction[1] + vz * direction[2]
-            across2 = vx * vx + vy * vy + vz * vz - along * along
-            pad = 16.0 * np.finfo(np.float64).eps * (vx * vx + vy * vy + vz * vz)
-            if across2 > radii[n] ** 2 + pad or along + radii[n] <= tau_min[ray] or along - radii[n] > best:
-                continue
-            k = found  # insertion by entry
-            while k > 0 and entries[k - 1] > along - radii[n]:
-                entries[k], candidates[k] = entries[k - 1], candidates[k - 1]
-                k -= 1
-            entries[k], candidates[k] = along - radii[n], n
-            found += 1
+        # the patches whose boxes the stretch meets, nearest entry first (a near hit prunes the rest)
+        found = bvh.candidates(hierarchy, low, high, origin, direction, tau_min[ray], best, candidates, entries, stack)
         for k in range(found):
             if entries[k] > best:
                 break

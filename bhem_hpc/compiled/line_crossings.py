@@ -13,13 +13,11 @@ from bhem_hpc.compiled.patch_kernels import (
     affine_frame,
     cartesian_box,
     evaluate,
-    halves_along_s,
-    halves_along_t,
     model_size,
     normal_component_range,
-    quarters,
     ray_newton,
     sample_table,
+    split_onto_stack,
     straight_along,
 )
 from bhem_hpc.geometry import rational_bezier as rb
@@ -31,9 +29,6 @@ NEWTON_ITERATIONS = rb.NEWTON_ITERATIONS
 DUPLICATE_DISTANCE = rb.DUPLICATE_DISTANCE
 #: Pieces waiting on one patch's stack: a split replaces one piece by four, at most MAX_LEVEL deep.
 STACK = 3 * MAX_LEVEL + 4
-#: The quarters' boxes in the local parameters of their parent, in the order of
-#: :func:`~bhem_hpc.compiled.patch_kernels.quarters`: ``(s0, s1, t0, t1)``.
-QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
 
 
 @njit(cache=True, error_model="numpy")
@@ -80,49 +75,6 @@ def _affine_crossing(frame: np.ndarray, rect: np.ndarray, target: tuple[float, f
 
 
 @njit(cache=True, error_model="numpy")
-def _push_quarters(piece, rect, level, scratch, stack, rects, levels, top) -> int:
-    """Push the quarters of ``piece`` (on ``rect``, at ``level``) onto the stack at ``top``; the new top."""
-    quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
-    width_s, width_t = rect[1] - rect[0], rect[3] - rect[2]
-    for k in range(4):
-        rects[top + k, 0] = rect[0] + QUARTERS[k, 0] * width_s
-        rects[top + k, 1] = rect[0] + QUARTERS[k, 1] * width_s
-        rects[top + k, 2] = rect[2] + QUARTERS[k, 2] * width_t
-        rects[top + k, 3] = rect[2] + QUARTERS[k, 3] * width_t
-        levels[top + k] = level + 1
-    return top + 4
-
-
-@njit(cache=True, error_model="numpy")
-def _push_halves(rect, level, along_s, scratch, stack, rects, levels, top) -> int:
-    """Push the halves along ``s`` (else ``t``) of the piece at ``top`` (on ``rect``, at ``level``,
-    just popped) onto the stack; the new top."""
-    if along_s:
-        halves_along_s(stack[top], scratch[0], scratch[1])
-    else:
-        halves_along_t(stack[top], scratch[0], scratch[1])
-    stack[top], stack[top + 1] = scratch[0], scratch[1]
-    middle = 0.5 * (rect[0] + rect[1]) if along_s else 0.5 * (rect[2] + rect[3])
-    for k in range(2):
-        rects[top + k] = rect
-        levels[top + k] = level + 1
-    if along_s:
-        rects[top, 1] = rects[top + 1, 0] = middle
-    else:
-        rects[top, 3] = rects[top + 1, 2] = middle
-    return top + 2
-
-
-@njit(cache=True, error_model="numpy")
-def _split(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top) -> int:
-    """Split the piece just popped from ``top`` along the directions in which it is large (both when
-    neither is); the new top."""
-    if large_s != large_t:
-        return _push_halves(rect, level, large_s, scratch, stack, rects, levels, top)
-    return _push_quarters(piece, rect, level, scratch, stack, rects, levels, top)
-
-
-@njit(cache=True, error_model="numpy")
 def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints, count):  # noqa: C901, PLR0912, PLR0913, PLR0915
     """Append the crossings of the lines with ``nets[patch]`` to ``floats (K, 3)`` (position,
     ``s``, ``t``) and ``ints (K, 3)`` (line, direction, patch) from row ``count``; the arrays (grown
@@ -156,7 +108,7 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
         if level > 0 and not (affine or small or level == MAX_LEVEL):
             # split whatever its normal: the sign test decides only for small or affine pieces (a
             # piece without crossings of measure, tested on its patch, is dropped in its quarters)
-            top = _split(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top)
+            top = split_onto_stack(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top)
             continue
         if affine:
             nx = frame[1, 1] * frame[2, 2] - frame[1, 2] * frame[2, 1]
@@ -172,7 +124,7 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
         unfolded = smallest > 0.0 or largest < 0.0
         if not ((unfolded and (small or affine)) or level == MAX_LEVEL):
             # a fold splits both ways; an unfolded piece only where it is large
-            top = _split(piece, rect, level, large_s or not unfolded, large_t or not unfolded, scratch, stack,
+            top = split_onto_stack(piece, rect, level, large_s or not unfolded, large_t or not unfolded, scratch, stack,
                          rects, levels, top)  # fmt: skip
             continue
         for i in range(i0, i1):

@@ -305,3 +305,51 @@ def ray_newton(net: np.ndarray, s: float, t: float, tau: float, origin: np.ndarr
         if not (-0.5 < s < 1.5 and -0.5 < t < 1.5):
             return False, s, t, tau
     return False, s, t, tau
+
+
+#: The quarters' boxes in the local parameters of their parent, in the order of
+#: :func:`quarters`: ``(s0, s1, t0, t1)``.
+QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
+
+
+@njit(cache=True, error_model="numpy")
+def _push_quarters(piece, rect, level, scratch, stack, rects, levels, top) -> int:
+    """Push the quarters of ``piece`` (on ``rect``, at ``level``) onto the stack at ``top``; the new top."""
+    quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
+    width_s, width_t = rect[1] - rect[0], rect[3] - rect[2]
+    for k in range(4):
+        rects[top + k, 0] = rect[0] + QUARTERS[k, 0] * width_s
+        rects[top + k, 1] = rect[0] + QUARTERS[k, 1] * width_s
+        rects[top + k, 2] = rect[2] + QUARTERS[k, 2] * width_t
+        rects[top + k, 3] = rect[2] + QUARTERS[k, 3] * width_t
+        levels[top + k] = level + 1
+    return top + 4
+
+
+@njit(cache=True, error_model="numpy")
+def _push_halves(rect, level, along_s, scratch, stack, rects, levels, top) -> int:
+    """Push the halves along ``s`` (else ``t``) of the piece at ``top`` (on ``rect``, at ``level``,
+    just popped) onto the stack; the new top."""
+    if along_s:
+        halves_along_s(stack[top], scratch[0], scratch[1])
+    else:
+        halves_along_t(stack[top], scratch[0], scratch[1])
+    stack[top], stack[top + 1] = scratch[0], scratch[1]
+    middle = 0.5 * (rect[0] + rect[1]) if along_s else 0.5 * (rect[2] + rect[3])
+    for k in range(2):
+        rects[top + k] = rect
+        levels[top + k] = level + 1
+    if along_s:
+        rects[top, 1] = rects[top + 1, 0] = middle
+    else:
+        rects[top, 3] = rects[top + 1, 2] = middle
+    return top + 2
+
+
+@njit(cache=True, error_model="numpy")
+def split_onto_stack(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top) -> int:
+    """Split the piece just popped from ``top`` along the directions in which it is large (both when
+    neither is); the new top."""
+    if large_s != large_t:
+        return _push_halves(rect, level, large_s, scratch, stack, rects, levels, top)
+    return _push_quarters(piece, rect, level, scratch, stack, rects, levels, top)

@@ -83,7 +83,7 @@ def test_patch_kernels_evaluate_and_split_as_the_numpy_patches(rng):
         np.testing.assert_allclose(out, np.stack([point[k], x_s[k], x_t[k]]), rtol=1e-12, atol=1e-12)
     scratch, quarters = np.empty((2, 4, 3, 4)), np.empty((4, 4, 3, 4))
     kernels.quarters(nets[0], scratch, quarters, 0)
-    boxes = np.array(compiled.QUARTERS)
+    boxes = np.array(kernels.QUARTERS)
     np.testing.assert_allclose(quarters, rb.subpatches(np.repeat(nets[:1], 4, axis=0), boxes), atol=1e-14)
     value, slope = np.empty(5), np.empty(5)
     kernels.bernstein(0.3, 4, value, slope)

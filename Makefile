@@ -30,6 +30,7 @@ $(VENV)/.installed: pyproject.toml scripts/install-system-packages Makefile
 	$(PY) -m pip install -q --no-build-isolation --no-deps -e .
 	$(PY) -m pip install -q ruff==$(RUFF_VERSION) ipctk==$(IPCTK_VERSION) rhino3dm==$(RHINO3DM_VERSION)
 	$(PY) -m pip install -q --no-deps numba==$(NUMBA_VERSION) llvmlite==$(LLVMLITE_VERSION)
+	$(PY) -m bhem_hpc.compiled
 	$(PY) -m pip install -q --no-deps execnet==$(EXECNET_VERSION) pytest-xdist==$(XDIST_VERSION)
 	touch $@
 

@@ -17,6 +17,11 @@ import numba
 
 _SOURCES = sorted(Path(__file__).parent.glob("*.py"))
 _DIGEST = hashlib.sha256(numba.__version__.encode() + b"".join(p.read_bytes() for p in _SOURCES)).hexdigest()[:16]
-#: Where this package's compiled functions are cached (under NUMBA_CACHE_DIR where that is set).
-CACHE_DIRECTORY = Path(os.environ.get("NUMBA_CACHE_DIR") or Path(__file__).parent / "__pycache__") / f"numba-{_DIGEST}"
+_HERE = Path(__file__).parent
+#: Where this package's compiled functions are cached: under NUMBA_CACHE_DIR where that is set, else
+#: beside the sources, or in the user's cache where the sources are not writable (an installed copy).
+CACHE_DIRECTORY = Path(
+    os.environ.get("NUMBA_CACHE_DIR")
+    or (_HERE / "__pycache__" if os.access(_HERE, os.W_OK) else Path.home() / ".cache" / "bhem-hpc")
+) / f"numba-{_DIGEST}"
 numba.config.CACHE_DIR = str(CACHE_DIRECTORY)

@@ -3,7 +3,8 @@
 squared distance with Gauss-Newton's Hessian where Newton's is indefinite or its step fails, the
 domain's bounds as an active set, the same backtracking and stopping tests) run point by point
 in one compiled loop on the surface's rational Bezier patches instead of array by array through
-its B-spline basis. Flat faces keep their closed form."""
+its B-spline basis; flat faces in the closed form of
+:func:`bhem_hpc.geometry.affine.closest_on_parallelogram`, point by point."""
 
 from __future__ import annotations
 
@@ -12,7 +13,6 @@ from numba import njit
 
 from bhem_hpc.compiled.patch_kernels import bernstein
 from bhem_hpc.geometry import projection as reference
-from bhem_hpc.geometry.affine import closest_on_parallelogram
 from bhem_hpc.geometry.nurbs import NurbsSurface
 
 PROJECTION_ITERATIONS = reference.PROJECTION_ITERATIONS
@@ -184,13 +184,47 @@ def _feet(nets, u_breaks, v_breaks, u, v) -> np.ndarray:
     return feet
 
 
+@njit(cache=True, error_model="numpy")
+def _parallelogram_feet(points: np.ndarray, origin: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """:func:`bhem_hpc.geometry.affine.closest_on_parallelogram` point by point: scaled parameters
+    ``(Q, 2)`` and points ``(Q, 3)`` of the closest points of ``origin + u a + v b``, ``u, v`` in [0, 1]."""
+    aa, ab, bb = a @ a, a @ b, b @ b
+    determinant = aa * bb - ab * ab
+    scaled, feet = np.empty((len(points), 2)), np.empty((len(points), 3))
+    candidates = np.empty((5, 2))
+    for k in range(len(points)):
+        ra = rb = 0.0
+        for c in range(3):
+            ra += (points[k, c] - origin[c]) * a[c]
+            rb += (points[k, c] - origin[c]) * b[c]
+        candidates[0, 0], candidates[0, 1] = (bb * ra - ab * rb) / determinant, (aa * rb - ab * ra) / determinant
+        for edge, fixed in enumerate((0.0, 1.0)):  # one parameter on the edge, the other clamped
+            candidates[1 + 2 * edge, 0] = fixed
+            candidates[1 + 2 * edge, 1] = min(max((rb - fixed * ab) / bb, 0.0), 1.0)
+            candidates[2 + 2 * edge, 0] = min(max((ra - fixed * ab) / aa, 0.0), 1.0)
+            candidates[2 + 2 * edge, 1] = fixed
+        inside = 0.0 <= candidates[0, 0] <= 1.0 and 0.0 <= candidates[0, 1] <= 1.0
+        best, best_squared = -1, np.inf
+        for j in range(0 if inside else 1, 5):  # the projection first where it lies inside
+            squared = 0.0
+            for c in range(3):
+                squared += (origin[c] + candidates[j, 0] * a[c] + candidates[j, 1] * b[c] - points[k, c]) ** 2
+            if squared < best_squared:
+                best, best_squared = j, squared
+        scaled[k, 0], scaled[k, 1] = candidates[best, 0], candidates[best, 1]
+        for c in range(3):
+            feet[k, c] = origin[c] + candidates[best, 0] * a[c] + candidates[best, 1] * b[c]
+    return scaled, feet
+
+
 def closest_points(surface: NurbsSurface, points: np.ndarray, seeds_per_side: int = 8):
     """:func:`bhem_hpc.geometry.projection.closest_points`, compiled: parameters ``(Q, 2)``,
     surface points ``(Q, 3)`` and distances ``(Q,)`` of the closest points to ``points (Q, 3)``."""
     points = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
     (u0, u1), (v0, v1) = surface.u.domain, surface.v.domain
     if surface.flat_frame is not None:  # a flat face: in closed form
-        scaled, x = closest_on_parallelogram(points, surface.flat_frame)
+        frame = surface.flat_frame
+        scaled, x = _parallelogram_feet(points, *(np.ascontiguousarray(v, dtype=float) for v in frame))
         parameters = np.stack([u0 + scaled[:, 0] * (u1 - u0), v0 + scaled[:, 1] * (v1 - v0)], axis=1)
         return parameters, x, np.linalg.norm(x - points, axis=1)
     u, v = reference.nearest_seeds(surface, points, seeds_per_side)

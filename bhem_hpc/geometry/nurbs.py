@@ -251,13 +251,18 @@ class NurbsSurface:
         cols = (v.spans - q)[:, None] + np.arange(q + 1)
         local = self.homogeneous[rows[:, None, :, None], cols[None, :, None, :]]  # [a, b, i, j, c]
         # nets[a, b, k, l] = sum_ij E_u[a, i, k] E_v[b, j, l] local[a, b, i, j]: two batched products
-        # over all spans, the u sums (batched over a), then the v sums (batched over b)
-        by_u = local.transpose(0, 2, 1, 3, 4).reshape(count_u, p + 1, -1)
-        summed_u = np.matmul(u.extraction.transpose(0, 2, 1), by_u).reshape(count_u, p + 1, count_v, q + 1, 4)
-        by_v = summed_u.transpose(2, 3, 0, 1, 4).reshape(count_v, q + 1, -1)
-        summed_v = np.matmul(v.extraction.transpose(0, 2, 1), by_v).reshape(count_v, q + 1, count_u, p + 1, 4)
-        nets = summed_v.transpose(2, 0, 3, 1, 4).reshape(count_u * count_v, p + 1, q + 1, 4)
-        return RationalBezierPatches(np.ascontiguousarray(nets), boxes)
+        # over all spans, the u sums (batched over a), then the v sums (batched over b). B-splines of
+        # degree 0 and 1 are the Bernstein polynomials on every span: that direction has no product
+        if p > 1:
+            by_u = local.transpose(0, 2, 1, 3, 4).reshape(count_u, p + 1, -1)
+            summed = np.matmul(u.extraction.transpose(0, 2, 1), by_u)
+            local = summed.reshape(count_u, p + 1, count_v, q + 1, 4).transpose(0, 2, 1, 3, 4)
+        if q > 1:
+            by_v = local.transpose(1, 3, 0, 2, 4).reshape(count_v, q + 1, -1)
+            summed = np.matmul(v.extraction.transpose(0, 2, 1), by_v)
+            local = summed.reshape(count_v, q + 1, count_u, p + 1, 4).transpose(2, 0, 3, 1, 4)
+        nets = np.ascontiguousarray(local).reshape(count_u * count_v, p + 1, q + 1, 4)
+        return RationalBezierPatches(nets, boxes)
 
 
 def _bezier_knots(direction: KnotDirection) -> bool:

@@ -34,3 +34,15 @@ def test_compiled_closest_points_on_the_sphere_are_radial(rng):
     length = np.linalg.norm(points, axis=1)
     np.testing.assert_allclose(distance, np.abs(length - radius), atol=1e-12)
     np.testing.assert_allclose(feet, radius * points / length[:, None], atol=1e-11)
+
+
+def test_compiled_closest_points_on_flat_faces_equal_the_closed_form(rng):
+    faces = nurbs.box_faces([0.0, 0.0, 0.0], [2.0, 1.0, 0.5], degree=2, spans=(2, 3))
+    points = rng.uniform(-1.0, 3.0, (500, 3))
+    for face in faces:
+        assert face.flat_frame is not None
+        expected_parameters, expected_feet, expected = reference.closest_points(face, points)
+        parameters, feet, distance = compiled.closest_points(face, points)
+        np.testing.assert_allclose(parameters, expected_parameters, atol=1e-14)
+        np.testing.assert_allclose(feet, expected_feet, atol=1e-14)
+        np.testing.assert_allclose(distance, expected, atol=1e-14)

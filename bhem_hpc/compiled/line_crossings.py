@@ -10,6 +10,11 @@ import numpy as np
 from numba import njit
 
 from bhem_hpc.compiled.patch_kernels import (
+    EDGE_SLACK,
+    MAX_LEVEL,
+    MAX_PIECE,
+    NEWTON_ITERATIONS,
+    STACK,
     affine_frame,
     cartesian_box,
     evaluate,
@@ -22,13 +27,7 @@ from bhem_hpc.compiled.patch_kernels import (
 )
 from bhem_hpc.geometry import rational_bezier as rb
 
-MAX_LEVEL = rb.MAX_LEVEL
-MAX_PIECE = rb.MAX_PIECE
-EDGE_SLACK = rb.EDGE_SLACK
-NEWTON_ITERATIONS = rb.NEWTON_ITERATIONS
 DUPLICATE_DISTANCE = rb.DUPLICATE_DISTANCE
-#: Pieces waiting on one patch's stack: a split replaces one piece by four, at most MAX_LEVEL deep.
-STACK = 3 * MAX_LEVEL + 4
 
 
 @njit(cache=True, error_model="numpy")

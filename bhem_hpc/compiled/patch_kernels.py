@@ -13,22 +13,32 @@ from bhem_hpc.geometry import rational_bezier as rb
 
 #: Samples per side of a piece where the sign of the normal's component is tested (as the numpy search).
 SIGN_SAMPLES = rb.SIGN_SAMPLES
+#: The numpy searches' bounds and tolerances, which the compiled ones share.
+MAX_LEVEL, MAX_PIECE, EDGE_SLACK = rb.MAX_LEVEL, rb.MAX_PIECE, rb.EDGE_SLACK
+NEWTON_ITERATIONS = rb.NEWTON_ITERATIONS
+#: Pieces waiting on one search's stack: a split replaces one piece by at most four, MAX_LEVEL deep.
+STACK = 3 * MAX_LEVEL + 4
+
+
+@njit(cache=True, error_model="numpy")
+def raise_degree(t: float, values: np.ndarray, degree: int) -> None:
+    """Bernstein polynomials of ``degree - 1`` at ``t`` in ``values[:degree]`` to those of ``degree``
+    in ``values[:degree + 1]``, in place (a row of Piegl and Tiller's triangle, A1.3)."""
+    saved = 0.0
+    for k in range(degree):
+        temp = values[k]
+        values[k] = saved + (1.0 - t) * temp
+        saved = t * temp
+    values[degree] = saved
 
 
 @njit(cache=True, error_model="numpy")
 def bernstein(t: float, degree: int, value: np.ndarray, slope: np.ndarray) -> None:
     """Bernstein polynomials of ``degree`` at ``t`` into ``value (degree + 1,)`` and their slopes
-    into ``slope (degree + 1,)`` (the triangle of Piegl and Tiller's A1.3, stopped one row early for
-    the slopes)."""
-    complement = 1.0 - t
+    into ``slope (degree + 1,)`` (the triangle stopped one row early for the slopes)."""
     value[0] = 1.0
     for row in range(1, degree):
-        saved = 0.0
-        for k in range(row):
-            temp = value[k]
-            value[k] = saved + complement * temp
-            saved = t * temp
-        value[row] = saved
+        raise_degree(t, value, row)
     if degree == 0:
         slope[0] = 0.0
         return
@@ -36,12 +46,7 @@ def bernstein(t: float, degree: int, value: np.ndarray, slope: np.ndarray) -> No
         left = value[k - 1] if k >= 1 else 0.0
         right = value[k] if k < degree else 0.0
         slope[k] = degree * (left - right)
-    saved = 0.0
-    for k in range(degree):
-        temp = value[k]
-        value[k] = saved + complement * temp
-        saved = t * temp
-    value[degree] = saved
+    raise_degree(t, value, degree)
 
 
 @njit(cache=True, error_model="numpy")
@@ -54,6 +59,8 @@ def evaluate(net: np.ndarray, s: float, t: float, basis: np.ndarray, out: np.nda
     a0 = a1 = a2 = a3 = 0.0
     s0 = s1 = s2 = s3 = 0.0
     t0 = t1 = t2 = t3 = 0.0
+    # twelve scalar sums, written out: numba keeps them in registers, where a (3, 4) array would be
+    # allocated on every call
     for i in range(p + 1):
         bs, dbs = basis[0, i], basis[1, i]
         for j in range(q + 1):

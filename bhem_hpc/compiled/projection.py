@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from bhem_hpc.compiled.patch_kernels import bernstein
+from bhem_hpc.compiled.patch_kernels import bernstein, raise_degree
 from bhem_hpc.geometry import projection as reference
 from bhem_hpc.geometry.nurbs import NurbsSurface
 
@@ -31,15 +31,9 @@ def _second_bernstein(t: float, degree: int, curvature: np.ndarray, scratch: np.
     if degree < 2:
         return
     lower = degree - 2
-    complement = 1.0 - t
     scratch[0] = 1.0
     for row in range(1, lower + 1):
-        saved = 0.0
-        for k in range(row):
-            temp = scratch[k]
-            scratch[k] = saved + complement * temp
-            saved = t * temp
-        scratch[row] = saved
+        raise_degree(t, scratch, row)
     scale = degree * (degree - 1.0)
     for k in range(lower + 1):
         curvature[k] += scale * scratch[k]

@@ -13,6 +13,12 @@ from numba import njit
 
 from bhem_hpc.compiled import bvh
 from bhem_hpc.compiled.patch_kernels import (
+    EDGE_SLACK,
+    MAX_LEVEL,
+    MAX_PIECE,
+    NEWTON_ITERATIONS,
+    QUARTERS,
+    STACK,
     affine_frame,
     cartesian_box,
     evaluate,
@@ -24,15 +30,8 @@ from bhem_hpc.compiled.patch_kernels import (
 )
 from bhem_hpc.geometry import rational_bezier as rb
 
-MAX_LEVEL = rb.MAX_LEVEL
-MAX_PIECE = rb.MAX_PIECE
-EDGE_SLACK = rb.EDGE_SLACK
-NEWTON_ITERATIONS = rb.NEWTON_ITERATIONS
 GRAZING_COSINE = rb.GRAZING_COSINE
 ONE_CROSSING_COSINE = rb.ONE_CROSSING_COSINE
-#: Pieces waiting on one (ray, patch) search's stack: a split replaces one piece by four.
-STACK = 3 * MAX_LEVEL + 4
-QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5, 1.0), (0.5, 1.0, 0.5, 1.0)])
 
 
 @njit(cache=True, error_model="numpy")

@@ -1,4 +1,5 @@
-"""Ray-cast volume quadrature of a solid bounded by NURBS parts (SEM paper §6.3), numpy only.
+"""Ray-cast volume quadrature of a solid bounded by NURBS parts (SEM paper §6.3): numpy, the lines'
+crossings and the points compiled (:mod:`bhem_hpc.compiled`).
 
 The solid's integral ``int f dV`` becomes, over the bounding box, an integral over the box's face
 across ``axis`` of line integrals along ``axis`` (Khosravifard and Hematiyan 2010): lines through

@@ -21,10 +21,12 @@ from bhem_hpc.compiled.patch_kernels import (
     model_size,
     normal_component_range,
     ray_newton,
+    row_normal,
     sample_table,
     split_onto_stack,
     straight_along,
 )
+from bhem_hpc.compiled.volume_points import merged_order
 from bhem_hpc.geometry import rational_bezier as rb
 
 DUPLICATE_DISTANCE = rb.DUPLICATE_DISTANCE
@@ -42,11 +44,9 @@ def _grown(floats: np.ndarray, ints: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 @njit(cache=True, error_model="numpy")
 def _cross_axis(point: np.ndarray, axis: int) -> tuple[float, float]:
-    """The component along ``axis`` of ``x_s x x_t`` (rows 1 and 2 of ``point``) and the squared
-    length of the normal over that of ``|x_s| + |x_t|`` squared's scale (for the degeneracy test)."""
-    nx = point[1, 1] * point[2, 2] - point[1, 2] * point[2, 1]
-    ny = point[1, 2] * point[2, 0] - point[1, 0] * point[2, 2]
-    nz = point[1, 0] * point[2, 1] - point[1, 1] * point[2, 0]
+    """The component along ``axis`` of ``x_s x x_t`` (rows 1 and 2 of ``point``), and by how much the
+    normal's length exceeds ``1e-12 (|x_s| + |x_t|)^2`` (not positive: a pole or a collapsed edge)."""
+    nx, ny, nz = row_normal(point)
     length = np.sqrt(nx * nx + ny * ny + nz * nz)
     sides = np.sqrt(point[1, 0] ** 2 + point[1, 1] ** 2 + point[1, 2] ** 2) + np.sqrt(
         point[2, 0] ** 2 + point[2, 1] ** 2 + point[2, 2] ** 2)  # fmt: skip
@@ -110,9 +110,7 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
             top = split_onto_stack(piece, rect, level, large_s, large_t, scratch, stack, rects, levels, top)
             continue
         if affine:
-            nx = frame[1, 1] * frame[2, 2] - frame[1, 2] * frame[2, 1]
-            ny = frame[1, 2] * frame[2, 0] - frame[1, 0] * frame[2, 2]
-            nz = frame[1, 0] * frame[2, 1] - frame[1, 1] * frame[2, 0]
+            nx, ny, nz = row_normal(frame)
             size = np.sqrt(nx * nx + ny * ny + nz * nz)
             component = (nx, ny, nz)[axis] / (size if size > 0.0 else 1.0)
             smallest = largest = component
@@ -176,17 +174,9 @@ def _all_crossings(nets, axis, first, second):
         floats, ints, count = _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints,
                                             count)  # fmt: skip
     floats, ints = floats[:count], ints[:count]
-    order = np.argsort(floats[:, 0], kind="mergesort")
-    order = order[np.argsort(ints[order, 0], kind="mergesort")]
-    floats, ints = floats[order], ints[order]
-    keep = np.ones(count, dtype=np.bool_)
-    for k in range(count):
-        if k > 0 and ints[k, 0] == ints[k - 1, 0] and ints[k, 1] == ints[k - 1, 1] and (
-                floats[k, 0] - floats[k - 1, 0] <= duplicate):  # fmt: skip
-            keep[k] = False
-        if ints[k, 1] == 0:
-            keep[k] = False
-    return floats[keep], ints[keep]
+    order = merged_order(ints[:, 0], floats[:, 0], ints[:, 1], duplicate)
+    order = order[ints[order, 1] != 0]  # tangencies cross nothing
+    return floats[order], ints[order]
 
 
 def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray) -> rb.LineCrossings:

@@ -86,6 +86,14 @@ def evaluate(net: np.ndarray, s: float, t: float, basis: np.ndarray, out: np.nda
 
 
 @njit(cache=True, error_model="numpy")
+def row_normal(rows: np.ndarray) -> tuple[float, float, float]:
+    """``rows[1] x rows[2]`` of a ``(3, 3)`` array: the normal ``x_s x x_t`` of an :func:`evaluate`
+    output, or of a corner frame (corner, edge along s, edge along t)."""
+    return (rows[1, 1] * rows[2, 2] - rows[1, 2] * rows[2, 1], rows[1, 2] * rows[2, 0] - rows[1, 0] * rows[2, 2],
+            rows[1, 0] * rows[2, 1] - rows[1, 1] * rows[2, 0])  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
 def quarters(net: np.ndarray, scratch: np.ndarray, out: np.ndarray, first: int) -> None:
     """The four quarters of ``net`` into ``out[first:first + 4]`` (each shaped as ``net``) in the
     order (s low, t low), (s high, t low), (s low, t high), (s high, t high); ``scratch (2, p + 1,

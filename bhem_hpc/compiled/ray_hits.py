@@ -26,6 +26,7 @@ from bhem_hpc.compiled.patch_kernels import (
     normal_component_range,
     quarters,
     ray_newton,
+    row_normal,
     sample_table,
 )
 from bhem_hpc.geometry import rational_bezier as rb
@@ -76,7 +77,7 @@ def _plane_hit(frame: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> 
     rational_bezier._plane_hits`)."""
     sx, sy, sz = frame[1, 0], frame[1, 1], frame[1, 2]
     tx, ty, tz = frame[2, 0], frame[2, 1], frame[2, 2]
-    nx, ny, nz = sy * tz - sz * ty, sz * tx - sx * tz, sx * ty - sy * tx
+    nx, ny, nz = row_normal(frame)
     area = nx * nx + ny * ny + nz * nz
     facing = nx * direction[0] + ny * direction[1] + nz * direction[2]
     grazing = abs(facing) <= GRAZING_COSINE * np.sqrt(area)
@@ -118,9 +119,7 @@ def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, acros
             r1 = point[0, 1] - origin[1] - tau * direction[1]
             r2 = point[0, 2] - origin[2] - tau * direction[2]
             if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) > 1e2 * tolerance:  # not already on the ray: the start's slope
-                nx = point[1, 1] * point[2, 2] - point[1, 2] * point[2, 1]
-                ny = point[1, 2] * point[2, 0] - point[1, 0] * point[2, 2]
-                nz = point[1, 0] * point[2, 1] - point[1, 1] * point[2, 0]
+                nx, ny, nz = row_normal(point)
                 facing = abs(nx * direction[0] + ny * direction[1] + nz * direction[2])
                 if facing <= GRAZING_COSINE * np.sqrt(nx * nx + ny * ny + nz * nz):
                     continue  # a ray in the plane of a flat piece meets it nowhere transversally
@@ -131,9 +130,7 @@ def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, acros
                     best, hit_tau, hit_s, hit_t = tau, tau, min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
                 # the crossing found is the piece's only one where the ray crosses it steeply, or
                 # where the normal has one sign along the ray on the piece
-                nx = point[1, 1] * point[2, 2] - point[1, 2] * point[2, 1]
-                ny = point[1, 2] * point[2, 0] - point[1, 0] * point[2, 2]
-                nz = point[1, 0] * point[2, 1] - point[1, 1] * point[2, 0]
+                nx, ny, nz = row_normal(point)
                 size = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
                 cosine = abs(nx * direction[0] + ny * direction[1] + nz * direction[2]) / size
                 settled = cosine >= ONE_CROSSING_COSINE

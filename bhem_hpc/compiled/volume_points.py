@@ -10,18 +10,25 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
-def merged_crossings(line: np.ndarray, position: np.ndarray, direction: np.ndarray,
-                     duplicate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """Crossings ``(K,)`` sorted by line, then position, each run on one line crossed the same way
-    within ``duplicate`` of the one before kept once (a seam's crossing found by both sides)."""
+def merged_order(line: np.ndarray, position: np.ndarray, direction: np.ndarray, duplicate: float) -> np.ndarray:
+    """Indices of crossings ``(K,)`` sorted by line, then position, each run on one line crossed the
+    same way within ``duplicate`` of the one before kept once (a seam's crossing found by both sides)."""
     order = np.argsort(position, kind="mergesort")
     order = order[np.argsort(line[order], kind="mergesort")]
-    line, position, direction = line[order], position[order], direction[order]
-    keep = np.ones(len(line), dtype=np.bool_)
-    for k in range(1, len(line)):
-        keep[k] = not (line[k] == line[k - 1] and direction[k] == direction[k - 1]
-                       and position[k] - position[k - 1] <= duplicate)  # fmt: skip
-    return line[keep], position[keep], direction[keep]
+    keep = np.ones(len(order), dtype=np.bool_)
+    for k in range(1, len(order)):
+        this, last = order[k], order[k - 1]
+        keep[k] = not (line[this] == line[last] and direction[this] == direction[last]
+                       and position[this] - position[last] <= duplicate)  # fmt: skip
+    return order[keep]
+
+
+@njit(cache=True, error_model="numpy")
+def merged_crossings(line: np.ndarray, position: np.ndarray, direction: np.ndarray,
+                     duplicate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The crossings ``(K,)`` in :func:`merged_order`."""
+    order = merged_order(line, position, direction, duplicate)
+    return line[order], position[order], direction[order]
 
 
 @njit(cache=True, error_model="numpy")

@@ -20,9 +20,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse
 
+from bhem_hpc.compiled.extraction import bezier_nets_by_degree
 from bhem_hpc.compiled.projection import closest_points
 from bhem_hpc.compiled.ray_hits import first_hits
-from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
+from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.rational_bezier import flat_share
 from bhem_hpc.geometry.surface import SurfaceError
 

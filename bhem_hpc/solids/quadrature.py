@@ -1,5 +1,5 @@
-"""Ray-cast volume quadrature of a solid bounded by NURBS parts (SEM paper §6.3): numpy, the lines'
-crossings and the points compiled (:mod:`bhem_hpc.compiled`).
+"""Ray-cast volume quadrature of a solid bounded by NURBS parts (SEM paper §6.3): numpy, the parts'
+Bezier extraction, the lines' crossings and the points compiled (:mod:`bhem_hpc.compiled`).
 
 The solid's integral ``int f dV`` becomes, over the bounding box, an integral over the box's face
 across ``axis`` of line integrals along ``axis`` (Khosravifard and Hematiyan 2010): lines through
@@ -21,9 +21,10 @@ from functools import lru_cache
 
 import numpy as np
 
+from bhem_hpc.compiled.extraction import bezier_nets_by_degree
 from bhem_hpc.compiled.line_crossings import axis_line_crossings
 from bhem_hpc.compiled.volume_points import merged_crossings, volume_points
-from bhem_hpc.geometry.nurbs import NurbsSurface, bezier_nets_by_degree
+from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.rational_bezier import DUPLICATE_DISTANCE
 from bhem_hpc.geometry.surface import SurfaceError
 

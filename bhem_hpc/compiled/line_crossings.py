@@ -30,6 +30,8 @@ from bhem_hpc.compiled.volume_points import merged_order
 from bhem_hpc.geometry import rational_bezier as rb
 
 DUPLICATE_DISTANCE = rb.DUPLICATE_DISTANCE
+#: How far beyond its piece (in the patch's parameters) a converged crossing gets one more Newton step.
+POLISH_MARGIN = 1e-6
 
 
 @njit(cache=True, error_model="numpy")
@@ -52,6 +54,12 @@ def _cross_axis(point: np.ndarray, axis: int) -> tuple[float, float]:
         point[2, 0] ** 2 + point[2, 1] ** 2 + point[2, 2] ** 2)  # fmt: skip
     component = (nx, ny, nz)[axis]
     return component, length - 1e-12 * sides * sides
+
+
+@njit(cache=True, error_model="numpy")
+def _outside(rect: np.ndarray, s: float, t: float, slack: float) -> bool:
+    """Whether ``(s, t)`` lies farther than ``slack`` outside ``rect`` (s0, s1, t0, t1)."""
+    return not (rect[0] - slack <= s <= rect[1] + slack and rect[2] - slack <= t <= rect[3] + slack)
 
 
 @njit(cache=True, error_model="numpy")
@@ -131,12 +139,18 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
                 else:
                     origin[a0], origin[a1] = first[i], second[j]
                     centre_s, centre_t = 0.5 * (rect[0] + rect[1]), 0.5 * (rect[2] + rect[3])
-                    converged, s, t, _ = ray_newton(net, centre_s, centre_t, 0.0, origin, along, 1e2 * tolerance,
-                                                    NEWTON_ITERATIONS, basis, point)  # fmt: skip
+                    converged, s, t, tau = ray_newton(net, centre_s, centre_t, 0.0, origin, along, 1e2 * tolerance,
+                                                      NEWTON_ITERATIONS, basis, point)  # fmt: skip
                     if not converged:
                         continue
-                if not (rect[0] - EDGE_SLACK <= s <= rect[1] + EDGE_SLACK
-                        and rect[2] - EDGE_SLACK <= t <= rect[3] + EDGE_SLACK):  # fmt: skip
+                    if _outside(rect, s, t, EDGE_SLACK) and not _outside(rect, s, t, POLISH_MARGIN):
+                        # converged to the residual's tolerance just beyond the piece: a crossing on
+                        # its edge where the surface's derivatives are small (near a pole) lands
+                        # there, and the neighbour's search may land beyond its edge as well; one
+                        # more step settles which piece holds it
+                        _, s, t, _ = ray_newton(net, s, t, tau, origin, along, 0.0, 1, basis, point)
+                        evaluate(net, s, t, basis, point)
+                if _outside(rect, s, t, EDGE_SLACK):
                     continue
                 clipped_s, clipped_t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
                 # on the patch's edge instead of a rounding error beyond it, to first order

@@ -174,8 +174,20 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
 def _all_crossings(nets, axis, first, second):
     """The crossings of every patch, sorted by line then position, repeats and tangencies dropped:
     ``floats (K, 3)`` (position, s, t) and ``ints (K, 3)`` (line, direction, patch)."""
+    floats, ints = raw_crossings(nets, axis, first, second)
+    order = merged_order(ints[:, 0], floats[:, 0], ints[:, 1], DUPLICATE_DISTANCE * model_size(nets))
+    order = order[ints[order, 1] != 0]  # tangencies cross nothing
+    return floats[order], ints[order]
+
+
+@njit(cache=True, error_model="numpy")
+def raw_crossings(nets, axis, first, second):
+    """The crossings of every patch ``nets (P, p + 1, q + 1, 4)`` with the lines along ``axis``
+    through ``(first[i], second[j])`` (sorted), patch by patch, a crossing on a seam once per
+    side: ``floats (K, 3)`` (position, s, t) and ``ints (K, 3)`` (line ``i * len(second) + j``,
+    direction, patch)."""
     size = model_size(nets)
-    tolerance, duplicate = 1e-12 * max(size, 1e-300), DUPLICATE_DISTANCE * size
+    tolerance = 1e-12 * max(size, 1e-300)
     tables = (sample_table(nets.shape[1] - 1), sample_table(nets.shape[2] - 1))
     floats, ints = np.empty((256, 3)), np.empty((256, 3), dtype=np.int64)
     count = 0
@@ -187,10 +199,7 @@ def _all_crossings(nets, axis, first, second):
     for patch in range(nets.shape[0]):
         floats, ints, count = _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints,
                                             count)  # fmt: skip
-    floats, ints = floats[:count], ints[:count]
-    order = merged_order(ints[:, 0], floats[:, 0], ints[:, 1], duplicate)
-    order = order[ints[order, 1] != 0]  # tangencies cross nothing
-    return floats[order], ints[order]
+    return floats[:count], ints[:count]
 
 
 def axis_line_crossings(nets: np.ndarray, axis: int, first: np.ndarray, second: np.ndarray) -> rb.LineCrossings:

@@ -26,8 +26,10 @@ def merged_order(line: np.ndarray, position: np.ndarray, direction: np.ndarray, 
 @njit(cache=True, error_model="numpy")
 def merged_crossings(line: np.ndarray, position: np.ndarray, direction: np.ndarray,
                      duplicate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """The crossings ``(K,)`` in :func:`merged_order`."""
+    """The crossings ``(K,)`` in :func:`merged_order`, tangencies (direction 0: they cross nothing)
+    dropped after the merge."""
     order = merged_order(line, position, direction, duplicate)
+    order = order[direction[order] != 0]
     return line[order], position[order], direction[order]
 
 

@@ -14,6 +14,7 @@ and :attr:`VolumeQuadrature.open_lines` reports it.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -22,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from bhem_hpc.compiled.extraction import bezier_nets_by_degree
-from bhem_hpc.compiled.line_crossings import axis_line_crossings
+from bhem_hpc.compiled.line_crossings import raw_crossings
 from bhem_hpc.compiled.volume_points import merged_crossings, volume_points
 from bhem_hpc.geometry.nurbs import NurbsSurface
 from bhem_hpc.geometry.rational_bezier import DUPLICATE_DISTANCE
@@ -67,13 +68,17 @@ def _line_grid(lo: np.ndarray, hi: np.ndarray, axis: int, lines_per_side: int):
     """Segment length along the lines (the box's longest side over ``lines_per_side``), the cell
     area, and the lines' coordinates across ``axis``: cell centres of a grid that tiles the box's
     face exactly, with cells no wider than the segment length."""
-    across = [a for a in range(3) if a != axis]
-    extent = np.maximum(hi[across] - lo[across], 1e-300)
-    spacing = float(np.max(hi - lo)) / lines_per_side  # the box's longest side sets the resolution
-    counts = np.maximum(1, np.ceil(extent / spacing - 1e-9).astype(int))
-    widths = extent / counts
-    centres = [lo[across[k]] + widths[k] * (np.arange(counts[k]) + 0.5) for k in range(2)]
-    return spacing, float(widths[0] * widths[1]), centres
+    # in Python floats: numpy's calls cost more than their arithmetic on three numbers
+    low, high = lo.tolist(), hi.tolist()
+    spacing = max(b - a for a, b in zip(low, high, strict=True)) / lines_per_side  # the longest side sets it
+    widths, centres = [], []
+    for a in range(3):
+        if a != axis:
+            extent = max(high[a] - low[a], 1e-300)
+            count = max(1, math.ceil(extent / spacing - 1e-9))
+            widths.append(extent / count)
+            centres.append(low[a] + widths[-1] * (np.arange(count) + 0.5))
+    return spacing, widths[0] * widths[1], centres
 
 
 @lru_cache(maxsize=16)
@@ -113,10 +118,10 @@ def ray_cast_quadrature(
     lines = len(first) * len(second)
     # one search per patch degree for all parts (a part's crossings met again on another part's
     # seam are merged below, as crossings found twice within a part are)
-    crossings = [axis_line_crossings(nets, axis, first, second) for nets, _ in bezier_nets_by_degree(parts)]
-    line, position, direction = (np.concatenate([getattr(c, key) for c in crossings])
-                                 for key in ("line", "position", "direction"))  # fmt: skip
-    line, position, direction = merged_crossings(line, position, direction, DUPLICATE_DISTANCE * float(np.max(hi - lo)))
+    crossings = [raw_crossings(nets, axis, first, second) for nets, _ in bezier_nets_by_degree(parts)]
+    positions, lines = np.concatenate([c[0] for c in crossings]), np.concatenate([c[1] for c in crossings])
+    line, position, direction = merged_crossings(lines[:, 0], positions[:, 0], lines[:, 1],
+                                                 DUPLICATE_DISTANCE * float(np.max(hi - lo)))  # fmt: skip
     seconds["crossings"] = time.perf_counter() - clock
     clock = time.perf_counter()
     nodes, node_weights = _gauss_legendre(order)

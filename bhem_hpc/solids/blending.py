@@ -37,10 +37,12 @@ BEYOND_POINT = 1e-7
 
 @dataclass(frozen=True)
 class RayDistances:
-    """Per point and part ``(Q, parts)``: primary distance, total distance (inf: no surface within
-    ``reach``, or no ray cast), and whether the secondary ray met the same part; ``away (Q, parts,
-    3)`` the unit vector from the closest point to the point (the primary distance's gradient),
-    ``feet (Q, parts, 3)`` the closest points; ``reach`` bounds every cutoff."""
+    """Per point and part ``(Q, parts)``: primary distance (inf: not computed, the part lies too far
+    to weigh, see :func:`ray_distances`), total distance (inf: no surface within ``reach``, or no
+    ray cast), and whether the secondary ray met the same part; ``away (Q, parts, 3)`` the unit
+    vector from the closest point to the point (the primary distance's gradient; 0 where not
+    computed), ``feet (Q, parts, 3)`` the closest points (nan where not computed); ``reach`` bounds
+    every cutoff."""
 
     primary: np.ndarray
     total: np.ndarray
@@ -70,6 +72,25 @@ class RayDistances:
         total[point, part_of_ray] = best
         same[point, part_of_ray] = owner == part_of_ray
         return replace(self, total=total, same_part=same, reach=float(reach))
+
+    def with_pairs(self, parts: Sequence[NurbsSurface], points: np.ndarray, pairs: np.ndarray, on_part: np.ndarray,
+                   cast: np.ndarray) -> RayDistances:  # fmt: skip
+        """These distances with those of the point-part ``pairs (Q, parts)`` (a mask of pairs not yet
+        computed) to ``points (Q, 3)``: closest points (0 at the part each point lies on, ``on_part
+        (Q,)``, -1: none), then the secondary rays of the ``cast (parts,)`` parts where the primary
+        distance is below :attr:`reach` (see :meth:`with_rays`)."""
+        primary, feet, away = self.primary.copy(), self.feet.copy(), self.away.copy()
+        for i, part in enumerate(parts):
+            rows = np.flatnonzero(pairs[:, i])
+            if len(rows):
+                _, feet[rows, i], distance = closest_points(part, points[rows])
+                distance[on_part[rows] == i] = 0.0
+                primary[rows, i] = distance
+        inside = pairs & (primary > 0.0)
+        away[inside] = (points[:, None] - feet)[inside] / primary[inside][:, None]
+        same = self.same_part | (pairs & (primary == 0.0))
+        distances = replace(self, primary=primary, feet=feet, away=away, same_part=same)
+        return distances.with_rays(parts, inside & (primary < self.reach) & cast[None, :], self.reach)
 
     def theta(self, alpha: float) -> np.ndarray:
         """Distance weights ``(Q, parts)`` for the cutoff ``alpha <= reach``."""
@@ -124,28 +145,38 @@ class RayDistances:
         return max(low, 1e-12 * self.reach)
 
 
-def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float,
-                  on_part: np.ndarray | None = None, cast: np.ndarray | None = None) -> RayDistances:  # fmt: skip
+def _box_distances(parts: Sequence[NurbsSurface], points: np.ndarray) -> np.ndarray:
+    """``(Q, parts)``: the distance of each point to each part's control point box (a lower bound
+    of its distance to the part, 0 inside the box)."""
+    boxes = [(part.control.reshape(-1, 3).min(axis=0), part.control.reshape(-1, 3).max(axis=0)) for part in parts]
+    return np.stack([np.linalg.norm(np.maximum(np.maximum(low - points, points - high), 0.0), axis=1)
+                     for low, high in boxes], axis=1)  # fmt: skip
+
+
+def ray_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: float, on_part: np.ndarray | None = None,
+                  cast: np.ndarray | None = None, within: float | None = None) -> RayDistances:  # fmt: skip
     """Primary and secondary distances of ``points (Q, 3)`` to ``parts``; secondary rays are cast
     only where the primary distance is below ``reach`` and searched no farther than ``reach``.
     ``on_part (Q,)``: the part each point lies on (boundary samples; -1: none), at distance 0 from
     it. ``cast (parts,)``: the parts whose secondary rays are cast (default: all; the others' total
-    distances stay inf, see :meth:`RayDistances.with_rays`)."""
+    distances stay inf, see :meth:`RayDistances.with_rays`). ``within`` (default ``reach``): the
+    primary distance is inf, and no ray is cast, where the part's box lies that far from the point
+    or farther (a point outside a part's box is not inside the part, so its weight there is 0 for
+    every cutoff up to ``within``), except at points no part's box comes that near to (their
+    nearest part takes them alone)."""
     clock = time.perf_counter()
     count = len(points)
     on_part = np.full(count, -1) if on_part is None else np.asarray(on_part)
-    primary = np.empty((count, len(parts)))
-    away = np.zeros((count, len(parts), 3))
-    feet = np.empty((count, len(parts), 3))
-    for i, part in enumerate(parts):
-        _, feet[:, i], distance = closest_points(part, points)
-        distance[on_part == i] = 0.0
-        primary[:, i] = distance
-    inside = primary > 0.0
-    away[inside] = (points[:, None] - feet)[inside] / primary[inside][:, None]
     cast = np.ones(len(parts), dtype=bool) if cast is None else np.asarray(cast, dtype=bool)
-    distances = RayDistances(primary, np.full(primary.shape, np.inf), primary == 0.0, away, feet, float(reach), 0.0)
-    distances = distances.with_rays(parts, (primary < reach) & inside & cast[None, :], reach)
+    shape = (count, len(parts))
+    distances = RayDistances(np.full(shape, np.inf), np.full(shape, np.inf), np.zeros(shape, dtype=bool),
+                             np.zeros((*shape, 3)), np.full((*shape, 3), np.nan), float(reach), 0.0)  # fmt: skip
+    within = reach if within is None else within
+    near = _box_distances(parts, points) < within
+    distances = distances.with_pairs(parts, points, near, on_part, cast)
+    # where no part came nearer than within, all of them: the point's nearest part among all
+    alone = (distances.primary.min(axis=1) >= within)[:, None] & ~near
+    distances = distances.with_pairs(parts, points, alone, on_part, cast)
     return replace(distances, seconds=time.perf_counter() - clock)
 
 
@@ -159,7 +190,12 @@ def cutoff_distances(parts: Sequence[NurbsSurface], points: np.ndarray, reach: f
     their primary distance is below it, no farther than it (beyond it only the cutoff counts). The
     weights at the cutoff are those of all rays at full reach."""
     flat = np.array([part.flat_frame is not None for part in parts])
-    distances = ray_distances(parts, points, reach, cast=~flat)
+    # first the pairs within half the reach: where the cutoff lies below that, the bisection over
+    # [0, reach] halves to it in its first step and takes the same steps on these distances
+    distances = ray_distances(parts, points, reach, cast=~flat, within=0.5 * reach)
+    if distances.nonzero_share(0.5 * reach) <= target:  # then all of them
+        missing = np.isinf(distances.primary)
+        distances = distances.with_pairs(parts, points, missing, np.full(len(points), -1), ~flat)
     alpha = distances.cutoff_for(target, name)
     if not flat.any():
         return distances, alpha

@@ -127,6 +127,27 @@ def test_cutoff_distances_cast_flat_parts_rays_only_below_the_cutoff_with_the_sa
     assert flat_rays < np.isfinite(full.total[:, :6]).sum()
 
 
+def test_distances_within_a_bound_skip_far_parts_and_keep_the_weights_below_it():
+    """Four spheres on a line, 1.5 m apart: with ``within`` 0.6 m a point's far spheres are not
+    projected (inf), the weights for cutoffs up to 0.6 m are those of all pairs bit for bit, and a
+    point no sphere's box comes within 0.6 m of still belongs to its nearest sphere."""
+    parts = [nurbs.sphere(0.4, center=(1.5 * k, 0.0, 0.0)) for k in range(4)]
+    points = np.concatenate([ray_cast_quadrature(parts, 24).points, [[2.25, 1.5, 0.0]]])
+    full = ray_distances(parts, points, reach=6.0)
+    near = ray_distances(parts, points, reach=6.0, within=0.6)
+    assert np.isfinite(full.primary).all()
+    skipped = np.isinf(near.primary)
+    assert 0.5 < skipped.mean() < 0.9
+    np.testing.assert_array_equal(near.primary[~skipped], full.primary[~skipped])
+    assert np.all(full.primary[skipped] >= 0.6)
+    for alpha in (0.2, 0.45, 0.6):
+        np.testing.assert_array_equal(near.weights(alpha).toarray(), full.weights(alpha).toarray())
+        np.testing.assert_array_equal(near.weight_gradients(alpha), full.weight_gradients(alpha))
+    # the last point lies 1.15 m from every sphere's box: projected onto all, it belongs to its nearest alone
+    assert np.isfinite(near.primary[-1]).all()
+    np.testing.assert_array_equal(near.weights(0.3).toarray()[-1], full.weights(0.3).toarray()[-1])
+
+
 def test_affine_and_rigid_motions_are_reproduced_exactly(box_solid, rng):
     q0 = box_solid.reference
     affine, shift = np.eye(3) + 0.2 * rng.normal(size=(3, 3)), rng.normal(size=3)

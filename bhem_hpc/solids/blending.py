@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse
 
+from bhem_hpc.compiled.blend_counts import nonzero_weights
 from bhem_hpc.compiled.extraction import bezier_nets_by_degree
 from bhem_hpc.compiled.projection import closest_points
 from bhem_hpc.compiled.ray_hits import first_hits
@@ -79,6 +80,8 @@ class RayDistances:
         computed) to ``points (Q, 3)``: closest points (0 at the part each point lies on, ``on_part
         (Q,)``, -1: none), then the secondary rays of the ``cast (parts,)`` parts where the primary
         distance is below :attr:`reach` (see :meth:`with_rays`)."""
+        if not pairs.any():
+            return self
         primary, feet, away = self.primary.copy(), self.feet.copy(), self.away.copy()
         for i, part in enumerate(parts):
             rows = np.flatnonzero(pairs[:, i])
@@ -128,8 +131,7 @@ class RayDistances:
     def nonzero_share(self, alpha: float) -> float:
         """The share of nonzero entries of :meth:`weights` (counted without building the matrix:
         the positive distance weights, and one for each point that no part reaches)."""
-        positive = self.theta(alpha) > 0.0
-        return float(positive.sum() + np.count_nonzero(~positive.any(axis=1))) / self.primary.size
+        return nonzero_weights(self.primary, self.total, self.same_part, float(alpha)) / self.primary.size
 
     def cutoff_for(self, target: float, name: str = "model") -> float:
         """The largest cutoff whose share of nonzero weights stays at most ``target`` in ``(0, 1]``

@@ -3,8 +3,10 @@
 two planes cut their control points' box within the searched stretch, flat patches in one plane
 solve, Newton's method from the centres of small pieces, a piece settled by a steep crossing or a
 normal of one sign along the ray) run ray by ray, depth first, in one compiled loop instead of
-level by level over all rays in numpy calls. The nearest hit within the stretch does not depend
-on the order in which pieces are searched."""
+level by level over all rays in numpy calls. Each curved patch's pieces down to the size Newton
+starts from are split once for all rays of a search and kept with bounding spheres and divided
+control points (where they fit in :data:`TREE_BYTES`): a ray then only tests them. The nearest
+hit within the stretch does not depend on the order in which pieces are searched."""
 
 from __future__ import annotations
 
@@ -32,6 +34,15 @@ from bhem_hpc.compiled.patch_kernels import (
 from bhem_hpc.geometry import rational_bezier as rb
 
 GRAZING_COSINE = rb.GRAZING_COSINE
+#: A patch's parameter square (s0, s1, t0, t1).
+WHOLE = np.array([0.0, 1.0, 0.0, 1.0])
+#: Levels of quarters kept per curved patch for all rays of a search, down to the pieces Newton
+#: starts from (MAX_PIECE wide): ``TREE_NODES`` pieces, node ``n``'s quarters at ``4 n + 1 + k``.
+TREE_LEVELS = round(-np.log2(MAX_PIECE))
+TREE_NODES = (4 ** (TREE_LEVELS + 1) - 1) // 3
+#: Largest memory [bytes] the kept pieces of one search may take; beyond it each ray splits the
+#: pieces it meets itself (the same pieces: the kept ones save the splits and the divisions).
+TREE_BYTES = 64e6
 ONE_CROSSING_COSINE = rb.ONE_CROSSING_COSINE
 
 
@@ -94,14 +105,53 @@ def _plane_hit(frame: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> 
 
 
 @njit(cache=True, error_model="numpy")
-def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, across, tables, work):  # noqa: C901, PLR0912, PLR0913, PLR0915
-    """The nearest hit of the ray with the curved patch ``net`` within ``tau_min < tau <= best``:
-    ``(tau, s, t)``, ``tau = inf`` where there is none."""
+def _small_piece(net, piece, rect, origin, direction, tau_min, best, tolerance, tables, rows, basis, point):  # noqa: PLR0913
+    """Newton's method from the centre of the small ``piece`` of ``net`` on ``rect`` (s0, s1, t0,
+    t1): the hit ``(tau, s, t)`` within ``tau_min < tau <= best`` (``tau = inf``: none), and whether
+    the piece is settled (the ray grazes it, crosses it steeply where Newton converged, or the
+    normal has one sign along the ray on it: nothing more to find in it)."""
+    s0, s1, t0, t1 = rect[0], rect[1], rect[2], rect[3]
+    s, t = 0.5 * (s0 + s1), 0.5 * (t0 + t1)
+    evaluate(net, s, t, basis, point)
+    tau = ((point[0, 0] - origin[0]) * direction[0] + (point[0, 1] - origin[1]) * direction[1]
+           + (point[0, 2] - origin[2]) * direction[2])  # fmt: skip
+    r0 = point[0, 0] - origin[0] - tau * direction[0]
+    r1 = point[0, 1] - origin[1] - tau * direction[1]
+    r2 = point[0, 2] - origin[2] - tau * direction[2]
+    if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) > 1e2 * tolerance:  # not already on the ray: the start's slope
+        nx, ny, nz = row_normal(point)
+        facing = abs(nx * direction[0] + ny * direction[1] + nz * direction[2])
+        if facing <= GRAZING_COSINE * np.sqrt(nx * nx + ny * ny + nz * nz):
+            return np.inf, 0.0, 0.0, True  # a ray in the plane of a flat piece meets it nowhere transversally
+    converged, s, t, tau = ray_newton(net, s, t, tau, origin, direction, 1e2 * tolerance, NEWTON_ITERATIONS,
+                                      basis, point)  # fmt: skip
+    if not (converged and s0 - EDGE_SLACK <= s <= s1 + EDGE_SLACK and t0 - EDGE_SLACK <= t <= t1 + EDGE_SLACK):
+        return np.inf, 0.0, 0.0, False
+    hit_tau, hit_s, hit_t = np.inf, 0.0, 0.0
+    if tau_min < tau <= best:
+        hit_tau, hit_s, hit_t = tau, min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+    # the crossing found is the piece's only one where the ray crosses it steeply, or where the
+    # normal has one sign along the ray on the piece
+    nx, ny, nz = row_normal(point)
+    size = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
+    cosine = abs(nx * direction[0] + ny * direction[1] + nz * direction[2]) / size
+    settled = cosine >= ONE_CROSSING_COSINE
+    if not settled:
+        low, high = normal_component_range(piece, direction, tables[0], tables[1], rows)
+        settled = low > 0.0 or high < 0.0
+    return hit_tau, hit_s, hit_t, settled
+
+
+@njit(cache=True, error_model="numpy")
+def _search_pieces(net, start, rect, level, origin, direction, frame, tau_min, best, tolerance, across, tables, work):  # noqa: PLR0913
+    """The nearest hit of the ray with the piece ``start`` of the curved patch ``net`` (on ``rect``
+    (s0, s1, t0, t1), at split ``level``) within ``tau_min < tau <= best``: ``(tau, s, t)``,
+    ``tau = inf`` where there is none. Pieces are split on the fly, depth first."""
     stack, rects, levels, scratch, rows, basis, point = work
     hit_tau, hit_s, hit_t = np.inf, 0.0, 0.0
-    stack[0] = net
-    rects[0, 0], rects[0, 1], rects[0, 2], rects[0, 3] = 0.0, 1.0, 0.0, 1.0
-    levels[0] = 0
+    stack[0] = start
+    rects[0] = rect
+    levels[0] = level
     top = 1
     while top > 0:
         top -= 1
@@ -111,32 +161,10 @@ def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, acros
             continue
         settled = False
         if s1 - s0 <= MAX_PIECE and t1 - t0 <= MAX_PIECE:
-            s, t = 0.5 * (s0 + s1), 0.5 * (t0 + t1)
-            evaluate(net, s, t, basis, point)
-            tau = ((point[0, 0] - origin[0]) * direction[0] + (point[0, 1] - origin[1]) * direction[1]
-                   + (point[0, 2] - origin[2]) * direction[2])  # fmt: skip
-            r0 = point[0, 0] - origin[0] - tau * direction[0]
-            r1 = point[0, 1] - origin[1] - tau * direction[1]
-            r2 = point[0, 2] - origin[2] - tau * direction[2]
-            if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) > 1e2 * tolerance:  # not already on the ray: the start's slope
-                nx, ny, nz = row_normal(point)
-                facing = abs(nx * direction[0] + ny * direction[1] + nz * direction[2])
-                if facing <= GRAZING_COSINE * np.sqrt(nx * nx + ny * ny + nz * nz):
-                    continue  # a ray in the plane of a flat piece meets it nowhere transversally
-            converged, s, t, tau = ray_newton(net, s, t, tau, origin, direction, 1e2 * tolerance, NEWTON_ITERATIONS,
-                                              basis, point)  # fmt: skip
-            if converged and s0 - EDGE_SLACK <= s <= s1 + EDGE_SLACK and t0 - EDGE_SLACK <= t <= t1 + EDGE_SLACK:
-                if tau_min < tau <= best:
-                    best, hit_tau, hit_s, hit_t = tau, tau, min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
-                # the crossing found is the piece's only one where the ray crosses it steeply, or
-                # where the normal has one sign along the ray on the piece
-                nx, ny, nz = row_normal(point)
-                size = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-300)
-                cosine = abs(nx * direction[0] + ny * direction[1] + nz * direction[2]) / size
-                settled = cosine >= ONE_CROSSING_COSINE
-                if not settled:
-                    low, high = normal_component_range(piece, direction, tables[0], tables[1], rows)
-                    settled = low > 0.0 or high < 0.0
+            tau, s, t, settled = _small_piece(net, piece, rects[top], origin, direction, tau_min, best, tolerance,
+                                              tables, rows, basis, point)  # fmt: skip
+            if np.isfinite(tau):
+                best, hit_tau, hit_s, hit_t = tau, tau, s, t
         if settled or level == MAX_LEVEL:
             continue
         quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
@@ -152,6 +180,130 @@ def _search_patch(net, origin, direction, frame, tau_min, best, tolerance, acros
 
 
 @njit(cache=True, error_model="numpy")
+def _tree_layout() -> tuple[np.ndarray, np.ndarray]:
+    """The kept pieces' parameter rectangles ``(TREE_NODES, 4)`` (s0, s1, t0, t1) and levels
+    ``(TREE_NODES,)``, computed as :func:`_search_pieces` computes them."""
+    rects, levels = np.empty((TREE_NODES, 4)), np.zeros(TREE_NODES, dtype=np.int64)
+    rects[0] = WHOLE
+    for node in range((TREE_NODES - 1) // 4):
+        s0, s1, t0, t1 = rects[node, 0], rects[node, 1], rects[node, 2], rects[node, 3]
+        width_s, width_t = s1 - s0, t1 - t0
+        for k in range(4):
+            child = 4 * node + 1 + k
+            rects[child, 0] = s0 + QUARTERS[k, 0] * width_s
+            rects[child, 1] = s0 + QUARTERS[k, 1] * width_s
+            rects[child, 2] = t0 + QUARTERS[k, 2] * width_t
+            rects[child, 3] = t0 + QUARTERS[k, 3] * width_t
+            levels[child] = levels[node] + 1
+    return rects, levels
+
+
+@njit(cache=True, error_model="numpy")
+def _piece_tree(nets: np.ndarray):
+    """Each patch's pieces down to :data:`TREE_LEVELS`: homogeneous nets ``(P, TREE_NODES, p + 1,
+    q + 1, 4)``, their Cartesian control points ``(P, TREE_NODES, p + 1, q + 1, 3)`` and bounding
+    spheres ``(P, TREE_NODES, 4)`` (centre, radius) of those points."""
+    count, rows, columns = nets.shape[0], nets.shape[1], nets.shape[2]
+    tree = np.empty((count, TREE_NODES, rows, columns, 4))
+    points = np.empty((count, TREE_NODES, rows, columns, 3))
+    spheres = np.empty((count, TREE_NODES, 4))
+    scratch, low, high = np.empty((2, rows, columns, 4)), np.empty(3), np.empty(3)
+    for n in range(count):
+        tree[n, 0] = nets[n]
+        for node in range((TREE_NODES - 1) // 4):
+            quarters(tree[n, node], scratch, tree[n], 4 * node + 1)
+        for node in range(TREE_NODES):
+            piece = tree[n, node]
+            for i in range(rows):
+                for j in range(columns):
+                    w = piece[i, j, 3]
+                    for c in range(3):
+                        points[n, node, i, j, c] = piece[i, j, c] / w  # as _cut divides
+            cartesian_box(piece, low, high)
+            radius = 0.0
+            for i in range(rows):
+                for j in range(columns):
+                    squared = 0.0
+                    for c in range(3):
+                        squared += (points[n, node, i, j, c] - 0.5 * (low[c] + high[c])) ** 2
+                    radius = max(radius, np.sqrt(squared))
+            for c in range(3):
+                spheres[n, node, c] = 0.5 * (low[c] + high[c])
+            spheres[n, node, 3] = radius
+    return tree, points, spheres
+
+
+@njit(cache=True, error_model="numpy")
+def _sphere_cut(sphere: np.ndarray, origin: np.ndarray, frame: np.ndarray, across: float, tau_min: float,
+                tau_max: float) -> bool:  # fmt: skip
+    """Whether a piece's bounding ``sphere`` (centre, radius) may meet what :func:`_cut` tests: false
+    only where the box of its control points surely misses (the radius widened for round-off)."""
+    x, y, z = sphere[0] - origin[0], sphere[1] - origin[1], sphere[2] - origin[2]
+    d0 = x * frame[0, 0] + y * frame[0, 1] + z * frame[0, 2]
+    d1 = x * frame[1, 0] + y * frame[1, 1] + z * frame[1, 2]
+    d2 = x * frame[2, 0] + y * frame[2, 1] + z * frame[2, 2]
+    radius = sphere[3] * (1.0 + 1e-9) + 1e-12 * (abs(x) + abs(y) + abs(z) + abs(origin[0]) + abs(origin[1])
+                                                 + abs(origin[2]))  # fmt: skip
+    return (d0 - radius <= across and d0 + radius >= -across and d1 - radius <= across and d1 + radius >= -across
+            and d2 + radius >= tau_min and d2 - radius <= tau_max)  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _cut_points(points: np.ndarray, origin: np.ndarray, frame: np.ndarray, across: float, tau_min: float,
+                tau_max: float) -> bool:  # fmt: skip
+    """:func:`_cut` on a piece's Cartesian control points ``(p + 1, q + 1, 3)``."""
+    low0 = low1 = low2 = np.inf
+    high0 = high1 = high2 = -np.inf
+    for i in range(points.shape[0]):
+        for j in range(points.shape[1]):
+            x, y, z = points[i, j, 0] - origin[0], points[i, j, 1] - origin[1], points[i, j, 2] - origin[2]
+            c0 = x * frame[0, 0] + y * frame[0, 1] + z * frame[0, 2]
+            c1 = x * frame[1, 0] + y * frame[1, 1] + z * frame[1, 2]
+            c2 = x * frame[2, 0] + y * frame[2, 1] + z * frame[2, 2]
+            low0, high0 = min(low0, c0), max(high0, c0)
+            low1, high1 = min(low1, c1), max(high1, c1)
+            low2, high2 = min(low2, c2), max(high2, c2)
+    return low0 <= across and high0 >= -across and low1 <= across and high1 >= -across and high2 > tau_min and (
+        low2 <= tau_max)  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _search_tree(net, tree, points, spheres, layout, origin, direction, frame, tau_min, best, tolerance, across,  # noqa: PLR0913
+                 tables, work, nodes):  # fmt: skip
+    """:func:`_search_pieces` on the whole patch ``net`` through its kept pieces (``tree``,
+    ``points``, ``spheres`` of :func:`_piece_tree`, ``layout`` of :func:`_tree_layout`), in the same
+    order; below the kept levels (a piece Newton did not settle) it splits on the fly."""
+    rects, levels = layout
+    rows, basis, point = work[4], work[5], work[6]
+    hit_tau, hit_s, hit_t = np.inf, 0.0, 0.0
+    nodes[0] = 0
+    top = 1
+    while top > 0:
+        top -= 1
+        node = nodes[top]
+        limit = best + tolerance
+        if not (_sphere_cut(spheres[node], origin, frame, across, tau_min, limit)
+                and _cut_points(points[node], origin, frame, across, tau_min, limit)):  # fmt: skip
+            continue
+        if levels[node] < TREE_LEVELS:
+            for k in range(4):  # popped last first, as the quarters on the splitting search's stack
+                nodes[top + k] = 4 * node + 1 + k
+            top += 4
+            continue
+        tau, s, t, settled = _small_piece(net, tree[node], rects[node], origin, direction, tau_min, best, tolerance,
+                                          tables, rows, basis, point)  # fmt: skip
+        if np.isfinite(tau):
+            best, hit_tau, hit_s, hit_t = tau, tau, s, t
+        if not settled and levels[node] < MAX_LEVEL:
+            # the splitting search from this piece (it runs Newton on it once more, to the same end)
+            tau, s, t = _search_pieces(net, tree[node], rects[node], levels[node], origin, direction, frame, tau_min,
+                                       best, tolerance, across, tables, work)  # fmt: skip
+            if np.isfinite(tau):
+                best, hit_tau, hit_s, hit_t = tau, tau, s, t
+    return hit_tau, hit_s, hit_t
+
+
+@njit(cache=True, error_model="numpy")
 def _patch_boxes(nets: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``(P, 3), (P, 3)`` of the patches' control points (which hold them), widened by ``pad``."""
     low, high = np.empty((len(nets), 3)), np.empty((len(nets), 3))
@@ -161,7 +313,7 @@ def _patch_boxes(nets: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, error_model="numpy")
-def _first_hits(nets, origins, directions, tau_min, tau_max):  # noqa: C901, PLR0912, PLR0915
+def _first_hits(nets, origins, directions, tau_min, tau_max, tree_bytes):  # noqa: C901, PLR0912, PLR0915
     """``tau (R,)`` (inf: no hit), ``patch (R,)`` (-1), ``s, t (R,)`` of each ray's first hit."""
     count, rays = nets.shape[0], origins.shape[0]
     size = max(model_size(nets), 1e-300)
@@ -182,6 +334,13 @@ def _first_hits(nets, origins, directions, tau_min, tau_max):  # noqa: C901, PLR
     hit_s, hit_t = np.zeros(rays), np.zeros(rays)
     frame = np.empty((3, 3))
     candidates, entries = np.empty(count, dtype=np.int64), np.empty(count)
+    # the curved patches' kept pieces, where they fit
+    curved = np.flatnonzero(~flat)
+    kept = len(curved) * TREE_NODES * 8 * (7 * shape[1] * shape[2] + 4) <= tree_bytes
+    tree, points, spheres = _piece_tree(nets[curved] if kept else nets[:0])
+    kept_index = np.full(count, -1)
+    kept_index[curved] = np.arange(len(curved))
+    layout, nodes = _tree_layout(), np.empty(3 * TREE_LEVELS + 1, dtype=np.int64)
     for ray in range(rays):
         origin, direction = origins[ray], directions[ray]
         _ray_frame(direction, frame)
@@ -201,19 +360,24 @@ def _first_hits(nets, origins, directions, tau_min, tau_max):  # noqa: C901, PLR
                 s, t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
                 if not tau_min[ray] < tau <= best:
                     continue
+            elif kept:
+                m = kept_index[n]
+                tau, s, t = _search_tree(nets[n], tree[m], points[m], spheres[m], layout, origin, direction, frame,
+                                         tau_min[ray], best, tolerance, across, tables, work, nodes)  # fmt: skip
             else:
-                tau, s, t = _search_patch(nets[n], origin, direction, frame, tau_min[ray], best, tolerance, across,
-                                          tables, work)  # fmt: skip
+                tau, s, t = _search_pieces(nets[n], nets[n], WHOLE, 0, origin, direction, frame, tau_min[ray], best,
+                                           tolerance, across, tables, work)  # fmt: skip
             if tau < best or (tau == best and hit_patch[ray] < 0 and np.isfinite(tau)):
                 best, hit_tau[ray], hit_patch[ray], hit_s[ray], hit_t[ray] = tau, tau, n, s, t
     return hit_tau, hit_patch, hit_s, hit_t
 
 
 def first_hits(nets: np.ndarray, origins: np.ndarray, directions: np.ndarray, tau_min: np.ndarray,
-               tau_max: np.ndarray) -> rb.RayHits:  # fmt: skip
+               tau_max: np.ndarray, tree_bytes: float = TREE_BYTES) -> rb.RayHits:  # fmt: skip
     """:func:`bhem_hpc.geometry.rational_bezier.first_hits`, compiled: the first hit of each ray
     ``origins, directions (R, 3)`` (unit directions) with ``tau_min < tau <= tau_max`` ``(R,)`` on
-    the patches ``nets (P, p + 1, q + 1, 4)``."""
+    the patches ``nets (P, p + 1, q + 1, 4)``; the curved patches' pieces are kept for all rays
+    where they take at most ``tree_bytes``."""
     nets = np.ascontiguousarray(nets, dtype=float)
     origins, directions = np.ascontiguousarray(origins, dtype=float), np.ascontiguousarray(directions, dtype=float)
     tau_min = np.ascontiguousarray(np.broadcast_to(tau_min, len(origins)), dtype=float)
@@ -221,5 +385,5 @@ def first_hits(nets: np.ndarray, origins: np.ndarray, directions: np.ndarray, ta
     if not len(nets) or not len(origins):
         return rb.RayHits(np.full(len(origins), np.inf), np.full(len(origins), -1), np.zeros(len(origins)),
                           np.zeros(len(origins)))  # fmt: skip
-    tau, patch, s, t = _first_hits(nets, origins, directions, tau_min, tau_max)
+    tau, patch, s, t = _first_hits(nets, origins, directions, tau_min, tau_max, tree_bytes)
     return rb.RayHits(tau, patch, s, t)

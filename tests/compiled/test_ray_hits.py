@@ -41,6 +41,20 @@ def test_compiled_first_hits_equal_the_numpy_search(rng, model):
         np.testing.assert_allclose(point, origins[hit] + found.tau[hit, None] * directions[hit], atol=1e-9)
 
 
+@pytest.mark.parametrize("model", ["torus", "rocket", "mug"])
+def test_kept_pieces_give_the_hits_of_the_splitting_search(rng, model):
+    """The curved patches' pieces kept for all rays (bounding spheres, divided control points) and
+    the pieces each ray splits itself: the same hits, bit for bit."""
+    parts = {"torus": lambda: [nurbs.torus(1.0, 0.3)], "rocket": sem_models.rocket, "mug": sem_models.mug}[model]()
+    origins, directions, tau_min, tau_max = _random_rays(rng, parts, 2000)
+    for nets, _ in nurbs.bezier_nets_by_degree(parts):
+        kept = compiled.first_hits(nets, origins, directions, tau_min, tau_max)
+        split = compiled.first_hits(nets, origins, directions, tau_min, tau_max, tree_bytes=0.0)
+        assert np.isfinite(kept.tau).sum() > 100
+        for key in ("tau", "patch", "s", "t"):
+            np.testing.assert_array_equal(getattr(kept, key), getattr(split, key))
+
+
 def test_compiled_first_hits_respect_the_stretch():
     """A ray through the unit sphere's centre from outside: the near side's hit, the far side's
     once the stretch starts past the near one, none once it ends before it."""

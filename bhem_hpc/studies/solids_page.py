@@ -255,7 +255,7 @@ def write_solids_page(
         f"scipy serially on this machine (OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}: "
         "1 is one core), rays and closest points on the exact rational patches, compiled by numba",
         "(`bhem_hpc/compiled`; loaded from numba's cache before any timing). Quad includes the",
-        "extraction of the parts' rational Bezier patches, which the stages after it reuse. Operators",
+        "extraction of the parts' rational Bezier patches (compiled; Weights extracts them again). Operators",
         "(no column in the paper's table): the kinematic",
         "maps, the mass and the error energy, whose boundary samples need blending weights of their own.",
         "",

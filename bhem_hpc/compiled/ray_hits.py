@@ -61,15 +61,17 @@ def _ray_frame(direction: np.ndarray, frame: np.ndarray) -> None:
 
 
 @njit(cache=True, error_model="numpy")
-def _cut(piece: np.ndarray, origin: np.ndarray, frame: np.ndarray, across: float, tau_min: float,
-         tau_max: float) -> bool:  # fmt: skip
+def _cut(piece: np.ndarray, origin: np.ndarray, frame: np.ndarray, across: float, tau_min: float, tau_max: float,
+         homogeneous: bool = True) -> bool:  # fmt: skip
     """Whether the box of ``piece``'s control points in the ray's frame (across, across, along; the
-    first two widened by ``across``) meets the ray's stretch ``tau_min < tau <= tau_max``."""
+    first two widened by ``across``) meets the ray's stretch ``tau_min < tau <= tau_max``; the
+    points homogeneous ``(p + 1, q + 1, 4)``, or Cartesian ``(p + 1, q + 1, 3)`` (already divided
+    by their weights, as here: the same box)."""
     low0 = low1 = low2 = np.inf
     high0 = high1 = high2 = -np.inf
     for i in range(piece.shape[0]):
         for j in range(piece.shape[1]):
-            w = piece[i, j, 3]
+            w = piece[i, j, 3] if homogeneous else 1.0
             x, y, z = piece[i, j, 0] / w - origin[0], piece[i, j, 1] / w - origin[1], piece[i, j, 2] / w - origin[2]
             c0 = x * frame[0, 0] + y * frame[0, 1] + z * frame[0, 2]
             c1 = x * frame[1, 0] + y * frame[1, 1] + z * frame[1, 2]
@@ -249,25 +251,6 @@ def _sphere_cut(sphere: np.ndarray, origin: np.ndarray, frame: np.ndarray, acros
 
 
 @njit(cache=True, error_model="numpy")
-def _cut_points(points: np.ndarray, origin: np.ndarray, frame: np.ndarray, across: float, tau_min: float,
-                tau_max: float) -> bool:  # fmt: skip
-    """:func:`_cut` on a piece's Cartesian control points ``(p + 1, q + 1, 3)``."""
-    low0 = low1 = low2 = np.inf
-    high0 = high1 = high2 = -np.inf
-    for i in range(points.shape[0]):
-        for j in range(points.shape[1]):
-            x, y, z = points[i, j, 0] - origin[0], points[i, j, 1] - origin[1], points[i, j, 2] - origin[2]
-            c0 = x * frame[0, 0] + y * frame[0, 1] + z * frame[0, 2]
-            c1 = x * frame[1, 0] + y * frame[1, 1] + z * frame[1, 2]
-            c2 = x * frame[2, 0] + y * frame[2, 1] + z * frame[2, 2]
-            low0, high0 = min(low0, c0), max(high0, c0)
-            low1, high1 = min(low1, c1), max(high1, c1)
-            low2, high2 = min(low2, c2), max(high2, c2)
-    return low0 <= across and high0 >= -across and low1 <= across and high1 >= -across and high2 > tau_min and (
-        low2 <= tau_max)  # fmt: skip
-
-
-@njit(cache=True, error_model="numpy")
 def _search_tree(net, tree, points, spheres, layout, origin, direction, frame, tau_min, best, tolerance, across,  # noqa: PLR0913
                  tables, work, nodes):  # fmt: skip
     """:func:`_search_pieces` on the whole patch ``net`` through its kept pieces (``tree``,
@@ -283,7 +266,7 @@ def _search_tree(net, tree, points, spheres, layout, origin, direction, frame, t
         node = nodes[top]
         limit = best + tolerance
         if not (_sphere_cut(spheres[node], origin, frame, across, tau_min, limit)
-                and _cut_points(points[node], origin, frame, across, tau_min, limit)):  # fmt: skip
+                and _cut(points[node], origin, frame, across, tau_min, limit, False)):  # fmt: skip
             continue
         if levels[node] < TREE_LEVELS:
             for k in range(4):  # popped last first, as the quarters on the splitting search's stack

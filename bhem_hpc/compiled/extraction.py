@@ -48,15 +48,6 @@ def _extract(control, weights, spans_u, spans_v, extraction_u, extraction_v, net
                         net[k, l, c] = total
 
 
-def bezier_nets(part: NurbsSurface) -> np.ndarray:
-    """``part``'s rational Bezier nets ``(S_u S_v, p + 1, q + 1, 4)``, as
-    ``part.bezier_patches.nets`` (equal to round-off)."""
-    (p, q), u, v = part.degrees, part.u, part.v
-    nets = np.empty((len(u.spans) * len(v.spans), p + 1, q + 1, 4))
-    _extract(part.control, part.weights, u.spans, v.spans, u.extraction, v.extraction, nets, 0)
-    return nets
-
-
 def bezier_nets_by_degree(parts: Sequence[NurbsSurface]) -> list[tuple[np.ndarray, np.ndarray]]:
     """:func:`bhem_hpc.geometry.nurbs.bezier_nets_by_degree`, compiled: the parts' nets in one array
     per degree, with the part of each patch: ``[(nets (P, p + 1, q + 1, 4), part (P,)), ...]``."""

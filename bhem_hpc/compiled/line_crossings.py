@@ -176,7 +176,6 @@ def _all_crossings(nets, axis, first, second):
     ``floats (K, 3)`` (position, s, t) and ``ints (K, 3)`` (line, direction, patch)."""
     floats, ints = raw_crossings(nets, axis, first, second)
     order = merged_order(ints[:, 0], floats[:, 0], ints[:, 1], DUPLICATE_DISTANCE * model_size(nets))
-    order = order[ints[order, 1] != 0]  # tangencies cross nothing
     return floats[order], ints[order]
 
 

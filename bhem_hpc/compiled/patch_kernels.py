@@ -328,16 +328,25 @@ QUARTERS = np.array([(0.0, 0.5, 0.0, 0.5), (0.5, 1.0, 0.0, 0.5), (0.0, 0.5, 0.5,
 
 
 @njit(cache=True, error_model="numpy")
-def _push_quarters(piece, rect, level, scratch, stack, rects, levels, top) -> int:
+def quarter_rects(rect: np.ndarray, level: int, rects: np.ndarray, levels: np.ndarray, first: int) -> None:
+    """The parameter rectangles (s0, s1, t0, t1) of the quarters of the piece on ``rect`` at
+    ``level`` into ``rects[first:first + 4]`` and their level into ``levels[first:first + 4]``, in the
+    order of :func:`quarters` (``rect`` may be the row ``rects[first]``: read before written over)."""
+    s0, s1, t0, t1 = rect[0], rect[1], rect[2], rect[3]
+    width_s, width_t = s1 - s0, t1 - t0
+    for k in range(4):
+        rects[first + k, 0] = s0 + QUARTERS[k, 0] * width_s
+        rects[first + k, 1] = s0 + QUARTERS[k, 1] * width_s
+        rects[first + k, 2] = t0 + QUARTERS[k, 2] * width_t
+        rects[first + k, 3] = t0 + QUARTERS[k, 3] * width_t
+        levels[first + k] = level + 1
+
+
+@njit(cache=True, error_model="numpy")
+def push_quarters(piece, rect, level, scratch, stack, rects, levels, top) -> int:
     """Push the quarters of ``piece`` (on ``rect``, at ``level``) onto the stack at ``top``; the new top."""
     quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
-    width_s, width_t = rect[1] - rect[0], rect[3] - rect[2]
-    for k in range(4):
-        rects[top + k, 0] = rect[0] + QUARTERS[k, 0] * width_s
-        rects[top + k, 1] = rect[0] + QUARTERS[k, 1] * width_s
-        rects[top + k, 2] = rect[2] + QUARTERS[k, 2] * width_t
-        rects[top + k, 3] = rect[2] + QUARTERS[k, 3] * width_t
-        levels[top + k] = level + 1
+    quarter_rects(rect, level, rects, levels, top)
     return top + 4
 
 
@@ -367,4 +376,4 @@ def split_onto_stack(piece, rect, level, large_s, large_t, scratch, stack, rects
     neither is); the new top."""
     if large_s != large_t:
         return _push_halves(rect, level, large_s, scratch, stack, rects, levels, top)
-    return _push_quarters(piece, rect, level, scratch, stack, rects, levels, top)
+    return push_quarters(piece, rect, level, scratch, stack, rects, levels, top)

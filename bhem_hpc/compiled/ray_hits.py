@@ -19,13 +19,14 @@ from bhem_hpc.compiled.patch_kernels import (
     MAX_LEVEL,
     MAX_PIECE,
     NEWTON_ITERATIONS,
-    QUARTERS,
     STACK,
     affine_frame,
     cartesian_box,
     evaluate,
     model_size,
     normal_component_range,
+    push_quarters,
+    quarter_rects,
     quarters,
     ray_newton,
     row_normal,
@@ -167,17 +168,8 @@ def _search_pieces(net, start, rect, level, origin, direction, frame, tau_min, b
                                               tables, rows, basis, point)  # fmt: skip
             if np.isfinite(tau):
                 best, hit_tau, hit_s, hit_t = tau, tau, s, t
-        if settled or level == MAX_LEVEL:
-            continue
-        quarters(piece, scratch, stack, top)  # the piece was popped from top: read before written over
-        width_s, width_t = s1 - s0, t1 - t0
-        for k in range(4):
-            rects[top + k, 0] = s0 + QUARTERS[k, 0] * width_s
-            rects[top + k, 1] = s0 + QUARTERS[k, 1] * width_s
-            rects[top + k, 2] = t0 + QUARTERS[k, 2] * width_t
-            rects[top + k, 3] = t0 + QUARTERS[k, 3] * width_t
-            levels[top + k] = level + 1
-        top += 4
+        if not (settled or level == MAX_LEVEL):
+            top = push_quarters(piece, rects[top], level, scratch, stack, rects, levels, top)
     return hit_tau, hit_s, hit_t
 
 
@@ -188,15 +180,7 @@ def _tree_layout() -> tuple[np.ndarray, np.ndarray]:
     rects, levels = np.empty((TREE_NODES, 4)), np.zeros(TREE_NODES, dtype=np.int64)
     rects[0] = WHOLE
     for node in range((TREE_NODES - 1) // 4):
-        s0, s1, t0, t1 = rects[node, 0], rects[node, 1], rects[node, 2], rects[node, 3]
-        width_s, width_t = s1 - s0, t1 - t0
-        for k in range(4):
-            child = 4 * node + 1 + k
-            rects[child, 0] = s0 + QUARTERS[k, 0] * width_s
-            rects[child, 1] = s0 + QUARTERS[k, 1] * width_s
-            rects[child, 2] = t0 + QUARTERS[k, 2] * width_t
-            rects[child, 3] = t0 + QUARTERS[k, 3] * width_t
-            levels[child] = levels[node] + 1
+        quarter_rects(rects[node], levels[node], rects, levels, 4 * node + 1)
     return rects, levels
 
 
@@ -222,15 +206,15 @@ def _piece_tree(nets: np.ndarray):
                     for c in range(3):
                         points[n, node, i, j, c] = piece[i, j, c] / w  # as _cut divides
             cartesian_box(piece, low, high)
+            for c in range(3):
+                spheres[n, node, c] = 0.5 * (low[c] + high[c])
             radius = 0.0
             for i in range(rows):
                 for j in range(columns):
                     squared = 0.0
                     for c in range(3):
-                        squared += (points[n, node, i, j, c] - 0.5 * (low[c] + high[c])) ** 2
+                        squared += (points[n, node, i, j, c] - spheres[n, node, c]) ** 2
                     radius = max(radius, np.sqrt(squared))
-            for c in range(3):
-                spheres[n, node, c] = 0.5 * (low[c] + high[c])
             spheres[n, node, 3] = radius
     return tree, points, spheres
 

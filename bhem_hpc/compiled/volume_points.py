@@ -12,7 +12,8 @@ from numba import njit
 @njit(cache=True, error_model="numpy")
 def merged_order(line: np.ndarray, position: np.ndarray, direction: np.ndarray, duplicate: float) -> np.ndarray:
     """Indices of crossings ``(K,)`` sorted by line, then position, each run on one line crossed the
-    same way within ``duplicate`` of the one before kept once (a seam's crossing found by both sides)."""
+    same way within ``duplicate`` of the one before kept once (a seam's crossing found by both
+    sides), tangencies (direction 0: they cross nothing) dropped after the merge."""
     order = np.argsort(position, kind="mergesort")
     order = order[np.argsort(line[order], kind="mergesort")]
     keep = np.ones(len(order), dtype=np.bool_)
@@ -20,16 +21,15 @@ def merged_order(line: np.ndarray, position: np.ndarray, direction: np.ndarray, 
         this, last = order[k], order[k - 1]
         keep[k] = not (line[this] == line[last] and direction[this] == direction[last]
                        and position[this] - position[last] <= duplicate)  # fmt: skip
-    return order[keep]
+    order = order[keep]
+    return order[direction[order] != 0]
 
 
 @njit(cache=True, error_model="numpy")
 def merged_crossings(line: np.ndarray, position: np.ndarray, direction: np.ndarray,
                      duplicate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """The crossings ``(K,)`` in :func:`merged_order`, tangencies (direction 0: they cross nothing)
-    dropped after the merge."""
+    """The crossings ``(K,)`` in :func:`merged_order`."""
     order = merged_order(line, position, direction, duplicate)
-    order = order[direction[order] != 0]
     return line[order], position[order], direction[order]
 
 

@@ -1,6 +1,15 @@
-"""Every crossing of axis-parallel lines with rational Bezier patches, compiled: the search of
+"""Every crossing of axis-parallel lines with rational Bezier patches, compiled.
+
+A patch of degree 1 along one parameter (a ruled patch: planes, cylinders, cones, extrusions and
+the faces of most CAD solids) has its crossings with a line solved exactly: the line is where two
+planes meet, and on each line of the ruling the patch's homogeneous point is linear, so the
+ruling's parameter ``t`` solves one plane's equation and the other plane's equation becomes a
+polynomial of twice the patch's degree in ``s`` alone (the determinant of the two linear
+equations), whose roots :func:`~bhem_hpc.compiled.bernstein_roots.bernstein_roots` finds.
+
+Every other patch goes through the search of
 :func:`bhem_hpc.geometry.rational_bezier.axis_line_crossings` (same pieces, same tests, same
-Newton starts and tolerances) run depth first per patch in one compiled loop instead of level by
+Newton starts and tolerances), run depth first per patch in one compiled loop instead of level by
 level in numpy calls; the crossings agree to round-off (the pieces are halved from their parents
 here, restricted from the patch there)."""
 
@@ -9,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from bhem_hpc.compiled.bernstein_roots import MAX_DEGREE, bernstein_roots, bernstein_value
 from bhem_hpc.compiled.patch_kernels import (
     EDGE_SLACK,
     MAX_LEVEL,
@@ -82,6 +92,104 @@ def _affine_crossing(frame: np.ndarray, rect: np.ndarray, target: tuple[float, f
 
 
 @njit(cache=True, error_model="numpy")
+def _append(net, s, t, axis, line, patch, transposed, basis, point, floats, ints, count):  # noqa: PLR0913
+    """Write the crossing of ``line`` with ``net`` at ``(s, t)`` (at most a slack beyond the patch;
+    ``point (3, 3)`` its point and derivatives) into row ``count`` (the caller made room) of ``floats
+    (K, 3)`` (position, ``s``, ``t``) and ``ints (K, 3)`` (line, direction, patch); the new count. A
+    ``transposed`` net is the patch's with ``s`` and ``t`` swapped."""
+    clipped_s, clipped_t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+    # on the patch's edge instead of a rounding error beyond it, to first order
+    position = point[0, axis] + point[1, axis] * (clipped_s - s) + point[2, axis] * (clipped_t - t)
+    component, regular = _cross_axis(point, axis)
+    if regular <= 0.0:  # a pole or a collapsed edge: the side is that of the nearby surface
+        evaluate(net, clipped_s + 1e-6 * (0.5 - clipped_s), clipped_t + 1e-6 * (0.5 - clipped_t), basis, point)
+        component, _ = _cross_axis(point, axis)
+    if transposed:  # x_t x x_s: the patch's normal reversed
+        component, clipped_s, clipped_t = -component, clipped_t, clipped_s
+    floats[count, 0], floats[count, 1], floats[count, 2] = position, clipped_s, clipped_t
+    ints[count, 0] = line
+    ints[count, 1] = 1 if component > 0.0 else (-1 if component < 0.0 else 0)
+    ints[count, 2] = patch
+    return count + 1
+
+
+@njit(cache=True, error_model="numpy")
+def _largest_magnitude(rows: np.ndarray, first: int, last: int, length: int) -> float:
+    """``max |rows[first:last, :length]|`` (without the temporaries numpy's expression allocates)."""
+    largest = 0.0
+    for r in range(first, last):
+        for k in range(length):
+            largest = max(largest, abs(rows[r, k]))
+    return largest
+
+
+@njit(cache=True, error_model="numpy")
+def _search_ruled_patch(net, patch, transposed, axis, first, second, tolerance, work, floats, ints, count):  # noqa: PLR0913
+    """Append the crossings of the lines with the patch ``net (p + 1, 2, 4)`` (degree 1 along ``t``)
+    to ``floats``, ``ints`` from row ``count`` (as :func:`_append`); the arrays and the new count.
+
+    On the line through ``(c0, c1)`` across ``axis``, the homogeneous point's components ``x_a0 - c0
+    w = (1 - t) f0(s) + t f1(s)`` and ``x_a1 - c1 w = (1 - t) g0(s) + t g1(s)`` vanish together
+    exactly where ``f0 g1 - g0 f1 = 0`` (a polynomial of degree ``2 p``), with ``t = f0 / (f0 -
+    f1)`` (or from ``g``, whichever is better conditioned)."""
+    a0, a1 = (1, 2) if axis == 0 else ((0, 2) if axis == 1 else (0, 1))
+    rows, low, high = work[0], work[8], work[9]
+    p = net.shape[0] - 1
+    cartesian_box(net, low, high)
+    i0 = np.searchsorted(first, low[a0] - tolerance, side="left")
+    i1 = np.searchsorted(first, high[a0] + tolerance, side="right")
+    j0 = np.searchsorted(second, low[a1] - tolerance, side="left")
+    j1 = np.searchsorted(second, high[a1] + tolerance, side="right")
+    for i in range(i0, i1):
+        for r in range(p + 1):
+            rows[0, r] = net[r, 0, a0] - first[i] * net[r, 0, 3]
+            rows[1, r] = net[r, 1, a0] - first[i] * net[r, 1, 3]
+        for j in range(j0, j1):
+            for r in range(p + 1):
+                rows[2, r] = net[r, 0, a1] - second[j] * net[r, 0, 3]
+                rows[3, r] = net[r, 1, a1] - second[j] * net[r, 1, 3]
+            if count + 2 * p + 2 > len(ints):  # room for every root and both apexes
+                floats, ints = _grown(floats, ints)
+            count = _ruled_line_crossings(net, axis, i * len(second) + j, patch, transposed, work, floats, ints, count)
+    return floats, ints, count
+
+
+@njit(cache=True, error_model="numpy")
+def _ruled_line_crossings(net, axis, line, patch, transposed, work, floats, ints, count) -> int:  # noqa: PLR0913
+    """Write the crossings of one line with the ruled ``net`` into ``floats``, ``ints`` from row
+    ``count`` (room made); the new count. ``work[0]`` holds the rows ``f0, f1, g0, g1`` ``(4, p +
+    1)`` of :func:`_search_ruled_patch`."""
+    rows, products, coefficients, table, roots, counts, basis, point = work[:8]
+    p = net.shape[0] - 1
+    size_f, size_g = _largest_magnitude(rows, 0, 2, p + 1), _largest_magnitude(rows, 2, 4, p + 1)
+    coefficients[:] = 0.0
+    for r in range(p + 1):  # the product of Bernstein polynomials of degree p, in degree 2 p
+        for m in range(p + 1):
+            coefficients[r + m] += products[r, m] * (rows[0, r] * rows[3, m] - rows[2, r] * rows[1, m])
+    if _largest_magnitude(coefficients.reshape(1, -1), 0, 1, 2 * p + 1) <= 1e-12 * size_f * size_g:
+        # the patch projects onto a curve (its rulings run along the line: no crossing of measure),
+        # or it is a cone whose apex, a collapsed edge, is on the line: there it crosses (a surface
+        # of revolution on its axis)
+        for edge in range(2):
+            if (_largest_magnitude(rows, edge, edge + 1, p + 1) <= 1e-12 * size_f
+                    and _largest_magnitude(rows, 2 + edge, 3 + edge, p + 1) <= 1e-12 * size_g):  # fmt: skip
+                evaluate(net, 0.5, float(edge), basis, point)
+                count = _append(net, 0.5, float(edge), axis, line, patch, transposed, basis, point, floats, ints, count)
+        return count
+    for k in range(bernstein_roots(coefficients, -EDGE_SLACK, 1.0 + EDGE_SLACK, table, roots, counts)):
+        s = roots[2 * p, k]
+        f0, f1 = bernstein_value(rows[0], p, s), bernstein_value(rows[1], p, s)
+        g0, g1 = bernstein_value(rows[2], p, s), bernstein_value(rows[3], p, s)
+        if max(abs(f0 - f1), abs(g0 - g1)) == 0.0:
+            continue  # the ruling through s runs along the line (a degenerate point of the determinant)
+        t = f0 / (f0 - f1) if abs(f0 - f1) >= abs(g0 - g1) else g0 / (g0 - g1)
+        if -EDGE_SLACK <= t <= 1.0 + EDGE_SLACK:
+            evaluate(net, s, t, basis, point)
+            count = _append(net, s, t, axis, line, patch, transposed, basis, point, floats, ints, count)
+    return count
+
+
+@njit(cache=True, error_model="numpy")
 def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints, count):  # noqa: C901, PLR0912, PLR0913, PLR0915
     """Append the crossings of the lines with ``nets[patch]`` to ``floats (K, 3)`` (position,
     ``s``, ``t``) and ``ints (K, 3)`` (line, direction, patch) from row ``count``; the arrays (grown
@@ -152,21 +260,9 @@ def _search_patch(nets, patch, axis, first, second, tolerance, tables, work, flo
                         evaluate(net, s, t, basis, point)
                 if _outside(rect, s, t, EDGE_SLACK):
                     continue
-                clipped_s, clipped_t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
-                # on the patch's edge instead of a rounding error beyond it, to first order
-                position = point[0, axis] + point[1, axis] * (clipped_s - s) + point[2, axis] * (clipped_t - t)
-                component, regular = _cross_axis(point, axis)
-                if regular <= 0.0:  # a pole or a collapsed edge: the side is that of the nearby surface
-                    evaluate(net, clipped_s + 1e-6 * (0.5 - clipped_s), clipped_t + 1e-6 * (0.5 - clipped_t), basis,
-                             point)  # fmt: skip
-                    component, _ = _cross_axis(point, axis)
                 if count == len(ints):
                     floats, ints = _grown(floats, ints)
-                floats[count, 0], floats[count, 1], floats[count, 2] = position, clipped_s, clipped_t
-                ints[count, 0] = i * len(second) + j
-                ints[count, 1] = 1 if component > 0.0 else (-1 if component < 0.0 else 0)
-                ints[count, 2] = patch
-                count += 1
+                count = _append(net, s, t, axis, i * len(second) + j, patch, False, basis, point, floats, ints, count)
     return floats, ints, count
 
 
@@ -180,6 +276,25 @@ def _all_crossings(nets, axis, first, second):
 
 
 @njit(cache=True, error_model="numpy")
+def _product_weights(degree: int) -> np.ndarray:
+    """``C(p, r) C(p, m) / C(2 p, r + m)`` ``(p + 1, p + 1)``: the product of Bernstein polynomials
+    of degree ``p`` with coefficients ``a``, ``b`` has ``sum_(r + m = k)`` of these times ``a_r b_m``."""
+    weights = np.empty((degree + 1, degree + 1))
+    for r in range(degree + 1):
+        for m in range(degree + 1):
+            weights[r, m] = _binomial(degree, r) * _binomial(degree, m) / _binomial(2 * degree, r + m)
+    return weights
+
+
+@njit(cache=True, error_model="numpy")
+def _binomial(n: int, k: int) -> float:
+    value = 1.0
+    for m in range(1, k + 1):
+        value = value * (n - k + m) / m
+    return value
+
+
+@njit(cache=True, error_model="numpy")
 def raw_crossings(nets, axis, first, second):
     """The crossings of every patch ``nets (P, p + 1, q + 1, 4)`` with the lines along ``axis``
     through ``(first[i], second[j])`` (sorted), patch by patch, a crossing on a seam once per
@@ -187,17 +302,31 @@ def raw_crossings(nets, axis, first, second):
     direction, patch)."""
     size = model_size(nets)
     tolerance = 1e-12 * max(size, 1e-300)
-    tables = (sample_table(nets.shape[1] - 1), sample_table(nets.shape[2] - 1))
     floats, ints = np.empty((256, 3)), np.empty((256, 3), dtype=np.int64)
     count = 0
     shape = nets.shape
+    tables = (sample_table(nets.shape[1] - 1), sample_table(nets.shape[2] - 1))
     work = (np.empty((STACK, shape[1], shape[2], 4)), np.empty((STACK, 4)), np.empty(STACK, dtype=np.int64),
             np.empty((2, shape[1], shape[2], 4)), np.empty((2, tables[0].shape[1], shape[2], 4)),
             np.empty((4, max(shape[1], shape[2]))), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3),
             np.empty(3), np.empty(3))  # fmt: skip
-    for patch in range(nets.shape[0]):
-        floats, ints, count = _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats, ints,
-                                            count)  # fmt: skip
+    # a ruled patch is solved along its direction of higher degree (its net transposed when that is t)
+    p = max(shape[1], shape[2]) - 1
+    ruled, transposed = (shape[1] == 2 or shape[2] == 2) and 2 * p <= MAX_DEGREE, shape[2] != 2
+    net = np.empty((p + 1, 2, 4))
+    # rows, products, coefficients, table, roots, counts, basis, point, low, high
+    ruled_work = (np.empty((4, p + 1)), _product_weights(p), np.empty(2 * p + 1),
+                  np.empty((2, 2 * p + 1, 2 * p + 1)), np.empty((2 * p + 1, 2 * p + 1)),
+                  np.empty(2 * p + 1, dtype=np.int64), work[5], work[6], work[8], work[9])  # fmt: skip
+    for patch in range(shape[0]):
+        # a flat parallelogram's crossings are the affine search's, in closed form at once
+        if ruled and not affine_frame(nets[patch], tolerance, work[7]):
+            net[:] = nets[patch].transpose((1, 0, 2)) if transposed else nets[patch]
+            floats, ints, count = _search_ruled_patch(net, patch, transposed, axis, first, second, tolerance,
+                                                      ruled_work, floats, ints, count)  # fmt: skip
+        else:
+            floats, ints, count = _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats,
+                                                ints, count)  # fmt: skip
     return floats[:count], ints[:count]
 
 

@@ -10,12 +10,37 @@ from numba import njit
 
 
 @njit(cache=True, error_model="numpy")
+def _sorted_by_line_then_position(line: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """Indices ``(K,)`` sorting the crossings by line, then position, stably (as two stable sorts,
+    position then line, would): a counting sort by line, then insertion sorts of each line's few
+    crossings."""
+    lines = line.max() + 1 if len(line) else 0
+    starts = np.zeros(lines + 1, dtype=np.int64)
+    for k in range(len(line)):
+        starts[line[k] + 1] += 1
+    for m in range(lines):
+        starts[m + 1] += starts[m]
+    order, filled = np.empty(len(line), dtype=np.int64), starts[:-1].copy()
+    for k in range(len(line)):
+        order[filled[line[k]]] = k
+        filled[line[k]] += 1
+    for m in range(lines):
+        for k in range(starts[m] + 1, starts[m + 1]):
+            this = order[k]
+            at = k
+            while at > starts[m] and position[order[at - 1]] > position[this]:
+                order[at] = order[at - 1]
+                at -= 1
+            order[at] = this
+    return order
+
+
+@njit(cache=True, error_model="numpy")
 def merged_order(line: np.ndarray, position: np.ndarray, direction: np.ndarray, duplicate: float) -> np.ndarray:
     """Indices of crossings ``(K,)`` sorted by line, then position, each run on one line crossed the
     same way within ``duplicate`` of the one before kept once (a seam's crossing found by both
     sides), tangencies (direction 0: they cross nothing) dropped after the merge."""
-    order = np.argsort(position, kind="mergesort")
-    order = order[np.argsort(line[order], kind="mergesort")]
+    order = _sorted_by_line_then_position(line, position)
     keep = np.ones(len(order), dtype=np.bool_)
     for k in range(1, len(order)):
         this, last = order[k], order[k - 1]

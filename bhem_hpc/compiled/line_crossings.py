@@ -1,13 +1,10 @@
 """Every crossing of axis-parallel lines with rational Bezier patches, compiled.
 
-A patch of degree 1 along one parameter (a ruled patch: planes, cylinders, cones, extrusions and
-the faces of most CAD solids) has its crossings with a line solved exactly: the line is where two
-planes meet, and on each line of the ruling the patch's homogeneous point is linear, so the
-ruling's parameter ``t`` solves one plane's equation and the other plane's equation becomes a
-polynomial of twice the patch's degree in ``s`` alone (the determinant of the two linear
-equations), whose roots :func:`~bhem_hpc.compiled.bernstein_roots.bernstein_roots` finds.
+A curved patch of degree 1 along one parameter (a ruled patch: cylinders, cones, extrusions and
+the faces of most CAD solids) has its crossings with a line solved exactly, as the roots of one
+polynomial (:mod:`~bhem_hpc.compiled.ruled_patches`).
 
-Every other patch goes through the search of
+Every other patch, and a flat parallelogram (in closed form at once), goes through the search of
 :func:`bhem_hpc.geometry.rational_bezier.axis_line_crossings` (same pieces, same tests, same
 Newton starts and tolerances), run depth first per patch in one compiled loop instead of level by
 level in numpy calls; the crossings agree to round-off (the pieces are halved from their parents
@@ -18,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from bhem_hpc.compiled.bernstein_roots import MAX_DEGREE, bernstein_roots, bernstein_value
 from bhem_hpc.compiled.patch_kernels import (
     EDGE_SLACK,
     MAX_LEVEL,
@@ -36,6 +32,7 @@ from bhem_hpc.compiled.patch_kernels import (
     split_onto_stack,
     straight_along,
 )
+from bhem_hpc.compiled.ruled_patches import ruled_degree, ruled_net, ruled_solutions, ruled_work
 from bhem_hpc.compiled.volume_points import merged_order
 from bhem_hpc.geometry import rational_bezier as rb
 
@@ -114,26 +111,14 @@ def _append(net, s, t, axis, line, patch, transposed, basis, point, floats, ints
 
 
 @njit(cache=True, error_model="numpy")
-def _largest_magnitude(rows: np.ndarray, first: int, last: int, length: int) -> float:
-    """``max |rows[first:last, :length]|`` (without the temporaries numpy's expression allocates)."""
-    largest = 0.0
-    for r in range(first, last):
-        for k in range(length):
-            largest = max(largest, abs(rows[r, k]))
-    return largest
-
-
-@njit(cache=True, error_model="numpy")
 def _search_ruled_patch(net, patch, transposed, axis, first, second, tolerance, work, floats, ints, count):  # noqa: PLR0913
-    """Append the crossings of the lines with the patch ``net (p + 1, 2, 4)`` (degree 1 along ``t``)
-    to ``floats``, ``ints`` from row ``count`` (as :func:`_append`); the arrays and the new count.
-
-    On the line through ``(c0, c1)`` across ``axis``, the homogeneous point's components ``x_a0 - c0
-    w = (1 - t) f0(s) + t f1(s)`` and ``x_a1 - c1 w = (1 - t) g0(s) + t g1(s)`` vanish together
-    exactly where ``f0 g1 - g0 f1 = 0`` (a polynomial of degree ``2 p``), with ``t = f0 / (f0 -
-    f1)`` (or from ``g``, whichever is better conditioned)."""
+    """Append the crossings of the lines with the ruled patch ``net (p + 1, 2, 4)`` (degree 1 along
+    ``t``; :mod:`~bhem_hpc.compiled.ruled_patches`, whose scratch ``work`` holds; then the basis
+    ``(4, p + 1)``, the point ``(3, 3)`` and the box's ends) to ``floats``, ``ints`` from row
+    ``count`` (as :func:`_append`); the arrays and the new count. The line through ``(c0, c1)``
+    across ``axis`` is where the planes ``x_a0 = c0`` and ``x_a1 = c1`` meet."""
     a0, a1 = (1, 2) if axis == 0 else ((0, 2) if axis == 1 else (0, 1))
-    rows, low, high = work[0], work[8], work[9]
+    rows, solutions, basis, point, low, high = work[0], work[6], work[7], work[8], work[9], work[10]
     p = net.shape[0] - 1
     cartesian_box(net, low, high)
     i0 = np.searchsorted(first, low[a0] - tolerance, side="left")
@@ -148,45 +133,15 @@ def _search_ruled_patch(net, patch, transposed, axis, first, second, tolerance, 
             for r in range(p + 1):
                 rows[2, r] = net[r, 0, a1] - second[j] * net[r, 0, 3]
                 rows[3, r] = net[r, 1, a1] - second[j] * net[r, 1, 3]
-            if count + 2 * p + 2 > len(ints):  # room for every root and both apexes
+            found = ruled_solutions(p, work[:7])
+            if count + found > len(ints):
                 floats, ints = _grown(floats, ints)
-            count = _ruled_line_crossings(net, axis, i * len(second) + j, patch, transposed, work, floats, ints, count)
+            for k in range(found):
+                s, t = solutions[k, 0], solutions[k, 1]
+                evaluate(net, s, t, basis, point)
+                count = _append(net, s, t, axis, i * len(second) + j, patch, transposed, basis, point, floats, ints,
+                                count)  # fmt: skip
     return floats, ints, count
-
-
-@njit(cache=True, error_model="numpy")
-def _ruled_line_crossings(net, axis, line, patch, transposed, work, floats, ints, count) -> int:  # noqa: PLR0913
-    """Write the crossings of one line with the ruled ``net`` into ``floats``, ``ints`` from row
-    ``count`` (room made); the new count. ``work[0]`` holds the rows ``f0, f1, g0, g1`` ``(4, p +
-    1)`` of :func:`_search_ruled_patch`."""
-    rows, products, coefficients, table, roots, counts, basis, point = work[:8]
-    p = net.shape[0] - 1
-    size_f, size_g = _largest_magnitude(rows, 0, 2, p + 1), _largest_magnitude(rows, 2, 4, p + 1)
-    coefficients[:] = 0.0
-    for r in range(p + 1):  # the product of Bernstein polynomials of degree p, in degree 2 p
-        for m in range(p + 1):
-            coefficients[r + m] += products[r, m] * (rows[0, r] * rows[3, m] - rows[2, r] * rows[1, m])
-    if _largest_magnitude(coefficients.reshape(1, -1), 0, 1, 2 * p + 1) <= 1e-12 * size_f * size_g:
-        # the patch projects onto a curve (its rulings run along the line: no crossing of measure),
-        # or it is a cone whose apex, a collapsed edge, is on the line: there it crosses (a surface
-        # of revolution on its axis)
-        for edge in range(2):
-            if (_largest_magnitude(rows, edge, edge + 1, p + 1) <= 1e-12 * size_f
-                    and _largest_magnitude(rows, 2 + edge, 3 + edge, p + 1) <= 1e-12 * size_g):  # fmt: skip
-                evaluate(net, 0.5, float(edge), basis, point)
-                count = _append(net, 0.5, float(edge), axis, line, patch, transposed, basis, point, floats, ints, count)
-        return count
-    for k in range(bernstein_roots(coefficients, -EDGE_SLACK, 1.0 + EDGE_SLACK, table, roots, counts)):
-        s = roots[2 * p, k]
-        f0, f1 = bernstein_value(rows[0], p, s), bernstein_value(rows[1], p, s)
-        g0, g1 = bernstein_value(rows[2], p, s), bernstein_value(rows[3], p, s)
-        if max(abs(f0 - f1), abs(g0 - g1)) == 0.0:
-            continue  # the ruling through s runs along the line (a degenerate point of the determinant)
-        t = f0 / (f0 - f1) if abs(f0 - f1) >= abs(g0 - g1) else g0 / (g0 - g1)
-        if -EDGE_SLACK <= t <= 1.0 + EDGE_SLACK:
-            evaluate(net, s, t, basis, point)
-            count = _append(net, s, t, axis, line, patch, transposed, basis, point, floats, ints, count)
-    return count
 
 
 @njit(cache=True, error_model="numpy")
@@ -276,25 +231,6 @@ def _all_crossings(nets, axis, first, second):
 
 
 @njit(cache=True, error_model="numpy")
-def _product_weights(degree: int) -> np.ndarray:
-    """``C(p, r) C(p, m) / C(2 p, r + m)`` ``(p + 1, p + 1)``: the product of Bernstein polynomials
-    of degree ``p`` with coefficients ``a``, ``b`` has ``sum_(r + m = k)`` of these times ``a_r b_m``."""
-    weights = np.empty((degree + 1, degree + 1))
-    for r in range(degree + 1):
-        for m in range(degree + 1):
-            weights[r, m] = _binomial(degree, r) * _binomial(degree, m) / _binomial(2 * degree, r + m)
-    return weights
-
-
-@njit(cache=True, error_model="numpy")
-def _binomial(n: int, k: int) -> float:
-    value = 1.0
-    for m in range(1, k + 1):
-        value = value * (n - k + m) / m
-    return value
-
-
-@njit(cache=True, error_model="numpy")
 def raw_crossings(nets, axis, first, second):
     """The crossings of every patch ``nets (P, p + 1, q + 1, 4)`` with the lines along ``axis``
     through ``(first[i], second[j])`` (sorted), patch by patch, a crossing on a seam once per
@@ -311,19 +247,15 @@ def raw_crossings(nets, axis, first, second):
             np.empty((4, max(shape[1], shape[2]))), np.empty((3, 3)), np.empty((3, 3)), np.empty(3), np.empty(3),
             np.empty(3), np.empty(3))  # fmt: skip
     # a ruled patch is solved along its direction of higher degree (its net transposed when that is t)
-    p = max(shape[1], shape[2]) - 1
-    ruled, transposed = (shape[1] == 2 or shape[2] == 2) and 2 * p <= MAX_DEGREE, shape[2] != 2
-    net = np.empty((p + 1, 2, 4))
-    # rows, products, coefficients, table, roots, counts, basis, point, low, high
-    ruled_work = (np.empty((4, p + 1)), _product_weights(p), np.empty(2 * p + 1),
-                  np.empty((2, 2 * p + 1, 2 * p + 1)), np.empty((2 * p + 1, 2 * p + 1)),
-                  np.empty(2 * p + 1, dtype=np.int64), work[5], work[6], work[8], work[9])  # fmt: skip
+    p = ruled_degree(shape[1], shape[2])
+    transposed = shape[2] != 2
+    net, ruled_work_ = np.empty((max(p, 1) + 1, 2, 4)), ruled_work(max(p, 1)) + (work[5], work[6], work[8], work[9])
     for patch in range(shape[0]):
         # a flat parallelogram's crossings are the affine search's, in closed form at once
-        if ruled and not affine_frame(nets[patch], tolerance, work[7]):
-            net[:] = nets[patch].transpose((1, 0, 2)) if transposed else nets[patch]
+        if p > 0 and not affine_frame(nets[patch], tolerance, work[7]):
+            ruled_net(nets[patch], transposed, net)
             floats, ints, count = _search_ruled_patch(net, patch, transposed, axis, first, second, tolerance,
-                                                      ruled_work, floats, ints, count)  # fmt: skip
+                                                      ruled_work_, floats, ints, count)  # fmt: skip
         else:
             floats, ints, count = _search_patch(nets, patch, axis, first, second, tolerance, tables, work, floats,
                                                 ints, count)  # fmt: skip

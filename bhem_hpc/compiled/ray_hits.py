@@ -6,7 +6,12 @@ normal of one sign along the ray) run ray by ray, depth first, in one compiled l
 level by level over all rays in numpy calls. Each curved patch's pieces down to the size Newton
 starts from are split once for all rays of a search and kept with bounding spheres and divided
 control points (where they fit in :data:`TREE_BYTES`): a ray then only tests them. The nearest
-hit within the stretch does not depend on the order in which pieces are searched."""
+hit within the stretch does not depend on the order in which pieces are searched.
+
+Curved ruled patches (degree 1 along one parameter: cylinders, cones, discs of revolution) are
+not searched: the ray is where the two planes across it meet, and its hits with such a patch are
+the roots of one polynomial (:mod:`~bhem_hpc.compiled.ruled_patches`), exact where the search
+stops at a tolerance (a ray tangent to a wall where it leaves it meets nothing beyond)."""
 
 from __future__ import annotations
 
@@ -32,6 +37,7 @@ from bhem_hpc.compiled.patch_kernels import (
     row_normal,
     sample_table,
 )
+from bhem_hpc.compiled.ruled_patches import ruled_degree, ruled_net, ruled_solutions, ruled_work
 from bhem_hpc.geometry import rational_bezier as rb
 
 GRAZING_COSINE = rb.GRAZING_COSINE
@@ -271,6 +277,31 @@ def _search_tree(net, tree, points, spheres, layout, origin, direction, frame, t
 
 
 @njit(cache=True, error_model="numpy")
+def _ruled_hit(net, origin, direction, frame, tau_min, best, work) -> tuple[float, float, float]:  # noqa: PLR0913
+    """The nearest hit ``(tau, s, t)`` within ``tau_min < tau <= best`` (``tau = inf``: none) of the
+    ray with the ruled patch ``net (p + 1, 2, 4)`` (degree 1 along ``t``), the ray being where the
+    planes across it (rows 0 and 1 of its ``frame``) meet (:mod:`~bhem_hpc.compiled.ruled_patches`;
+    ``work``: its scratch, then the basis ``(4, p + 1)`` and the point ``(3, 3)``)."""
+    rows, solutions, basis, point = work[0], work[6], work[7], work[8]
+    p = net.shape[0] - 1
+    for r in range(p + 1):
+        for j in range(2):
+            w = net[r, j, 3]
+            x, y, z = net[r, j, 0] - origin[0] * w, net[r, j, 1] - origin[1] * w, net[r, j, 2] - origin[2] * w
+            rows[j, r] = frame[0, 0] * x + frame[0, 1] * y + frame[0, 2] * z
+            rows[2 + j, r] = frame[1, 0] * x + frame[1, 1] * y + frame[1, 2] * z
+    hit_tau, hit_s, hit_t = np.inf, 0.0, 0.0
+    for k in range(ruled_solutions(p, work[:7])):
+        s, t = solutions[k, 0], solutions[k, 1]
+        evaluate(net, s, t, basis, point)
+        tau = ((point[0, 0] - origin[0]) * direction[0] + (point[0, 1] - origin[1]) * direction[1]
+               + (point[0, 2] - origin[2]) * direction[2])  # fmt: skip
+        if tau_min < tau <= best:
+            best, hit_tau, hit_s, hit_t = tau, tau, min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
+    return hit_tau, hit_s, hit_t
+
+
+@njit(cache=True, error_model="numpy")
 def _patch_boxes(nets: np.ndarray, pad: float) -> tuple[np.ndarray, np.ndarray]:
     """Boxes ``(P, 3), (P, 3)`` of the patches' control points (which hold them), widened by ``pad``."""
     low, high = np.empty((len(nets), 3)), np.empty((len(nets), 3))
@@ -301,8 +332,15 @@ def _first_hits(nets, origins, directions, tau_min, tau_max, tree_bytes):  # noq
     hit_s, hit_t = np.zeros(rays), np.zeros(rays)
     frame = np.empty((3, 3))
     candidates, entries = np.empty(count, dtype=np.int64), np.empty(count)
-    # the curved patches' kept pieces, where they fit
-    curved = np.flatnonzero(~flat)
+    # ruled patches are solved exactly (along their direction of higher degree); the other curved
+    # patches' pieces are kept, where they fit
+    p = ruled_degree(shape[1], shape[2])
+    transposed = shape[2] != 2
+    ruled_nets = np.empty((count if p > 0 else 0, max(p, 1) + 1, 2, 4))
+    for n in range(len(ruled_nets)):
+        ruled_net(nets[n], transposed, ruled_nets[n])
+    ruled_scratch = ruled_work(max(p, 1)) + (work[5], work[6])
+    curved = np.flatnonzero(~flat) if p == 0 else np.zeros(0, dtype=np.int64)
     kept = len(curved) * TREE_NODES * 8 * (7 * shape[1] * shape[2] + 4) <= tree_bytes
     tree, points, spheres = _piece_tree(nets[curved] if kept else nets[:0])
     kept_index = np.full(count, -1)
@@ -327,6 +365,9 @@ def _first_hits(nets, origins, directions, tau_min, tau_max, tree_bytes):  # noq
                 s, t = min(max(s, 0.0), 1.0), min(max(t, 0.0), 1.0)
                 if not tau_min[ray] < tau <= best:
                     continue
+            elif p > 0:
+                tau, s, t = _ruled_hit(ruled_nets[n], origin, direction, frame, tau_min[ray], best, ruled_scratch)
+                s, t = (t, s) if transposed else (s, t)
             elif kept:
                 m = kept_index[n]
                 tau, s, t = _search_tree(nets[n], tree[m], points[m], spheres[m], layout, origin, direction, frame,

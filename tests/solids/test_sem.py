@@ -186,8 +186,10 @@ def test_gradient_and_hessian_match_central_differences(box_solid, rng):
 def test_secondary_rays_of_boundary_samples_start_beyond_their_point():
     """A boundary sample lies on its own part: the secondary ray from another part's closest point
     through it goes on to the next surface, never stopping at the sample's own crossing (which
-    round-off would count on some rays and not on others). Of the castle's 1280 rays, 396 meet a
-    surface within reach (rays in the plane of a block's face do not meet it)."""
+    round-off would count on some rays and not on others). Of the castle's 1280 rays, 325 meet a
+    surface within reach: rays in the plane of a block's face do not meet it, nor do the 71 rays
+    that leave a tower's foot along the tangent to its wall (a search to a tolerance counts those
+    as meeting the wall a few micrometres on)."""
     from bhem_hpc.solids.sampling import sample_parts
     from bhem_hpc.studies.sem_models import castle
 
@@ -197,7 +199,7 @@ def test_secondary_rays_of_boundary_samples_start_beyond_their_point():
     on_part = np.repeat(np.arange(len(samples)), [len(s.points) for s in samples])
     distances = ray_distances(parts, points, 0.3, on_part)
     cast = np.isfinite(distances.total) & (distances.primary > 0.0)
-    assert cast.sum() > 380
+    assert cast.sum() >= 320
     assert np.all(distances.total[cast] - distances.primary[cast] > 1e-6)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 
 def load_all() -> float:
     """Run the extraction, the line search, the volume rule, the closest points, the first hits and
@@ -14,7 +16,11 @@ def load_all() -> float:
     from bhem_hpc.solids.quadrature import ray_cast_quadrature
 
     clock = time.perf_counter()
-    parts = [nurbs.torus(1.0, 0.3), *nurbs.box_faces([-0.2, -0.2, -0.2], [0.2, 0.2, 0.2])]
-    quadrature = ray_cast_quadrature(parts[:1], 8)
+    # a can: a ruled surface of revolution (its line crossings and ray hits are solved exactly)
+    can = nurbs.revolve(np.array([(0.0, 0.0), (0.3, 0.0), (0.3, 0.4), (0.0, 0.4)]), np.ones(4),
+                        np.array([0.0, 0.0, 1 / 3, 2 / 3, 1.0, 1.0]), 1, "can")  # fmt: skip
+    parts = [nurbs.torus(1.0, 0.3), *nurbs.box_faces([-0.2, -0.2, -0.2], [0.2, 0.2, 0.2]), can]
+    for part in (parts[0], can):
+        quadrature = ray_cast_quadrature([part], 8)
     ray_distances(parts, quadrature.points[:20], 1.0).cutoff_for(0.5)
     return time.perf_counter() - clock

@@ -1,5 +1,7 @@
 """Compiled (numba) versions of the geometry package's ray queries on rational Bezier patches, for the
-setup stages of solids; the numpy functions of :mod:`bhem_hpc.geometry` are their reference.
+setup stages of solids; the numpy functions of :mod:`bhem_hpc.geometry` are their reference. Ruled
+patches (degree 1 along one parameter) are met exactly, as the roots of one polynomial
+(:mod:`.ruled_patches`), where the reference searches to a tolerance.
 
 numba caches each compiled function beside its module and checks only that module's own source
 when it loads one, not the modules whose functions it compiled in: a changed kernel in

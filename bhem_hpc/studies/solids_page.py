@@ -255,7 +255,9 @@ def write_solids_page(
         f"scipy serially on this machine (OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}: "
         "1 is one core), rays and closest points on the exact rational patches, compiled by numba",
         "(`bhem_hpc/compiled`; loaded from numba's cache before any timing). Quad includes the",
-        "extraction of the parts' rational Bezier patches (compiled; Weights extracts them again). Operators",
+        "extraction of the parts' rational Bezier patches (compiled; Weights extracts them again). Lines and",
+        "rays meet ruled patches (degree 1 along one parameter: the rocket's body, the cup, the towers) at",
+        "the roots of one polynomial each, other curved patches by subdivision and Newton's method. Operators",
         "(no column in the paper's table): the kinematic",
         "maps, the mass and the error energy, whose boundary samples need blending weights of their own.",
         "",

@@ -107,3 +107,24 @@ def test_patch_kernels_evaluate_and_split_as_the_numpy_patches(rng):
     kernels.bernstein(0.3, 4, value, slope)
     np.testing.assert_allclose(value, bernstein(np.array([0.3]), 4)[0], atol=1e-15)
     np.testing.assert_allclose(slope, bernstein(np.array([0.3]), 4, 1)[0], atol=1e-14)
+
+
+def test_ruled_patches_are_crossed_exactly_and_on_their_axis_at_the_apexes():
+    """A can of revolution (degree (2, 1) rational patches): lines along x cross its wall at
+    +-sqrt(r^2 - y^2) to round-off; lines along z cross the bottom and the top once each, the one
+    on the axis through the collapsed edges of all four quarters."""
+    radius, height = 0.3, 0.4
+    profile = np.array([(0.0, 0.0), (radius, 0.0), (radius, height), (0.0, height)])
+    can = nurbs.revolve(profile, np.ones(4), np.array([0.0, 0.0, 1 / 3, 2 / 3, 1.0, 1.0]), 1, "can")
+    nets = can.bezier_patches.nets
+    across = np.linspace(-0.34, 0.34, 15)  # through the axis (0) and outside the can, none tangent
+    along_x = compiled.axis_line_crossings(nets, 0, across, np.linspace(0.01, 0.39, 7))
+    y = across[along_x.line // 7]
+    np.testing.assert_allclose(np.abs(along_x.position), np.sqrt(radius**2 - y**2), rtol=1e-13, atol=1e-15)
+    np.testing.assert_array_equal(along_x.direction, np.sign(along_x.position))
+    along_z = compiled.axis_line_crossings(nets, 2, across, across)
+    a, b = across[along_z.line // 15], across[along_z.line % 15]
+    inside = np.hypot(across[:, None], across[None, :]).ravel() < radius
+    np.testing.assert_array_equal(np.bincount(along_z.line, minlength=225), 2 * inside)
+    np.testing.assert_allclose(along_z.position, np.where(along_z.direction > 0, height, 0.0), atol=1e-15)
+    assert np.all(np.hypot(a, b) < radius)

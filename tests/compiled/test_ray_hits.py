@@ -64,3 +64,32 @@ def test_compiled_first_hits_respect_the_stretch():
     depth = np.sqrt(1.0 - 0.1**2 - 0.2**2)
     np.testing.assert_allclose(hits.tau[:2], [3.0 - depth, 3.0 + depth], atol=1e-10)
     assert hits.tau[2] == np.inf and hits.patch[2] == -1
+
+
+def _can(radius: float, height: float) -> nurbs.NurbsSurface:
+    """A closed can of revolution about z: bottom disc, wall, top disc (ruled, degree (2, 1))."""
+    profile = np.array([(0.0, 0.0), (radius, 0.0), (radius, height), (0.0, height)])
+    return nurbs.revolve(profile, np.ones(4), np.array([0.0, 0.0, 1 / 3, 2 / 3, 1.0, 1.0]), 1, "can")
+
+
+def test_rays_meet_a_ruled_can_exactly_and_a_tangent_ray_meets_nothing(rng):
+    """Rays from the can's axis outward meet the wall at the radius to round-off (the search to
+    a tolerance, 1e-10 of the size); a ray leaving the wall along its tangent meets nothing beyond
+    its start, and a ray up the axis meets the top at the apex of its patches."""
+    radius, height = 0.3, 0.4
+    nets = _can(radius, height).bezier_patches.nets
+    count = 200
+    angles, heights = rng.uniform(0, 2 * np.pi, count), rng.uniform(0.05, 0.35, count)
+    slopes = rng.uniform(-0.1, 0.1, count)
+    directions = np.stack([np.cos(angles), np.sin(angles), slopes], axis=1)
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    origins = np.stack([np.zeros(count), np.zeros(count), heights], axis=1)
+    hits = compiled.first_hits(nets, origins, directions, np.zeros(count), np.full(count, np.inf))
+    horizontal = np.linalg.norm(directions[:, :2], axis=1)
+    np.testing.assert_allclose(hits.tau, radius / horizontal, rtol=1e-13)
+    foot = np.array([[radius, 0.0, 0.2]])
+    tangent = compiled.first_hits(nets, foot, np.array([[0.0, 1.0, 0.0]]), np.array([1e-7]), np.array([np.inf]))
+    assert tangent.tau[0] == np.inf
+    up = compiled.first_hits(nets, np.array([[0.0, 0.0, 0.1]]), np.array([[0.0, 0.0, 1.0]]), np.zeros(1),
+                             np.full(1, np.inf))  # fmt: skip
+    np.testing.assert_allclose(up.tau, [height - 0.1], rtol=1e-14)
